@@ -1,0 +1,38 @@
+//! The dataset contract shared by every part of the project: cameras (intrinsics and
+//! camera-to-world pose), pixel → ray, z-depth ↔ distance, splits and frames, reading and
+//! writing `transforms_*.json` (Blender-synthetic layout plus the instant-ngp / nerfstudio
+//! intrinsics keys and our `scene_facts` block), and the image files of a view (sRGB PNG,
+//! linear EXR, ground-truth EXR, nerfstudio depth `.npy`), all written atomically.
+//!
+//! Conventions (see `shared/DESIGN.md`): metres, glTF world (+Y up); the camera frame is
+//! OpenGL's (+X right, +Y up, looking down −Z); pixel (i, j) = (column, row) has its centre at
+//! (i + 0.5, j + 0.5) with row 0 at the top; `depth` is z-depth along the camera's −Z axis and
+//! `distance` the Euclidean length along the ray.
+//!
+//! ```
+//! use dataset::{Camera, Intrinsics};
+//! use glam::{DMat4, DVec3};
+//! let intr = Intrinsics::from_fov_x(64, 48, 0.6911);
+//! let cam = Camera::new(intr, Camera::look_at(DVec3::new(0.0, 0.0, 4.0), DVec3::ZERO, DVec3::Y)).unwrap();
+//! let ray = cam.pixel_center_ray(32, 24);
+//! // A plane at z = 0 seen head-on: the central ray travels 4 m, and z-depth equals distance.
+//! let t = 4.0 / -ray.direction.z;
+//! assert!((cam.z_depth_from_distance(32.5, 24.5, t) - 4.0).abs() < 1e-12);
+//! ```
+
+mod camera;
+mod error;
+mod images;
+mod transforms;
+pub mod io;
+
+pub use camera::{Camera, Intrinsics, Ray};
+pub use error::DatasetError;
+pub use images::{
+    GroundTruth, RgbaImage, linear_to_srgb, read_exr_rgba, read_ground_truth, read_png_rgba,
+    srgb_to_linear, write_exr_rgba, write_ground_truth, write_npy_f32, write_png_rgba,
+};
+pub use transforms::{
+    Dataset, Frame, FrameRecord, SceneFacts, SplitKind, TransformsFile, write_nerfstudio_transforms,
+    write_split_transforms,
+};

@@ -1,0 +1,459 @@
+//! `transforms_*.json` (Blender-synthetic layout + instant-ngp / nerfstudio intrinsics keys +
+//! `scene_facts`), nerfstudio's `transforms.json`, and the [`Dataset`] loader.
+
+use crate::io::{atomic_write_json, read};
+use crate::{Camera, DatasetError, Intrinsics};
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// Train, val or test.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum SplitKind {
+    /// Views the model learns from.
+    Train,
+    /// Views evaluated during training.
+    Val,
+    /// Held-out views for the final evaluation.
+    Test,
+}
+
+impl SplitKind {
+    /// All splits in order.
+    pub const ALL: [SplitKind; 3] = [SplitKind::Train, SplitKind::Val, SplitKind::Test];
+    /// `"train"`, `"val"` or `"test"`.
+    pub fn name(self) -> &'static str {
+        match self {
+            SplitKind::Train => "train",
+            SplitKind::Val => "val",
+            SplitKind::Test => "test",
+        }
+    }
+    /// The split file name, e.g. `transforms_train.json`.
+    pub fn file_name(self) -> String {
+        format!("transforms_{}.json", self.name())
+    }
+}
+
+/// Facts about the scene that a trainer may use to size its model (absent for datasets from
+/// elsewhere).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SceneFacts {
+    /// Scene name or file.
+    pub scene: String,
+    /// World-space bounding box of all geometry, minimum corner (metres).
+    pub aabb_min: [f64; 3],
+    /// Maximum corner.
+    pub aabb_max: [f64; 3],
+    /// Suggested near distance along rays, over all views.
+    pub near: f64,
+    /// Suggested far distance along rays, over all views.
+    pub far: f64,
+    /// Whether any visible material is view-dependent (non-Lambertian).
+    pub view_dependent: bool,
+    /// The render settings, as the renderer records them.
+    pub render: serde_json::Value,
+    /// Renderer name and version.
+    pub renderer: String,
+}
+
+/// One frame entry of a `transforms_*.json`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct FrameRecord {
+    /// Image path relative to the dataset folder, without extension in the Blender layout
+    /// (`./train/r_0`), with it in nerfstudio's.
+    pub file_path: String,
+    /// Camera-to-world, row by row.
+    pub transform_matrix: [[f64; 4]; 4],
+    /// nerfstudio's depth file (z-depth `.npy`), relative to the dataset folder.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub depth_file_path: Option<String>,
+    /// Our ground-truth EXR (depth, distance, normal, alpha), relative to the dataset folder.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub gt_file_path: Option<String>,
+    /// Our linear-colour EXR, relative to the dataset folder.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub exr_file_path: Option<String>,
+}
+
+/// A `transforms_*.json` file.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TransformsFile {
+    /// Horizontal field of view, radians (the only intrinsic in the Blender datasets).
+    pub camera_angle_x: f64,
+    /// Vertical field of view, radians.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub camera_angle_y: Option<f64>,
+    /// Width in pixels (instant-ngp / nerfstudio).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub w: Option<u32>,
+    /// Height in pixels.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub h: Option<u32>,
+    /// Focal length x, pixels.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fl_x: Option<f64>,
+    /// Focal length y, pixels.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fl_y: Option<f64>,
+    /// Principal point x, pixels.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cx: Option<f64>,
+    /// Principal point y, pixels.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cy: Option<f64>,
+    /// The views.
+    pub frames: Vec<FrameRecord>,
+    /// Scene facts (our datasets only).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub scene_facts: Option<SceneFacts>,
+}
+
+impl TransformsFile {
+    /// A file with full intrinsics for `intr`.
+    pub fn new(intr: &Intrinsics, frames: Vec<FrameRecord>, scene_facts: Option<SceneFacts>) -> Self {
+        Self {
+            camera_angle_x: intr.camera_angle_x(),
+            camera_angle_y: Some(intr.camera_angle_y()),
+            w: Some(intr.width),
+            h: Some(intr.height),
+            fl_x: Some(intr.fl_x),
+            fl_y: Some(intr.fl_y),
+            cx: Some(intr.cx),
+            cy: Some(intr.cy),
+            frames,
+            scene_facts,
+        }
+    }
+
+    /// Reads and parses a transforms file.
+    pub fn read(path: &Path) -> Result<Self, DatasetError> {
+        let bytes = read(path)?;
+        serde_json::from_slice(&bytes)
+            .map_err(|e| DatasetError::Json { path: path.into(), message: e.to_string() })
+    }
+
+    /// Writes the file atomically.
+    pub fn write(&self, path: &Path) -> Result<(), DatasetError> {
+        atomic_write_json(path, self)
+    }
+
+    /// The intrinsics, taking `w h fl_x fl_y cx cy` where present and `camera_angle_x` with
+    /// the image size `image_size` otherwise; checks the two agree.
+    pub fn intrinsics(&self, path: &Path, image_size: (u32, u32)) -> Result<Intrinsics, DatasetError> {
+        let (w, h) = (self.w.unwrap_or(image_size.0), self.h.unwrap_or(image_size.1));
+        let from_angle = Intrinsics::from_fov_x(w, h, self.camera_angle_x);
+        let fl_x = self.fl_x.unwrap_or(from_angle.fl_x);
+        let intr = Intrinsics {
+            width: w,
+            height: h,
+            fl_x,
+            fl_y: self.fl_y.unwrap_or(fl_x),
+            cx: self.cx.unwrap_or(0.5 * w as f64),
+            cy: self.cy.unwrap_or(0.5 * h as f64),
+        };
+        intr.validate().map_err(|m| DatasetError::invalid(path, m))?;
+        if !(self.camera_angle_x.is_finite() && self.camera_angle_x > 0.0 && self.camera_angle_x < std::f64::consts::PI) {
+            return Err(DatasetError::invalid(
+                path,
+                format!("camera_angle_x = {} is not a field of view in (0, pi)", self.camera_angle_x),
+            ));
+        }
+        let angle = intr.camera_angle_x();
+        if (angle - self.camera_angle_x).abs() > 1e-3 * self.camera_angle_x.max(1e-3) {
+            return Err(DatasetError::invalid(
+                path,
+                format!(
+                    "inconsistent intrinsics: camera_angle_x = {} but w = {w}, fl_x = {fl_x} give {angle}",
+                    self.camera_angle_x
+                ),
+            ));
+        }
+        Ok(intr)
+    }
+}
+
+/// One loaded view.
+#[derive(Clone, Debug)]
+pub struct Frame {
+    /// File stem, e.g. `r_0`.
+    pub name: String,
+    /// The split it belongs to.
+    pub split: SplitKind,
+    /// The posed camera.
+    pub camera: Camera,
+    /// Display-colour image (PNG).
+    pub image_path: PathBuf,
+    /// Linear-colour EXR, when the dataset has one.
+    pub exr_path: Option<PathBuf>,
+    /// Ground-truth EXR (depth, distance, normal, alpha), when the dataset has one.
+    pub gt_path: Option<PathBuf>,
+}
+
+/// A dataset folder: its splits and, for our datasets, the scene facts.
+#[derive(Clone, Debug)]
+pub struct Dataset {
+    /// The folder.
+    pub root: PathBuf,
+    /// Training views.
+    pub train: Vec<Frame>,
+    /// Validation views (empty when the dataset has no `transforms_val.json`).
+    pub val: Vec<Frame>,
+    /// Test views (empty when the dataset has no `transforms_test.json`).
+    pub test: Vec<Frame>,
+    /// Scene facts from `transforms_train.json`, if any.
+    pub facts: Option<SceneFacts>,
+}
+
+impl Dataset {
+    /// Loads a dataset folder: `transforms_train.json` is required, val and test are read when
+    /// present. Every frame's image must exist and have the size the intrinsics say; poses must
+    /// be finite rigid transforms.
+    pub fn load(root: &Path) -> Result<Self, DatasetError> {
+        if !root.is_dir() {
+            return Err(DatasetError::invalid(root, "dataset folder does not exist"));
+        }
+        let mut splits: [Vec<Frame>; 3] = Default::default();
+        let mut facts = None;
+        for (k, split) in SplitKind::ALL.into_iter().enumerate() {
+            let path = root.join(split.file_name());
+            if !path.exists() && split != SplitKind::Train {
+                continue;
+            }
+            let file = TransformsFile::read(&path)?;
+            if split == SplitKind::Train {
+                if file.frames.is_empty() {
+                    return Err(DatasetError::invalid(&path, "no frames"));
+                }
+                facts = file.scene_facts.clone();
+            }
+            splits[k] = load_frames(root, &path, split, &file)?;
+        }
+        let [train, val, test] = splits;
+        Ok(Self { root: root.to_path_buf(), train, val, test, facts })
+    }
+
+    /// The frames of one split.
+    pub fn split(&self, split: SplitKind) -> &[Frame] {
+        match split {
+            SplitKind::Train => &self.train,
+            SplitKind::Val => &self.val,
+            SplitKind::Test => &self.test,
+        }
+    }
+
+    /// Whether the dataset carries ground-truth depth for its frames.
+    pub fn has_ground_truth(&self) -> bool {
+        self.train.iter().chain(&self.val).chain(&self.test).all(|f| f.gt_path.is_some())
+    }
+}
+
+fn resolve(root: &Path, rel: &str) -> PathBuf {
+    let rel = rel.strip_prefix("./").unwrap_or(rel);
+    root.join(rel)
+}
+
+fn load_frames(
+    root: &Path,
+    path: &Path,
+    split: SplitKind,
+    file: &TransformsFile,
+) -> Result<Vec<Frame>, DatasetError> {
+    let mut frames = Vec::with_capacity(file.frames.len());
+    let mut intr: Option<Intrinsics> = None;
+    for (k, rec) in file.frames.iter().enumerate() {
+        let mut image_path = resolve(root, &rec.file_path);
+        if image_path.extension().is_none() {
+            image_path.set_extension("png");
+        }
+        if !image_path.is_file() {
+            return Err(DatasetError::invalid(
+                path,
+                format!("frame {k}: image {} does not exist", image_path.display()),
+            ));
+        }
+        let size = image::image_dimensions(&image_path)
+            .map_err(|e| DatasetError::image(&image_path, e))?;
+        let frame_intr = match intr {
+            Some(i) => i,
+            None => {
+                let i = file.intrinsics(path, size)?;
+                intr = Some(i);
+                i
+            }
+        };
+        if size != (frame_intr.width, frame_intr.height) {
+            return Err(DatasetError::invalid(
+                &image_path,
+                format!(
+                    "image is {}x{} but {} says {}x{}",
+                    size.0,
+                    size.1,
+                    path.display(),
+                    frame_intr.width,
+                    frame_intr.height
+                ),
+            ));
+        }
+        let c2w = Camera::c2w_from_rows(&rec.transform_matrix);
+        let camera = Camera::new(frame_intr, c2w)
+            .map_err(|m| DatasetError::invalid(path, format!("frame {k} ({}): {m}", rec.file_path)))?;
+        let optional = |p: &Option<String>| -> Result<Option<PathBuf>, DatasetError> {
+            match p {
+                None => Ok(None),
+                Some(rel) => {
+                    let p = resolve(root, rel);
+                    if p.is_file() {
+                        Ok(Some(p))
+                    } else {
+                        Err(DatasetError::invalid(
+                            path,
+                            format!("frame {k}: file {} does not exist", p.display()),
+                        ))
+                    }
+                }
+            }
+        };
+        let name = image_path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+        frames.push(Frame {
+            name,
+            split,
+            camera,
+            image_path,
+            exr_path: optional(&rec.exr_file_path)?,
+            gt_path: optional(&rec.gt_file_path)?,
+        });
+    }
+    Ok(frames)
+}
+
+/// Writes `transforms_<split>.json` in the Blender layout with intrinsics and scene facts.
+pub fn write_split_transforms(
+    dir: &Path,
+    split: SplitKind,
+    intr: &Intrinsics,
+    frames: Vec<FrameRecord>,
+    facts: Option<SceneFacts>,
+) -> Result<(), DatasetError> {
+    TransformsFile::new(intr, frames, facts).write(&dir.join(split.file_name()))
+}
+
+/// Writes nerfstudio's `transforms.json`: every frame with its image file name (with
+/// extension) and depth file, plus `train_filenames` / `val_filenames` / `test_filenames`.
+/// `frames` carry Blender-layout paths (without extension); `.png` is appended.
+pub fn write_nerfstudio_transforms(
+    dir: &Path,
+    intr: &Intrinsics,
+    splits: &[(SplitKind, Vec<FrameRecord>)],
+) -> Result<(), DatasetError> {
+    let mut frames = Vec::new();
+    let mut names: [Vec<String>; 3] = Default::default();
+    for (split, recs) in splits {
+        for rec in recs {
+            let rel = rec.file_path.strip_prefix("./").unwrap_or(&rec.file_path);
+            let file = if Path::new(rel).extension().is_some() { rel.to_string() } else { format!("{rel}.png") };
+            let mut entry = serde_json::json!({
+                "file_path": file,
+                "transform_matrix": rec.transform_matrix,
+            });
+            if let Some(d) = &rec.depth_file_path {
+                entry["depth_file_path"] = serde_json::Value::String(d.clone());
+            }
+            frames.push(entry);
+            let idx = SplitKind::ALL.iter().position(|s| s == split).unwrap_or(0);
+            names[idx].push(file);
+        }
+    }
+    let json = serde_json::json!({
+        "camera_model": "OPENCV",
+        "w": intr.width,
+        "h": intr.height,
+        "fl_x": intr.fl_x,
+        "fl_y": intr.fl_y,
+        "cx": intr.cx,
+        "cy": intr.cy,
+        "k1": 0.0, "k2": 0.0, "p1": 0.0, "p2": 0.0,
+        "depth_unit_scale_factor": 1.0,
+        "frames": frames,
+        "train_filenames": names[0],
+        "val_filenames": names[1],
+        "test_filenames": names[2],
+    });
+    atomic_write_json(&dir.join("transforms.json"), &json)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::{RgbaImage, write_png_rgba};
+    use glam::DVec3;
+
+    #[test]
+    fn write_and_load_round_trip() {
+        let dir = std::env::temp_dir().join(format!("dataset-tf-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let intr = Intrinsics { width: 8, height: 6, fl_x: 7.5, fl_y: 7.25, cx: 4.1, cy: 2.9 };
+        let mut recs = Vec::new();
+        for k in 0..3 {
+            let eye = DVec3::new(k as f64, 1.0, 3.0);
+            let cam = Camera::new(intr, Camera::look_at(eye, DVec3::ZERO, DVec3::Y)).unwrap();
+            write_png_rgba(&dir.join(format!("train/r_{k}.png")), &RgbaImage::new(8, 6)).unwrap();
+            recs.push(FrameRecord {
+                file_path: format!("./train/r_{k}"),
+                transform_matrix: cam.rows(),
+                depth_file_path: None,
+                gt_file_path: None,
+                exr_file_path: None,
+            });
+        }
+        write_split_transforms(&dir, SplitKind::Train, &intr, recs.clone(), None).unwrap();
+        write_nerfstudio_transforms(&dir, &intr, &[(SplitKind::Train, recs.clone())]).unwrap();
+        let ds = Dataset::load(&dir).unwrap();
+        assert_eq!(ds.train.len(), 3);
+        assert!(ds.val.is_empty());
+        for (f, r) in ds.train.iter().zip(&recs) {
+            assert_eq!(f.camera.intrinsics, intr);
+            let m = Camera::c2w_from_rows(&r.transform_matrix);
+            assert!((f.camera.c2w - m).abs().to_cols_array().iter().all(|d| *d < 1e-12));
+        }
+        let ns: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(dir.join("transforms.json")).unwrap()).unwrap();
+        assert_eq!(ns["train_filenames"][2], "train/r_2.png");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn blender_layout_uses_camera_angle_and_image_size() {
+        let dir = std::env::temp_dir().join(format!("dataset-blender-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        write_png_rgba(&dir.join("train/r_0.png"), &RgbaImage::new(10, 10)).unwrap();
+        let json = r#"{"camera_angle_x": 0.6911112070083618, "frames": [{"file_path": "./train/r_0",
+            "rotation": 0.0126, "transform_matrix": [[1,0,0,0],[0,1,0,0],[0,0,1,4],[0,0,0,1]]}]}"#;
+        std::fs::write(dir.join("transforms_train.json"), json).unwrap();
+        let ds = Dataset::load(&dir).unwrap();
+        let k = ds.train[0].camera.intrinsics;
+        assert!((k.fl_x - 5.0 / (0.5f64 * 0.6911112070083618).tan()).abs() < 1e-9);
+        assert_eq!((k.cx, k.cy), (5.0, 5.0));
+        assert!(ds.facts.is_none() && !ds.has_ground_truth());
+
+        // Wrongly sized image, inconsistent intrinsics, missing image, bad pose: named errors.
+        let bad = json.replace("\"frames\"", "\"w\": 12, \"frames\"");
+        std::fs::write(dir.join("transforms_train.json"), bad).unwrap();
+        let e = Dataset::load(&dir).unwrap_err().to_string();
+        assert!(e.contains("r_0.png") && e.contains("10x10"), "{e}");
+        let bad = json.replace("\"frames\"", "\"fl_x\": 3.0, \"frames\"");
+        std::fs::write(dir.join("transforms_train.json"), bad).unwrap();
+        let e = Dataset::load(&dir).unwrap_err().to_string();
+        assert!(e.contains("inconsistent intrinsics"), "{e}");
+        std::fs::write(dir.join("transforms_train.json"), json.replace("r_0", "r_9")).unwrap();
+        let e = Dataset::load(&dir).unwrap_err().to_string();
+        assert!(e.contains("does not exist") && e.contains("transforms_train.json"), "{e}");
+        std::fs::write(dir.join("transforms_train.json"), json.replace("[1,0,0,0]", "[0,0,0,0]")).unwrap();
+        let e = Dataset::load(&dir).unwrap_err().to_string();
+        assert!(e.contains("invertible") || e.contains("rotation"), "{e}");
+        std::fs::write(dir.join("transforms_train.json"), "{\"frames\": []}").unwrap();
+        let e = Dataset::load(&dir).unwrap_err().to_string();
+        assert!(e.contains("camera_angle_x"), "{e}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}
