@@ -1,1 +1,62 @@
-fn main() {}
+//! `cargo xtask`: the project's command line. It parses arguments and calls the crates; it
+//! holds no rendering or training logic of its own.
+
+use clap::{Parser, Subcommand};
+
+mod bench;
+mod evaluate;
+mod gen_scenes;
+mod render;
+mod train;
+
+/// Exact-ground-truth NeRF: render datasets, train radiance fields, evaluate them.
+#[derive(Parser)]
+#[command(name = "cargo xtask", version, about)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Render a glTF scene into a posed train/val/test dataset with exact depth.
+    Render(render::RenderArgs),
+    /// Regenerate the project's own scenes in `scenes/`.
+    GenScenes(gen_scenes::GenScenesArgs),
+    /// Train a radiance field on a dataset's train views.
+    Train(train::TrainArgs),
+    /// Render colour, opacity and depth from a trained run.
+    RenderNerf(train::RenderNerfArgs),
+    /// Evaluate a run against the dataset's ground truth and write its report.
+    Eval(evaluate::EvalArgs),
+    /// Compare several runs: one table and overlaid speed-versus-error curves.
+    Compare(evaluate::CompareArgs),
+    /// The main job on the built-in default scene: render, train, evaluate, report.
+    Demo(evaluate::DemoArgs),
+    /// Performance figures (render, nerf).
+    Bench(bench::BenchArgs),
+}
+
+fn main() -> std::process::ExitCode {
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+    tracing_subscriber::fmt().with_env_filter(filter).with_target(false).with_writer(std::io::stderr).init();
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Render(a) => render::run(a).map(|_| ()),
+        Command::GenScenes(a) => gen_scenes::run(a),
+        Command::Train(a) => train::run(a),
+        Command::RenderNerf(a) => train::run_render(a),
+        Command::Eval(a) => evaluate::run(a),
+        Command::Compare(a) => evaluate::run_compare(a),
+        Command::Demo(a) => evaluate::run_demo(a),
+        Command::Bench(a) => bench::run(a),
+    };
+    match result {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            std::process::ExitCode::from(1)
+        }
+    }
+}

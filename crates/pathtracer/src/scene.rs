@@ -1,0 +1,262 @@
+//! The flat render scene: every glTF primitive baked into one world-space triangle soup with
+//! per-vertex attributes, a material table, textures, lights and cameras. The importer
+//! (`import`) builds it; the acceleration structure, integrator and camera rigs read it.
+//!
+//! Precision: geometry is stored in `f32` relative to [`Scene::origin`] (an `f64` offset, the
+//! centre of the scene's bounds), so a scene placed far from the world origin keeps full
+//! `f32` precision. Everything in this struct except `origin` and [`SceneCamera::c2w`] is
+//! in this local frame: `world = local + origin`.
+
+use glam::{DMat4, DVec3, Vec2, Vec3, Vec4};
+
+/// Axis-aligned bounding box.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Aabb {
+    /// Minimum corner.
+    pub min: Vec3,
+    /// Maximum corner.
+    pub max: Vec3,
+}
+
+impl Aabb {
+    /// The empty box (min = +inf, max = -inf), the identity of [`Aabb::union_point`].
+    pub const EMPTY: Aabb = Aabb { min: Vec3::INFINITY, max: Vec3::NEG_INFINITY };
+    /// Grows the box to contain `p`.
+    pub fn union_point(self, p: Vec3) -> Aabb {
+        Aabb { min: self.min.min(p), max: self.max.max(p) }
+    }
+    /// Whether the box contains nothing.
+    pub fn is_empty(&self) -> bool {
+        self.min.cmpgt(self.max).any()
+    }
+    /// Centre point.
+    pub fn center(&self) -> Vec3 {
+        0.5 * (self.min + self.max)
+    }
+    /// Length of the diagonal.
+    pub fn diagonal(&self) -> f32 {
+        (self.max - self.min).length()
+    }
+}
+
+/// Texture wrap mode (glTF sampler `wrapS` / `wrapT`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Wrap {
+    /// 10497
+    Repeat,
+    /// 33648
+    MirroredRepeat,
+    /// 33071
+    ClampToEdge,
+}
+
+/// Texture filter (glTF `magFilter`; minification uses the same, without mipmaps for now).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Filter {
+    /// Nearest texel.
+    Nearest,
+    /// Bilinear.
+    Linear,
+}
+
+/// A decoded image, RGBA `f32`, row-major from the top row (glTF UV (0,0) is the top-left).
+/// Colour textures (base colour, emissive) are converted from sRGB to linear at import;
+/// data textures (metallic-roughness, normal) are kept as stored, scaled to [0, 1].
+#[derive(Clone, Debug)]
+pub struct Texture {
+    /// Width in texels.
+    pub width: u32,
+    /// Height in texels.
+    pub height: u32,
+    /// `width * height` texels.
+    pub texels: Vec<Vec4>,
+}
+
+/// A material's reference to a texture: which image, how to sample it, which UV set.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TextureRef {
+    /// Index into [`Scene::textures`].
+    pub texture: u32,
+    /// UV set: 0 → TEXCOORD_0, 1 → TEXCOORD_1.
+    pub tex_coord: u32,
+    /// Wrap along U.
+    pub wrap_s: Wrap,
+    /// Wrap along V.
+    pub wrap_t: Wrap,
+    /// Filter.
+    pub filter: Filter,
+}
+
+/// glTF alpha mode.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum AlphaMode {
+    /// Alpha ignored.
+    Opaque,
+    /// Surface present where alpha >= cutoff.
+    Mask {
+        /// The cutoff (glTF default 0.5).
+        cutoff: f32,
+    },
+    /// Stochastic coverage with probability alpha.
+    Blend,
+}
+
+/// A glTF metallic-roughness material with every factor and texture carried, whether or not
+/// the current shading uses it.
+#[derive(Clone, Debug)]
+pub struct Material {
+    /// Name from the glTF, if any.
+    pub name: Option<String>,
+    /// Linear base colour factor (RGBA).
+    pub base_color_factor: Vec4,
+    /// Base colour texture (sRGB decoded to linear at import).
+    pub base_color_texture: Option<TextureRef>,
+    /// Metallic factor.
+    pub metallic_factor: f32,
+    /// Roughness factor (perceptual roughness).
+    pub roughness_factor: f32,
+    /// Metallic (B) and roughness (G) texture.
+    pub metallic_roughness_texture: Option<TextureRef>,
+    /// Tangent-space normal map and its scale.
+    pub normal_texture: Option<(TextureRef, f32)>,
+    /// Occlusion texture and strength (carried; a path tracer computes occlusion itself).
+    pub occlusion_texture: Option<(TextureRef, f32)>,
+    /// Emissive factor × `KHR_materials_emissive_strength` (linear radiance scale).
+    pub emissive: Vec3,
+    /// Emissive texture (sRGB decoded to linear at import).
+    pub emissive_texture: Option<TextureRef>,
+    /// Alpha mode.
+    pub alpha_mode: AlphaMode,
+    /// Whether back faces are rendered (single-sided back faces are invisible).
+    pub double_sided: bool,
+}
+
+impl Material {
+    /// glTF's default material (white, metallic 1, roughness 1, opaque, single-sided).
+    pub fn gltf_default() -> Self {
+        Self {
+            name: None,
+            base_color_factor: Vec4::ONE,
+            base_color_texture: None,
+            metallic_factor: 1.0,
+            roughness_factor: 1.0,
+            metallic_roughness_texture: None,
+            normal_texture: None,
+            occlusion_texture: None,
+            emissive: Vec3::ZERO,
+            emissive_texture: None,
+            alpha_mode: AlphaMode::Opaque,
+            double_sided: false,
+        }
+    }
+    /// Whether the material emits light.
+    pub fn is_emissive(&self) -> bool {
+        self.emissive.max_element() > 0.0
+    }
+}
+
+/// Every triangle of the scene, world space (relative to [`Scene::origin`]). Vertex arrays are
+/// indexed by `indices`; every vertex has every attribute (defaults filled at import: normals
+/// computed when absent, UV (0,0), colour (1,1,1,1), tangent (0,0,0,0) meaning "generate").
+///
+/// # Shapes
+/// `positions`, `normals`, `tangents`, `uv0`, `uv1`, `colors`: one entry per vertex;
+/// `indices`, `material`: one entry per triangle.
+#[derive(Clone, Debug, Default)]
+pub struct Mesh {
+    /// Vertex positions.
+    pub positions: Vec<Vec3>,
+    /// Unit vertex normals (after the node transform's inverse transpose).
+    pub normals: Vec<Vec3>,
+    /// Tangents, xyz plus handedness w (glTF TANGENT); zero when the asset has none.
+    pub tangents: Vec<Vec4>,
+    /// TEXCOORD_0.
+    pub uv0: Vec<Vec2>,
+    /// TEXCOORD_1.
+    pub uv1: Vec<Vec2>,
+    /// COLOR_0 (linear RGBA).
+    pub colors: Vec<Vec4>,
+    /// Triangle vertex indices, counter-clockwise front faces (winding already flipped for
+    /// nodes with a negative-determinant transform).
+    pub indices: Vec<[u32; 3]>,
+    /// Material index per triangle, into [`Scene::materials`].
+    pub material: Vec<u32>,
+}
+
+/// A `KHR_lights_punctual` light in its physical units, world space (local frame).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Light {
+    /// Point light: `intensity` is colour × intensity in candela (W/sr in our radiometric
+    /// units); irradiance at distance r, normal incidence, is `intensity / r²`.
+    Point {
+        /// Position.
+        position: Vec3,
+        /// Colour × candela.
+        intensity: Vec3,
+        /// glTF `range` (None = infinite); used only as a cutoff.
+        range: Option<f32>,
+    },
+    /// Spot light: a point light restricted to a cone with glTF's smooth falloff between
+    /// `inner_cone_angle` and `outer_cone_angle`.
+    Spot {
+        /// Position.
+        position: Vec3,
+        /// Unit direction the light shines along.
+        direction: Vec3,
+        /// Colour × candela.
+        intensity: Vec3,
+        /// Inner cone angle, radians.
+        inner_cone_angle: f32,
+        /// Outer cone angle, radians.
+        outer_cone_angle: f32,
+        /// glTF `range`.
+        range: Option<f32>,
+    },
+    /// Directional light: `illuminance` is colour × lux (irradiance on a surface facing it).
+    Directional {
+        /// Unit direction the light travels along (glTF: the node's −Z).
+        direction: Vec3,
+        /// Colour × lux.
+        illuminance: Vec3,
+    },
+}
+
+/// A glTF perspective camera placed in the world (offered as extra views / rig anchors).
+#[derive(Clone, Debug, PartialEq)]
+pub struct SceneCamera {
+    /// Node or camera name.
+    pub name: Option<String>,
+    /// Camera-to-world, true world coordinates (not relative to the origin), rigid (scale removed).
+    pub c2w: DMat4,
+    /// Vertical field of view, radians.
+    pub yfov: f64,
+    /// Aspect ratio width / height, if the asset gives one.
+    pub aspect_ratio: Option<f64>,
+    /// Near plane.
+    pub znear: f64,
+    /// Far plane, if finite.
+    pub zfar: Option<f64>,
+}
+
+/// The render scene.
+#[derive(Clone, Debug)]
+pub struct Scene {
+    /// Source file, for messages and scene facts.
+    pub name: String,
+    /// World position of the local frame's origin (the centre of the bounds at import).
+    pub origin: DVec3,
+    /// All triangles.
+    pub mesh: Mesh,
+    /// Material table (index = glTF material index; the glTF default material is last when used).
+    pub materials: Vec<Material>,
+    /// Decoded textures.
+    pub textures: Vec<Texture>,
+    /// Punctual lights.
+    pub lights: Vec<Light>,
+    /// glTF cameras.
+    pub cameras: Vec<SceneCamera>,
+    /// Bounds of all triangles, local frame.
+    pub bounds: Aabb,
+    /// Warnings collected at import (unsupported optional extensions, dropped primitives, ...).
+    pub warnings: Vec<String>,
+}
