@@ -21,6 +21,6 @@ pub enum BenchWhat {
 pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     match args.what {
         BenchWhat::Render => anyhow::bail!("bench render is not implemented yet"),
-        BenchWhat::Nerf => anyhow::bail!("bench nerf is not implemented yet"),
+        BenchWhat::Nerf => crate::bench_nerf::run(),
     }
 }

@@ -4,6 +4,7 @@
 use clap::{Parser, Subcommand};
 
 mod bench;
+mod bench_nerf;
 mod evaluate;
 mod gen_scenes;
 mod render;
