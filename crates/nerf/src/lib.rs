@@ -1,1 +1,19 @@
-//! placeholder
+//! Neural radiance fields on the CPU with burn: encodings, fields, ray samplers, volume
+//! rendering, the NeRF paper's model and a fast hash-grid model, the training loop,
+//! checkpoints, and rendering colour, opacity and depth from a trained run.
+//!
+//! Layers (nerfstudio's order): data ([`data`]) → encodings ([`encoding`]) → fields
+//! ([`field`]) → samplers ([`sampling`], [`occupancy`]) and renderers ([`volrend`]) → models
+//! ([`models`]) → trainer ([`train`]); [`backend`] chooses the burn device in one place.
+
+pub mod backend;
+pub mod checkpoint;
+pub mod data;
+pub mod encoding;
+pub mod field;
+pub mod models;
+pub mod occupancy;
+pub mod render;
+pub mod sampling;
+pub mod train;
+pub mod volrend;

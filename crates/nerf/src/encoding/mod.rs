@@ -1,0 +1,1 @@
+//! Input encodings (in progress).
