@@ -1,0 +1,962 @@
+//! [`SceneBuilder`]: collect meshes, materials, textures, lights and cameras
+//! and write them as glTF 2.0, either `.gltf` + `.bin` + `.png` files or one
+//! self-contained `.glb`.
+//!
+//! The writer lays out one little-endian buffer: for each geometry, tightly
+//! packed `POSITION`, `NORMAL`, `TEXCOORD_0` (f32), optional `COLOR_0` (f32
+//! VEC3) and `TANGENT` (f32 VEC4), then indices (u16 when every index fits,
+//! else u32), each in its own bufferView starting on a 4-byte boundary. Every
+//! accessor carries exact `min`/`max`. JSON objects are written with sorted
+//! keys and floats in their shortest round-trip form, so the output is
+//! byte-identical for identical input.
+
+use std::collections::BTreeMap;
+use std::fs;
+use std::path::{Path, PathBuf};
+
+use glam::{Mat3, Mat4, Quat, Vec3};
+use image::RgbImage;
+use serde_json::{Map, Value, json};
+
+use crate::SceneGenError;
+use crate::mesh::Mesh;
+use crate::texture::encode_png;
+
+/// A node transform: scale, then rotate, then translate (glTF TRS).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Transform {
+    /// Translation in metres.
+    pub translation: Vec3,
+    /// Unit rotation quaternion.
+    pub rotation: Quat,
+    /// Per-axis scale.
+    pub scale: Vec3,
+}
+
+impl Transform {
+    /// The identity transform.
+    pub const IDENTITY: Transform = Transform {
+        translation: Vec3::ZERO,
+        rotation: Quat::IDENTITY,
+        scale: Vec3::ONE,
+    };
+
+    /// A pure translation.
+    pub fn from_translation(translation: Vec3) -> Self {
+        Transform {
+            translation,
+            ..Self::IDENTITY
+        }
+    }
+
+    /// Translation and rotation.
+    pub fn from_translation_rotation(translation: Vec3, rotation: Quat) -> Self {
+        Transform {
+            translation,
+            rotation,
+            ..Self::IDENTITY
+        }
+    }
+
+    /// This transform with its scale replaced.
+    pub fn with_scale(self, scale: Vec3) -> Self {
+        Transform { scale, ..self }
+    }
+
+    /// A node at `eye` whose local −Z axis points at `target`, with local +Y
+    /// as close to `up` as possible. This is how glTF cameras, spot lights and
+    /// directional lights are aimed (they shine / look down their local −Z).
+    /// Falls back to another up vector when `up` is parallel to the view direction.
+    pub fn look_at(eye: Vec3, target: Vec3, up: Vec3) -> Self {
+        let back = (eye - target).normalize_or(Vec3::Z);
+        let mut right = up.cross(back);
+        if right.length_squared() < 1e-12 {
+            right = back.any_orthonormal_vector();
+        }
+        let right = right.normalize();
+        let true_up = back.cross(right);
+        let rotation = Quat::from_mat3(&Mat3::from_cols(right, true_up, back)).normalize();
+        Transform::from_translation_rotation(eye, rotation)
+    }
+
+    /// The 4×4 matrix `T · R · S`.
+    pub fn matrix(&self) -> Mat4 {
+        Mat4::from_scale_rotation_translation(self.scale, self.rotation, self.translation)
+    }
+}
+
+/// Index of a texture added with [`SceneBuilder::add_texture`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub struct TextureId(pub usize);
+/// Index of a material added with [`SceneBuilder::add_material`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub struct MaterialId(pub usize);
+/// Index of a geometry added with [`SceneBuilder::add_geometry`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub struct GeometryId(pub usize);
+/// Index of a node (mesh instance, light or camera) in the written glTF `nodes`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub struct NodeId(pub usize);
+
+/// A glTF `pbrMetallicRoughness` material. Colours are linear RGB(A).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Material {
+    /// Material name.
+    pub name: String,
+    /// Linear base colour (albedo) and alpha; multiplied by the texture and by vertex colours.
+    pub base_color: [f32; 4],
+    /// Optional sRGB base-colour texture (`TEXCOORD_0`).
+    pub base_color_texture: Option<TextureId>,
+    /// Metalness in [0, 1].
+    pub metallic: f32,
+    /// Perceptual roughness in [0, 1].
+    pub roughness: f32,
+    /// Optional tangent-space normal map and its scale (the mesh should carry tangents).
+    pub normal_texture: Option<(TextureId, f32)>,
+    /// Emissive colour in [0, 1]; emitted radiance is `emissive · emissive_strength`.
+    pub emissive: [f32; 3],
+    /// `KHR_materials_emissive_strength` multiplier (1 writes no extension).
+    pub emissive_strength: f32,
+    /// Whether back faces are rendered too (glTF `doubleSided`).
+    pub double_sided: bool,
+}
+
+impl Material {
+    /// An opaque dielectric with the given linear albedo, metallic 0 and roughness 0.8
+    /// (close to Lambertian under a full BRDF).
+    pub fn diffuse(name: &str, albedo: [f32; 3]) -> Self {
+        Material {
+            name: name.to_string(),
+            base_color: [albedo[0], albedo[1], albedo[2], 1.0],
+            base_color_texture: None,
+            metallic: 0.0,
+            roughness: 0.8,
+            normal_texture: None,
+            emissive: [0.0; 3],
+            emissive_strength: 1.0,
+            double_sided: false,
+        }
+    }
+
+    /// An emitter: black base colour, emitted radiance `colour · strength`
+    /// (linear units, `KHR_materials_emissive_strength` for strength > 1).
+    pub fn emissive(name: &str, colour: [f32; 3], strength: f32) -> Self {
+        Material {
+            emissive: colour,
+            emissive_strength: strength,
+            ..Material::diffuse(name, [0.0; 3])
+        }
+    }
+
+    /// With metallic and roughness factors.
+    pub fn with_metallic_roughness(self, metallic: f32, roughness: f32) -> Self {
+        Material {
+            metallic,
+            roughness,
+            ..self
+        }
+    }
+
+    /// With a base-colour texture.
+    pub fn with_texture(self, texture: TextureId) -> Self {
+        Material {
+            base_color_texture: Some(texture),
+            ..self
+        }
+    }
+
+    /// With a tangent-space normal map of the given scale.
+    pub fn with_normal_map(self, texture: TextureId, scale: f32) -> Self {
+        Material {
+            normal_texture: Some((texture, scale)),
+            ..self
+        }
+    }
+
+    /// Rendered from both sides (leaves, thin sheets).
+    pub fn double_sided(self) -> Self {
+        Material {
+            double_sided: true,
+            ..self
+        }
+    }
+}
+
+/// A `KHR_lights_punctual` light. Directional and spot lights shine down their
+/// node's local −Z (aim them with [`Transform::look_at`]).
+#[derive(Clone, Debug, PartialEq)]
+pub enum Light {
+    /// Sun-like light; `illuminance` in lux (W/m² in the renderer's linear units)
+    /// on a surface facing it.
+    Directional {
+        /// Linear RGB colour.
+        color: [f32; 3],
+        /// Illuminance in lux.
+        illuminance: f32,
+    },
+    /// Isotropic point light; irradiance at distance `r` facing it is `intensity / r²`.
+    Point {
+        /// Linear RGB colour.
+        color: [f32; 3],
+        /// Luminous intensity in candela.
+        intensity: f32,
+    },
+    /// Spot light with a smooth falloff between the inner and outer cone half-angles.
+    Spot {
+        /// Linear RGB colour.
+        color: [f32; 3],
+        /// Luminous intensity in candela on the axis.
+        intensity: f32,
+        /// Inner cone half-angle in radians, `0 <= inner < outer`.
+        inner_cone_angle: f32,
+        /// Outer cone half-angle in radians, `<= π/2`.
+        outer_cone_angle: f32,
+    },
+}
+
+/// A glTF perspective camera; the node looks down its local −Z.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PerspectiveCamera {
+    /// Vertical field of view in radians.
+    pub yfov: f32,
+    /// Near clip distance in metres.
+    pub znear: f32,
+    /// Optional far clip distance (infinite when `None`).
+    pub zfar: Option<f32>,
+    /// Optional aspect ratio (width / height); when `None` the renderer's image decides.
+    pub aspect_ratio: Option<f32>,
+}
+
+#[derive(Clone, Debug)]
+enum NodeKind {
+    Mesh(usize),
+    Light(usize),
+    Camera(usize),
+}
+
+#[derive(Clone, Debug)]
+struct Node {
+    name: String,
+    transform: Transform,
+    kind: NodeKind,
+}
+
+/// Builds one glTF scene in memory and writes it.
+///
+/// # Example
+///
+/// A single quad under a point light, written to a temporary folder:
+///
+/// ```
+/// use scenegen::{Light, Material, Mesh, SceneBuilder, Transform};
+/// use glam::{Vec2, Vec3};
+///
+/// let dir = std::env::temp_dir().join("scenegen_doc_example");
+/// let mut scene = SceneBuilder::new("quad");
+/// let grey = scene.add_material(Material::diffuse("grey", [0.5, 0.5, 0.5]))?;
+/// scene.add_mesh("floor", Mesh::quad(Vec2::new(2.0, 2.0), 1.0), grey, Transform::IDENTITY)?;
+/// // 2 cd at 2 m: irradiance 0.5, radiance 0.5 · 0.5 / π ≈ 0.08 below the light.
+/// scene.add_light(
+///     "bulb",
+///     Light::Point { color: [1.0; 3], intensity: 2.0 },
+///     Transform::from_translation(Vec3::new(0.0, 2.0, 0.0)),
+/// )?;
+/// let written = scene.write_gltf(&dir.join("quad.gltf"))?;
+/// assert_eq!(written.len(), 2); // quad.gltf and quad.bin
+/// # Ok::<(), scenegen::SceneGenError>(())
+/// ```
+#[derive(Clone, Debug)]
+pub struct SceneBuilder {
+    name: String,
+    textures: Vec<(String, RgbImage)>,
+    materials: Vec<Material>,
+    geometries: Vec<(String, Mesh)>,
+    meshes: Vec<(GeometryId, MaterialId)>,
+    mesh_lookup: BTreeMap<(GeometryId, MaterialId), usize>,
+    lights: Vec<(String, Light)>,
+    cameras: Vec<(String, PerspectiveCamera)>,
+    nodes: Vec<Node>,
+}
+
+fn check_name(name: &str, what: &str) -> Result<(), SceneGenError> {
+    let ok = !name.is_empty()
+        && name
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-');
+    if ok {
+        Ok(())
+    } else {
+        Err(SceneGenError::InvalidName {
+            name: name.to_string(),
+            reason: format!("{what} names must be non-empty and use only A-Z a-z 0-9 _ -"),
+        })
+    }
+}
+
+/// A JSON number holding the f32 `x` in its shortest round-trip decimal form.
+fn jf(x: f32) -> Value {
+    // Display for f32 prints the shortest decimal that parses back to the same f32.
+    let shortest: f64 = format!("{x}").parse().unwrap_or(x as f64);
+    serde_json::Number::from_f64(shortest).map_or(Value::Null, Value::Number)
+}
+
+fn jf_slice(xs: &[f32]) -> Value {
+    Value::Array(xs.iter().map(|&x| jf(x)).collect())
+}
+
+impl SceneBuilder {
+    /// An empty scene; `name` becomes the asset's scene name.
+    pub fn new(name: &str) -> Self {
+        SceneBuilder {
+            name: name.to_string(),
+            textures: Vec::new(),
+            materials: Vec::new(),
+            geometries: Vec::new(),
+            meshes: Vec::new(),
+            mesh_lookup: BTreeMap::new(),
+            lights: Vec::new(),
+            cameras: Vec::new(),
+            nodes: Vec::new(),
+        }
+    }
+
+    /// Add an RGB texture image. `name` (A-Z, a-z, 0-9, `_`, `-`) becomes part
+    /// of the PNG file name `<scene>_<name>.png` when written as `.gltf`.
+    pub fn add_texture(&mut self, name: &str, image: RgbImage) -> Result<TextureId, SceneGenError> {
+        check_name(name, "texture")?;
+        if self.textures.iter().any(|(n, _)| n == name) {
+            return Err(SceneGenError::InvalidName {
+                name: name.to_string(),
+                reason: "a texture with this name already exists".into(),
+            });
+        }
+        if image.width() == 0 || image.height() == 0 {
+            return Err(SceneGenError::InvalidName {
+                name: name.to_string(),
+                reason: "texture is empty".into(),
+            });
+        }
+        self.textures.push((name.to_string(), image));
+        Ok(TextureId(self.textures.len() - 1))
+    }
+
+    /// Add a material; fails if it names a texture this builder does not have
+    /// or has factors outside their ranges.
+    pub fn add_material(&mut self, material: Material) -> Result<MaterialId, SceneGenError> {
+        let bad = |reason: &str| SceneGenError::InvalidMaterial {
+            name: material.name.clone(),
+            reason: reason.to_string(),
+        };
+        let textures = material
+            .base_color_texture
+            .into_iter()
+            .chain(material.normal_texture.map(|t| t.0));
+        for t in textures {
+            if t.0 >= self.textures.len() {
+                return Err(bad("texture id out of range"));
+            }
+        }
+        let unit = |x: f32| (0.0..=1.0).contains(&x);
+        if !material.base_color.iter().all(|&c| unit(c))
+            || !material.emissive.iter().all(|&c| unit(c))
+            || !unit(material.metallic)
+            || !unit(material.roughness)
+        {
+            return Err(bad(
+                "colour, emissive, metallic and roughness factors must lie in [0, 1]",
+            ));
+        }
+        if !(material.emissive_strength.is_finite() && material.emissive_strength >= 0.0) {
+            return Err(bad("emissive strength must be finite and non-negative"));
+        }
+        self.materials.push(material);
+        Ok(MaterialId(self.materials.len() - 1))
+    }
+
+    /// Add a mesh's data once, to be instanced by [`SceneBuilder::add_instance`].
+    pub fn add_geometry(&mut self, name: &str, mesh: Mesh) -> Result<GeometryId, SceneGenError> {
+        mesh.validate(name)?;
+        self.geometries.push((name.to_string(), mesh));
+        Ok(GeometryId(self.geometries.len() - 1))
+    }
+
+    /// Place a geometry with a material under a node transform. Instances of
+    /// the same geometry share buffer data.
+    pub fn add_instance(
+        &mut self,
+        name: &str,
+        geometry: GeometryId,
+        material: MaterialId,
+        transform: Transform,
+    ) -> Result<NodeId, SceneGenError> {
+        if geometry.0 >= self.geometries.len() || material.0 >= self.materials.len() {
+            return Err(SceneGenError::InvalidMesh {
+                name: name.to_string(),
+                reason: "geometry or material id out of range".into(),
+            });
+        }
+        let next = self.meshes.len();
+        let mesh = *self.mesh_lookup.entry((geometry, material)).or_insert(next);
+        if mesh == next {
+            self.meshes.push((geometry, material));
+        }
+        Ok(self.push_node(name, transform, NodeKind::Mesh(mesh)))
+    }
+
+    /// Add a geometry and place one instance of it ([`add_geometry`](Self::add_geometry)
+    /// then [`add_instance`](Self::add_instance)).
+    pub fn add_mesh(
+        &mut self,
+        name: &str,
+        mesh: Mesh,
+        material: MaterialId,
+        transform: Transform,
+    ) -> Result<NodeId, SceneGenError> {
+        let g = self.add_geometry(name, mesh)?;
+        self.add_instance(name, g, material, transform)
+    }
+
+    /// Add a punctual light at a node.
+    pub fn add_light(
+        &mut self,
+        name: &str,
+        light: Light,
+        transform: Transform,
+    ) -> Result<NodeId, SceneGenError> {
+        let bad = |reason: &str| SceneGenError::InvalidLight {
+            name: name.to_string(),
+            reason: reason.to_string(),
+        };
+        let (color, power) = match &light {
+            Light::Directional { color, illuminance } => (color, illuminance),
+            Light::Point { color, intensity } => (color, intensity),
+            Light::Spot {
+                color,
+                intensity,
+                inner_cone_angle,
+                outer_cone_angle,
+            } => {
+                let ok = *inner_cone_angle >= 0.0
+                    && inner_cone_angle < outer_cone_angle
+                    && *outer_cone_angle <= std::f32::consts::FRAC_PI_2;
+                if !ok {
+                    return Err(bad("spot cones need 0 <= inner < outer <= pi/2"));
+                }
+                (color, intensity)
+            }
+        };
+        let valid =
+            power.is_finite() && *power >= 0.0 && color.iter().all(|c| (0.0..=1.0).contains(c));
+        if !valid {
+            return Err(bad(
+                "intensity must be finite and >= 0 and colour in [0, 1]",
+            ));
+        }
+        self.lights.push((name.to_string(), light));
+        Ok(self.push_node(name, transform, NodeKind::Light(self.lights.len() - 1)))
+    }
+
+    /// Add a perspective camera at a node (looking down its local −Z).
+    pub fn add_camera(
+        &mut self,
+        name: &str,
+        camera: PerspectiveCamera,
+        transform: Transform,
+    ) -> Result<NodeId, SceneGenError> {
+        let ok = camera.yfov > 0.0
+            && camera.yfov < std::f32::consts::PI
+            && camera.znear > 0.0
+            && camera.zfar.is_none_or(|f| f > camera.znear)
+            && camera.aspect_ratio.is_none_or(|a| a > 0.0);
+        if !ok {
+            return Err(SceneGenError::InvalidCamera {
+                name: name.to_string(),
+                reason: "need 0 < yfov < pi, 0 < znear < zfar, aspect > 0".into(),
+            });
+        }
+        self.cameras.push((name.to_string(), camera));
+        Ok(self.push_node(name, transform, NodeKind::Camera(self.cameras.len() - 1)))
+    }
+
+    fn push_node(&mut self, name: &str, transform: Transform, kind: NodeKind) -> NodeId {
+        self.nodes.push(Node {
+            name: name.to_string(),
+            transform,
+            kind,
+        });
+        NodeId(self.nodes.len() - 1)
+    }
+
+    /// World-space axis-aligned bounds `(min, max)` of all mesh instances, or
+    /// `None` when the scene has no meshes.
+    pub fn bounds(&self) -> Option<(Vec3, Vec3)> {
+        let mut out: Option<(Vec3, Vec3)> = None;
+        for node in &self.nodes {
+            if let NodeKind::Mesh(m) = node.kind {
+                let geometry = &self.geometries[self.meshes[m].0.0].1;
+                let world = geometry.transformed(&node.transform.matrix());
+                if let Some((lo, hi)) = world.bounds() {
+                    out = Some(out.map_or((lo, hi), |(a, b)| (a.min(lo), b.max(hi))));
+                }
+            }
+        }
+        out
+    }
+
+    /// Write `<path>` (a `.gltf` file) with its buffer `<stem>.bin` and
+    /// textures `<stem>_<texture>.png` beside it. Returns the written paths,
+    /// the `.gltf` first.
+    pub fn write_gltf(&self, path: &Path) -> Result<Vec<PathBuf>, SceneGenError> {
+        let stem = file_stem(path)?;
+        let dir = path.parent().unwrap_or(Path::new(""));
+        let mut written = vec![path.to_path_buf()];
+        let bin_name = format!("{stem}.bin");
+        let (mut doc, bin) = self.document(&[])?;
+        doc["buffers"] = json!([{ "uri": bin_name, "byteLength": bin.len() }]);
+        let mut images = Vec::new();
+        for (name, img) in &self.textures {
+            let file = format!("{stem}_{name}.png");
+            let bytes = encode_png(img, &file)?;
+            images.push(json!({ "name": name, "uri": file }));
+            written.push(dir.join(&file));
+            write_file(&dir.join(&file), &bytes)?;
+        }
+        if !images.is_empty() {
+            doc["images"] = Value::Array(images);
+        }
+        create_dir(dir)?;
+        write_file(&dir.join(&bin_name), &bin)?;
+        written.insert(1, dir.join(&bin_name));
+        write_file(path, canonical_json(&doc).as_bytes())?;
+        Ok(written)
+    }
+
+    /// Write one self-contained binary glTF (`.glb`) with the PNG textures
+    /// embedded in its buffer. Returns the written path.
+    pub fn write_glb(&self, path: &Path) -> Result<PathBuf, SceneGenError> {
+        let mut pngs = Vec::new();
+        for (name, img) in &self.textures {
+            pngs.push((name.clone(), encode_png(img, name)?));
+        }
+        let (mut doc, bin) = self.document(&pngs)?;
+        doc["buffers"] = json!([{ "byteLength": bin.len() }]);
+        let mut json_bytes = canonical_json(&doc).into_bytes();
+        while !json_bytes.len().is_multiple_of(4) {
+            json_bytes.push(b' ');
+        }
+        let total = 12 + 8 + json_bytes.len() + 8 + bin.len();
+        let mut out = Vec::with_capacity(total);
+        out.extend_from_slice(b"glTF");
+        out.extend_from_slice(&2u32.to_le_bytes());
+        out.extend_from_slice(&(total as u32).to_le_bytes());
+        out.extend_from_slice(&(json_bytes.len() as u32).to_le_bytes());
+        out.extend_from_slice(b"JSON");
+        out.extend_from_slice(&json_bytes);
+        out.extend_from_slice(&(bin.len() as u32).to_le_bytes());
+        out.extend_from_slice(b"BIN\0");
+        out.extend_from_slice(&bin);
+        if let Some(dir) = path.parent() {
+            create_dir(dir)?;
+        }
+        write_file(path, &out)?;
+        Ok(path.to_path_buf())
+    }
+
+    /// Build the glTF JSON (without `buffers`) and the binary buffer. Images in
+    /// `embedded` are appended to the buffer and referenced through bufferViews.
+    fn document(&self, embedded: &[(String, Vec<u8>)]) -> Result<(Value, Vec<u8>), SceneGenError> {
+        let mut bin = BinWriter::default();
+        // Accessor indices per geometry.
+        let mut prims = Vec::new();
+        for (name, mesh) in &self.geometries {
+            let mut attrs = Map::new();
+            attrs.insert(
+                "POSITION".into(),
+                bin.floats(&flat3(&mesh.positions), 3).into(),
+            );
+            attrs.insert("NORMAL".into(), bin.floats(&flat3(&mesh.normals), 3).into());
+            let uvs: Vec<f32> = mesh.uvs.iter().flat_map(|v| [v.x, v.y]).collect();
+            attrs.insert("TEXCOORD_0".into(), bin.floats(&uvs, 2).into());
+            if let Some(c) = &mesh.colors {
+                attrs.insert("COLOR_0".into(), bin.floats(&flat3(c), 3).into());
+            }
+            if let Some(t) = &mesh.tangents {
+                let flat: Vec<f32> = t.iter().flat_map(|v| v.to_array()).collect();
+                attrs.insert("TANGENT".into(), bin.floats(&flat, 4).into());
+            }
+            let indices = bin.indices(&mesh.indices, mesh.positions.len());
+            prims.push((name, attrs, indices));
+        }
+        let mut image_json = Vec::new();
+        for (name, bytes) in embedded {
+            let view = bin.view(bytes, None);
+            image_json.push(json!({ "name": name, "bufferView": view, "mimeType": "image/png" }));
+        }
+
+        let mut doc = Map::new();
+        doc.insert(
+            "asset".into(),
+            json!({ "version": "2.0", "generator": concat!("scenegen ", env!("CARGO_PKG_VERSION")) }),
+        );
+        doc.insert("scene".into(), json!(0));
+        doc.insert(
+            "scenes".into(),
+            json!([{ "name": self.name, "nodes": (0..self.nodes.len()).collect::<Vec<_>>() }]),
+        );
+        let mut used_ext = Vec::new();
+
+        let nodes: Vec<Value> = self.nodes.iter().map(node_json).collect();
+        doc.insert("nodes".into(), Value::Array(nodes));
+
+        let meshes: Vec<Value> = self
+            .meshes
+            .iter()
+            .map(|&(g, m)| {
+                let (name, attrs, indices) = &prims[g.0];
+                json!({
+                    "name": name,
+                    "primitives": [{ "attributes": attrs, "indices": indices, "material": m.0, "mode": 4 }],
+                })
+            })
+            .collect();
+        if !meshes.is_empty() {
+            doc.insert("meshes".into(), Value::Array(meshes));
+        }
+
+        let mut materials = Vec::new();
+        for m in &self.materials {
+            let mut pbr = Map::new();
+            pbr.insert("baseColorFactor".into(), jf_slice(&m.base_color));
+            pbr.insert("metallicFactor".into(), jf(m.metallic));
+            pbr.insert("roughnessFactor".into(), jf(m.roughness));
+            if let Some(t) = m.base_color_texture {
+                pbr.insert("baseColorTexture".into(), json!({ "index": t.0 }));
+            }
+            let mut mat = Map::new();
+            mat.insert("name".into(), json!(m.name));
+            mat.insert("pbrMetallicRoughness".into(), Value::Object(pbr));
+            if let Some((t, scale)) = m.normal_texture {
+                mat.insert(
+                    "normalTexture".into(),
+                    json!({ "index": t.0, "scale": jf(scale) }),
+                );
+            }
+            if m.emissive != [0.0; 3] {
+                mat.insert("emissiveFactor".into(), jf_slice(&m.emissive));
+                if m.emissive_strength != 1.0 {
+                    mat.insert(
+                        "extensions".into(),
+                        json!({ "KHR_materials_emissive_strength": { "emissiveStrength": jf(m.emissive_strength) } }),
+                    );
+                    used_ext.push("KHR_materials_emissive_strength");
+                }
+            }
+            if m.double_sided {
+                mat.insert("doubleSided".into(), json!(true));
+            }
+            materials.push(Value::Object(mat));
+        }
+        if !materials.is_empty() {
+            doc.insert("materials".into(), Value::Array(materials));
+        }
+
+        if !self.textures.is_empty() {
+            // 9729 LINEAR, 9987 LINEAR_MIPMAP_LINEAR, 10497 REPEAT.
+            doc.insert(
+                "samplers".into(),
+                json!([{ "magFilter": 9729, "minFilter": 9987, "wrapS": 10497, "wrapT": 10497 }]),
+            );
+            let textures: Vec<Value> = (0..self.textures.len())
+                .map(|i| json!({ "sampler": 0, "source": i }))
+                .collect();
+            doc.insert("textures".into(), Value::Array(textures));
+        }
+        if !image_json.is_empty() {
+            doc.insert("images".into(), Value::Array(image_json));
+        }
+
+        if !self.cameras.is_empty() {
+            let cams: Vec<Value> = self
+                .cameras
+                .iter()
+                .map(|(name, c)| camera_json(name, c))
+                .collect();
+            doc.insert("cameras".into(), Value::Array(cams));
+        }
+        if !self.lights.is_empty() {
+            let lights: Vec<Value> = self
+                .lights
+                .iter()
+                .map(|(name, l)| light_json(name, l))
+                .collect();
+            doc.insert(
+                "extensions".into(),
+                json!({ "KHR_lights_punctual": { "lights": lights } }),
+            );
+            used_ext.push("KHR_lights_punctual");
+        }
+        used_ext.sort_unstable();
+        used_ext.dedup();
+        if !used_ext.is_empty() {
+            doc.insert("extensionsUsed".into(), json!(used_ext));
+        }
+
+        doc.insert("accessors".into(), Value::Array(bin.accessors));
+        doc.insert("bufferViews".into(), Value::Array(bin.views));
+        Ok((Value::Object(doc), bin.data))
+    }
+}
+
+fn node_json(node: &Node) -> Value {
+    let mut n = Map::new();
+    n.insert("name".into(), json!(node.name));
+    let t = &node.transform;
+    if t.translation != Vec3::ZERO {
+        n.insert("translation".into(), jf_slice(&t.translation.to_array()));
+    }
+    if t.rotation != Quat::IDENTITY {
+        n.insert(
+            "rotation".into(),
+            jf_slice(&t.rotation.normalize().to_array()),
+        );
+    }
+    if t.scale != Vec3::ONE {
+        n.insert("scale".into(), jf_slice(&t.scale.to_array()));
+    }
+    match node.kind {
+        NodeKind::Mesh(m) => {
+            n.insert("mesh".into(), json!(m));
+        }
+        NodeKind::Camera(c) => {
+            n.insert("camera".into(), json!(c));
+        }
+        NodeKind::Light(l) => {
+            n.insert(
+                "extensions".into(),
+                json!({ "KHR_lights_punctual": { "light": l } }),
+            );
+        }
+    }
+    Value::Object(n)
+}
+
+fn camera_json(name: &str, c: &PerspectiveCamera) -> Value {
+    let mut p = Map::new();
+    p.insert("yfov".into(), jf(c.yfov));
+    p.insert("znear".into(), jf(c.znear));
+    if let Some(f) = c.zfar {
+        p.insert("zfar".into(), jf(f));
+    }
+    if let Some(a) = c.aspect_ratio {
+        p.insert("aspectRatio".into(), jf(a));
+    }
+    json!({ "name": name, "type": "perspective", "perspective": p })
+}
+
+fn light_json(name: &str, l: &Light) -> Value {
+    match l {
+        Light::Directional { color, illuminance } => {
+            json!({ "name": name, "type": "directional", "color": jf_slice(color), "intensity": jf(*illuminance) })
+        }
+        Light::Point { color, intensity } => {
+            json!({ "name": name, "type": "point", "color": jf_slice(color), "intensity": jf(*intensity) })
+        }
+        Light::Spot {
+            color,
+            intensity,
+            inner_cone_angle,
+            outer_cone_angle,
+        } => json!({
+            "name": name,
+            "type": "spot",
+            "color": jf_slice(color),
+            "intensity": jf(*intensity),
+            "spot": { "innerConeAngle": jf(*inner_cone_angle), "outerConeAngle": jf(*outer_cone_angle) },
+        }),
+    }
+}
+
+fn flat3(v: &[Vec3]) -> Vec<f32> {
+    v.iter().flat_map(|p| p.to_array()).collect()
+}
+
+/// Accumulates the binary buffer, its bufferViews and accessors.
+#[derive(Default)]
+struct BinWriter {
+    data: Vec<u8>,
+    views: Vec<Value>,
+    accessors: Vec<Value>,
+}
+
+const ARRAY_BUFFER: u32 = 34962;
+const ELEMENT_ARRAY_BUFFER: u32 = 34963;
+const FLOAT: u32 = 5126;
+const UNSIGNED_SHORT: u32 = 5123;
+const UNSIGNED_INT: u32 = 5125;
+
+impl BinWriter {
+    /// Append bytes as a new bufferView starting on a 4-byte boundary.
+    fn view(&mut self, bytes: &[u8], target: Option<u32>) -> usize {
+        while !self.data.len().is_multiple_of(4) {
+            self.data.push(0);
+        }
+        let mut v = Map::new();
+        v.insert("buffer".into(), json!(0));
+        v.insert("byteOffset".into(), json!(self.data.len()));
+        v.insert("byteLength".into(), json!(bytes.len()));
+        if let Some(t) = target {
+            v.insert("target".into(), json!(t));
+        }
+        self.data.extend_from_slice(bytes);
+        // The buffer itself ends on a 4-byte boundary (needed by GLB chunks).
+        while !self.data.len().is_multiple_of(4) {
+            self.data.push(0);
+        }
+        self.views.push(Value::Object(v));
+        self.views.len() - 1
+    }
+
+    /// A float vertex attribute with `dims` components per element.
+    fn floats(&mut self, values: &[f32], dims: usize) -> usize {
+        let bytes: Vec<u8> = values.iter().flat_map(|x| x.to_le_bytes()).collect();
+        let view = self.view(&bytes, Some(ARRAY_BUFFER));
+        let mut lo = vec![f32::INFINITY; dims];
+        let mut hi = vec![f32::NEG_INFINITY; dims];
+        for chunk in values.chunks_exact(dims) {
+            for (k, &x) in chunk.iter().enumerate() {
+                lo[k] = lo[k].min(x);
+                hi[k] = hi[k].max(x);
+            }
+        }
+        let ty = match dims {
+            2 => "VEC2",
+            3 => "VEC3",
+            _ => "VEC4",
+        };
+        self.accessors.push(json!({
+            "bufferView": view,
+            "componentType": FLOAT,
+            "count": values.len() / dims,
+            "type": ty,
+            "min": jf_slice(&lo),
+            "max": jf_slice(&hi),
+        }));
+        self.accessors.len() - 1
+    }
+
+    /// Triangle indices as u16 when every vertex index fits, else u32.
+    fn indices(&mut self, indices: &[u32], vertex_count: usize) -> usize {
+        let (bytes, component): (Vec<u8>, u32) = if vertex_count <= u16::MAX as usize {
+            (
+                indices
+                    .iter()
+                    .flat_map(|&i| (i as u16).to_le_bytes())
+                    .collect(),
+                UNSIGNED_SHORT,
+            )
+        } else {
+            (
+                indices.iter().flat_map(|&i| i.to_le_bytes()).collect(),
+                UNSIGNED_INT,
+            )
+        };
+        let view = self.view(&bytes, Some(ELEMENT_ARRAY_BUFFER));
+        let lo = indices.iter().copied().min().unwrap_or(0);
+        let hi = indices.iter().copied().max().unwrap_or(0);
+        self.accessors.push(json!({
+            "bufferView": view,
+            "componentType": component,
+            "count": indices.len(),
+            "type": "SCALAR",
+            "min": [lo],
+            "max": [hi],
+        }));
+        self.accessors.len() - 1
+    }
+}
+
+/// Pretty JSON with object keys sorted and arrays of scalars on one line,
+/// independent of serde_json's map ordering features.
+pub(crate) fn canonical_json(v: &Value) -> String {
+    fn scalar(v: &Value) -> String {
+        // Scalars serialise infallibly.
+        serde_json::to_string(v).unwrap_or_default()
+    }
+    fn go(v: &Value, indent: usize, out: &mut String) {
+        let pad = "  ".repeat(indent + 1);
+        match v {
+            Value::Object(map) => {
+                if map.is_empty() {
+                    out.push_str("{}");
+                    return;
+                }
+                let mut keys: Vec<&String> = map.keys().collect();
+                keys.sort();
+                out.push_str("{\n");
+                for (i, k) in keys.iter().enumerate() {
+                    out.push_str(&pad);
+                    out.push_str(&scalar(&Value::String((*k).clone())));
+                    out.push_str(": ");
+                    go(&map[*k], indent + 1, out);
+                    out.push_str(if i + 1 < keys.len() { ",\n" } else { "\n" });
+                }
+                out.push_str(&"  ".repeat(indent));
+                out.push('}');
+            }
+            Value::Array(items) => {
+                if items.iter().all(|x| !x.is_object() && !x.is_array()) {
+                    out.push('[');
+                    let parts: Vec<String> = items.iter().map(scalar).collect();
+                    out.push_str(&parts.join(", "));
+                    out.push(']');
+                    return;
+                }
+                out.push_str("[\n");
+                for (i, item) in items.iter().enumerate() {
+                    out.push_str(&pad);
+                    go(item, indent + 1, out);
+                    out.push_str(if i + 1 < items.len() { ",\n" } else { "\n" });
+                }
+                out.push_str(&"  ".repeat(indent));
+                out.push(']');
+            }
+            other => out.push_str(&scalar(other)),
+        }
+    }
+    let mut out = String::new();
+    go(v, 0, &mut out);
+    out.push('\n');
+    out
+}
+
+fn file_stem(path: &Path) -> Result<String, SceneGenError> {
+    let stem =
+        path.file_stem()
+            .and_then(|s| s.to_str())
+            .ok_or_else(|| SceneGenError::InvalidName {
+                name: path.display().to_string(),
+                reason: "output path has no UTF-8 file name".into(),
+            })?;
+    check_name(stem, "scene file")?;
+    Ok(stem.to_string())
+}
+
+fn create_dir(dir: &Path) -> Result<(), SceneGenError> {
+    if dir.as_os_str().is_empty() {
+        return Ok(());
+    }
+    fs::create_dir_all(dir).map_err(|source| SceneGenError::Io {
+        path: dir.to_path_buf(),
+        source,
+    })
+}
+
+fn write_file(path: &Path, bytes: &[u8]) -> Result<(), SceneGenError> {
+    if let Some(dir) = path.parent() {
+        create_dir(dir)?;
+    }
+    fs::write(path, bytes).map_err(|source| SceneGenError::Io {
+        path: path.to_path_buf(),
+        source,
+    })
+}

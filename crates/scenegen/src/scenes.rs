@@ -1,0 +1,612 @@
+//! The built-in scenes, each a function returning a [`SceneBuilder`], and the
+//! text of `scenes/README.md`.
+//!
+//! Light levels are chosen so that a diffuse surface of albedo 0.5 renders
+//! with linear radiance of roughly 0.2–0.8 at exposure 1: a point light of
+//! `I` cd at `r` m gives irradiance `I / r²` (times the cosine), a sun of `E`
+//! lux gives `E · cos θ`, and a Lambertian surface reflects `albedo · E / π`.
+
+use std::f32::consts::PI;
+
+use glam::{Quat, Vec2, Vec3};
+
+use crate::SceneGenError;
+use crate::builder::{Light, Material, PerspectiveCamera, SceneBuilder, Transform};
+use crate::mesh::Mesh;
+use crate::texture::{Bumps, bump_normal_map, checker, stripes};
+
+/// One built-in scene: its name, what it tests, and how to build it.
+struct SceneDef {
+    name: &'static str,
+    description: &'static str,
+    build: fn() -> Result<SceneBuilder, SceneGenError>,
+}
+
+const SCENES: &[SceneDef] = &[
+    SceneDef {
+        name: "cornell",
+        description: "Closed Cornell-like room (2 m × 2 m × 2.5 m, x ∈ [-1, 1], y ∈ [0, 2], z ∈ [-1, 1.5]): \
+            white floor, ceiling, back and front walls, red left wall, green right wall, a short box and a tall \
+            box rotated about +Y. Tests global illumination in a closed diffuse room and an area light: the only \
+            light is an emissive 0.5 m × 0.4 m quad 2 cm below the ceiling, facing down, radiance 30 × (1, 0.9, 0.75) \
+            (direct irradiance ≈ 1.5 at the floor below it). One glTF perspective camera (yfov 50°) inside the \
+            room near the front wall looks at the boxes; cameras must stay inside the room.",
+        build: cornell,
+    },
+    SceneDef {
+        name: "tabletop",
+        description: "The default demo scene, object-centric like the NeRF synthetic scenes (≈ 4.5k triangles, \
+            within a 1.5 m radius): a checker-textured ground disc, a checker-textured box with a small sphere on \
+            it, a latitude-striped sphere, a torus with per-vertex colours (COLOR_0) and a cylinder vase. Tests \
+            textures, vertex colours, curved surfaces and occlusion. Lights: a directional sun of 2.5 lux \
+            (elevation ≈ 48°) and a 5 cd point light ≈ 2.4 m from the centre. No camera: the renderer places \
+            cameras on a hemisphere around the bounds.",
+        build: tabletop,
+    },
+    SceneDef {
+        name: "thin",
+        description: "Thin structures on a 0.9 m base disc (bounding radius ≈ 1.3 m, so a pixel at 200×200 \
+            covers ≈ 1.6 cm when the bounding sphere fills a 40° view): a wire-frame cube of 1.8 cm wires, a fence \
+            lattice of 2.4 cm wires, a helical spring of 1.6 cm wire, and a plant whose stem carries thin \
+            double-sided leaf quads. Features are 1–2 pixels wide: tests aliasing, thin-structure recovery and \
+            depth at silhouettes. Lights: a 2.5 lux sun and a 4 cd point light. No camera.",
+        build: thin,
+    },
+    SceneDef {
+        name: "deep",
+        description: "A colonnade receding along −Z: a 26 m checker-textured floor, two rows of ten pillars \
+            with lintels, a back wall 20.8 m from the camera and a lamp globe 0.5 m in front of it, so the depth \
+            range seen from the glTF camera exceeds 20:1 (tested ≥ 20). Tests unbounded-ish depth \
+            parameterisation and near/far sampling. One glTF perspective camera (yfov 50°) at 1.6 m height \
+            looks down the colonnade. Lights: a 2 lux sun at 45° elevation and three 3 cd point lights 2.5 m \
+            above the floor along the axis. Open sky (no hit → depth 0).",
+        build: deep,
+    },
+    SceneDef {
+        name: "materials",
+        description: "For physically based materials: two rows of five spheres (radius 0.2 m) with roughness \
+            0.05, 0.25, 0.5, 0.75, 1 — the front row dielectric red (metallic 0), the back row gold (metallic \
+            1) — a box with a tangent-space bump normal map (with TANGENT attributes), on a checker-textured \
+            5 m ground plane. Lights: a 2 lux sun, a 3 cd point light and a 15 cd spot light (inner 12°, \
+            outer 20°) aimed at the normal-mapped box. Lambertian renders see only base colours. No camera.",
+        build: materials,
+    },
+];
+
+/// Names of the built-in scenes, in the order [`crate::write_all`] writes them.
+pub fn scene_names() -> &'static [&'static str] {
+    const NAMES: &[&str] = &["cornell", "tabletop", "thin", "deep", "materials"];
+    NAMES
+}
+
+/// One paragraph saying what the named scene tests, its units and its lights.
+pub fn scene_description(name: &str) -> Option<&'static str> {
+    SCENES
+        .iter()
+        .find(|s| s.name == name)
+        .map(|s| s.description)
+}
+
+/// Build the named built-in scene in memory (to write it, or to inspect it in tests).
+pub fn build_scene(name: &str) -> Result<SceneBuilder, SceneGenError> {
+    let def =
+        SCENES
+            .iter()
+            .find(|s| s.name == name)
+            .ok_or_else(|| SceneGenError::UnknownScene {
+                name: name.to_string(),
+                known: scene_names().join(", "),
+            })?;
+    (def.build)()
+}
+
+/// The text of `scenes/README.md`.
+pub(crate) fn readme() -> String {
+    let mut s = String::from(
+        "# Scenes\n\nGenerated by the `scenegen` crate (`cargo xtask gen-scenes`, or \
+         `cargo run -p scenegen --example gen -- scenes`); do not edit by hand. Each scene is \
+         `NAME.gltf` with `NAME.bin` and `NAME_*.png` beside it. Units are metres, glTF world \
+         (right-handed, +Y up). Point and spot intensities are in candela, directional in lux; \
+         a diffuse surface of albedo 0.5 renders at linear radiance ≈ 0.2–0.8.\n\n",
+    );
+    for def in SCENES {
+        s.push_str(&format!(
+            "- `{}`: {}\n",
+            def.name,
+            def.description
+                .split_whitespace()
+                .collect::<Vec<_>>()
+                .join(" ")
+        ));
+    }
+    s
+}
+
+fn deg(d: f32) -> f32 {
+    d * PI / 180.0
+}
+
+fn sun_from(direction_to_sun: Vec3) -> Transform {
+    Transform::look_at(direction_to_sun.normalize() * 10.0, Vec3::ZERO, Vec3::Y)
+}
+
+fn cornell() -> Result<SceneBuilder, SceneGenError> {
+    let mut s = SceneBuilder::new("cornell");
+    let white = s.add_material(Material::diffuse("white", [0.73, 0.73, 0.73]))?;
+    let red = s.add_material(Material::diffuse("red", [0.63, 0.065, 0.05]))?;
+    let green = s.add_material(Material::diffuse("green", [0.14, 0.45, 0.091]))?;
+    let light = s.add_material(Material::emissive("light", [1.0, 0.9, 0.75], 30.0))?;
+
+    let (x0, x1, y0, y1, z0, z1) = (-1.0f32, 1.0f32, 0.0f32, 2.0f32, -1.0f32, 1.5f32);
+    let c = |x: f32, y: f32, z: f32| Vec3::new(x, y, z);
+    // Inward-facing walls from exact corners (counter-clockwise seen from inside).
+    let floor =
+        Mesh::quad_from_corners([c(x0, y0, z1), c(x1, y0, z1), c(x1, y0, z0), c(x0, y0, z0)]);
+    let ceiling =
+        Mesh::quad_from_corners([c(x0, y1, z0), c(x1, y1, z0), c(x1, y1, z1), c(x0, y1, z1)]);
+    let back =
+        Mesh::quad_from_corners([c(x0, y0, z0), c(x1, y0, z0), c(x1, y1, z0), c(x0, y1, z0)]);
+    let front =
+        Mesh::quad_from_corners([c(x1, y0, z1), c(x0, y0, z1), c(x0, y1, z1), c(x1, y1, z1)]);
+    let left =
+        Mesh::quad_from_corners([c(x0, y0, z1), c(x0, y0, z0), c(x0, y1, z0), c(x0, y1, z1)]);
+    let right =
+        Mesh::quad_from_corners([c(x1, y0, z0), c(x1, y0, z1), c(x1, y1, z1), c(x1, y1, z0)]);
+    s.add_mesh(
+        "white_walls",
+        Mesh::merge([&floor, &ceiling, &back, &front]),
+        white,
+        Transform::IDENTITY,
+    )?;
+    s.add_mesh("left_wall", left, red, Transform::IDENTITY)?;
+    s.add_mesh("right_wall", right, green, Transform::IDENTITY)?;
+
+    // The area light: 0.5 m × 0.4 m, 2 cm below the ceiling, facing down.
+    let ly = y1 - 0.02;
+    let lamp = Mesh::quad_from_corners([
+        c(-0.25, ly, -0.2),
+        c(0.25, ly, -0.2),
+        c(0.25, ly, 0.2),
+        c(-0.25, ly, 0.2),
+    ]);
+    s.add_mesh("area_light", lamp, light, Transform::IDENTITY)?;
+
+    let short = Transform::from_translation_rotation(
+        Vec3::new(0.4, 0.3, 0.25),
+        Quat::from_rotation_y(deg(-17.0)),
+    );
+    s.add_mesh("short_box", Mesh::cuboid(Vec3::splat(0.3)), white, short)?;
+    let tall = Transform::from_translation_rotation(
+        Vec3::new(-0.35, 0.6, -0.35),
+        Quat::from_rotation_y(deg(20.0)),
+    );
+    s.add_mesh(
+        "tall_box",
+        Mesh::cuboid(Vec3::new(0.3, 0.6, 0.3)),
+        white,
+        tall,
+    )?;
+
+    let camera = PerspectiveCamera {
+        yfov: deg(50.0),
+        znear: 0.01,
+        zfar: None,
+        aspect_ratio: None,
+    };
+    s.add_camera(
+        "camera",
+        camera,
+        Transform::look_at(c(0.0, 1.0, 1.4), c(0.0, 0.8, -0.3), Vec3::Y),
+    )?;
+    Ok(s)
+}
+
+/// Hue in [0, 1) to a saturated linear RGB colour.
+fn hue(h: f32) -> Vec3 {
+    let k = |n: f32| {
+        let k = (n + h * 6.0) % 6.0;
+        1.0 - (k.min(4.0 - k).clamp(0.0, 1.0))
+    };
+    Vec3::new(k(5.0), k(3.0), k(1.0)) * 0.8 + Vec3::splat(0.1)
+}
+
+fn tabletop() -> Result<SceneBuilder, SceneGenError> {
+    let mut s = SceneBuilder::new("tabletop");
+    let ground_tex = s.add_texture("ground", checker(256, 8, [200, 200, 200], [90, 90, 90]))?;
+    let crate_tex = s.add_texture("crate", checker(128, 4, [230, 140, 40], [245, 230, 200]))?;
+    let ball_tex = s.add_texture("ball", stripes(64, 8, [40, 90, 200], [235, 235, 235]))?;
+
+    let ground = s.add_material(Material::diffuse("ground", [1.0; 3]).with_texture(ground_tex))?;
+    let crate_mat = s.add_material(Material::diffuse("crate", [1.0; 3]).with_texture(crate_tex))?;
+    let ball = s.add_material(
+        Material::diffuse("ball", [1.0; 3])
+            .with_texture(ball_tex)
+            .with_metallic_roughness(0.0, 0.5),
+    )?;
+    let rainbow = s.add_material(
+        Material::diffuse("vertex_colours", [1.0; 3]).with_metallic_roughness(0.0, 0.6),
+    )?;
+    let ceramic = s.add_material(
+        Material::diffuse("ceramic", [0.55, 0.6, 0.5]).with_metallic_roughness(0.0, 0.3),
+    )?;
+    let gold = s.add_material(
+        Material::diffuse("gold", [1.0, 0.77, 0.34]).with_metallic_roughness(1.0, 0.3),
+    )?;
+
+    // 12.5 cm checker cells: the 8-cell texture repeats every metre.
+    s.add_mesh(
+        "ground",
+        Mesh::disc(1.5, 64, 1.0).with_planar_uvs(1.0),
+        ground,
+        Transform::IDENTITY,
+    )?;
+    let crate_at = Transform::from_translation_rotation(
+        Vec3::new(-0.5, 0.2, 0.3),
+        Quat::from_rotation_y(deg(30.0)),
+    );
+    s.add_mesh("crate", Mesh::cuboid(Vec3::splat(0.2)), crate_mat, crate_at)?;
+    s.add_mesh(
+        "gold_ball",
+        Mesh::uv_sphere(0.1, 24, 12),
+        gold,
+        Transform::from_translation(Vec3::new(-0.5, 0.5, 0.3)),
+    )?;
+    s.add_mesh(
+        "ball",
+        Mesh::uv_sphere(0.3, 48, 24),
+        ball,
+        Transform::from_translation(Vec3::new(0.45, 0.3, 0.2)),
+    )?;
+    let ring = Mesh::torus(0.25, 0.08, 48, 16)
+        .with_colors(|p, _| hue((p.z.atan2(p.x) / (2.0 * PI)).rem_euclid(1.0)));
+    let ring_at = Transform::from_translation_rotation(
+        Vec3::new(0.15, 0.33, -0.5),
+        Quat::from_rotation_y(deg(30.0)) * Quat::from_rotation_x(deg(90.0)),
+    );
+    s.add_mesh("ring", ring, rainbow, ring_at)?;
+    s.add_mesh(
+        "vase",
+        Mesh::cylinder(0.12, 0.5, 32),
+        ceramic,
+        Transform::from_translation(Vec3::new(-0.45, 0.0, -0.45)),
+    )?;
+
+    s.add_light(
+        "sun",
+        Light::Directional {
+            color: [1.0, 0.97, 0.92],
+            illuminance: 2.5,
+        },
+        sun_from(Vec3::new(2.0, 4.0, 3.0)),
+    )?;
+    s.add_light(
+        "fill",
+        Light::Point {
+            color: [0.9, 0.95, 1.0],
+            intensity: 5.0,
+        },
+        Transform::from_translation(Vec3::new(-1.2, 1.8, 1.0)),
+    )?;
+    Ok(s)
+}
+
+fn thin() -> Result<SceneBuilder, SceneGenError> {
+    let mut s = SceneBuilder::new("thin");
+    let base = s.add_material(Material::diffuse("base", [0.7, 0.7, 0.7]))?;
+    let copper = s.add_material(
+        Material::diffuse("copper", [0.7, 0.3, 0.15]).with_metallic_roughness(1.0, 0.4),
+    )?;
+    let dark = s.add_material(
+        Material::diffuse("dark_wire", [0.12, 0.12, 0.14]).with_metallic_roughness(0.0, 0.6),
+    )?;
+    let blue = s.add_material(
+        Material::diffuse("blue_wire", [0.1, 0.25, 0.7]).with_metallic_roughness(0.0, 0.5),
+    )?;
+    let leaf = s.add_material(
+        Material::diffuse("leaf", [0.15, 0.5, 0.12])
+            .with_metallic_roughness(0.0, 0.7)
+            .double_sided(),
+    )?;
+
+    s.add_mesh("base", Mesh::disc(0.9, 64, 1.0), base, Transform::IDENTITY)?;
+
+    // Wire-frame cube, side 0.7 m, resting on the base; wire diameter 1.8 cm.
+    let (h, lift) = (0.35f32, 0.01f32);
+    let corner = |i: u32| {
+        Vec3::new(
+            if i & 1 == 0 { -h } else { h },
+            lift + if i & 2 == 0 { 0.0 } else { 2.0 * h },
+            if i & 4 == 0 { -h } else { h },
+        )
+    };
+    let mut frame = Mesh::empty();
+    for a in 0..8u32 {
+        for bit in [1u32, 2, 4] {
+            if a & bit == 0 {
+                frame.append(&Mesh::cylinder_between(
+                    corner(a),
+                    corner(a | bit),
+                    0.009,
+                    8,
+                ));
+            }
+        }
+    }
+    s.add_mesh("wire_cube", frame, copper, Transform::IDENTITY)?;
+
+    // Helical spring inside the cube: 4 turns, radius 0.15 m, wire diameter 1.6 cm.
+    let mut spring = Mesh::empty();
+    let steps = 96;
+    let helix = |k: u32| {
+        let t = k as f32 / steps as f32;
+        let a = t * 4.0 * 2.0 * PI;
+        Vec3::new(0.15 * a.cos(), 0.05 + 0.55 * t, 0.15 * a.sin())
+    };
+    for k in 0..steps {
+        spring.append(&Mesh::cylinder_between(helix(k), helix(k + 1), 0.008, 6));
+    }
+    s.add_mesh("spring", spring, blue, Transform::IDENTITY)?;
+
+    // Fence lattice behind the cube: 8 posts and 6 rails of 2.4 cm wire.
+    let mut lattice = Mesh::empty();
+    let (zf, r) = (-0.6f32, 0.012f32);
+    for i in 0..8 {
+        let x = -0.7 + 1.4 * i as f32 / 7.0;
+        lattice.append(&Mesh::cylinder_between(
+            Vec3::new(x, 0.0, zf),
+            Vec3::new(x, 0.85, zf),
+            r,
+            8,
+        ));
+    }
+    for j in 0..6 {
+        let y = 0.1 + 0.7 * j as f32 / 5.0;
+        lattice.append(&Mesh::cylinder_between(
+            Vec3::new(-0.72, y, zf),
+            Vec3::new(0.72, y, zf),
+            r,
+            8,
+        ));
+    }
+    s.add_mesh("lattice", lattice, dark, Transform::IDENTITY)?;
+
+    // A plant: a stem with thin double-sided leaves (zero thickness).
+    let stem_base = Vec3::new(0.6, 0.0, 0.45);
+    let stem_top = Vec3::new(0.62, 0.85, 0.42);
+    s.add_mesh(
+        "stem",
+        Mesh::cylinder_between(stem_base, stem_top, 0.01, 8),
+        dark,
+        Transform::IDENTITY,
+    )?;
+    let mut leaves = Mesh::empty();
+    for k in 0..7 {
+        let t = 0.2 + 0.1 * k as f32;
+        let at = stem_base.lerp(stem_top, t);
+        let yaw = deg(137.5 * k as f32);
+        let dir = Vec3::new(yaw.cos(), 0.35, yaw.sin()).normalize();
+        let side = Vec3::Y.cross(dir).normalize() * 0.03;
+        let tip = at + dir * 0.2;
+        let mid = at + dir * 0.1;
+        leaves.append(&Mesh::quad_from_corners([at, mid - side, tip, mid + side]));
+    }
+    s.add_mesh("leaves", leaves, leaf, Transform::IDENTITY)?;
+
+    s.add_light(
+        "sun",
+        Light::Directional {
+            color: [1.0, 0.98, 0.95],
+            illuminance: 2.5,
+        },
+        sun_from(Vec3::new(-1.0, 3.0, 2.0)),
+    )?;
+    s.add_light(
+        "fill",
+        Light::Point {
+            color: [1.0; 3],
+            intensity: 4.0,
+        },
+        Transform::from_translation(Vec3::new(1.0, 1.6, 1.0)),
+    )?;
+    Ok(s)
+}
+
+fn deep() -> Result<SceneBuilder, SceneGenError> {
+    let mut s = SceneBuilder::new("deep");
+    let floor_tex = s.add_texture("floor", checker(128, 4, [190, 180, 160], [110, 100, 90]))?;
+    let floor = s.add_material(Material::diffuse("floor", [1.0; 3]).with_texture(floor_tex))?;
+    let stone = s.add_material(Material::diffuse("stone", [0.6, 0.57, 0.52]))?;
+    let wall = s.add_material(Material::diffuse("wall", [0.45, 0.3, 0.25]))?;
+    let brass = s.add_material(
+        Material::diffuse("brass", [0.8, 0.6, 0.3]).with_metallic_roughness(1.0, 0.35),
+    )?;
+    let globe = s.add_material(
+        Material::diffuse("globe", [0.85, 0.85, 0.8]).with_metallic_roughness(0.0, 0.2),
+    )?;
+
+    // Floor from z = 2 to z = -24, 8 m wide; 0.5 m checker cells.
+    let floor_mesh = Mesh::quad(Vec2::new(8.0, 26.0), 1.0)
+        .transformed(&glam::Mat4::from_translation(Vec3::new(0.0, 0.0, -11.0)))
+        .with_planar_uvs(2.0);
+    s.add_mesh("floor", floor_mesh, floor, Transform::IDENTITY)?;
+
+    let pillar = s.add_geometry("pillar", Mesh::cylinder(0.2, 3.0, 24))?;
+    for k in 0..10 {
+        let z = -1.5 - 2.0 * k as f32;
+        for x in [-1.8f32, 1.8] {
+            let name = format!("pillar_{}_{k}", if x < 0.0 { "l" } else { "r" });
+            s.add_instance(
+                &name,
+                pillar,
+                stone,
+                Transform::from_translation(Vec3::new(x, 0.0, z)),
+            )?;
+        }
+    }
+    let lintel = s.add_geometry("lintel", Mesh::cuboid(Vec3::new(0.25, 0.1, 9.6)))?;
+    for x in [-1.8f32, 1.8] {
+        let name = if x < 0.0 { "lintel_l" } else { "lintel_r" };
+        s.add_instance(
+            name,
+            lintel,
+            stone,
+            Transform::from_translation(Vec3::new(x, 3.1, -10.5)),
+        )?;
+    }
+    s.add_mesh(
+        "back_wall",
+        Mesh::cuboid(Vec3::new(3.0, 2.0, 0.2)),
+        wall,
+        Transform::from_translation(Vec3::new(0.0, 2.0, -21.0)),
+    )?;
+
+    // The near object: a lamp post with a globe 0.5 m in front of the camera.
+    let post = Mesh::cylinder_between(
+        Vec3::new(-0.18, 0.0, -0.6),
+        Vec3::new(-0.18, 1.3, -0.6),
+        0.02,
+        12,
+    );
+    s.add_mesh("lamp_post", post, brass, Transform::IDENTITY)?;
+    s.add_mesh(
+        "lamp_globe",
+        Mesh::uv_sphere(0.1, 24, 12),
+        globe,
+        Transform::from_translation(Vec3::new(-0.18, 1.4, -0.6)),
+    )?;
+
+    let camera = PerspectiveCamera {
+        yfov: deg(50.0),
+        znear: 0.05,
+        zfar: None,
+        aspect_ratio: None,
+    };
+    s.add_camera(
+        "camera",
+        camera,
+        Transform::look_at(
+            Vec3::new(0.0, 1.6, 0.0),
+            Vec3::new(0.0, 1.2, -20.0),
+            Vec3::Y,
+        ),
+    )?;
+
+    s.add_light(
+        "sun",
+        Light::Directional {
+            color: [1.0, 0.95, 0.85],
+            illuminance: 2.0,
+        },
+        sun_from(Vec3::new(1.0, 1.0, 0.3)),
+    )?;
+    for (k, z) in [-4.0f32, -10.0, -16.0].into_iter().enumerate() {
+        s.add_light(
+            &format!("lamp_{k}"),
+            Light::Point {
+                color: [1.0, 0.85, 0.6],
+                intensity: 3.0,
+            },
+            Transform::from_translation(Vec3::new(0.0, 2.5, z)),
+        )?;
+    }
+    Ok(s)
+}
+
+fn materials() -> Result<SceneBuilder, SceneGenError> {
+    let mut s = SceneBuilder::new("materials");
+    let ground_tex = s.add_texture("ground", checker(128, 4, [210, 210, 210], [120, 120, 130]))?;
+    let bumps = Bumps {
+        cells: 4,
+        radius: 0.4,
+        height: 0.02,
+    };
+    let normal_tex = s.add_texture("bumps_normal", bump_normal_map(256, &bumps))?;
+
+    let ground = s.add_material(
+        Material::diffuse("ground", [1.0; 3])
+            .with_texture(ground_tex)
+            .with_metallic_roughness(0.0, 0.9),
+    )?;
+    s.add_mesh(
+        "ground",
+        Mesh::quad(Vec2::new(5.0, 5.0), 1.0).with_planar_uvs(1.0),
+        ground,
+        Transform::IDENTITY,
+    )?;
+
+    let sphere = s.add_geometry("sphere", Mesh::uv_sphere(0.2, 48, 24))?;
+    let roughness = [0.05f32, 0.25, 0.5, 0.75, 1.0];
+    for (row, (metallic, colour, z)) in [
+        (0.0f32, [0.8f32, 0.1, 0.1], 0.0f32),
+        (1.0, [1.0, 0.77, 0.34], -0.6),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        for (i, &r) in roughness.iter().enumerate() {
+            let name = format!(
+                "{}_r{:03}",
+                if row == 0 { "dielectric" } else { "metal" },
+                (r * 100.0).round() as u32
+            );
+            let mat = s.add_material(
+                Material::diffuse(&name, colour).with_metallic_roughness(metallic, r),
+            )?;
+            let x = -1.0 + 0.5 * i as f32;
+            s.add_instance(
+                &name,
+                sphere,
+                mat,
+                Transform::from_translation(Vec3::new(x, 0.2, z)),
+            )?;
+        }
+    }
+
+    let bumpy = s.add_material(
+        Material::diffuse("bumpy", [0.6, 0.6, 0.65])
+            .with_metallic_roughness(0.0, 0.5)
+            .with_normal_map(normal_tex, 1.0),
+    )?;
+    let box_at = Transform::from_translation_rotation(
+        Vec3::new(0.0, 0.3, -1.4),
+        Quat::from_rotation_y(deg(25.0)),
+    );
+    s.add_mesh(
+        "bumpy_box",
+        Mesh::cuboid(Vec3::splat(0.3)).with_tangents(),
+        bumpy,
+        box_at,
+    )?;
+
+    s.add_light(
+        "sun",
+        Light::Directional {
+            color: [1.0, 0.97, 0.92],
+            illuminance: 2.0,
+        },
+        sun_from(Vec3::new(-1.0, 2.0, 2.0)),
+    )?;
+    s.add_light(
+        "point",
+        Light::Point {
+            color: [1.0; 3],
+            intensity: 3.0,
+        },
+        Transform::from_translation(Vec3::new(1.5, 1.5, 1.0)),
+    )?;
+    s.add_light(
+        "spot",
+        Light::Spot {
+            color: [1.0, 0.95, 0.9],
+            intensity: 15.0,
+            inner_cone_angle: deg(12.0),
+            outer_cone_angle: deg(20.0),
+        },
+        Transform::look_at(
+            Vec3::new(-1.2, 2.0, 0.5),
+            Vec3::new(0.0, 0.3, -1.4),
+            Vec3::Y,
+        ),
+    )?;
+    Ok(s)
+}
