@@ -1,0 +1,256 @@
+//! Writing a run's report folder: `eval.json`, `report.json`, `report.md`,
+//! `speed_vs_error.png` and one `grid_<view>.png` per test view.
+
+use std::path::{Path, PathBuf};
+
+use crate::compare::RunSummary;
+use crate::curve::{MetricsRecord, val_depth_points, val_psnr_points};
+use crate::error::EvalError;
+use crate::evaluate::{EvalReport, ViewInput, ViewMetrics};
+use crate::grid::{grid_file_name, view_grid_png};
+use crate::io::{write_atomic, write_json_atomic};
+use crate::plot::{SpeedVsError, speed_vs_error_png};
+
+/// Human-readable name and unit of each report key.
+fn describe(key: &str) -> (&'static str, &'static str) {
+    match key {
+        "psnr" => ("PSNR", "dB"),
+        "ssim" => ("SSIM", ""),
+        "depth_mae" => ("depth MAE", "m"),
+        "depth_rmse" => ("depth RMSE", "m"),
+        "depth_abs_rel" => ("depth abs. rel.", ""),
+        "depth_delta_1_25" => ("δ < 1.25", "fraction"),
+        "depth_delta_1_01" => ("δ < 1.01", "fraction"),
+        "mask_iou" => ("mask IoU", ""),
+        "off_surface_mass" => ("off-surface mass", "fraction"),
+        "render_s_per_view" => ("render time per view", "s"),
+        _ => ("?", ""),
+    }
+}
+
+fn fmt(key: &str, v: f64) -> String {
+    match key {
+        "psnr" => format!("{v:.2}"),
+        "render_s_per_view" => format!("{v:.3}"),
+        _ => format!("{v:.4}"),
+    }
+}
+
+/// A one-line description of a view's metrics (the grid header).
+pub fn metrics_line(name: &str, m: &ViewMetrics) -> String {
+    let mut s = format!("view {name}: PSNR {:.2} dB, SSIM {:.4}", m.psnr, m.ssim);
+    if let Some(d) = m.depth_mae {
+        s.push_str(&format!(", depth MAE {d:.4} m"));
+    }
+    if let Some(o) = m.off_surface_mass {
+        s.push_str(&format!(", off-surface mass {o:.3}"));
+    }
+    s
+}
+
+/// The Markdown report (summary table, notes, pictures linked relatively).
+pub fn report_markdown(name: &str, report: &EvalReport, summary: &RunSummary, grids: &[String]) -> String {
+    let mut s = format!("# Evaluation: {name}\n\n## Summary\n\n| metric | value |\n|---|---:|\n");
+    for (key, v) in report.mean.entries() {
+        let (label, unit) = describe(key);
+        let unit = if unit.is_empty() { String::new() } else { format!(" ({unit})") };
+        s.push_str(&format!("| {label}{unit} | {} |\n", fmt(key, v)));
+    }
+    let never = |t: Option<f64>| t.map_or("never".to_string(), |t| format!("{t:.1}"));
+    s.push_str(&format!("| time to 25 dB val. PSNR (s) | {} |\n", never(summary.time_to_25db_s)));
+    s.push_str(&format!("| time to 30 dB val. PSNR (s) | {} |\n", never(summary.time_to_30db_s)));
+    s.push_str(&format!("| training time (s) | {:.1} |\n", report.train_wall_s));
+    s.push_str(&format!("| training steps | {} |\n", report.train_steps));
+    s.push_str(&format!("| parameters | {} |\n", report.parameters));
+    s.push_str(&format!(
+        "\nMeans over {} test views. Depth is z-depth in scene units (m) over foreground pixels (ground-truth alpha ≥ 0.999); off-surface tolerance {:.4} m.\n",
+        report.views.len(),
+        report.surface_tol
+    ));
+    if !report.notes.is_empty() {
+        s.push_str("\n## Notes\n\n");
+        for n in &report.notes {
+            s.push_str(&format!("- {n}\n"));
+        }
+    }
+    s.push_str("\n## Speed versus error\n\n![validation PSNR against wall-clock training time](speed_vs_error.png)\n");
+    s.push_str("\n## Per view\n\n");
+    let keys: Vec<&str> = report.mean.entries().iter().map(|(k, _)| *k).collect();
+    s.push_str("| view |");
+    for k in &keys {
+        s.push_str(&format!(" {} |", describe(k).0));
+    }
+    s.push_str("\n|---|");
+    s.push_str(&"---:|".repeat(keys.len()));
+    s.push('\n');
+    for v in &report.views {
+        s.push_str(&format!("| {} |", v.name.replace('|', "\\|")));
+        let entries = v.metrics.entries();
+        for k in &keys {
+            let cell = entries.iter().find(|(ek, _)| ek == k).map_or("—".to_string(), |(_, x)| fmt(k, *x));
+            s.push_str(&format!(" {cell} |"));
+        }
+        s.push('\n');
+    }
+    if !grids.is_empty() {
+        s.push_str("\n## Views\n\nGround truth | NeRF | colour error; ground-truth depth | NeRF depth | signed depth error.\n");
+        for g in grids {
+            s.push_str(&format!("\n![{g}]({g})\n"));
+        }
+    }
+    s
+}
+
+/// Write the report of run `name` into `out_dir`: `eval.json` (the [`EvalReport`]),
+/// `report.json` (the [`RunSummary`]), `speed_vs_error.png` (from `curve`), one
+/// `grid_<view>.png` per entry of `grids`, and `report.md`, whose path is returned.
+/// Every file is written atomically.
+pub fn write_report(
+    out_dir: &Path,
+    name: &str,
+    report: &EvalReport,
+    curve: &[MetricsRecord],
+    grids: &[ViewInput<'_>],
+) -> Result<PathBuf, EvalError> {
+    write_json_atomic(&out_dir.join("eval.json"), report)?;
+    let summary = RunSummary::from_report(name, report, curve);
+    write_json_atomic(&out_dir.join("report.json"), &summary)?;
+    let data = SpeedVsError {
+        val_psnr: val_psnr_points(curve),
+        train_psnr: curve.iter().filter_map(|r| r.train_psnr.map(|p| (r.wall_s, p))).collect(),
+        val_depth_mae: val_depth_points(curve),
+        t25: summary.time_to_25db_s,
+        t30: summary.time_to_30db_s,
+        title: name.to_string(),
+    };
+    speed_vs_error_png(&out_dir.join("speed_vs_error.png"), &data)?;
+    let mut grid_files = Vec::new();
+    for v in grids {
+        let file = grid_file_name(v.name);
+        let header = match report.views.iter().find(|r| r.name == v.name) {
+            Some(r) => metrics_line(v.name, &r.metrics),
+            None => format!("view {}", v.name),
+        };
+        view_grid_png(&out_dir.join(&file), v, &header)?;
+        grid_files.push(file);
+    }
+    let md = report_markdown(name, report, &summary, &grid_files);
+    let path = out_dir.join("report.md");
+    write_atomic(&path, md.as_bytes())?;
+    Ok(path)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::compare::{RunSummary, compare_runs};
+    use crate::curve::parse_metrics_jsonl;
+    use crate::evaluate::{EvalOptions, RunInfo, evaluate_views};
+    use crate::metrics::RaySamples;
+
+    /// A synthetic 40x30 view: a sphere-like depth bump in front of a background, colour from
+    /// the depth; the "NeRF" is blurred in colour, biased in depth, with a floater.
+    #[test]
+    fn writes_every_file_and_pictures_are_readable() {
+        let (w, h) = (40usize, 30usize);
+        let n = w * h;
+        let mut gt_rgb = vec![0.0f32; n * 3];
+        let mut pred_rgb = vec![0.0f32; n * 3];
+        let mut gt_depth = vec![0.0f32; n];
+        let mut pred_depth = vec![0.0f32; n];
+        let mut alpha = vec![0.0f32; n];
+        let mut opacity = vec![0.0f32; n];
+        for y in 0..h {
+            for x in 0..w {
+                let i = y * w + x;
+                let (dx, dy) = (x as f32 - 20.0, y as f32 - 15.0);
+                let r2 = (dx * dx + dy * dy) / 144.0;
+                if r2 < 1.0 {
+                    alpha[i] = 1.0;
+                    gt_depth[i] = 3.0 - (1.0 - r2).sqrt();
+                    pred_depth[i] = gt_depth[i] + 0.02 * dx / 12.0;
+                }
+                opacity[i] = if r2 < 1.1 { 1.0 } else { 0.0 };
+                for c in 0..3 {
+                    let v = if alpha[i] > 0.0 { 0.3 + 0.2 * c as f32 + 0.1 * (x as f32 * 0.3).sin() } else { 1.0 };
+                    gt_rgb[3 * i + c] = v;
+                    pred_rgb[3 * i + c] = (v + 0.03 * (y as f32 * 0.7).cos()).clamp(0.0, 1.0);
+                }
+            }
+        }
+        let pixel: Vec<usize> = (0..n).collect();
+        let mut offsets = vec![0usize];
+        let (mut t, mut wts) = (Vec::new(), Vec::new());
+        for i in 0..n {
+            t.extend([1.0, gt_depth[i]]);
+            wts.extend([0.1, 0.9]);
+            offsets.push(t.len());
+        }
+        let view = ViewInput {
+            name: "r_7",
+            width: w,
+            height: h,
+            pred_rgb: &pred_rgb,
+            gt_rgb: &gt_rgb,
+            pred_depth: Some(&pred_depth),
+            gt_depth: Some(&gt_depth),
+            gt_distance: Some(&gt_depth),
+            gt_alpha: Some(&alpha),
+            pred_opacity: &opacity,
+            samples: Some(RaySamples { pixel: &pixel, offsets: &offsets, t: &t, w: &wts }),
+            render_s: 0.3,
+        };
+        let run = RunInfo { train_wall_s: 100.0, train_steps: 2000, parameters: 50_000 };
+        let opts = EvalOptions::with_surface_tol(0.05);
+        let report = evaluate_views(&[view], run, &opts).unwrap();
+        assert!((report.mean.off_surface_mass.unwrap() - 0.1).abs() < 1e-6);
+        let mut jsonl = String::new();
+        for k in 0..=20 {
+            let wall = 5.0 * k as f64;
+            let psnr = 15.0 + 17.0 * (1.0 - (-wall / 30.0).exp());
+            jsonl.push_str(&format!(
+                "{{\"step\":{},\"wall_s\":{wall},\"loss\":0.01,\"train_psnr\":{},\"rays_per_s\":5000}}\n",
+                k * 100,
+                psnr + 0.5
+            ));
+            if k % 2 == 0 {
+                jsonl.push_str(&format!(
+                    "{{\"step\":{},\"wall_s\":{wall},\"loss\":0.01,\"train_psnr\":{psnr},\"rays_per_s\":5000,\"val_psnr\":{psnr},\"val_depth_mae\":{}}}\n",
+                    k * 100,
+                    0.2 * (-wall / 40.0).exp()
+                ));
+            }
+        }
+        let curve = parse_metrics_jsonl(jsonl.as_bytes(), Path::new("metrics.jsonl")).unwrap();
+        let dir = std::env::temp_dir().join(format!("eval-report-{}", std::process::id()));
+        let md_path = write_report(&dir, "demo", &report, &curve, &[view]).unwrap();
+        let md = std::fs::read_to_string(&md_path).unwrap();
+        assert!(md.contains("![validation PSNR against wall-clock training time](speed_vs_error.png)"));
+        assert!(md.contains("![grid_r_7.png](grid_r_7.png)"));
+        assert!(md.contains("| depth MAE (m) |"));
+        let eval: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(dir.join("eval.json")).unwrap()).unwrap();
+        assert_eq!(eval["views"][0]["name"], "r_7");
+        let summary: RunSummary =
+            serde_json::from_str(&std::fs::read_to_string(dir.join("report.json")).unwrap()).unwrap();
+        // analytic curve reaches 25 dB at t = -30 ln(1 - 10/17) = 26.6 s, interpolated between evaluations
+        let t25 = summary.time_to_25db_s.unwrap();
+        assert!(t25 > 20.0 && t25 < 30.0, "{t25}");
+        for (file, min_w) in [("speed_vs_error.png", 1000), ("grid_r_7.png", 3 * 256)] {
+            let img = image::open(dir.join(file)).unwrap().to_rgb8();
+            assert!(img.width() >= min_w, "{file}");
+            // not blank: some dark pixels (text, lines) and some white ones
+            assert!(img.pixels().any(|p| p.0.iter().all(|&c| c < 60)), "{file} has no dark pixels");
+            assert!(img.pixels().any(|p| p.0 == [255, 255, 255]), "{file} has no background");
+        }
+        // the grid's top-left image panel shows the ground truth (white background) at 256/40 scale
+        let mut slower = summary.clone();
+        slower.name = "slower".into();
+        slower.train_wall_s *= 2.0;
+        slower.val_psnr_curve.iter_mut().for_each(|p| p[0] *= 2.0);
+        let table = compare_runs(&[summary, slower], &dir).unwrap();
+        assert!(table.contains("| demo |") && table.contains("★"));
+        assert!(image::open(dir.join("compare.png")).is_ok());
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}
