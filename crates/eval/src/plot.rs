@@ -109,7 +109,7 @@ fn psnr_panel<DB: DrawingBackend>(
         .y_desc("PSNR (dB)")
         .label_style((FONT, 15))
         .axis_desc_style((FONT, 16))
-        .light_line_style(RGBColor(235, 235, 235))
+        .light_line_style(RGBColor(246, 246, 246))
         .draw()?;
     for thr in [25.0, 30.0] {
         chart.draw_series(DashedLineSeries::new(
@@ -238,7 +238,7 @@ pub fn speed_vs_error_png(path: &Path, data: &SpeedVsError) -> Result<(), EvalEr
                 .y_desc("depth MAE (scene units, m)")
                 .label_style((FONT, 15))
                 .axis_desc_style((FONT, 16))
-                .light_line_style(RGBColor(235, 235, 235))
+                .light_line_style(RGBColor(246, 246, 246))
                 .draw()
                 .map_err(&err)?;
             chart

@@ -215,14 +215,19 @@ mod tests {
             ));
             if k % 2 == 0 {
                 jsonl.push_str(&format!(
-                    "{{\"step\":{},\"wall_s\":{wall},\"loss\":0.01,\"train_psnr\":{psnr},\"rays_per_s\":5000,\"val_psnr\":{psnr},\"val_depth_mae\":{}}}\n",
+                    "{{\"step\":{},\"wall_s\":{wall},\"loss\":0.01,\"train_psnr\":{},\"rays_per_s\":5000,\"val_psnr\":{psnr},\"val_depth_mae\":{}}}\n",
                     k * 100,
+                    psnr + 0.5,
                     0.2 * (-wall / 40.0).exp()
                 ));
             }
         }
         let curve = parse_metrics_jsonl(jsonl.as_bytes(), Path::new("metrics.jsonl")).unwrap();
-        let dir = std::env::temp_dir().join(format!("eval-report-{}", std::process::id()));
+        // EVAL_TEST_OUT=<dir> keeps the pictures for inspection.
+        let keep = std::env::var_os("EVAL_TEST_OUT");
+        let dir = keep
+            .clone()
+            .map_or_else(|| std::env::temp_dir().join(format!("eval-report-{}", std::process::id())), Into::into);
         let md_path = write_report(&dir, "demo", &report, &curve, &[view]).unwrap();
         let md = std::fs::read_to_string(&md_path).unwrap();
         assert!(md.contains("![validation PSNR against wall-clock training time](speed_vs_error.png)"));
@@ -243,14 +248,20 @@ mod tests {
             assert!(img.pixels().any(|p| p.0.iter().all(|&c| c < 60)), "{file} has no dark pixels");
             assert!(img.pixels().any(|p| p.0 == [255, 255, 255]), "{file} has no background");
         }
-        // the grid's top-left image panel shows the ground truth (white background) at 256/40 scale
+        // the same run at half speed reaches 30 dB later with the same final PSNR: dominated
         let mut slower = summary.clone();
         slower.name = "slower".into();
         slower.train_wall_s *= 2.0;
+        slower.time_to_25db_s = Some(t25 * 2.0);
+        slower.time_to_30db_s = summary.time_to_30db_s.map(|t| t * 2.0);
         slower.val_psnr_curve.iter_mut().for_each(|p| p[0] *= 2.0);
         let table = compare_runs(&[summary, slower], &dir).unwrap();
-        assert!(table.contains("| demo |") && table.contains("★"));
+        let row = |name: &str| table.lines().find(|l| l.starts_with(&format!("| {name} |"))).unwrap().to_string();
+        assert!(row("demo").ends_with("| ★ |"), "{table}");
+        assert!(row("slower").ends_with("|  |"), "{table}");
         assert!(image::open(dir.join("compare.png")).is_ok());
-        std::fs::remove_dir_all(&dir).unwrap();
+        if keep.is_none() {
+            std::fs::remove_dir_all(&dir).unwrap();
+        }
     }
 }
