@@ -224,12 +224,16 @@ pub fn evaluate_view(v: &ViewInput<'_>, opts: &EvalOptions) -> Result<ViewReport
             len("gt_distance", dist.len())?;
             optional(metrics::off_surface_mass(&s, dist, a, opts.surface_tol), v.name, &mut notes)?
         }
+        (_, None, _) => {
+            notes.push("no ground-truth ray distance: off_surface_mass omitted".into());
+            None
+        }
         (None, _, _) => {
             notes.push("no per-ray samples given: off_surface_mass omitted".into());
             None
         }
         _ => {
-            notes.push("no ground-truth ray distance: off_surface_mass omitted".into());
+            notes.push("no ground-truth alpha or depth: off_surface_mass omitted".into());
             None
         }
     };
@@ -445,8 +449,8 @@ mod tests {
         let pred_depth = gt_depth.iter().map(|d| d + 0.1).collect();
         let mut offsets = vec![0];
         let (mut t, mut wts) = (Vec::new(), Vec::new());
-        for i in 0..n {
-            t.extend([gt_depth[i] - 1.0, gt_depth[i]]);
+        for &d in &gt_depth {
+            t.extend([d - 1.0, d]);
             wts.extend([0.25, 0.75]);
             offsets.push(t.len());
         }

@@ -110,30 +110,66 @@ pub fn reflect_index(i: isize, n: usize) -> usize {
 /// `img`: `[H * W]`, `kernel`: `[2r + 1]`; returns `[H * W]`.
 pub fn filter_separable(img: &[f64], width: usize, height: usize, kernel: &[f64]) -> Vec<f64> {
     let r = (kernel.len() / 2) as isize;
-    // scipy filters axis 0 (rows index, vertical) first, then axis 1.
+    // scipy filters axis 0 (vertical) first, then axis 1. Vertical pass: whole rows at a time.
     let mut tmp = vec![0.0; width * height];
     for y in 0..height {
-        for x in 0..width {
-            let mut acc = 0.0;
-            for (j, k) in kernel.iter().enumerate() {
-                let yy = reflect_index(y as isize + j as isize - r, height);
-                acc += k * img[yy * width + x];
+        let out_row = &mut tmp[y * width..(y + 1) * width];
+        for (j, k) in kernel.iter().enumerate() {
+            let yy = reflect_index(y as isize + j as isize - r, height);
+            let src = &img[yy * width..(yy + 1) * width];
+            for (o, v) in out_row.iter_mut().zip(src) {
+                *o += k * v;
             }
-            tmp[y * width + x] = acc;
         }
     }
+    // Horizontal pass over a reflect-padded copy of each row.
     let mut out = vec![0.0; width * height];
+    let mut padded = vec![0.0; width + 2 * r as usize];
     for y in 0..height {
         let row = &tmp[y * width..(y + 1) * width];
-        for x in 0..width {
-            let mut acc = 0.0;
-            for (i, k) in kernel.iter().enumerate() {
-                acc += k * row[reflect_index(x as isize + i as isize - r, width)];
+        for (i, p) in padded.iter_mut().enumerate() {
+            *p = row[reflect_index(i as isize - r, width)];
+        }
+        let out_row = &mut out[y * width..(y + 1) * width];
+        for (i, k) in kernel.iter().enumerate() {
+            for (o, v) in out_row.iter_mut().zip(&padded[i..i + width]) {
+                *o += k * v;
             }
-            out[y * width + x] = acc;
         }
     }
     out
+}
+
+/// SSIM of one channel (mean of the SSIM map over the interior), see [`ssim`].
+fn ssim_channel(x: &[f64], y: &[f64], width: usize, height: usize, kernel: &[f64]) -> f64 {
+    let c1 = SSIM_K1 * SSIM_K1;
+    let c2 = SSIM_K2 * SSIM_K2;
+    let pad = (kernel.len() - 1) / 2;
+    let xx: Vec<f64> = x.iter().map(|v| v * v).collect();
+    let yy: Vec<f64> = y.iter().map(|v| v * v).collect();
+    let xy: Vec<f64> = x.iter().zip(y).map(|(a, b)| a * b).collect();
+    let ux = filter_separable(x, width, height, kernel);
+    let uy = filter_separable(y, width, height, kernel);
+    let uxx = filter_separable(&xx, width, height, kernel);
+    let uyy = filter_separable(&yy, width, height, kernel);
+    let uxy = filter_separable(&xy, width, height, kernel);
+    let mut sum = 0.0;
+    let mut count = 0usize;
+    for row in pad..height - pad {
+        for col in pad..width - pad {
+            let i = row * width + col;
+            let vx = uxx[i] - ux[i] * ux[i];
+            let vy = uyy[i] - uy[i] * uy[i];
+            let vxy = uxy[i] - ux[i] * uy[i];
+            let a1 = 2.0 * ux[i] * uy[i] + c1;
+            let a2 = 2.0 * vxy + c2;
+            let b1 = ux[i] * ux[i] + uy[i] * uy[i] + c1;
+            let b2 = vx + vy + c2;
+            sum += (a1 * a2) / (b1 * b2);
+            count += 1;
+        }
+    }
+    sum / count as f64
 }
 
 /// Structural similarity (Wang et al. 2004), exactly as scikit-image computes
@@ -169,39 +205,22 @@ pub fn ssim(
     if width < win || height < win {
         return Err(MetricError::TooSmall { width, height, window: win });
     }
-    let c1 = SSIM_K1 * SSIM_K1;
-    let c2 = SSIM_K2 * SSIM_K2;
-    let pad = (win - 1) / 2;
-    let mut total = 0.0;
-    for c in 0..channels {
-        let x: Vec<f64> = (0..width * height).map(|i| f64::from(pred[i * channels + c])).collect();
-        let y: Vec<f64> = (0..width * height).map(|i| f64::from(gt[i * channels + c])).collect();
-        let xx: Vec<f64> = x.iter().map(|v| v * v).collect();
-        let yy: Vec<f64> = y.iter().map(|v| v * v).collect();
-        let xy: Vec<f64> = x.iter().zip(&y).map(|(a, b)| a * b).collect();
-        let ux = filter_separable(&x, width, height, &kernel);
-        let uy = filter_separable(&y, width, height, &kernel);
-        let uxx = filter_separable(&xx, width, height, &kernel);
-        let uyy = filter_separable(&yy, width, height, &kernel);
-        let uxy = filter_separable(&xy, width, height, &kernel);
-        let mut sum = 0.0;
-        let mut count = 0usize;
-        for row in pad..height - pad {
-            for col in pad..width - pad {
-                let i = row * width + col;
-                let vx = uxx[i] - ux[i] * ux[i];
-                let vy = uyy[i] - uy[i] * uy[i];
-                let vxy = uxy[i] - ux[i] * uy[i];
-                let a1 = 2.0 * ux[i] * uy[i] + c1;
-                let a2 = 2.0 * vxy + c2;
-                let b1 = ux[i] * ux[i] + uy[i] * uy[i] + c1;
-                let b2 = vx + vy + c2;
-                sum += (a1 * a2) / (b1 * b2);
-                count += 1;
-            }
-        }
-        total += sum / count as f64;
-    }
+    // Channels are independent: compute them on scoped threads and sum in channel order, so
+    // the result is the same whatever the thread count.
+    let per_channel: Vec<f64> = std::thread::scope(|scope| {
+        let handles: Vec<_> = (0..channels)
+            .map(|c| {
+                let kernel = &kernel;
+                scope.spawn(move || {
+                    let x: Vec<f64> = (0..width * height).map(|i| f64::from(pred[i * channels + c])).collect();
+                    let y: Vec<f64> = (0..width * height).map(|i| f64::from(gt[i * channels + c])).collect();
+                    ssim_channel(&x, &y, width, height, kernel)
+                })
+            })
+            .collect();
+        handles.into_iter().map(|h| h.join().unwrap_or(f64::NAN)).collect()
+    });
+    let total: f64 = per_channel.iter().sum();
     Ok(total / channels as f64)
 }
 

@@ -181,8 +181,8 @@ mod tests {
         let pixel: Vec<usize> = (0..n).collect();
         let mut offsets = vec![0usize];
         let (mut t, mut wts) = (Vec::new(), Vec::new());
-        for i in 0..n {
-            t.extend([1.0, gt_depth[i]]);
+        for &d in &gt_depth {
+            t.extend([1.0, d]);
             wts.extend([0.1, 0.9]);
             offsets.push(t.len());
         }
