@@ -25,18 +25,18 @@ struct SceneDef {
 const SCENES: &[SceneDef] = &[
     SceneDef {
         name: "cornell",
-        description: "Closed Cornell-like room (2 m × 2 m × 2.5 m, x ∈ [-1, 1], y ∈ [0, 2], z ∈ [-1, 1.5]): \
+        description: "Closed Cornell-like room (2 m wide, 2 m high, 3.8 m deep: x ∈ [-1, 1], y ∈ [0, 2], z ∈ [-1, 2.8]): \
             white floor, ceiling, back and front walls, red left wall, green right wall, a short box and a tall \
             box rotated about +Y. Tests global illumination in a closed diffuse room and an area light: the only \
             light is an emissive 0.5 m × 0.4 m quad 2 cm below the ceiling, facing down, radiance 30 × (1, 0.9, 0.75) \
-            (direct irradiance ≈ 1.5 at the floor below it). One glTF perspective camera (yfov 50°) inside the \
-            room near the front wall looks at the boxes; cameras must stay inside the room.",
+            (direct irradiance ≈ 1.5 at the floor below it). One glTF perspective camera (yfov 45°) inside the \
+            room, 10 cm from the front wall at (0, 1, 2.7), looks at the boxes; cameras must stay inside the room.",
         build: cornell,
     },
     SceneDef {
         name: "tabletop",
         description: "The default demo scene, object-centric like the NeRF synthetic scenes (≈ 4.5k triangles, \
-            within a 1.5 m radius): a checker-textured ground disc, a checker-textured box with a small sphere on \
+            within a 1 m radius): a checker-textured ground disc (radius 1 m, 12.5 cm cells), a checker-textured box with a small sphere on \
             it, a latitude-striped sphere, a torus with per-vertex colours (COLOR_0) and a cylinder vase. Tests \
             textures, vertex colours, curved surfaces and occlusion. Lights: a directional sun of 2.5 lux \
             (elevation ≈ 48°) and a 5 cd point light ≈ 2.4 m from the centre. No camera: the renderer places \
@@ -67,7 +67,7 @@ const SCENES: &[SceneDef] = &[
         description: "For physically based materials: two rows of five spheres (radius 0.2 m) with roughness \
             0.05, 0.25, 0.5, 0.75, 1 — the front row dielectric red (metallic 0), the back row gold (metallic \
             1) — a box with a tangent-space bump normal map (with TANGENT attributes), on a checker-textured \
-            5 m ground plane. Lights: a 2 lux sun, a 3 cd point light and a 15 cd spot light (inner 12°, \
+            3.2 m square ground plane. Lights: a 2 lux sun, a 3 cd point light and a 15 cd spot light (inner 12°, \
             outer 20°) aimed at the normal-mapped box. Lambertian renders see only base colours. No camera.",
         build: materials,
     },
@@ -137,7 +137,7 @@ fn cornell() -> Result<SceneBuilder, SceneGenError> {
     let green = s.add_material(Material::diffuse("green", [0.14, 0.45, 0.091]))?;
     let light = s.add_material(Material::emissive("light", [1.0, 0.9, 0.75], 30.0))?;
 
-    let (x0, x1, y0, y1, z0, z1) = (-1.0f32, 1.0f32, 0.0f32, 2.0f32, -1.0f32, 1.5f32);
+    let (x0, x1, y0, y1, z0, z1) = (-1.0f32, 1.0f32, 0.0f32, 2.0f32, -1.0f32, 2.8f32);
     let c = |x: f32, y: f32, z: f32| Vec3::new(x, y, z);
     // Inward-facing walls from exact corners (counter-clockwise seen from inside).
     let floor =
@@ -188,7 +188,7 @@ fn cornell() -> Result<SceneBuilder, SceneGenError> {
     )?;
 
     let camera = PerspectiveCamera {
-        yfov: deg(50.0),
+        yfov: deg(45.0),
         znear: 0.01,
         zfar: None,
         aspect_ratio: None,
@@ -196,7 +196,7 @@ fn cornell() -> Result<SceneBuilder, SceneGenError> {
     s.add_camera(
         "camera",
         camera,
-        Transform::look_at(c(0.0, 1.0, 1.4), c(0.0, 0.8, -0.3), Vec3::Y),
+        Transform::look_at(c(0.0, 1.0, 2.7), c(0.0, 0.9, 0.0), Vec3::Y),
     )?;
     Ok(s)
 }
@@ -236,7 +236,7 @@ fn tabletop() -> Result<SceneBuilder, SceneGenError> {
     // 12.5 cm checker cells: the 8-cell texture repeats every metre.
     s.add_mesh(
         "ground",
-        Mesh::disc(1.5, 64, 1.0).with_planar_uvs(1.0),
+        Mesh::disc(1.0, 64, 1.0).with_planar_uvs(1.0),
         ground,
         Transform::IDENTITY,
     )?;
@@ -290,6 +290,21 @@ fn tabletop() -> Result<SceneBuilder, SceneGenError> {
     Ok(s)
 }
 
+/// Wire radii of the `thin` scene, in metres (its bounding radius is ≈ 1.35 m).
+const THIN_WIRE_RADII: [(&str, f32); 4] = [
+    ("wire_cube", 0.009),
+    ("spring", 0.008),
+    ("lattice", 0.012),
+    ("stem", 0.01),
+];
+
+fn thin_radius(name: &str) -> f32 {
+    THIN_WIRE_RADII
+        .iter()
+        .find(|(n, _)| *n == name)
+        .map_or(0.01, |(_, r)| *r)
+}
+
 fn thin() -> Result<SceneBuilder, SceneGenError> {
     let mut s = SceneBuilder::new("thin");
     let base = s.add_material(Material::diffuse("base", [0.7, 0.7, 0.7]))?;
@@ -326,7 +341,7 @@ fn thin() -> Result<SceneBuilder, SceneGenError> {
                 frame.append(&Mesh::cylinder_between(
                     corner(a),
                     corner(a | bit),
-                    0.009,
+                    thin_radius("wire_cube"),
                     8,
                 ));
             }
@@ -343,13 +358,18 @@ fn thin() -> Result<SceneBuilder, SceneGenError> {
         Vec3::new(0.15 * a.cos(), 0.05 + 0.55 * t, 0.15 * a.sin())
     };
     for k in 0..steps {
-        spring.append(&Mesh::cylinder_between(helix(k), helix(k + 1), 0.008, 6));
+        spring.append(&Mesh::cylinder_between(
+            helix(k),
+            helix(k + 1),
+            thin_radius("spring"),
+            6,
+        ));
     }
     s.add_mesh("spring", spring, blue, Transform::IDENTITY)?;
 
     // Fence lattice behind the cube: 8 posts and 6 rails of 2.4 cm wire.
     let mut lattice = Mesh::empty();
-    let (zf, r) = (-0.6f32, 0.012f32);
+    let (zf, r) = (-0.6f32, thin_radius("lattice"));
     for i in 0..8 {
         let x = -0.7 + 1.4 * i as f32 / 7.0;
         lattice.append(&Mesh::cylinder_between(
@@ -375,7 +395,7 @@ fn thin() -> Result<SceneBuilder, SceneGenError> {
     let stem_top = Vec3::new(0.62, 0.85, 0.42);
     s.add_mesh(
         "stem",
-        Mesh::cylinder_between(stem_base, stem_top, 0.01, 8),
+        Mesh::cylinder_between(stem_base, stem_top, thin_radius("stem"), 8),
         dark,
         Transform::IDENTITY,
     )?;
@@ -529,7 +549,7 @@ fn materials() -> Result<SceneBuilder, SceneGenError> {
     )?;
     s.add_mesh(
         "ground",
-        Mesh::quad(Vec2::new(5.0, 5.0), 1.0).with_planar_uvs(1.0),
+        Mesh::quad(Vec2::new(3.2, 3.2), 1.0).with_planar_uvs(1.0),
         ground,
         Transform::IDENTITY,
     )?;
@@ -609,4 +629,49 @@ fn materials() -> Result<SceneBuilder, SceneGenError> {
         ),
     )?;
     Ok(s)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn thin_wires_are_one_to_two_pixels_wide() {
+        // The renderer frames the bounding sphere with a ~40° FOV; at 200×200 a
+        // pixel then spans 2·tan(20°)/200 ≈ 0.0036 of the camera distance
+        // R / sin(20°), i.e. ≈ 0.0107 R. Wires should be 0.01–0.02 R across.
+        let scene = build_scene("thin").unwrap();
+        let (lo, hi) = scene.bounds().unwrap();
+        let radius = ((hi - lo) * 0.5).length();
+        let fov = 40f32.to_radians();
+        let pixel = 2.0 * (fov / 2.0).tan() / 200.0 * radius / (fov / 2.0).sin();
+        for (name, r) in THIN_WIRE_RADII {
+            let d = 2.0 * r;
+            assert!(
+                (0.01..=0.02).contains(&(d / radius)),
+                "{name}: diameter {d} vs radius {radius}"
+            );
+            assert!(
+                (0.9..=2.0).contains(&(d / pixel)),
+                "{name}: {} pixels",
+                d / pixel
+            );
+        }
+    }
+
+    #[test]
+    fn every_scene_has_a_description_and_builds() {
+        for name in scene_names() {
+            assert!(
+                scene_description(name).is_some_and(|d| d.len() > 100),
+                "{name}"
+            );
+            let s = build_scene(name).unwrap();
+            assert!(s.bounds().is_some());
+        }
+        assert!(matches!(
+            build_scene("none"),
+            Err(SceneGenError::UnknownScene { .. })
+        ));
+    }
 }
