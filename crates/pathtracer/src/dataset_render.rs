@@ -1,1 +1,902 @@
-//! (in progress)
+//! Rendering a scene into a dataset folder (the layout of `shared/DESIGN.md`, "The dataset
+//! folder"), with resume and progress.
+//!
+//! For every view of the rig (see [`crate::rig`]) the driver writes, atomically:
+//! `<split>/r_<k>.png` (8-bit sRGB RGBA, straight alpha), `<split>/r_<k>.exr` (linear RGBA,
+//! premultiplied), `<split>/r_<k>_gt.exr` (z-depth, distance, world normal, alpha at the
+//! pixel-centre ray) and `<split>/r_<k>_depth.npy` (z-depth, nerfstudio). The resolved settings
+//! go to `render_config.json` before the first view; the transforms files
+//! (`transforms_{train,val,test}.json` with the scene facts, nerfstudio's `transforms.json`) are
+//! written last.
+//!
+//! Resume: a view whose four files exist is kept, the others are rendered. Every view's
+//! randomness is keyed by (seed, split, view index) only ([`view_key`]), so a resumed dataset is
+//! byte-identical to an uninterrupted one, whatever the thread count. A folder holding a dataset
+//! rendered with different settings is refused unless [`RunOptions::force`] is set.
+//!
+//! The renderer enters through the [`ViewRenderer`] trait: [`render_dataset`] loads the glTF and
+//! uses the path tracer; [`render_dataset_with`] takes any implementation (tests use an
+//! analytic one).
+
+use crate::PathTracerError;
+use crate::rig::{DEFAULT_FOV_X, Rig, RigConfig, RigKind, build_rig, split_index};
+use crate::scene::Scene;
+use dataset::{Camera, FrameRecord, GroundTruth, RgbaImage, SceneFacts, SplitKind};
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+
+/// Named starting points for [`DatasetRenderConfig`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Preset {
+    /// 64×64, 20/4/4 views, 16 spp, 4 bounces: seconds, for tests and the demo.
+    Quick,
+    /// 200×200, 100/10/20 views, 128 spp, 8 bounces: the Blender-synthetic-like dataset.
+    Standard,
+}
+
+impl Preset {
+    /// `quick` or `standard`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Preset::Quick => "quick",
+            Preset::Standard => "standard",
+        }
+    }
+}
+
+impl std::str::FromStr for Preset {
+    type Err = PathTracerError;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s.to_ascii_lowercase().as_str() {
+            "quick" => Ok(Preset::Quick),
+            "standard" => Ok(Preset::Standard),
+            _ => Err(PathTracerError::Config(format!("unknown preset '{s}' (expected quick or standard)"))),
+        }
+    }
+}
+
+/// What pixels whose rays leave the scene show.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Background {
+    /// Alpha 0 (colour premultiplied by coverage), like the Blender synthetic scenes.
+    Transparent,
+    /// The environment radiance, opaque.
+    Environment,
+    /// A constant linear colour composited behind the scene (`over`), opaque.
+    Color([f32; 3]),
+}
+
+impl std::str::FromStr for Background {
+    type Err = PathTracerError;
+    /// `transparent`, `environment` or a linear colour `R,G,B`.
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s.to_ascii_lowercase().as_str() {
+            "transparent" => Ok(Background::Transparent),
+            "environment" => Ok(Background::Environment),
+            _ => parse_rgb(s).map(Background::Color).map_err(|m| {
+                PathTracerError::Config(format!("background '{s}': {m} (expected transparent, environment or R,G,B)"))
+            }),
+        }
+    }
+}
+
+/// Parses a linear colour `R,G,B` of three finite, non-negative numbers.
+pub fn parse_rgb(s: &str) -> Result<[f32; 3], String> {
+    let parts: Vec<&str> = s.split(',').map(str::trim).collect();
+    if parts.len() != 3 {
+        return Err(format!("'{s}' is not three comma-separated numbers"));
+    }
+    let mut out = [0.0f32; 3];
+    for (o, p) in out.iter_mut().zip(&parts) {
+        let v: f32 = p.parse().map_err(|_| format!("'{p}' is not a number"))?;
+        if !v.is_finite() || v < 0.0 {
+            return Err(format!("{v} must be finite and non-negative"));
+        }
+        *o = v;
+    }
+    Ok(out)
+}
+
+/// Everything that determines a rendered dataset's content (the thread count does not).
+/// Written to `render_config.json` and into the scene facts; a resumed run must match it.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct DatasetRenderConfig {
+    /// The preset the values started from (explicit options may have overridden them).
+    pub preset: Preset,
+    /// Image width in pixels.
+    pub width: u32,
+    /// Image height in pixels.
+    pub height: u32,
+    /// Number of train views.
+    pub train: u32,
+    /// Number of val views.
+    pub val: u32,
+    /// Number of test views.
+    pub test: u32,
+    /// Samples per pixel.
+    pub spp: u32,
+    /// Maximum path length in bounces.
+    pub max_bounces: u32,
+    /// Seed of all randomness (rig jitter and path sampling).
+    pub seed: u64,
+    /// Camera rig.
+    pub rig: RigKind,
+    /// Horizontal field of view of the sphere rigs, radians.
+    pub fov_x: f64,
+    /// What missed rays show.
+    pub background: Background,
+    /// Constant environment radiance lighting the scene (linear RGB).
+    pub environment: [f32; 3],
+}
+
+impl DatasetRenderConfig {
+    /// The settings of a preset.
+    pub fn preset(preset: Preset) -> Self {
+        let (res, counts, spp, max_bounces) = match preset {
+            Preset::Quick => (64, [20, 4, 4], 16, 4),
+            Preset::Standard => (200, [100, 10, 20], 128, 8),
+        };
+        Self {
+            preset,
+            width: res,
+            height: res,
+            train: counts[0],
+            val: counts[1],
+            test: counts[2],
+            spp,
+            max_bounces,
+            seed: 0,
+            rig: RigKind::Auto,
+            fov_x: DEFAULT_FOV_X,
+            background: Background::Transparent,
+            environment: [0.0; 3],
+        }
+    }
+
+    /// Checks that the settings describe a renderable dataset; the message names the option.
+    pub fn validate(&self) -> Result<(), PathTracerError> {
+        let bad = |m: String| Err(PathTracerError::Config(m));
+        if self.width == 0 || self.height == 0 {
+            return bad(format!("--res {}x{}: the resolution must be at least 1x1", self.width, self.height));
+        }
+        if self.width > 16384 || self.height > 16384 {
+            return bad(format!("--res {}x{}: at most 16384 pixels per side", self.width, self.height));
+        }
+        if self.train == 0 {
+            return bad("--train 0: at least one train view is needed".into());
+        }
+        if self.val == 0 || self.test == 0 {
+            return bad(format!(
+                "--val {} --test {}: val and test need at least one view each",
+                self.val, self.test
+            ));
+        }
+        if let Some(n) = [self.train, self.val, self.test].into_iter().find(|n| *n >= 1 << 24) {
+            return bad(format!("{n} views in one split: at most 16777215"));
+        }
+        if self.spp == 0 {
+            return bad("--spp 0: at least one sample per pixel is needed".into());
+        }
+        if !(self.fov_x.is_finite() && self.fov_x > 0.0 && self.fov_x < std::f64::consts::PI) {
+            return bad(format!("field of view {} rad is not in (0, pi)", self.fov_x));
+        }
+        let colours = [Some(self.environment), match self.background {
+            Background::Color(c) => Some(c),
+            _ => None,
+        }];
+        if colours.iter().flatten().flatten().any(|v| !v.is_finite() || *v < 0.0) {
+            return bad("colours must be finite and non-negative".into());
+        }
+        Ok(())
+    }
+
+    /// The rig settings these options imply.
+    pub fn rig_config(&self) -> RigConfig {
+        RigConfig {
+            kind: self.rig,
+            width: self.width,
+            height: self.height,
+            fov_x: self.fov_x,
+            counts: [self.train, self.val, self.test],
+            seed: self.seed,
+        }
+    }
+
+    /// Number of views in all splits.
+    pub fn total_views(&self) -> u64 {
+        self.train as u64 + self.val as u64 + self.test as u64
+    }
+}
+
+/// How to run (does not change the output).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct RunOptions {
+    /// Worker threads (`None`: rayon's default, one per core).
+    pub threads: Option<usize>,
+    /// Overwrite a dataset in the output folder rendered with different settings.
+    pub force: bool,
+}
+
+/// Progress reports, in order: one `Started`, then one `ViewRendered` per rendered view.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum ProgressEvent {
+    /// Rendering starts.
+    Started {
+        /// Views in the dataset.
+        total: u64,
+        /// Views already finished by an earlier run, kept.
+        reused: u64,
+        /// The rig actually used.
+        rig: RigKind,
+    },
+    /// A view was rendered and written.
+    ViewRendered {
+        /// Its split.
+        split: SplitKind,
+        /// Its index within the split.
+        index: u32,
+        /// Path samples it took.
+        samples: u64,
+    },
+}
+
+/// What [`render_dataset`] did.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DatasetSummary {
+    /// The dataset folder.
+    pub out: PathBuf,
+    /// The rig used.
+    pub rig: RigKind,
+    /// Views in the dataset.
+    pub views_total: u64,
+    /// Views rendered by this run.
+    pub views_rendered: u64,
+    /// Views kept from an earlier run.
+    pub views_reused: u64,
+    /// Path samples taken by this run.
+    pub samples: u64,
+    /// Wall time of this run's rendering and writing, seconds.
+    pub seconds: f64,
+    /// The scene facts written into the transforms files.
+    pub facts: SceneFacts,
+}
+
+/// One rendered view, as a [`ViewRenderer`] returns it.
+#[derive(Clone, Debug)]
+pub struct ViewImages {
+    /// Linear RGBA, premultiplied by alpha (coverage).
+    pub color: RgbaImage,
+    /// Exact ground truth at the pixel-centre rays.
+    pub ground_truth: GroundTruth,
+    /// Path samples taken.
+    pub samples: u64,
+}
+
+/// Renders one view of a scene. Implementations must be deterministic in (`camera`, `view_key`)
+/// whatever the thread count.
+pub trait ViewRenderer: Sync {
+    /// Renders `camera`; `view_key` keys the view's randomness (see [`view_key`]).
+    fn render_view(&self, camera: &Camera, view_key: u32) -> Result<ViewImages, PathTracerError>;
+    /// Whether any material is view-dependent (non-Lambertian).
+    fn is_view_dependent(&self) -> bool;
+}
+
+/// The randomness key of view `index` of `split`: `split_index << 24 | index`, independent of
+/// the other splits' sizes and of which views are already done.
+pub fn view_key(split: SplitKind, index: u32) -> u32 {
+    ((split_index(split) as u32) << 24) | (index & 0x00ff_ffff)
+}
+
+/// The scene as recorded in `render_config.json`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SceneSource {
+    /// The scene file as given.
+    pub path: String,
+    /// FNV-1a 64 hash of the scene file's bytes (hex), to notice an edited scene on resume.
+    pub hash: String,
+}
+
+impl SceneSource {
+    /// Reads the scene file to hash it.
+    pub fn from_file(path: &Path) -> Result<Self, PathTracerError> {
+        let bytes = std::fs::read(path).map_err(|e| PathTracerError::import(path, e.to_string()))?;
+        Ok(Self { path: path.display().to_string(), hash: format!("{:016x}", fnv1a(&bytes)) })
+    }
+}
+
+fn fnv1a(bytes: &[u8]) -> u64 {
+    bytes.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, b| (h ^ *b as u64).wrapping_mul(0x0100_0000_01b3))
+}
+
+/// The content of `render_config.json`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RenderRecord {
+    /// The scene.
+    pub scene: SceneSource,
+    /// Renderer name and version.
+    pub renderer: String,
+    /// The rig actually used.
+    pub rig_resolved: RigKind,
+    /// The settings.
+    pub config: DatasetRenderConfig,
+}
+
+impl RenderRecord {
+    /// Whether a dataset rendered under `self` can be resumed under `other` (same scene content,
+    /// renderer and settings; the scene's path may differ).
+    pub fn same_output(&self, other: &RenderRecord) -> bool {
+        self.scene.hash == other.scene.hash
+            && self.renderer == other.renderer
+            && self.rig_resolved == other.rig_resolved
+            && self.config == other.config
+    }
+}
+
+/// File name of the resolved settings inside a dataset folder.
+pub const RENDER_CONFIG_FILE: &str = "render_config.json";
+
+/// The four files of view `index` of `split`, relative to the dataset folder:
+/// PNG, linear EXR, ground-truth EXR, depth `.npy`.
+pub fn view_files(split: SplitKind, index: u32) -> [String; 4] {
+    let stem = format!("{}/r_{index}", split.name());
+    [format!("{stem}.png"), format!("{stem}.exr"), format!("{stem}_gt.exr"), format!("{stem}_depth.npy")]
+}
+
+/// [`render_dataset`] with any renderer: `scene` places the cameras and supplies the facts,
+/// `source` identifies it in `render_config.json`.
+#[allow(clippy::too_many_arguments)]
+pub fn render_dataset_with(
+    scene: &Scene,
+    source: &SceneSource,
+    renderer: &dyn ViewRenderer,
+    out: &Path,
+    cfg: &DatasetRenderConfig,
+    opts: &RunOptions,
+    progress: &mut dyn FnMut(ProgressEvent),
+    cancel: &AtomicBool,
+) -> Result<DatasetSummary, PathTracerError> {
+    cfg.validate()?;
+    if opts.threads == Some(0) {
+        return Err(PathTracerError::Config("--threads 0: at least one thread is needed".into()));
+    }
+    let rig = build_rig(scene, &cfg.rig_config())?;
+    let record = RenderRecord {
+        scene: source.clone(),
+        renderer: crate::RENDERER_VERSION.to_string(),
+        rig_resolved: rig.kind,
+        config: cfg.clone(),
+    };
+    let pool = match opts.threads {
+        Some(n) => Some(
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(n)
+                .build()
+                .map_err(|e| PathTracerError::Config(format!("cannot start {n} threads: {e}")))?,
+        ),
+        None => None,
+    };
+    prepare_folder(out, &record, opts.force)?;
+    dataset::io::atomic_write_json(&out.join(RENDER_CONFIG_FILE), &record)?;
+
+    let start = std::time::Instant::now();
+    let finished = |split, k| view_files(split, k).iter().all(|f| out.join(f).is_file());
+    let reused = rig.views().filter(|(s, k, _)| finished(*s, *k)).count() as u64;
+    let total = cfg.total_views();
+    progress(ProgressEvent::Started { total, reused, rig: rig.kind });
+
+    let mut range = DistanceRange::default();
+    let mut samples = 0u64;
+    for (split, k, camera) in rig.views() {
+        let files = view_files(split, k).map(|f| out.join(f));
+        if files.iter().all(|f| f.is_file()) {
+            let gt = dataset::read_ground_truth(&files[2])?;
+            range.add(&gt);
+            continue;
+        }
+        if cancel.load(Ordering::SeqCst) {
+            return Err(PathTracerError::Interrupted);
+        }
+        let key = view_key(split, k);
+        let view = match &pool {
+            Some(p) => p.install(|| renderer.render_view(camera, key))?,
+            None => renderer.render_view(camera, key)?,
+        };
+        check_view(&view, camera, &files[0])?;
+        write_view(&files, &view, cfg.background)?;
+        range.add(&view.ground_truth);
+        samples += view.samples;
+        progress(ProgressEvent::ViewRendered { split, index: k, samples: view.samples });
+    }
+
+    let facts = scene_facts(scene, &rig, &range, renderer.is_view_dependent(), &record)?;
+    write_transforms(out, &rig, &facts)?;
+    Ok(DatasetSummary {
+        out: out.to_path_buf(),
+        rig: rig.kind,
+        views_total: total,
+        views_rendered: total - reused,
+        views_reused: reused,
+        samples,
+        seconds: start.elapsed().as_secs_f64(),
+        facts,
+    })
+}
+
+/// Checks `out` can receive this dataset: empty, missing, or holding the same settings' dataset.
+/// With `force`, a different dataset's files are removed first.
+fn prepare_folder(out: &Path, record: &RenderRecord, force: bool) -> Result<(), PathTracerError> {
+    if out.exists() && !out.is_dir() {
+        return Err(PathTracerError::Config(format!("--out {}: exists and is not a folder", out.display())));
+    }
+    let config_path = out.join(RENDER_CONFIG_FILE);
+    let conflict = if config_path.is_file() {
+        let bytes = dataset::io::read(&config_path)?;
+        match serde_json::from_slice::<RenderRecord>(&bytes) {
+            Ok(old) if old.same_output(record) => None,
+            Ok(old) => Some(describe_difference(&old, record)),
+            Err(e) => Some(format!("its {RENDER_CONFIG_FILE} cannot be read ({e})")),
+        }
+    } else if has_dataset_files(out) {
+        Some(format!("it holds dataset files but no {RENDER_CONFIG_FILE}"))
+    } else {
+        None
+    };
+    match conflict {
+        None => Ok(()),
+        Some(why) if !force => Err(PathTracerError::Config(format!(
+            "{} holds a dataset rendered with different settings: {why}; choose a new --out folder, \
+             or pass --force to replace it",
+            out.display()
+        ))),
+        Some(_) => remove_dataset_files(out),
+    }
+}
+
+fn describe_difference(old: &RenderRecord, new: &RenderRecord) -> String {
+    if old.scene.hash != new.scene.hash {
+        return format!("scene {} (now {}) differs", old.scene.path, new.scene.path);
+    }
+    if old.renderer != new.renderer {
+        return format!("renderer {} (now {})", old.renderer, new.renderer);
+    }
+    let a = serde_json::to_value(&old.config).unwrap_or_default();
+    let b = serde_json::to_value(&new.config).unwrap_or_default();
+    let mut diffs = Vec::new();
+    if let (Some(a), Some(b)) = (a.as_object(), b.as_object()) {
+        for (k, v) in a {
+            if b.get(k) != Some(v) {
+                diffs.push(format!("{k} was {v}, now {}", b.get(k).cloned().unwrap_or_default()));
+            }
+        }
+    }
+    if old.rig_resolved != new.rig_resolved {
+        diffs.push(format!("rig was {}, now {}", old.rig_resolved.name(), new.rig_resolved.name()));
+    }
+    diffs.join(", ")
+}
+
+/// Whether `name` is one of the files a dataset render writes inside a split folder.
+fn is_view_file(name: &str) -> bool {
+    let Some(rest) = name.strip_prefix("r_") else { return false };
+    let digits = rest.chars().take_while(char::is_ascii_digit).count();
+    digits > 0 && matches!(&rest[digits..], ".png" | ".exr" | "_gt.exr" | "_depth.npy")
+}
+
+fn dataset_top_files() -> Vec<String> {
+    let mut v: Vec<String> = SplitKind::ALL.iter().map(|s| s.file_name()).collect();
+    v.push("transforms.json".into());
+    v
+}
+
+fn has_dataset_files(out: &Path) -> bool {
+    dataset_top_files().iter().any(|f| out.join(f).exists())
+        || SplitKind::ALL.iter().any(|s| {
+            std::fs::read_dir(out.join(s.name()))
+                .map(|d| d.flatten().any(|e| is_view_file(&e.file_name().to_string_lossy())))
+                .unwrap_or(false)
+        })
+}
+
+/// Removes only the files a dataset render writes (never the folder or other files).
+fn remove_dataset_files(out: &Path) -> Result<(), PathTracerError> {
+    let rm = |p: &Path| std::fs::remove_file(p).map_err(|e| dataset::DatasetError::Io { path: p.to_path_buf(), source: e });
+    for f in dataset_top_files().into_iter().chain([RENDER_CONFIG_FILE.to_string()]) {
+        let p = out.join(f);
+        if p.is_file() {
+            rm(&p)?;
+        }
+    }
+    for s in SplitKind::ALL {
+        let dir = out.join(s.name());
+        let Ok(entries) = std::fs::read_dir(&dir) else { continue };
+        for e in entries.flatten() {
+            if is_view_file(&e.file_name().to_string_lossy()) {
+                rm(&e.path())?;
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Checks a renderer's output has the camera's size (a broken renderer must not write files
+/// the dataset loader then rejects).
+fn check_view(view: &ViewImages, camera: &Camera, path: &Path) -> Result<(), PathTracerError> {
+    let (w, h) = (camera.intrinsics.width, camera.intrinsics.height);
+    let n = w as usize * h as usize;
+    let gt = &view.ground_truth;
+    let ok = view.color.width == w
+        && view.color.height == h
+        && view.color.data.len() == 4 * n
+        && (gt.width, gt.height) == (w, h)
+        && gt.depth.len() == n
+        && gt.distance.len() == n
+        && gt.alpha.len() == n
+        && gt.normal.len() == 3 * n;
+    if ok {
+        Ok(())
+    } else {
+        Err(PathTracerError::Config(format!(
+            "{}: renderer returned images of the wrong size (expected {w}x{h})",
+            path.display()
+        )))
+    }
+}
+
+/// The linear image as written to the EXR: premultiplied, with a colour background composited.
+fn composite(color: &RgbaImage, background: Background) -> RgbaImage {
+    let mut out = color.clone();
+    if let Background::Color(bg) = background {
+        for px in out.data.chunks_exact_mut(4) {
+            let a = px[3].clamp(0.0, 1.0);
+            for c in 0..3 {
+                px[c] += (1.0 - a) * bg[c];
+            }
+            px[3] = 1.0;
+        }
+    }
+    out
+}
+
+/// Display colour: straight-alpha sRGB, `rgb = srgb(premultiplied / alpha)`, 0 where alpha is 0.
+fn display(linear: &RgbaImage) -> RgbaImage {
+    let mut out = linear.clone();
+    for px in out.data.chunks_exact_mut(4) {
+        let a = px[3].clamp(0.0, 1.0);
+        for c in 0..3 {
+            px[c] = if a > 0.0 { dataset::linear_to_srgb(px[c] / a) } else { 0.0 };
+        }
+        px[3] = a;
+    }
+    out
+}
+
+fn write_view(files: &[PathBuf; 4], view: &ViewImages, background: Background) -> Result<(), PathTracerError> {
+    let linear = composite(&view.color, background);
+    let gt = &view.ground_truth;
+    dataset::write_ground_truth(&files[2], gt)?;
+    dataset::write_npy_f32(&files[3], gt.width, gt.height, &gt.depth)?;
+    dataset::write_exr_rgba(&files[1], &linear)?;
+    dataset::write_png_rgba(&files[0], &display(&linear))?;
+    Ok(())
+}
+
+/// Smallest and largest hit distance over all views.
+#[derive(Clone, Copy, Debug)]
+struct DistanceRange {
+    min: f64,
+    max: f64,
+}
+
+impl Default for DistanceRange {
+    fn default() -> Self {
+        Self { min: f64::INFINITY, max: 0.0 }
+    }
+}
+
+impl DistanceRange {
+    fn add(&mut self, gt: &GroundTruth) {
+        for (&d, &a) in gt.distance.iter().zip(&gt.alpha) {
+            if a > 0.0 && d > 0.0 && d.is_finite() {
+                self.min = self.min.min(d as f64);
+                self.max = self.max.max(d as f64);
+            }
+        }
+    }
+}
+
+/// Scene facts: the true world bounding box; `near` = 0.9 × the smallest hit distance over all
+/// views (at least 1e-4 × the bounds' diagonal); `far` = the largest hit distance × 1.1, capped
+/// at 1.01 × the distance from a camera to the farthest corner of the bounds (never below the
+/// largest hit). With no hit at all, both come from the bounds alone.
+fn scene_facts(
+    scene: &Scene,
+    rig: &Rig,
+    range: &DistanceRange,
+    view_dependent: bool,
+    record: &RenderRecord,
+) -> Result<SceneFacts, PathTracerError> {
+    let lo = scene.origin + scene.bounds.min.as_dvec3();
+    let hi = scene.origin + scene.bounds.max.as_dvec3();
+    let diag = (hi - lo).length();
+    let mut corner_max = 0.0f64;
+    let mut box_min = f64::INFINITY;
+    for (_, _, cam) in rig.views() {
+        let o = cam.origin();
+        let far_corner = (o - lo).abs().max((o - hi).abs());
+        corner_max = corner_max.max(far_corner.length());
+        box_min = box_min.min((o.clamp(lo, hi) - o).length());
+    }
+    let (near, far) = if range.max > 0.0 {
+        (0.9 * range.min, (1.1 * range.max).min(1.01 * corner_max).max(range.max))
+    } else {
+        (0.9 * box_min, 1.01 * corner_max)
+    };
+    let mut render = serde_json::to_value(&record.config)
+        .map_err(|e| PathTracerError::Config(format!("cannot record settings: {e}")))?;
+    render["rig_resolved"] = serde_json::Value::String(record.rig_resolved.name().into());
+    Ok(SceneFacts {
+        scene: scene.name.clone(),
+        aabb_min: lo.to_array(),
+        aabb_max: hi.to_array(),
+        near: near.max(1e-4 * diag),
+        far,
+        view_dependent,
+        render,
+        renderer: record.renderer.clone(),
+    })
+}
+
+/// The frame records of one split.
+pub fn frame_records(split: SplitKind, cameras: &[Camera]) -> Vec<FrameRecord> {
+    cameras
+        .iter()
+        .enumerate()
+        .map(|(k, cam)| {
+            let stem = format!("{}/r_{k}", split.name());
+            FrameRecord {
+                file_path: format!("./{stem}"),
+                transform_matrix: cam.rows(),
+                depth_file_path: Some(format!("{stem}_depth.npy")),
+                gt_file_path: Some(format!("{stem}_gt.exr")),
+                exr_file_path: Some(format!("{stem}.exr")),
+            }
+        })
+        .collect()
+}
+
+fn write_transforms(out: &Path, rig: &Rig, facts: &SceneFacts) -> Result<(), PathTracerError> {
+    let mut all = Vec::new();
+    for split in SplitKind::ALL {
+        let recs = frame_records(split, rig.split(split));
+        dataset::write_split_transforms(out, split, &rig.intrinsics, recs.clone(), Some(facts.clone()))?;
+        all.push((split, recs));
+    }
+    dataset::write_nerfstudio_transforms(out, &rig.intrinsics, &all)?;
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::{Aabb, Material, Mesh};
+    use glam::{DVec3, Vec3};
+
+    /// A scene whose only geometry is the corners of a box (the driver needs only bounds).
+    fn scene() -> Scene {
+        let positions = vec![Vec3::new(-0.5, -0.4, -0.3), Vec3::new(0.5, 0.4, 0.3), Vec3::new(0.5, -0.4, 0.3)];
+        let bounds = positions.iter().fold(Aabb::EMPTY, |a, p| a.union_point(*p));
+        Scene {
+            name: "box".into(),
+            origin: DVec3::new(1.0, 2.0, 3.0),
+            mesh: Mesh { positions, indices: vec![[0, 1, 2]], material: vec![0], ..Default::default() },
+            materials: vec![Material::gltf_default()],
+            textures: vec![],
+            lights: vec![],
+            cameras: vec![],
+            bounds,
+            warnings: vec![],
+        }
+    }
+
+    /// Exact analytic renderer: a sphere of radius 0.4 at the scene centre. Colour is a hash of
+    /// (key, pixel) so any change of key shows; parallel over rows to exercise thread pools.
+    struct SphereRenderer {
+        centre: DVec3,
+    }
+
+    impl ViewRenderer for SphereRenderer {
+        fn render_view(&self, cam: &Camera, key: u32) -> Result<ViewImages, PathTracerError> {
+            use rayon::prelude::*;
+            let (w, h) = (cam.intrinsics.width, cam.intrinsics.height);
+            let rows: Vec<(Vec<f32>, Vec<[f32; 6]>)> = (0..h)
+                .into_par_iter()
+                .map(|j| {
+                    let mut c = Vec::new();
+                    let mut g = Vec::new();
+                    for i in 0..w {
+                        let r = cam.pixel_center_ray(i, j);
+                        let oc = r.origin - self.centre;
+                        let b = oc.dot(r.direction);
+                        let disc = b * b - (oc.length_squared() - 0.16);
+                        let t = if disc > 0.0 { -b - disc.sqrt() } else { 0.0 };
+                        let a = if t > 0.0 { 1.0 } else { 0.0 };
+                        let v = (crate::rig::split_index(SplitKind::Train) as u32 + key * 31 + i * 7 + j) % 17;
+                        let v = a * v as f32 / 16.0;
+                        c.extend_from_slice(&[v, 0.5 * v, 0.25, a]);
+                        let n = if a > 0.0 { (oc + t * r.direction).normalize().as_vec3() } else { Vec3::ZERO };
+                        let depth = cam.z_depth_from_distance(i as f64 + 0.5, j as f64 + 0.5, t) as f32;
+                        g.push([depth * a, t as f32 * a, n.x, n.y, n.z, a]);
+                    }
+                    (c, g)
+                })
+                .collect();
+            let mut color = RgbaImage::new(w, h);
+            color.data = rows.iter().flat_map(|r| r.0.clone()).collect();
+            let g: Vec<[f32; 6]> = rows.into_iter().flat_map(|r| r.1).collect();
+            let ground_truth = GroundTruth {
+                width: w,
+                height: h,
+                depth: g.iter().map(|x| x[0]).collect(),
+                distance: g.iter().map(|x| x[1]).collect(),
+                normal: g.iter().flat_map(|x| [x[2], x[3], x[4]]).collect(),
+                alpha: g.iter().map(|x| x[5]).collect(),
+            };
+            Ok(ViewImages { color, ground_truth, samples: w as u64 * h as u64 * 4 })
+        }
+        fn is_view_dependent(&self) -> bool {
+            false
+        }
+    }
+
+    fn tmp(name: &str) -> PathBuf {
+        let d = std::env::temp_dir().join(format!("pt-dsr-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&d);
+        d
+    }
+
+    fn tiny() -> DatasetRenderConfig {
+        DatasetRenderConfig { width: 12, height: 10, train: 3, val: 2, test: 2, spp: 4, ..DatasetRenderConfig::preset(Preset::Quick) }
+    }
+
+    fn run(out: &Path, cfg: &DatasetRenderConfig, threads: usize, force: bool) -> Result<DatasetSummary, PathTracerError> {
+        let s = scene();
+        let r = SphereRenderer { centre: s.origin };
+        let src = SceneSource { path: "box.gltf".into(), hash: "1".into() };
+        let opts = RunOptions { threads: Some(threads), force };
+        render_dataset_with(&s, &src, &r, out, cfg, &opts, &mut |_| {}, &AtomicBool::new(false))
+    }
+
+    fn files(dir: &Path) -> Vec<(String, Vec<u8>)> {
+        let mut out = Vec::new();
+        let mut stack = vec![dir.to_path_buf()];
+        while let Some(d) = stack.pop() {
+            for e in std::fs::read_dir(&d).unwrap().flatten() {
+                let p = e.path();
+                if p.is_dir() {
+                    stack.push(p);
+                } else {
+                    out.push((p.strip_prefix(dir).unwrap().display().to_string(), std::fs::read(&p).unwrap()));
+                }
+            }
+        }
+        out.sort();
+        out
+    }
+
+    #[test]
+    fn writes_the_layout_resumes_identically_and_loads_back() {
+        let (a, b) = (tmp("a"), tmp("b"));
+        let cfg = tiny();
+        let sum = run(&a, &cfg, 1, false).unwrap();
+        assert_eq!((sum.views_total, sum.views_rendered, sum.views_reused), (7, 7, 0));
+        run(&b, &cfg, 2, false).unwrap();
+        let fa = files(&a);
+        // 7 views × 4 files + 3 split files + transforms.json + render_config.json.
+        assert_eq!(fa.len(), 7 * 4 + 5);
+        assert_eq!(fa, files(&b), "thread count changed the output");
+
+        // Delete one view's PNG and another's GT: the rerun renders just those two.
+        std::fs::remove_file(b.join("val/r_1.png")).unwrap();
+        std::fs::remove_file(b.join("train/r_0_gt.exr")).unwrap();
+        std::fs::remove_file(b.join("transforms.json")).unwrap();
+        let mut events = Vec::new();
+        let s = scene();
+        let src = SceneSource { path: "elsewhere/box.gltf".into(), hash: "1".into() };
+        let opts = RunOptions { threads: Some(2), force: false };
+        let r = SphereRenderer { centre: s.origin };
+        let sum = render_dataset_with(&s, &src, &r, &b, &cfg, &opts, &mut |e| events.push(e), &AtomicBool::new(false)).unwrap();
+        assert_eq!((sum.views_rendered, sum.views_reused), (2, 5));
+        assert_eq!(events.len(), 3);
+        let fb: Vec<_> = files(&b).into_iter().filter(|f| f.0 != RENDER_CONFIG_FILE).collect();
+        let fa2: Vec<_> = fa.iter().filter(|f| f.0 != RENDER_CONFIG_FILE).cloned().collect();
+        assert_eq!(fa2, fb, "resumed output differs");
+
+        // The dataset loader reads it back with our cameras and facts.
+        let ds = dataset::Dataset::load(&a).unwrap();
+        let rig = build_rig(&scene(), &cfg.rig_config()).unwrap();
+        for split in SplitKind::ALL {
+            for (f, c) in ds.split(split).iter().zip(rig.split(split)) {
+                assert!((f.camera.c2w - c.c2w).abs().to_cols_array().iter().all(|d| *d < 1e-12));
+                assert_eq!(f.camera.intrinsics, c.intrinsics);
+            }
+        }
+        let facts = ds.facts.unwrap();
+        for (got, want) in facts.aabb_min.iter().chain(&facts.aabb_max).zip([0.5, 1.6, 2.7, 1.5, 2.4, 3.3]) {
+            assert!((got - want).abs() < 1e-6, "bounds {:?} {:?}", facts.aabb_min, facts.aabb_max);
+        }
+        // The sphere of radius 0.4 at the centre: near ≈ 0.9 × (camera distance − 0.4).
+        let d = (rig.splits[0][0].origin() - scene().origin).length();
+        assert!((facts.near - 0.9 * (d - 0.4)).abs() < 0.02 * d, "near {} vs {}", facts.near, d - 0.4);
+        assert!(facts.far > d && facts.far < 1.1 * (d + 0.4) + 1e-9);
+        assert_eq!(facts.render["spp"], 4);
+        assert_eq!(facts.render["rig_resolved"], "sphere");
+
+        // Ground truth and display colour as specified.
+        let f = &ds.val[1];
+        let gt = dataset::read_ground_truth(f.gt_path.as_ref().unwrap()).unwrap();
+        let png = dataset::read_png_rgba(&f.image_path).unwrap();
+        let exr = dataset::read_exr_rgba(f.exr_path.as_ref().unwrap()).unwrap();
+        assert!(gt.alpha.iter().any(|a| *a > 0.0) && gt.alpha.iter().any(|a| *a == 0.0));
+        for k in 0..gt.alpha.len() {
+            let a = exr.data[4 * k + 3];
+            assert_eq!(png.data[4 * k + 3], a);
+            if a > 0.0 {
+                let want = dataset::linear_to_srgb(exr.data[4 * k] / a);
+                assert!((png.data[4 * k] - want).abs() <= 0.5 / 255.0 + 1e-6);
+            }
+        }
+        for d in [&a, &b] {
+            std::fs::remove_dir_all(d).unwrap();
+        }
+    }
+
+    #[test]
+    fn refuses_other_settings_and_impossible_options() {
+        let out = tmp("c");
+        let cfg = tiny();
+        for bad in [
+            DatasetRenderConfig { width: 0, ..cfg.clone() },
+            DatasetRenderConfig { train: 0, ..cfg.clone() },
+            DatasetRenderConfig { spp: 0, ..cfg.clone() },
+            DatasetRenderConfig { background: Background::Color([f32::NAN, 0.0, 0.0]), ..cfg.clone() },
+        ] {
+            assert!(matches!(run(&out, &bad, 1, false), Err(PathTracerError::Config(_))));
+            assert!(!out.exists(), "an impossible option wrote something");
+        }
+        run(&out, &cfg, 1, false).unwrap();
+        std::fs::write(out.join("notes.txt"), "mine").unwrap();
+        let other = DatasetRenderConfig { spp: 8, ..cfg.clone() };
+        let e = run(&out, &other, 1, false).unwrap_err().to_string();
+        assert!(e.contains("spp was 4, now 8") && e.contains("--force"), "{e}");
+        let sum = run(&out, &other, 1, true).unwrap();
+        assert_eq!(sum.views_reused, 0);
+        assert!(out.join("notes.txt").is_file(), "--force removed a file it does not own");
+        // Cancelled before the first view: interrupted, the view files are absent.
+        let out2 = tmp("d");
+        let s = scene();
+        let r = SphereRenderer { centre: s.origin };
+        let src = SceneSource { path: "box.gltf".into(), hash: "1".into() };
+        let opts = RunOptions { threads: Some(1), force: false };
+        let e = render_dataset_with(&s, &src, &r, &out2, &cfg, &opts, &mut |_| {}, &AtomicBool::new(true));
+        assert!(matches!(e, Err(PathTracerError::Interrupted)));
+        assert!(!out2.join("train/r_0.png").exists());
+        std::fs::remove_dir_all(&out).unwrap();
+        std::fs::remove_dir_all(&out2).unwrap();
+    }
+
+    #[test]
+    fn parsing_and_names() {
+        assert_eq!("transparent".parse::<Background>().unwrap(), Background::Transparent);
+        assert_eq!("1, 0.5,0".parse::<Background>().unwrap(), Background::Color([1.0, 0.5, 0.0]));
+        assert!("1,2".parse::<Background>().is_err());
+        assert!("-1,0,0".parse::<Background>().is_err());
+        assert_eq!("Quick".parse::<Preset>().unwrap(), Preset::Quick);
+        assert!(is_view_file("r_12_depth.npy") && is_view_file("r_0.png"));
+        assert!(!is_view_file("r_.png") && !is_view_file("notes.png") && !is_view_file("r_1.txt"));
+        assert_eq!(view_key(SplitKind::Test, 5), (2 << 24) | 5);
+        assert_eq!(view_files(SplitKind::Val, 3)[2], "val/r_3_gt.exr");
+    }
+}
