@@ -58,14 +58,30 @@ fn panel_size(w: usize, h: usize) -> (usize, usize) {
     (((w as f64 * scale).round() as usize).max(1), ((h as f64 * scale).round() as usize).max(1))
 }
 
-/// Resample a per-pixel colour function to the panel size (nearest neighbour).
+/// Resample a per-pixel colour function to the panel size: nearest neighbour when enlarging,
+/// the mean colour of the covered source pixels (box filter) when shrinking.
 fn resample(w: usize, h: usize, pw: usize, ph: usize, f: impl Fn(usize) -> [u8; 3]) -> Vec<u8> {
     let mut out = Vec::with_capacity(pw * ph * 3);
     for py in 0..ph {
-        let y = (py * h / ph).min(h - 1);
+        let (y0, y1) = ((py * h / ph).min(h - 1), ((py + 1) * h).div_ceil(ph).clamp(1, h));
         for px in 0..pw {
-            let x = (px * w / pw).min(w - 1);
-            out.extend_from_slice(&f(y * w + x));
+            let (x0, x1) = ((px * w / pw).min(w - 1), ((px + 1) * w).div_ceil(pw).clamp(1, w));
+            if pw >= w && ph >= h {
+                out.extend_from_slice(&f(y0 * w + x0));
+                continue;
+            }
+            let mut acc = [0u32; 3];
+            let mut n = 0u32;
+            for y in y0..y1.max(y0 + 1) {
+                for x in x0..x1.max(x0 + 1) {
+                    let c = f(y * w + x);
+                    for k in 0..3 {
+                        acc[k] += u32::from(c[k]);
+                    }
+                    n += 1;
+                }
+            }
+            out.extend(acc.iter().map(|&a| ((a + n / 2) / n) as u8));
         }
     }
     out
@@ -273,6 +289,18 @@ mod tests {
         assert_eq!(panel_size(16, 12), (256, 192));
         assert_eq!(panel_size(300, 200), (300, 200));
         assert_eq!(panel_size(800, 800), (512, 512));
+    }
+
+    #[test]
+    fn resample_enlarges_by_copying_and_shrinks_by_averaging() {
+        // 2x1 source: black, white
+        let src = [[0u8, 0, 0], [255, 255, 255]];
+        let big = resample(2, 1, 4, 2, |i| src[i]);
+        assert_eq!(&big[..12], &[0, 0, 0, 0, 0, 0, 255, 255, 255, 255, 255, 255]);
+        assert_eq!(&big[12..], &big[..12]);
+        // 4x4 checkerboard of 0 / 200 shrunk to 2x2: every output is the mean, 100
+        let small = resample(4, 4, 2, 2, |i| if (i % 4 + i / 4) % 2 == 0 { [0; 3] } else { [200; 3] });
+        assert!(small.iter().all(|&v| v == 100), "{small:?}");
     }
 
     #[test]

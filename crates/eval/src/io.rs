@@ -35,6 +35,12 @@ pub fn write_json_atomic<T: serde::Serialize>(path: &Path, value: &T) -> Result<
     write_atomic(path, text.as_bytes())
 }
 
+/// Read and parse a JSON file written by this crate (`eval.json`, `report.json`).
+pub fn read_json<T: serde::de::DeserializeOwned>(path: &Path) -> Result<T, EvalError> {
+    let text = std::fs::read_to_string(path).map_err(io_err(path))?;
+    serde_json::from_str(&text).map_err(|source| EvalError::Json { path: path.to_path_buf(), source })
+}
+
 /// Encode an 8-bit RGB buffer as PNG and write it atomically.
 ///
 /// # Shapes
@@ -66,6 +72,10 @@ mod tests {
         let img = image::open(dir.join("p.png")).unwrap().to_rgb8();
         assert_eq!(img.get_pixel(1, 0).0, [0, 0, 255]);
         assert!(write_png_atomic(&dir.join("q.png"), 2, 2, vec![0; 3]).is_err());
+        write_json_atomic(&dir.join("v.json"), &vec![1.5, 2.0]).unwrap();
+        assert_eq!(read_json::<Vec<f64>>(&dir.join("v.json")).unwrap(), vec![1.5, 2.0]);
+        let e = read_json::<Vec<String>>(&dir.join("v.json")).unwrap_err();
+        assert!(e.to_string().contains("v.json"), "{e}");
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }
