@@ -24,6 +24,8 @@
 //! assert!(report.mean.off_surface_mass.is_none()); // no samples given
 //! ```
 
+#![warn(missing_docs)]
+
 pub mod colormap;
 pub mod compare;
 pub mod curve;
