@@ -1,1 +1,323 @@
-//! (in progress)
+//! The integrator: the radiance arriving along ONE ray. Tiling, parallelism and accumulation
+//! live in [`crate::render`].
+//!
+//! [`PathIntegrator::radiance`] is a unidirectional path tracer:
+//! - Next-event estimation at every vertex: every punctual light deterministically (they are
+//!   delta lights, so no MIS), one sample of the emissive triangles and one of the
+//!   environment, each combined with BSDF sampling by multiple importance sampling with the
+//!   power heuristic (Veach 1997). A BSDF-sampled ray that hits an emitter or escapes to the
+//!   environment adds the complementary MIS-weighted term.
+//! - `max_bounces` counts scattering events: 0 shows emitters and the environment only,
+//!   1 is direct lighting, `n` adds paths with up to `n` surface reflections.
+//! - Russian roulette from the third vertex on, with survival probability
+//!   `min(1, max throughput component)`.
+//! - Camera rays that miss return the environment radiance, or zero with `primary_hit =
+//!   false` when the background is transparent (the environment still lights the scene).
+//!
+//! Shadow and bounce rays start at [`offset_ray_origin`] so they neither re-hit their own
+//! surface nor leak through it; shadow rays to a point stop `1e-4` (relative) short of it.
+
+use crate::accel::{Accel, Hit};
+use crate::geometry::{Frame, Ray, hit_point_error, offset_ray_origin};
+use crate::light::{EmissiveTriangles, Environment, punctual_incidence};
+use crate::material::{SurfaceAttributes, base_color, emission, facing_frame, resolve};
+use crate::sampler::{Sampler, power_heuristic};
+use crate::scene::{AlphaMode, Scene};
+use glam::{Vec2, Vec3, Vec4};
+
+/// Fraction of a shadow ray's length left unchecked at its far end (pbrt's ShadowEpsilon).
+pub const SHADOW_EPSILON: f32 = 1e-4;
+
+/// The integrator's settings.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct IntegratorSettings {
+    /// Maximum number of scattering events along a path.
+    pub max_bounces: u32,
+    /// The constant environment (lights the scene; seen by camera misses unless transparent).
+    pub environment: Environment,
+    /// Camera rays that miss return zero radiance (alpha 0) instead of the environment.
+    pub transparent_background: bool,
+}
+
+/// The radiance along one camera ray.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RadianceSample {
+    /// Linear RGB radiance.
+    pub radiance: Vec3,
+    /// Whether the camera ray hit geometry.
+    pub primary_hit: bool,
+}
+
+/// A surface point with everything shading needs.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Interaction {
+    /// Triangle index.
+    pub prim: u32,
+    /// Hit point (local frame) from the barycentrics.
+    pub p: Vec3,
+    /// Per-component absolute error bound of `p`.
+    pub p_err: Vec3,
+    /// Unit geometric normal, flipped to face the incoming ray.
+    pub ng: Vec3,
+    /// Unit geometric normal of the front face (counter-clockwise side).
+    pub ng_front: Vec3,
+    /// Shading frame; its `n` is the interpolated normal facing the incoming ray.
+    pub frame: Frame,
+    /// Interpolated texture coordinates and vertex colour.
+    pub attr: SurfaceAttributes,
+    /// Material index.
+    pub material: u32,
+}
+
+/// Interpolated texture coordinates and vertex colour of triangle `prim` at barycentrics `b`
+/// (attributes missing from the mesh take glTF defaults: UV 0, colour white).
+pub fn surface_attributes(scene: &Scene, prim: u32, b: [f32; 3]) -> SurfaceAttributes {
+    let m = &scene.mesh;
+    let idx = m.indices[prim as usize];
+    let lerp2 = |v: &Vec<Vec2>| {
+        (0..3).fold(Vec2::ZERO, |acc, k| acc + b[k] * v.get(idx[k] as usize).copied().unwrap_or(Vec2::ZERO))
+    };
+    let color = (0..3).fold(Vec4::ZERO, |acc, k| acc + b[k] * m.colors.get(idx[k] as usize).copied().unwrap_or(Vec4::ONE));
+    SurfaceAttributes { uv: [lerp2(&m.uv0), lerp2(&m.uv1)], color }
+}
+
+/// Whether an alpha-masked triangle is present at barycentrics `b`: base-colour alpha
+/// (factor × texture × vertex colour) ≥ cutoff. Non-masked materials always pass.
+pub fn alpha_test(scene: &Scene, prim: u32, b: [f32; 3]) -> bool {
+    let Some(mat) = scene.mesh.material.get(prim as usize).and_then(|&m| scene.materials.get(m as usize)) else { return true };
+    match mat.alpha_mode {
+        AlphaMode::Mask { cutoff } => {
+            let attr = surface_attributes(scene, prim, b);
+            base_color(mat, &scene.textures, &attr).w >= cutoff
+        }
+        AlphaMode::Opaque | AlphaMode::Blend => true,
+    }
+}
+
+/// Builds the [`Interaction`] for `hit` of `ray` (hit point from barycentrics, normals
+/// facing the ray).
+pub fn interaction(scene: &Scene, ray: &Ray, hit: &Hit) -> Interaction {
+    let m = &scene.mesh;
+    let idx = m.indices[hit.prim as usize];
+    let p = idx.map(|i| m.positions[i as usize]);
+    let (point, p_err) = hit_point_error(p, hit.b);
+    let ng_front = (p[1] - p[0]).cross(p[2] - p[0]).normalize_or_zero();
+    let ns = (0..3).fold(Vec3::ZERO, |acc, k| acc + hit.b[k] * m.normals.get(idx[k] as usize).copied().unwrap_or(Vec3::ZERO));
+    let ns = if ns.length_squared() > 1e-12 { ns } else { ng_front };
+    let (ng, frame) = facing_frame(ng_front, ns, ray.direction);
+    Interaction {
+        prim: hit.prim,
+        p: point,
+        p_err,
+        ng,
+        ng_front,
+        frame,
+        attr: surface_attributes(scene, hit.prim, hit.b),
+        material: m.material.get(hit.prim as usize).copied().unwrap_or(0),
+    }
+}
+
+/// A path tracer over one scene (see the module docs).
+pub struct PathIntegrator<'a> {
+    /// The scene.
+    pub scene: &'a Scene,
+    /// Its BVH.
+    pub accel: &'a Accel,
+    /// Its emissive triangles.
+    pub emitters: &'a EmissiveTriangles,
+    /// Settings.
+    pub settings: IntegratorSettings,
+}
+
+impl std::fmt::Debug for PathIntegrator<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("PathIntegrator").field("settings", &self.settings).finish()
+    }
+}
+
+impl PathIntegrator<'_> {
+    /// Closest hit honouring alpha masks and back-face culling.
+    pub fn intersect(&self, ray: &Ray) -> Option<Hit> {
+        self.accel.closest_hit(ray, f32::INFINITY, |prim, h| alpha_test(self.scene, prim, h.b))
+    }
+
+    /// Whether anything blocks `ray` before `t_max`.
+    pub fn occluded(&self, ray: &Ray, t_max: f32) -> bool {
+        self.accel.occluded(ray, t_max, |prim, h| alpha_test(self.scene, prim, h.b))
+    }
+
+    /// The radiance arriving at `ray.origin` from direction `−ray.direction` (unit).
+    pub fn radiance(&self, ray: &Ray, sampler: &mut Sampler) -> RadianceSample {
+        let env = self.settings.environment;
+        let Some(first) = self.intersect(ray) else {
+            let radiance = if self.settings.transparent_background { Vec3::ZERO } else { env.radiance };
+            return RadianceSample { radiance, primary_hit: false };
+        };
+        let scene = self.scene;
+        let mut l = Vec3::ZERO;
+        let mut beta = Vec3::ONE;
+        let mut ray = *ray;
+        let mut hit = first;
+        let mut prev_bsdf_pdf = 0.0f32;
+        let mut depth = 0u32;
+        loop {
+            let si = interaction(scene, &ray, &hit);
+            let Some(mat) = scene.materials.get(si.material as usize) else { break };
+            let surf = resolve(mat, &scene.textures, &si.attr);
+            // Emission seen along the path.
+            if surf.emission.max_element() > 0.0 {
+                if depth == 0 {
+                    l += beta * surf.emission;
+                } else {
+                    let cos_l = si.ng_front.dot(-ray.direction);
+                    let light_pdf = self.emitters.pdf_solid_angle(si.prim, hit.t, cos_l);
+                    l += beta * surf.emission * power_heuristic(prev_bsdf_pdf, light_pdf);
+                }
+            }
+            if depth >= self.settings.max_bounces {
+                break;
+            }
+            // Fixed dimension budget per vertex: 1 + 2 (emitter), 2 (env), 2 (bsdf), 1 (rr).
+            let u_sel = sampler.next_1d();
+            let u_emit = sampler.next_2d();
+            let u_env = sampler.next_2d();
+            let u_bsdf = sampler.next_2d();
+            let u_rr = sampler.next_1d();
+
+            let wo = -ray.direction;
+            let wo_l = si.frame.to_local(wo);
+            let bsdf = surf.bsdf;
+
+            // Punctual lights: deterministic, all of them.
+            for light in &scene.lights {
+                let Some(inc) = punctual_incidence(light, si.p) else { continue };
+                if inc.wi.dot(si.ng) <= 0.0 {
+                    continue;
+                }
+                let f = bsdf.evaluate(wo_l, si.frame.to_local(inc.wi));
+                if f.max_element() <= 0.0 {
+                    continue;
+                }
+                let o = offset_ray_origin(si.p, si.p_err, si.ng, inc.wi);
+                let t_max = if inc.distance.is_finite() {
+                    match *light {
+                        crate::scene::Light::Point { position, .. } | crate::scene::Light::Spot { position, .. } => {
+                            (position - o).length() * (1.0 - SHADOW_EPSILON)
+                        }
+                        crate::scene::Light::Directional { .. } => f32::INFINITY,
+                    }
+                } else {
+                    f32::INFINITY
+                };
+                if !self.occluded(&Ray::new(o, inc.wi), t_max) {
+                    l += beta * f * inc.irradiance;
+                }
+            }
+
+            // Emissive triangles: one sample, MIS with BSDF sampling.
+            if let Some(es) = self.emitters.sample(u_sel, u_emit) {
+                l += beta * self.emitter_nee(&si, wo_l, &bsdf, es);
+            }
+
+            // Environment: one sample, MIS with BSDF sampling.
+            if !env.is_black() {
+                let (wi, pdf) = env.sample(u_env);
+                if wi.dot(si.ng) > 0.0 {
+                    let wi_l = si.frame.to_local(wi);
+                    let f = bsdf.evaluate(wo_l, wi_l);
+                    if f.max_element() > 0.0 {
+                        let o = offset_ray_origin(si.p, si.p_err, si.ng, wi);
+                        if !self.occluded(&Ray::new(o, wi), f32::INFINITY) {
+                            let w = power_heuristic(pdf, bsdf.pdf(wo_l, wi_l));
+                            l += beta * f * env.radiance * (w / pdf);
+                        }
+                    }
+                }
+            }
+
+            // Continue the path by sampling the BSDF.
+            let Some(bs) = bsdf.sample(wo_l, u_bsdf) else { break };
+            let wi = si.frame.to_world(bs.wi).normalize();
+            if wi.dot(si.ng) <= 0.0 {
+                break;
+            }
+            beta *= bs.weight;
+            prev_bsdf_pdf = bs.pdf;
+            if depth >= 2 {
+                let survive = beta.max_element().min(1.0);
+                if !(survive > 0.0) || u_rr >= survive {
+                    break;
+                }
+                beta /= survive;
+            }
+            let o = offset_ray_origin(si.p, si.p_err, si.ng, wi);
+            ray = Ray::new(o, wi);
+            match self.intersect(&ray) {
+                Some(h) => {
+                    hit = h;
+                    depth += 1;
+                }
+                None => {
+                    if !env.is_black() {
+                        l += beta * env.radiance * power_heuristic(prev_bsdf_pdf, Environment::PDF);
+                    }
+                    break;
+                }
+            }
+        }
+        RadianceSample { radiance: l, primary_hit: true }
+    }
+
+    /// One light-sampling estimate of the emissive triangles' direct light at `si`,
+    /// MIS-weighted: `f · Le · w_light / pdf_light`.
+    fn emitter_nee(&self, si: &Interaction, wo_l: Vec3, bsdf: &crate::material::Bsdf, es: crate::light::EmitterSample) -> Vec3 {
+        let scene = self.scene;
+        let m = &scene.mesh;
+        let idx = m.indices[es.prim as usize];
+        let p = idx.map(|i| m.positions[i as usize]);
+        let (q, q_err) = hit_point_error(p, es.b);
+        let n_l = (p[1] - p[0]).cross(p[2] - p[0]).normalize_or_zero();
+        let d = q - si.p;
+        let dist = d.length();
+        if !(dist > 0.0) {
+            return Vec3::ZERO;
+        }
+        let wi = d / dist;
+        if wi.dot(si.ng) <= 0.0 {
+            return Vec3::ZERO;
+        }
+        let Some(lmat) = m.material.get(es.prim as usize).and_then(|&k| scene.materials.get(k as usize)) else { return Vec3::ZERO };
+        let cos_l = n_l.dot(-wi);
+        if !lmat.double_sided && cos_l <= 0.0 {
+            return Vec3::ZERO;
+        }
+        if lmat.alpha_mode != AlphaMode::Opaque && !alpha_test(scene, es.prim, es.b) {
+            return Vec3::ZERO;
+        }
+        let le = emission(lmat, &scene.textures, &surface_attributes(scene, es.prim, es.b));
+        if le.max_element() <= 0.0 {
+            return Vec3::ZERO;
+        }
+        let light_pdf = self.emitters.pdf_solid_angle(es.prim, dist, cos_l);
+        if !(light_pdf > 0.0) || !light_pdf.is_finite() {
+            return Vec3::ZERO;
+        }
+        let wi_l = si.frame.to_local(wi);
+        let f = bsdf.evaluate(wo_l, wi_l);
+        if f.max_element() <= 0.0 {
+            return Vec3::ZERO;
+        }
+        let o = offset_ray_origin(si.p, si.p_err, si.ng, wi);
+        let target = offset_ray_origin(q, q_err, n_l, -wi);
+        let seg = target - o;
+        let len = seg.length();
+        if !(len > 0.0) {
+            return Vec3::ZERO;
+        }
+        if self.occluded(&Ray::new(o, seg / len), len * (1.0 - SHADOW_EPSILON)) {
+            return Vec3::ZERO;
+        }
+        let w = power_heuristic(light_pdf, bsdf.pdf(wo_l, wi_l));
+        f * le * (w / light_pdf)
+    }
+}
