@@ -531,6 +531,20 @@ impl SceneBuilder {
         Ok(written)
     }
 
+    /// Write to `path`: a `.glb` extension writes one self-contained binary
+    /// file ([`write_glb`](Self::write_glb)), anything else `.gltf` + `.bin` +
+    /// `.png` ([`write_gltf`](Self::write_gltf)). Returns the written paths.
+    pub fn write(&self, path: &Path) -> Result<Vec<PathBuf>, SceneGenError> {
+        if path
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("glb"))
+        {
+            Ok(vec![self.write_glb(path)?])
+        } else {
+            self.write_gltf(path)
+        }
+    }
+
     /// Write one self-contained binary glTF (`.glb`) with the PNG textures
     /// embedded in its buffer. Returns the written path.
     pub fn write_glb(&self, path: &Path) -> Result<PathBuf, SceneGenError> {

@@ -122,8 +122,13 @@ fn world_triangles(l: &Loaded) -> Vec<[DVec3; 3]> {
 
 /// Nearest hit distance along a ray (Möller–Trumbore, both sides).
 fn cast(tris: &[[DVec3; 3]], o: DVec3, d: DVec3) -> Option<f64> {
-    let mut best: Option<f64> = None;
-    for [a, b, c] in tris {
+    cast_index(tris, o, d).map(|(t, _)| t)
+}
+
+/// Nearest hit distance and triangle index along a ray.
+fn cast_index(tris: &[[DVec3; 3]], o: DVec3, d: DVec3) -> Option<(f64, usize)> {
+    let mut best: Option<(f64, usize)> = None;
+    for (k, [a, b, c]) in tris.iter().enumerate() {
         let e1 = *b - *a;
         let e2 = *c - *a;
         let p = d.cross(e2);
@@ -143,8 +148,8 @@ fn cast(tris: &[[DVec3; 3]], o: DVec3, d: DVec3) -> Option<f64> {
             continue;
         }
         let t = e2.dot(q) * inv;
-        if t > 1e-9 && best.is_none_or(|b| t < b) {
-            best = Some(t);
+        if t > 1e-9 && best.is_none_or(|b| t < b.0) {
+            best = Some((t, k));
         }
     }
     best
@@ -265,8 +270,15 @@ fn cornell_room_is_closed_around_its_camera() {
         let phi = k as f64 * std::f64::consts::PI * (3.0 - 5f64.sqrt());
         let r = (1.0 - z * z).sqrt();
         let d = DVec3::new(r * phi.cos(), r * phi.sin(), z);
-        let t = cast(&tris, origin, d).unwrap_or_else(|| panic!("ray {d} escapes the room"));
+        let (t, k) =
+            cast_index(&tris, origin, d).unwrap_or_else(|| panic!("ray {d} escapes the room"));
         assert!(t < 5.0);
+        // Walls and boxes face the camera: the geometric (winding) normal opposes the ray.
+        let [a, b, c] = tris[k];
+        assert!(
+            (b - a).cross(c - a).dot(d) < 0.0,
+            "ray {d} hits a back face"
+        );
     }
     let emissive = l
         .doc
@@ -403,7 +415,8 @@ fn builder_writes_valid_glb_and_gltf() {
         Transform::from_translation(Vec3::Y * 2.0),
     )
     .unwrap();
-    let glb = s.write_glb(&dir.path().join("tiny.glb")).unwrap();
+    let glb = s.write(&dir.path().join("tiny.glb")).unwrap().remove(0);
+    assert_eq!(glb.extension().unwrap(), "glb");
     let gltf_files = s.write_gltf(&dir.path().join("sub/tiny.gltf")).unwrap();
     assert_eq!(gltf_files.len(), 3);
     for path in [glb, gltf_files[0].clone()] {
@@ -473,4 +486,26 @@ fn errors_name_the_problem() {
     let err = s.write_gltf(&file.join("bad.gltf")).unwrap_err();
     assert!(matches!(err, SceneGenError::Io { .. }), "{err}");
     assert!(err.to_string().contains("plain"));
+}
+
+#[test]
+fn committed_scenes_are_up_to_date() {
+    // scenes/ at the workspace root must be exactly what the code writes;
+    // regenerate with `cargo run -p scenegen --example gen -- scenes`.
+    let committed = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes");
+    let dir = tempfile::tempdir().unwrap();
+    for fresh in write_all(dir.path()).unwrap() {
+        let name = fresh.file_name().unwrap();
+        let old = std::fs::read(committed.join(name)).unwrap_or_else(|e| {
+            panic!(
+                "scenes/{} missing ({e}); regenerate the scenes",
+                name.to_string_lossy()
+            )
+        });
+        assert!(
+            old == std::fs::read(&fresh).unwrap(),
+            "scenes/{} is stale; regenerate the scenes",
+            name.to_string_lossy()
+        );
+    }
 }
