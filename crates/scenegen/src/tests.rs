@@ -189,6 +189,20 @@ fn every_scene_loads_with_exact_accessor_bounds() {
                 assert_eq!(prim.mode(), gltf::mesh::Mode::Triangles);
                 assert!(prim.get(&gltf::Semantic::Normals).is_some());
                 assert!(prim.get(&gltf::Semantic::TexCoords(0)).is_some());
+                // glTF requires unit normals and unit tangents with w = ±1.
+                let reader = prim.reader(|b| Some(&l.buffers[b.index()]));
+                for n in reader.read_normals().unwrap() {
+                    assert!(
+                        (Vec3::from(n).length() - 1.0).abs() < 1e-5,
+                        "{name}: normal {n:?}"
+                    );
+                }
+                for t in reader.read_tangents().into_iter().flatten() {
+                    assert!(
+                        (Vec3::new(t[0], t[1], t[2]).length() - 1.0).abs() < 1e-5
+                            && t[3].abs() == 1.0
+                    );
+                }
             }
         }
         assert_eq!(l.images.len(), l.doc.images().count());
