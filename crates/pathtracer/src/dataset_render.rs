@@ -30,7 +30,8 @@ use std::sync::atomic::{AtomicBool, Ordering};
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Preset {
-    /// 64×64, 20/4/4 views, 16 spp, 4 bounces: seconds, for tests and the demo.
+    /// 64×64, 20/4/4 views, 16 spp, 4 bounces: seconds, for tests and the demo. Both presets:
+    /// seed 0, rig `auto`, transparent background, a faint environment fill of radiance 0.1.
     Quick,
     /// 200×200, 100/10/20 views, 128 spp, 8 bounces: the Blender-synthetic-like dataset.
     Standard,
@@ -152,7 +153,7 @@ impl DatasetRenderConfig {
             rig: RigKind::Auto,
             fov_x: DEFAULT_FOV_X,
             background: Background::Transparent,
-            environment: [0.0; 3],
+            environment: [0.1; 3],
         }
     }
 
@@ -179,6 +180,9 @@ impl DatasetRenderConfig {
         }
         if self.spp == 0 {
             return bad("--spp 0: at least one sample per pixel is needed".into());
+        }
+        if self.max_bounces > 1024 {
+            return bad(format!("--max-bounces {}: at most 1024", self.max_bounces));
         }
         if !(self.fov_x.is_finite() && self.fov_x > 0.0 && self.fov_x < std::f64::consts::PI) {
             return bad(format!("field of view {} rad is not in (0, pi)", self.fov_x));
@@ -343,6 +347,55 @@ pub const RENDER_CONFIG_FILE: &str = "render_config.json";
 pub fn view_files(split: SplitKind, index: u32) -> [String; 4] {
     let stem = format!("{}/r_{index}", split.name());
     [format!("{stem}.png"), format!("{stem}.exr"), format!("{stem}_gt.exr"), format!("{stem}_depth.npy")]
+}
+
+/// Loads the glTF scene at `scene_path`, places the cameras and renders the dataset into `out`
+/// with the path tracer (see the module documentation). Nothing is written when the options
+/// are impossible or the scene cannot be loaded.
+pub fn render_dataset(
+    scene_path: &Path,
+    out: &Path,
+    cfg: &DatasetRenderConfig,
+    opts: &RunOptions,
+    progress: &mut dyn FnMut(ProgressEvent),
+    cancel: &AtomicBool,
+) -> Result<DatasetSummary, PathTracerError> {
+    cfg.validate()?;
+    let source = SceneSource::from_file(scene_path)?;
+    let scene = crate::import::load_gltf(scene_path, &crate::import::ImportOptions::default())?;
+    let renderer = crate::render::Renderer::new(scene, &crate::accel::AccelParams::medium_build())?;
+    for w in &renderer.scene().warnings {
+        tracing::warn!("{}: {w}", scene_path.display());
+    }
+    let settings = crate::render::RenderSettings {
+        spp: cfg.spp,
+        max_bounces: cfg.max_bounces,
+        seed: cfg.seed,
+        environment: cfg.environment,
+        transparent_background: cfg.background != Background::Environment,
+    };
+    settings.validate()?;
+    let adapter = PathTracer { renderer: &renderer, settings };
+    render_dataset_with(renderer.scene(), &source, &adapter, out, cfg, opts, progress, cancel)
+}
+
+/// The path tracer behind [`ViewRenderer`].
+struct PathTracer<'a> {
+    renderer: &'a crate::render::Renderer,
+    settings: crate::render::RenderSettings,
+}
+
+impl ViewRenderer for PathTracer<'_> {
+    fn render_view(&self, camera: &Camera, view_key: u32) -> Result<ViewImages, PathTracerError> {
+        let v = self.renderer.render_view(camera, view_key, &self.settings);
+        if v.nonfinite_samples > 0 {
+            tracing::warn!("view {view_key:#x}: {} non-finite radiance samples replaced by zero", v.nonfinite_samples);
+        }
+        Ok(ViewImages { color: v.color, ground_truth: v.ground_truth, samples: v.samples })
+    }
+    fn is_view_dependent(&self) -> bool {
+        self.renderer.is_view_dependent()
+    }
 }
 
 /// [`render_dataset`] with any renderer: `scene` places the cameras and supplies the facts,
