@@ -1,1 +1,290 @@
-//! Unit tests of the importer internals.
+//! Unit tests of the importer internals and of the spec corners the integration tests
+//! (`tests/import.rs`) do not reach.
+
+use glam::{DMat4, DQuat, DVec3, Vec3, Vec4};
+use gltf::mesh::Mode;
+use serde_json::{json, Value};
+
+use super::graph::{assemble, rigid_pose};
+use super::*;
+
+fn b64(bytes: &[u8]) -> String {
+    const T: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+    let mut s = String::new();
+    for c in bytes.chunks(3) {
+        let b = [c[0], *c.get(1).unwrap_or(&0), *c.get(2).unwrap_or(&0)];
+        let n = (u32::from(b[0]) << 16) | (u32::from(b[1]) << 8) | u32::from(b[2]);
+        for k in 0..4 {
+            s.push(if k <= c.len() { T[(n >> (18 - 6 * k) & 63) as usize] as char } else { '=' });
+        }
+    }
+    s
+}
+
+fn f32_bytes(v: &[f32]) -> Vec<u8> {
+    v.iter().flat_map(|x| x.to_le_bytes()).collect()
+}
+
+/// A glTF file: `body` plus one data-URI buffer holding `bin`.
+fn file(bin: &[u8], mut body: Value) -> Vec<u8> {
+    body["asset"] = json!({"version": "2.0"});
+    if !bin.is_empty() {
+        body["buffers"] = json!([{"byteLength": bin.len(), "uri": format!("data:application/octet-stream;base64,{}", b64(bin))}]);
+    }
+    serde_json::to_vec(&body).unwrap()
+}
+
+fn load(bytes: &[u8]) -> Result<Scene, PathTracerError> {
+    load_gltf_from_slice(bytes, None, "unit.gltf", &ImportOptions::default())
+}
+
+/// One triangle (positions at byte 0, 36 bytes) as accessor 0, plus `extra` accessors.
+fn triangle_body(extra_views: Value, extra_accessors: &[Value]) -> Value {
+    let mut views = vec![json!({"buffer": 0, "byteLength": 36})];
+    views.extend(extra_views.as_array().cloned().unwrap_or_default());
+    let mut accessors = vec![json!({"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3", "min": [0,0,0], "max": [1,1,0]})];
+    accessors.extend_from_slice(extra_accessors);
+    json!({
+        "bufferViews": views,
+        "accessors": accessors,
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
+        "nodes": [{"mesh": 0}],
+        "scenes": [{"nodes": [0]}]
+    })
+}
+
+const TRI: [f32; 9] = [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0];
+
+#[test]
+fn assemble_matches_hand_computed_lists() {
+    assert_eq!(assemble(Mode::Triangles, &[0, 1, 2, 3, 4, 5, 6]), vec![[0, 1, 2], [3, 4, 5]]);
+    assert_eq!(assemble(Mode::TriangleStrip, &[10, 11, 12, 13]), vec![[10, 11, 12], [11, 13, 12]]);
+    assert_eq!(assemble(Mode::TriangleStrip, &[1, 2]), Vec::<[u32; 3]>::new());
+    assert_eq!(assemble(Mode::TriangleFan, &[7, 8, 9, 10]), vec![[8, 9, 7], [9, 10, 7]]);
+    assert!(assemble(Mode::Lines, &[0, 1, 2, 3]).is_empty());
+}
+
+#[test]
+fn rigid_pose_removes_scale_and_shear() {
+    let q = DQuat::from_rotation_y(0.7) * DQuat::from_rotation_x(-0.3);
+    let t = DVec3::new(5.0, -2.0, 1e5);
+    let shear = DMat4::from_cols_array(&[1.0, 0.0, 0.0, 0.0, 0.4, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0]);
+    let m = DMat4::from_scale_rotation_translation(DVec3::new(2.0, 3.0, 4.0), q, t) * shear;
+    let r = rigid_pose(&m).unwrap();
+    let expected = DMat4::from_rotation_translation(q, t);
+    // The view axis (−Z) and the camera centre are preserved exactly in direction.
+    assert!((r.z_axis - expected.z_axis).length() < 1e-12);
+    assert!((r.w_axis - expected.w_axis).length() < 1e-9);
+    assert!((r.determinant() - 1.0).abs() < 1e-12);
+    let m3 = glam::DMat3::from_mat4(r);
+    assert!((m3.transpose() * m3 - glam::DMat3::IDENTITY).abs().to_cols_array().iter().all(|&e| e < 1e-12));
+    assert!(rigid_pose(&DMat4::from_scale(DVec3::new(1.0, 1.0, 0.0))).is_none());
+}
+
+#[test]
+fn extension_policy() {
+    let mut root: gltf::json::Root = gltf::json::deserialize::from_str(r#"{"asset":{"version":"2.0"},
+        "extensionsUsed":["KHR_materials_ior","KHR_texture_transform","KHR_lights_punctual"],
+        "extensionsRequired":["KHR_materials_ior","KHR_lights_punctual"]}"#)
+    .unwrap();
+    let mut w = Vec::new();
+    check_extensions(&root, &mut w).unwrap();
+    assert_eq!(w.len(), 2, "{w:?}");
+    assert!(w[0].contains("KHR_materials_ior") && w[1].contains("KHR_texture_transform"));
+    root.extensions_required.push("KHR_texture_transform".into());
+    let e = check_extensions(&root, &mut w).unwrap_err();
+    assert!(e.contains("required extension KHR_texture_transform is not supported"), "{e}");
+}
+
+#[test]
+fn position_accessor_out_of_range_is_an_error_not_a_panic() {
+    // gltf-json's own validation would index `accessors` with this unchecked.
+    let mut body = triangle_body(json!([]), &[]);
+    body["meshes"][0]["primitives"][0]["attributes"]["POSITION"] = json!(5);
+    let e = load(&file(&f32_bytes(&TRI), body)).unwrap_err().to_string();
+    assert!(e.contains("unit.gltf") && e.contains("accessor 5 does not exist"), "{e}");
+}
+
+#[test]
+fn position_min_max_missing_is_only_a_warning() {
+    let mut body = triangle_body(json!([]), &[]);
+    body["accessors"][0].as_object_mut().unwrap().remove("min");
+    body["accessors"][0].as_object_mut().unwrap().remove("max");
+    let s = load(&file(&f32_bytes(&TRI), body)).unwrap();
+    assert_eq!(s.mesh.indices.len(), 1);
+    assert_eq!(s.warnings.len(), 2, "{:?}", s.warnings);
+}
+
+#[test]
+fn other_validation_errors_name_the_json_path() {
+    let mut body = triangle_body(json!([]), &[]);
+    body["accessors"][0]["componentType"] = json!(5130); // DOUBLE: not glTF
+    let e = load(&file(&f32_bytes(&TRI), body)).unwrap_err().to_string();
+    assert!(e.contains("accessors[0].componentType"), "{e}");
+}
+
+#[test]
+fn mesh_quantization_positions_and_normals() {
+    // KHR_mesh_quantization: u16 positions (not normalized), i16 normalized normals.
+    let mut bin: Vec<u8> = [0u16, 0, 0, 0, 2, 0, 0, 0, 0, 2, 0, 0].iter().flat_map(|x| x.to_le_bytes()).collect();
+    bin.extend([0i16, 0, -32767, 0, 0, 0, -32767, 0, 0, 0, -32767, 0].iter().flat_map(|x| x.to_le_bytes()));
+    let body = json!({
+        "extensionsUsed": ["KHR_mesh_quantization"], "extensionsRequired": ["KHR_mesh_quantization"],
+        "bufferViews": [{"buffer": 0, "byteLength": 24, "byteStride": 8}, {"buffer": 0, "byteOffset": 24, "byteLength": 24, "byteStride": 8}],
+        "accessors": [
+            {"bufferView": 0, "componentType": 5123, "count": 3, "type": "VEC3", "min": [0,0,0], "max": [2,2,0]},
+            {"bufferView": 1, "componentType": 5122, "normalized": true, "count": 3, "type": "VEC3"}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0, "NORMAL": 1}}]}],
+        "nodes": [{"mesh": 0, "scale": [0.5, 0.5, 0.5]}]
+    });
+    let s = load(&file(&bin, body)).unwrap();
+    let w = |k: usize| s.origin + s.mesh.positions[k].as_dvec3();
+    assert!((w(1) - DVec3::new(1.0, 0.0, 0.0)).length() < 1e-7 && (w(2) - DVec3::new(0.0, 1.0, 0.0)).length() < 1e-7);
+    assert_eq!(s.mesh.normals[0], Vec3::NEG_Z);
+}
+
+#[test]
+fn zero_normals_are_repaired_and_degenerate_triangles_kept() {
+    // Vertex 0's normal is zero: replaced by the face normal. Triangle 1 is degenerate
+    // (repeats a vertex) and is kept.
+    let mut bin = f32_bytes(&TRI);
+    bin.extend(f32_bytes(&[0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0]));
+    bin.extend([0u16, 1, 2, 0, 0, 1].iter().flat_map(|x| x.to_le_bytes()));
+    let mut body = triangle_body(
+        json!([{"buffer": 0, "byteOffset": 36, "byteLength": 36}, {"buffer": 0, "byteOffset": 72, "byteLength": 12}]),
+        &[json!({"bufferView": 1, "componentType": 5126, "count": 3, "type": "VEC3"}),
+          json!({"bufferView": 2, "componentType": 5123, "count": 6, "type": "SCALAR"})],
+    );
+    body["meshes"][0]["primitives"][0]["attributes"]["NORMAL"] = json!(1);
+    body["meshes"][0]["primitives"][0]["indices"] = json!(2);
+    let s = load(&file(&bin, body)).unwrap();
+    assert_eq!(s.mesh.indices, vec![[0, 1, 2], [0, 0, 1]]);
+    assert_eq!(s.mesh.normals[0], Vec3::Z);
+    assert!(s.mesh.normals.iter().all(|n| (n.length() - 1.0).abs() < 1e-6));
+}
+
+#[test]
+fn tangents_follow_the_transform_and_flip_handedness_when_mirrored() {
+    let mut bin = f32_bytes(&TRI);
+    bin.extend(f32_bytes(&[1.0, 0.0, 0.0, 1.0, 1.0, 0.0, 0.0, 1.0, 1.0, 0.0, 0.0, 1.0]));
+    let mut body = triangle_body(
+        json!([{"buffer": 0, "byteOffset": 36, "byteLength": 48}]),
+        &[json!({"bufferView": 1, "componentType": 5126, "count": 3, "type": "VEC4"})],
+    );
+    body["meshes"][0]["primitives"][0]["attributes"]["TANGENT"] = json!(1);
+    body["nodes"] = json!([{"mesh": 0}, {"mesh": 0, "scale": [-3, 1, 1]}]);
+    body["scenes"] = json!([{"nodes": [0, 1]}]);
+    let s = load(&file(&bin, body)).unwrap();
+    // Flat normals unshare the vertices: 3 per triangle, node 0 then node 1.
+    assert_eq!(s.mesh.tangents[0], Vec4::new(1.0, 0.0, 0.0, 1.0));
+    assert_eq!(s.mesh.tangents[3], Vec4::new(-1.0, 0.0, 0.0, -1.0));
+    // Mirrored triangle: flat normal from the flipped winding still faces +Z.
+    assert!((s.mesh.normals[3] - Vec3::Z).length() < 1e-6);
+}
+
+#[test]
+fn glb_with_embedded_image_and_missing_bin_chunk() {
+    let mut png = std::io::Cursor::new(Vec::new());
+    image::RgbaImage::from_pixel(3, 2, image::Rgba([255, 0, 0, 255])).write_to(&mut png, image::ImageFormat::Png).unwrap();
+    let png = png.into_inner();
+    let mut bin = f32_bytes(&TRI);
+    bin.extend_from_slice(&png);
+    let mut body = triangle_body(json!([{"buffer": 0, "byteOffset": 36, "byteLength": png.len()}]), &[]);
+    body["asset"] = json!({"version": "2.0"});
+    body["buffers"] = json!([{"byteLength": bin.len()}]);
+    body["images"] = json!([{"bufferView": 1, "mimeType": "image/png"}]);
+    body["textures"] = json!([{"source": 0}]);
+    body["materials"] = json!([{"emissiveTexture": {"index": 0}, "emissiveFactor": [1, 1, 1]}]);
+    body["meshes"][0]["primitives"][0]["material"] = json!(0);
+    let glb = |json: &Value, bin: Option<&[u8]>| {
+        let mut j = serde_json::to_vec(json).unwrap();
+        while j.len() % 4 != 0 {
+            j.push(b' ');
+        }
+        let mut out = b"glTF".to_vec();
+        out.extend(2u32.to_le_bytes());
+        out.extend(0u32.to_le_bytes());
+        out.extend((j.len() as u32).to_le_bytes());
+        out.extend(b"JSON");
+        out.extend(&j);
+        if let Some(b) = bin {
+            let mut b = b.to_vec();
+            while b.len() % 4 != 0 {
+                b.push(0);
+            }
+            out.extend((b.len() as u32).to_le_bytes());
+            out.extend(b"BIN\0");
+            out.extend(&b);
+        }
+        let n = out.len() as u32;
+        out[8..12].copy_from_slice(&n.to_le_bytes());
+        out
+    };
+    let s = load(&glb(&body, Some(&bin))).unwrap();
+    assert_eq!((s.textures[0].width, s.textures[0].height), (3, 2));
+    assert!((s.textures[0].texels[5] - Vec4::new(1.0, 0.0, 0.0, 1.0)).length() < 1e-6);
+    assert!(s.materials[0].is_emissive());
+    let e = load(&glb(&body, None)).unwrap_err().to_string();
+    assert!(e.contains("buffer 0") && e.contains("binary chunk"), "{e}");
+    // The texel budget.
+    let opts = ImportOptions { max_texture_texels: 5, ..ImportOptions::default() };
+    let e = load_gltf_from_slice(&glb(&body, Some(&bin)), None, "unit.glb", &opts).unwrap_err().to_string();
+    assert!(e.contains("image 0") && e.contains("budget"), "{e}");
+}
+
+#[test]
+fn jpeg_textures_decode() {
+    let mut jpg = std::io::Cursor::new(Vec::new());
+    image::RgbImage::from_pixel(8, 8, image::Rgb([188, 188, 188])).write_to(&mut jpg, image::ImageFormat::Jpeg).unwrap();
+    let t = super::textures::decode(&jpg.into_inner(), true, 1000).unwrap();
+    assert_eq!((t.width, t.height), (8, 8));
+    // A flat grey block survives JPEG within a code value: linear ≈ 0.5029.
+    assert!((t.texels[0].x - 0.502_886).abs() < 0.01, "{}", t.texels[0]);
+}
+
+#[test]
+fn hostile_counts_are_capped_before_allocating() {
+    // A sparse accessor with no buffer view claims 10^12 zero-filled elements.
+    let mut body = triangle_body(json!([{"buffer": 0, "byteLength": 4}]), &[]);
+    body["accessors"][0] = json!({"componentType": 5126, "count": 1_000_000_000_000u64, "type": "VEC3", "min": [0,0,0], "max": [0,0,0],
+        "sparse": {"count": 1, "indices": {"bufferView": 1, "componentType": 5125}, "values": {"bufferView": 1}}});
+    let e = load(&file(&f32_bytes(&TRI), body)).unwrap_err().to_string();
+    assert!(e.contains("exceeds the import limit"), "{e}");
+}
+
+#[test]
+fn scene_selection_follows_the_spec() {
+    let two_nodes = |scenes: Value, scene: Option<usize>| {
+        let mut body = triangle_body(json!([]), &[]);
+        body["nodes"] = json!([{"mesh": 0}, {"mesh": 0, "translation": [0, 0, 7]}]);
+        body["scenes"] = scenes;
+        if let Some(s) = scene {
+            body["scene"] = json!(s);
+        }
+        file(&f32_bytes(&TRI), body)
+    };
+    let count = |bytes: &[u8], opts: &ImportOptions| load_gltf_from_slice(bytes, None, "s.gltf", opts).map(|s| s.mesh.indices.len());
+    let d = ImportOptions::default();
+    let scenes = json!([{"nodes": [0]}, {"nodes": [0, 1]}]);
+    assert_eq!(count(&two_nodes(scenes.clone(), None), &d).unwrap(), 1, "scene 0 without `scene`");
+    assert_eq!(count(&two_nodes(scenes.clone(), Some(1)), &d).unwrap(), 2, "the default scene");
+    assert_eq!(count(&two_nodes(scenes.clone(), None), &ImportOptions { scene: Some(1), ..d.clone() }).unwrap(), 2);
+    assert_eq!(count(&two_nodes(json!([]), None), &d).unwrap(), 2, "no scenes: all root nodes");
+    let e = count(&two_nodes(scenes, None), &ImportOptions { scene: Some(5), ..d.clone() }).unwrap_err().to_string();
+    assert!(e.contains("scene 5 does not exist"), "{e}");
+    let e = count(&two_nodes(json!([{"nodes": [1, 1]}]), None), &d).unwrap_err().to_string();
+    assert!(e.contains("node 1 is reached twice"), "{e}");
+}
+
+#[test]
+fn default_material_is_appended_last() {
+    let mut body = triangle_body(json!([]), &[]);
+    body["materials"] = json!([{"name": "red", "pbrMetallicRoughness": {"baseColorFactor": [1, 0, 0, 1]}}]);
+    body["meshes"] = json!([{"primitives": [{"attributes": {"POSITION": 0}}, {"attributes": {"POSITION": 0}, "material": 0}]}]);
+    let s = load(&file(&f32_bytes(&TRI), body)).unwrap();
+    assert_eq!(s.mesh.material, vec![1, 0]);
+    assert_eq!(s.materials.len(), 2);
+    assert_eq!(s.materials[0].name.as_deref(), Some("red"));
+    assert_eq!(s.materials[1].base_color_factor, Vec4::ONE);
+    assert_eq!((s.materials[1].metallic_factor, s.materials[1].double_sided), (1.0, false));
+}
