@@ -604,8 +604,8 @@ fn composite(color: &RgbaImage, background: Background) -> RgbaImage {
     if let Background::Color(bg) = background {
         for px in out.data.chunks_exact_mut(4) {
             let a = px[3].clamp(0.0, 1.0);
-            for c in 0..3 {
-                px[c] += (1.0 - a) * bg[c];
+            for (v, b) in px[..3].iter_mut().zip(bg) {
+                *v += (1.0 - a) * b;
             }
             px[3] = 1.0;
         }
@@ -618,8 +618,8 @@ fn display(linear: &RgbaImage) -> RgbaImage {
     let mut out = linear.clone();
     for px in out.data.chunks_exact_mut(4) {
         let a = px[3].clamp(0.0, 1.0);
-        for c in 0..3 {
-            px[c] = if a > 0.0 { dataset::linear_to_srgb(px[c] / a) } else { 0.0 };
+        for v in &mut px[..3] {
+            *v = if a > 0.0 { dataset::linear_to_srgb(*v / a) } else { 0.0 };
         }
         px[3] = a;
     }
@@ -892,7 +892,7 @@ mod tests {
         let gt = dataset::read_ground_truth(f.gt_path.as_ref().unwrap()).unwrap();
         let png = dataset::read_png_rgba(&f.image_path).unwrap();
         let exr = dataset::read_exr_rgba(f.exr_path.as_ref().unwrap()).unwrap();
-        assert!(gt.alpha.iter().any(|a| *a > 0.0) && gt.alpha.iter().any(|a| *a == 0.0));
+        assert!(gt.alpha.iter().any(|a| *a > 0.0) && gt.alpha.contains(&0.0));
         for k in 0..gt.alpha.len() {
             let a = exr.data[4 * k + 3];
             assert_eq!(png.data[4 * k + 3], a);

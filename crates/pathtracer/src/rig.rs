@@ -166,7 +166,7 @@ pub fn has_ground(scene: &Scene) -> bool {
     let mut covered = 0.0f64;
     for tri in &mesh.indices {
         let p = tri.map(|i| mesh.positions.get(i as usize).copied().unwrap_or(glam::Vec3::INFINITY));
-        if p.iter().any(|v| !(v.y - b.min.y <= eps)) {
+        if p.iter().any(|v| v.y.is_nan() || v.y - b.min.y > eps) {
             continue;
         }
         let n = (p[1] - p[0]).as_dvec3().cross((p[2] - p[0]).as_dvec3());
@@ -446,7 +446,7 @@ mod tests {
                         let ph = std::f64::consts::TAU * i as f64 / 40.0;
                         let p = c + r * DVec3::new(th.sin() * ph.cos(), th.cos(), th.sin() * ph.sin());
                         let (x, y) = project(cam, p).expect("sphere point behind the camera");
-                        assert!(x >= 0.0 && x <= 40.0 && y >= 0.0 && y <= 30.0, "{kind:?}: ({x}, {y}) out of frame");
+                        assert!((0.0..=40.0).contains(&x) && (0.0..=30.0).contains(&y), "{kind:?}: ({x}, {y}) out of frame");
                     }
                 }
                 // Looking at the centre, with world +Y up (no roll), above the centre for the hemisphere.
