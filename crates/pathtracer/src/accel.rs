@@ -5,6 +5,13 @@
 //! Build settings are one struct, [`AccelParams`], with named presets mirroring obvhs's
 //! `BvhBuildParams` presets.
 //!
+//! Conservative boxes: obvhs's `f32` ray/box test can round a ray that passes exactly
+//! through a triangle's extreme vertex (a box corner) to a miss, which would break
+//! watertightness. The BVH is therefore built over triangle boxes padded by
+//! `2·10⁻⁶ × (largest absolute coordinate of the scene)` (about 16 ulps) on every side, so
+//! rounding in the box test can no longer reject a box that the ray touches. (obvhs's
+//! spatial pre-splits need the exact triangles, so they are not offered.)
+//!
 //! Hit rules, shared by closest-hit and any-hit queries:
 //! - A single-sided triangle hit from behind (`d · ((p₁−p₀)×(p₂−p₀)) ≥ 0`) is ignored: glTF
 //!   culls back faces, so they are invisible and do not occlude.
@@ -18,11 +25,10 @@ use crate::geometry::{Ray, TriangleHit, WatertightRay, intersect_triangle};
 use crate::scene::{AlphaMode, Scene};
 use glam::{Vec3, Vec3A};
 use obvhs::cwbvh::CwBvh;
-use obvhs::cwbvh::builder::build_cwbvh_from_tris;
+use obvhs::cwbvh::builder::build_cwbvh;
 use obvhs::ploc::{PlocSearchDistance, SortPrecision};
 use obvhs::ray::RayHit;
-use obvhs::triangle::Triangle;
-use obvhs::BvhBuildParams;
+use obvhs::{Boundable, BvhBuildParams};
 use serde::{Deserialize, Serialize};
 use std::time::Duration;
 
@@ -57,8 +63,6 @@ pub enum MortonBits {
 /// [`AccelParams::medium_build`] unless you are tuning.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct AccelParams {
-    /// Split large triangles' boxes before building (better trees for uneven meshes).
-    pub pre_split: bool,
     /// PLOC search radius.
     pub search_distance: PlocSearch,
     /// Below this tree depth, PLOC searches only 1 neighbour.
@@ -74,20 +78,20 @@ pub struct AccelParams {
 impl AccelParams {
     /// Quickest build, slowest traversal (obvhs `fastest_build`).
     pub const fn fastest_build() -> Self {
-        Self { pre_split: false, search_distance: PlocSearch::Minimum, search_depth_threshold: 0, reinsertion_batch_ratio: 0.0, morton_bits: MortonBits::U64, max_prims_per_leaf: 1 }
+        Self { search_distance: PlocSearch::Minimum, search_depth_threshold: 0, reinsertion_batch_ratio: 0.0, morton_bits: MortonBits::U64, max_prims_per_leaf: 1 }
     }
     /// Fast build with decent traversal (obvhs `fast_build`).
     pub const fn fast_build() -> Self {
-        Self { pre_split: false, search_distance: PlocSearch::Low, search_depth_threshold: 2, reinsertion_batch_ratio: 0.02, morton_bits: MortonBits::U64, max_prims_per_leaf: 3 }
+        Self { search_distance: PlocSearch::Low, search_depth_threshold: 2, reinsertion_batch_ratio: 0.02, morton_bits: MortonBits::U64, max_prims_per_leaf: 3 }
     }
     /// Balanced (obvhs `medium_build`): about Embree's build time, faster traversal. The
     /// usual choice for dataset rendering.
     pub const fn medium_build() -> Self {
-        Self { pre_split: false, search_distance: PlocSearch::Medium, search_depth_threshold: 3, reinsertion_batch_ratio: 0.05, morton_bits: MortonBits::U64, max_prims_per_leaf: 3 }
+        Self { search_distance: PlocSearch::Medium, search_depth_threshold: 3, reinsertion_batch_ratio: 0.05, morton_bits: MortonBits::U64, max_prims_per_leaf: 3 }
     }
-    /// Slow, high-quality build with spatial pre-splits (obvhs `slow_build`).
+    /// Slow, higher-quality build (obvhs `slow_build`, without spatial pre-splits).
     pub const fn slow_build() -> Self {
-        Self { pre_split: true, search_distance: PlocSearch::High, search_depth_threshold: 2, reinsertion_batch_ratio: 0.2, morton_bits: MortonBits::U128, max_prims_per_leaf: 3 }
+        Self { search_distance: PlocSearch::High, search_depth_threshold: 2, reinsertion_batch_ratio: 0.2, morton_bits: MortonBits::U128, max_prims_per_leaf: 3 }
     }
 
     /// The obvhs parameters, after checking the ranges.
@@ -99,7 +103,7 @@ impl AccelParams {
             return Err(PathTracerError::Config(format!("accel reinsertion_batch_ratio must be finite and >= 0, got {}", self.reinsertion_batch_ratio)));
         }
         Ok(BvhBuildParams {
-            pre_split: self.pre_split,
+            pre_split: false,
             ploc_search_distance: match self.search_distance {
                 PlocSearch::Minimum => PlocSearchDistance::Minimum,
                 PlocSearch::VeryLow => PlocSearchDistance::VeryLow,
@@ -132,6 +136,15 @@ pub struct Hit {
     pub b: [f32; 3],
     /// Whether the front face (counter-clockwise side) was hit.
     pub front: bool,
+}
+
+/// A triangle's bounding box, padded (see the module docs): the primitive the BVH is built over.
+struct PaddedBox(obvhs::aabb::Aabb);
+
+impl Boundable for PaddedBox {
+    fn aabb(&self) -> obvhs::aabb::Aabb {
+        self.0
+    }
 }
 
 const CULL_BACK: u8 = 1;
@@ -195,13 +208,19 @@ impl Accel {
         if tris.is_empty() {
             return Ok(Accel { bvh: None, tris, prim: Vec::new(), flags: Vec::new(), build_time: Duration::ZERO });
         }
-        let obvhs_tris: Vec<Triangle> = tris
+        let max_abs = tris.iter().flatten().fold(0.0f32, |m, v| m.max(v.abs().max_element()));
+        let pad = Vec3A::splat(2e-6 * max_abs.max(f32::MIN_POSITIVE));
+        let boxes: Vec<PaddedBox> = tris
             .iter()
-            .map(|p| Triangle { v0: Vec3A::from(p[0]), v1: Vec3A::from(p[1]), v2: Vec3A::from(p[2]) })
+            .map(|p| {
+                let lo = p[0].min(p[1]).min(p[2]);
+                let hi = p[0].max(p[1]).max(p[2]);
+                PaddedBox(obvhs::aabb::Aabb::new(Vec3A::from(lo) - pad, Vec3A::from(hi) + pad))
+            })
             .collect();
         let start = std::time::Instant::now();
         let mut core = Duration::ZERO;
-        let bvh = build_cwbvh_from_tris(&obvhs_tris, obvhs_params, &mut core);
+        let bvh = build_cwbvh(&boxes, obvhs_params, &mut core);
         let build_time = start.elapsed();
         let prim: Vec<u32> = bvh.primitive_indices.clone();
         let bvh_tris = prim.iter().map(|&i| tris[i as usize]).collect();
