@@ -1,1 +1,449 @@
-//! (in progress)
+//! Training data: the views of a dataset split as pixel arrays, batches of rays drawn from them
+//! with a counter-based generator keyed by (seed, step), and the scene bounds a model needs.
+//!
+//! Colour space: the models learn the **display (sRGB-encoded) values as stored in the PNGs**,
+//! the convention of the NeRF paper and its Blender loaders; straight-alpha RGBA is composited
+//! onto the background in that space: `c = a·rgb + (1 − a)·bg`.
+
+use crate::models::ops::{stream, uniform};
+use dataset::{Camera, Dataset, Frame, SceneFacts};
+use glam::DVec3;
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+/// Errors while preparing training data.
+#[derive(Debug, thiserror::Error)]
+pub enum DataError {
+    /// The dataset could not be read.
+    #[error(transparent)]
+    Dataset(#[from] dataset::DatasetError),
+    /// The dataset is unusable for training.
+    #[error("{0}")]
+    Invalid(String),
+}
+
+/// The background that transparent pixels are composited onto.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Background {
+    /// White (the Blender-synthetic convention).
+    White,
+    /// Black.
+    Black,
+    /// A random colour per ray and step during training (keeps the model from explaining the
+    /// background with density); white for evaluation.
+    Random,
+}
+
+impl Background {
+    /// The fixed colour used for evaluation and rendering.
+    pub fn eval_color(self) -> [f32; 3] {
+        match self {
+            Background::Black => [0.0; 3],
+            Background::White | Background::Random => [1.0; 3],
+        }
+    }
+}
+
+impl std::str::FromStr for Background {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "white" => Ok(Self::White),
+            "black" => Ok(Self::Black),
+            "random" => Ok(Self::Random),
+            _ => Err(format!("unknown background '{s}' (white, black or random)")),
+        }
+    }
+}
+
+/// One view as pixels: straight-alpha RGBA display values, row-major from the top.
+#[derive(Clone, Debug)]
+pub struct ViewPixels {
+    /// The camera (already downscaled).
+    pub camera: Camera,
+    /// RGBA per pixel.
+    pub rgba: Vec<[f32; 4]>,
+    /// Ground truth (z-depth, alpha) when the dataset has it, downscaled by taking the pixel
+    /// whose centre matches (nearest), so depth stays exact at the pixel-centre ray only for
+    /// `downscale` 1.
+    pub gt: Option<(Vec<f32>, Vec<f32>)>,
+}
+
+impl ViewPixels {
+    /// Loads a frame, box-filtering its image by `downscale`.
+    pub fn load(frame: &Frame, downscale: u32, with_gt: bool) -> Result<Self, DataError> {
+        let img = dataset::read_png_rgba(&frame.image_path)?;
+        let k = downscale.max(1);
+        let camera = frame.camera.downscaled(k);
+        let (w, h) = (camera.intrinsics.width as usize, camera.intrinsics.height as usize);
+        let mut rgba = vec![[0.0f32; 4]; w * h];
+        for y in 0..h {
+            for x in 0..w {
+                let mut acc = [0.0f32; 4];
+                for dy in 0..k as usize {
+                    for dx in 0..k as usize {
+                        let p = img.pixel((x * k as usize + dx) as u32, (y * k as usize + dy) as u32);
+                        for c in 0..4 {
+                            acc[c] += p[c];
+                        }
+                    }
+                }
+                let n = (k * k) as f32;
+                rgba[y * w + x] = acc.map(|v| v / n);
+            }
+        }
+        let gt = match (&frame.gt_path, with_gt) {
+            (Some(p), true) => {
+                let g = dataset::read_ground_truth(p)?;
+                // For even factors no full-resolution pixel centre coincides with a downscaled
+                // one; take the nearest, a documented approximation.
+                let idx = |x: usize, y: usize| {
+                    let (sx, sy) = ((x * k as usize + k as usize / 2).min(g.width as usize - 1), (y * k as usize + k as usize / 2).min(g.height as usize - 1));
+                    sy * g.width as usize + sx
+                };
+                let mut depth = vec![0.0; w * h];
+                let mut alpha = vec![0.0; w * h];
+                for y in 0..h {
+                    for x in 0..w {
+                        depth[y * w + x] = g.depth[idx(x, y)];
+                        alpha[y * w + x] = g.alpha[idx(x, y)];
+                    }
+                }
+                Some((depth, alpha))
+            }
+            _ => None,
+        };
+        Ok(Self { camera, rgba, gt })
+    }
+
+    /// Width × height.
+    pub fn pixels(&self) -> usize {
+        self.rgba.len()
+    }
+
+    /// Colour of pixel `p` composited onto `bg`.
+    pub fn color(&self, p: usize, bg: [f32; 3]) -> [f32; 3] {
+        let [r, g, b, a] = self.rgba[p];
+        [a * r + (1.0 - a) * bg[0], a * g + (1.0 - a) * bg[1], a * b + (1.0 - a) * bg[2]]
+    }
+}
+
+/// World-space centre ray of pixel index `p` of a camera, as f32 (origin, unit direction).
+pub fn pixel_ray(camera: &Camera, p: usize) -> ([f32; 3], [f32; 3]) {
+    let w = camera.intrinsics.width as usize;
+    let r = camera.pixel_center_ray((p % w) as u32, (p / w) as u32);
+    (r.origin.as_vec3().to_array(), r.direction.as_vec3().to_array())
+}
+
+/// A batch of training rays.
+///
+/// # Shapes
+/// Every vector has one entry per ray.
+#[derive(Clone, Debug, Default)]
+pub struct RayBatch {
+    /// Ray origins.
+    pub origins: Vec<[f32; 3]>,
+    /// Unit directions.
+    pub dirs: Vec<[f32; 3]>,
+    /// Target colours (composited onto `background`).
+    pub target: Vec<[f32; 3]>,
+    /// Background colour per ray.
+    pub background: Vec<[f32; 3]>,
+    /// A global id per ray (view · 2³² + pixel) that keys per-ray random numbers.
+    pub ids: Vec<u64>,
+}
+
+/// The training views of a dataset.
+#[derive(Clone, Debug)]
+pub struct TrainData {
+    /// The views.
+    pub views: Vec<ViewPixels>,
+    /// Background handling.
+    pub background: Background,
+    cumulative: Vec<usize>,
+}
+
+impl TrainData {
+    /// Loads the frames of a split.
+    pub fn load(frames: &[Frame], downscale: u32, background: Background, with_gt: bool) -> Result<Self, DataError> {
+        if frames.is_empty() {
+            return Err(DataError::Invalid("the split has no frames".into()));
+        }
+        let views = frames.iter().map(|f| ViewPixels::load(f, downscale, with_gt)).collect::<Result<Vec<_>, _>>()?;
+        let mut cumulative = vec![0];
+        for v in &views {
+            cumulative.push(cumulative.last().copied().unwrap_or(0) + v.pixels());
+        }
+        Ok(Self { views, background, cumulative })
+    }
+
+    /// Total pixels over all views.
+    pub fn total_pixels(&self) -> usize {
+        self.cumulative.last().copied().unwrap_or(0)
+    }
+
+    /// (view, pixel) of a global pixel index.
+    pub fn locate(&self, global: usize) -> (usize, usize) {
+        let v = self.cumulative.partition_point(|c| *c <= global) - 1;
+        (v, global - self.cumulative[v])
+    }
+
+    /// The batch of step `step`: `n` pixels drawn uniformly over all training pixels, a pure
+    /// function of (seed, step), so a resumed run sees the same batches.
+    pub fn batch(&self, seed: u64, step: u64, n: usize) -> RayBatch {
+        let total = self.total_pixels() as u64;
+        let mut b = RayBatch::default();
+        for k in 0..n as u64 {
+            let u = (uniform(seed, stream::PIXEL, step, k) as f64 + uniform(seed, stream::PIXEL, step, k + (1 << 40)) as f64 / (1u64 << 24) as f64).min(0.999_999_999);
+            let g = ((u * total as f64) as u64).min(total - 1) as usize;
+            let (v, p) = self.locate(g);
+            let bg = match self.background {
+                Background::Random => [0, 1, 2].map(|c| uniform(seed, stream::BACKGROUND, step, k * 3 + c)),
+                other => other.eval_color(),
+            };
+            let (o, d) = pixel_ray(&self.views[v].camera, p);
+            b.origins.push(o);
+            b.dirs.push(d);
+            b.target.push(self.views[v].color(p, bg));
+            b.background.push(bg);
+            b.ids.push(((v as u64) << 32) | p as u64);
+        }
+        b
+    }
+}
+
+/// Where a model looks for the scene: an axis-aligned box and the near/far range along rays.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SceneBounds {
+    /// Box minimum corner (world).
+    pub aabb_min: [f32; 3],
+    /// Box maximum corner (world).
+    pub aabb_max: [f32; 3],
+    /// Nearest distance along rays.
+    pub near: f32,
+    /// Farthest distance along rays.
+    pub far: f32,
+    /// Where the numbers came from, for the config file's reader.
+    pub source: String,
+}
+
+impl SceneBounds {
+    /// Centre of the box.
+    pub fn center(&self) -> [f32; 3] {
+        [0, 1, 2].map(|k| 0.5 * (self.aabb_min[k] + self.aabb_max[k]))
+    }
+    /// Half the largest side: the box is treated as the cube of this half-extent around its
+    /// centre when positions are normalised.
+    pub fn half_extent(&self) -> f32 {
+        (0..3).map(|k| 0.5 * (self.aabb_max[k] - self.aabb_min[k])).fold(0.0, f32::max)
+    }
+    /// A position mapped to [0, 1]³ over the bounding cube.
+    pub fn to_unit(&self, p: [f32; 3]) -> [f32; 3] {
+        let (c, h) = (self.center(), self.half_extent());
+        [0, 1, 2].map(|k| (p[k] - c[k]) / (2.0 * h) + 0.5)
+    }
+    /// The bounding cube's corners.
+    pub fn cube(&self) -> ([f32; 3], [f32; 3]) {
+        let (c, h) = (self.center(), self.half_extent());
+        (c.map(|v| v - h), c.map(|v| v + h))
+    }
+
+    /// Bounds from the dataset's scene facts (box padded by `padding` of its size on each side,
+    /// near/far as suggested) or, without facts, from the cameras: see [`Self::from_cameras`].
+    pub fn for_dataset(facts: Option<&SceneFacts>, cameras: &[Camera], padding: f32, assumed_radius: f32) -> Self {
+        match facts {
+            Some(f) => {
+                let size: Vec<f32> = (0..3).map(|k| (f.aabb_max[k] - f.aabb_min[k]) as f32).collect();
+                let pad = size.iter().fold(0.0f32, |a, b| a.max(*b)) * padding;
+                Self {
+                    aabb_min: [0, 1, 2].map(|k| f.aabb_min[k] as f32 - pad),
+                    aabb_max: [0, 1, 2].map(|k| f.aabb_max[k] as f32 + pad),
+                    near: (f.near as f32 * 0.9).max(1e-3),
+                    far: f.far as f32 * 1.1,
+                    source: format!("scene facts (box padded by {padding} of its largest side, near ×0.9, far ×1.1)"),
+                }
+            }
+            None => Self::from_cameras(cameras, assumed_radius),
+        }
+    }
+
+    /// Bounds for a dataset without scene facts: the scene is assumed to lie within
+    /// `radius` of the point all cameras look at (the least-squares closest point to their
+    /// optical axes); near = (min camera distance to it) − radius, far = (max distance) +
+    /// radius, and the box is the cube of half-extent `radius` around it. For the Blender
+    /// synthetic scenes (cameras 4.03 from the origin, objects inside [−1, 1]³, radius √3 as
+    /// the half-diagonal of that cube) this gives near ≈ 2.3, far ≈ 5.8, close to the official
+    /// 2 and 6.
+    pub fn from_cameras(cameras: &[Camera], radius: f32) -> Self {
+        // Solve Σ (I − d dᵀ) p = Σ (I − d dᵀ) o.
+        let mut a = glam::DMat3::ZERO;
+        let mut b = DVec3::ZERO;
+        for c in cameras {
+            let o = c.origin();
+            let d = -c.c2w.z_axis.truncate().normalize();
+            let m = glam::DMat3::IDENTITY - glam::DMat3::from_cols(d * d.x, d * d.y, d * d.z);
+            a += m;
+            b += m * o;
+        }
+        let centre = if a.determinant().abs() > 1e-9 {
+            a.inverse() * b
+        } else {
+            // All axes parallel: fall back to the mean of the cameras' look-at points at unit distance.
+            cameras.iter().map(|c| c.origin() - c.c2w.z_axis.truncate()).sum::<DVec3>() / cameras.len().max(1) as f64
+        };
+        let dists: Vec<f64> = cameras.iter().map(|c| (c.origin() - centre).length()).collect();
+        let dmin = dists.iter().copied().fold(f64::INFINITY, f64::min) as f32;
+        let dmax = dists.iter().copied().fold(0.0, f64::max) as f32;
+        let c = centre.as_vec3().to_array();
+        Self {
+            aabb_min: c.map(|v| v - radius),
+            aabb_max: c.map(|v| v + radius),
+            near: (dmin - radius).max(0.05 * dmin).max(1e-3),
+            far: dmax + radius,
+            source: format!("cameras (no scene facts): scene assumed within {radius} of the point the cameras look at"),
+        }
+    }
+}
+
+/// Loads a dataset folder (our layout or the Blender-synthetic one).
+pub fn load_dataset(dir: &Path) -> Result<Dataset, DataError> {
+    Ok(Dataset::load(dir)?)
+}
+
+/// A small analytic scene written as a dataset, for tests and benchmarks that need no prior
+/// rendering step: three diffuse spheres lit by a fixed directional light, seen from cameras
+/// on a sphere of radius 4 (Blender's field of view), transparent background, exact depth.
+pub mod synthetic {
+    use dataset::{Camera, FrameRecord, GroundTruth, Intrinsics, RgbaImage, SceneFacts, SplitKind};
+    use glam::DVec3;
+    use std::path::Path;
+
+    const SPHERES: [([f64; 3], f64, [f64; 3]); 3] = [
+        ([0.0, 0.0, 0.0], 0.6, [0.85, 0.25, 0.2]),
+        ([0.7, 0.3, 0.4], 0.35, [0.2, 0.7, 0.3]),
+        ([-0.5, -0.2, 0.6], 0.3, [0.2, 0.35, 0.9]),
+    ];
+
+    fn trace(o: DVec3, d: DVec3) -> Option<(f64, [f64; 3])> {
+        let light = DVec3::new(0.5, 0.8, 0.3).normalize();
+        let mut best: Option<(f64, [f64; 3])> = None;
+        for (c, r, albedo) in SPHERES {
+            let oc = o - DVec3::from(c);
+            let b = oc.dot(d);
+            let disc = b * b - (oc.length_squared() - r * r);
+            if disc < 0.0 {
+                continue;
+            }
+            let t = -b - disc.sqrt();
+            if t > 1e-6 && best.is_none_or(|(bt, _)| t < bt) {
+                let n = (o + d * t - DVec3::from(c)) / r;
+                let shade = 0.35 + 0.65 * n.dot(light).max(0.0);
+                best = Some((t, albedo.map(|a| a * shade)));
+            }
+        }
+        best
+    }
+
+    /// Camera `k` of `n`, on a Fibonacci spiral over the sphere of radius 4 (`phase` shifts
+    /// the spiral so splits do not share views).
+    fn camera(k: usize, n: usize, phase: f64, size: u32) -> Camera {
+        let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+        let y = 0.9 - 1.6 * (k as f64 + 0.5) / n as f64;
+        let r = (1.0 - y * y).sqrt();
+        let a = golden * k as f64 + phase;
+        let eye = DVec3::new(r * a.cos(), y, r * a.sin()) * 4.0;
+        Camera::new(Intrinsics::from_fov_x(size, size, 0.6911), Camera::look_at(eye, DVec3::ZERO, DVec3::Y))
+            .unwrap_or_else(|e| unreachable!("{e}"))
+    }
+
+    /// Writes the dataset: `train` / `val` / `test` views of `size`² pixels, with PNGs (2×2
+    /// supersampled colour, straight alpha), ground-truth EXRs and scene facts. With
+    /// `blender_layout` only `camera_angle_x`, file paths and poses are written (no
+    /// intrinsics keys, ground truth or facts), as in the original Blender synthetic folders.
+    pub fn write(dir: &Path, size: u32, counts: [usize; 3], blender_layout: bool) -> Result<(), dataset::DatasetError> {
+        let intr = Intrinsics::from_fov_x(size, size, 0.6911);
+        let (mut near, mut far) = (f64::INFINITY, 0.0f64);
+        let mut splits = Vec::new();
+        for (si, split) in SplitKind::ALL.into_iter().enumerate() {
+            let mut recs = Vec::new();
+            for k in 0..counts[si] {
+                let cam = camera(k, counts[si], si as f64 * 0.9, size);
+                let mut img = RgbaImage::new(size, size);
+                let n = (size * size) as usize;
+                let mut gt = GroundTruth {
+                    width: size,
+                    height: size,
+                    depth: vec![0.0; n],
+                    distance: vec![0.0; n],
+                    normal: vec![0.0; 3 * n],
+                    alpha: vec![0.0; n],
+                };
+                for j in 0..size {
+                    for i in 0..size {
+                        let p = (j * size + i) as usize;
+                        let mut acc = [0.0f64; 4];
+                        for (sx, sy) in [(0.25, 0.25), (0.75, 0.25), (0.25, 0.75), (0.75, 0.75)] {
+                            let ray = cam.pixel_ray(i as f64 + sx, j as f64 + sy);
+                            if let Some((_, c)) = trace(ray.origin, ray.direction) {
+                                for ch in 0..3 {
+                                    acc[ch] += c[ch];
+                                }
+                                acc[3] += 1.0;
+                            }
+                        }
+                        let a = acc[3] / 4.0;
+                        for ch in 0..3 {
+                            img.data[4 * p + ch] = if acc[3] > 0.0 { (acc[ch] / acc[3]) as f32 } else { 0.0 };
+                        }
+                        img.data[4 * p + 3] = a as f32;
+                        let ray = cam.pixel_center_ray(i, j);
+                        if let Some((t, _)) = trace(ray.origin, ray.direction) {
+                            gt.distance[p] = t as f32;
+                            gt.depth[p] = cam.z_depth_from_distance(i as f64 + 0.5, j as f64 + 0.5, t) as f32;
+                            gt.alpha[p] = 1.0;
+                            near = near.min(t);
+                            far = far.max(t);
+                        }
+                    }
+                }
+                let name = format!("r_{k}");
+                dataset::write_png_rgba(&dir.join(split.name()).join(format!("{name}.png")), &img)?;
+                let gt_rel = format!("./{}/{name}_gt.exr", split.name());
+                if !blender_layout {
+                    dataset::write_ground_truth(&dir.join(&gt_rel[2..]), &gt)?;
+                }
+                recs.push(FrameRecord {
+                    file_path: format!("./{}/{name}", split.name()),
+                    transform_matrix: cam.rows(),
+                    depth_file_path: None,
+                    gt_file_path: (!blender_layout).then_some(gt_rel),
+                    exr_file_path: None,
+                });
+            }
+            splits.push((split, recs));
+        }
+        let facts = SceneFacts {
+            scene: "synthetic-spheres".into(),
+            aabb_min: [-0.8, -0.6, -0.6],
+            aabb_max: [1.05, 0.65, 0.95],
+            near: near * 0.9,
+            far: far * 1.1 + 1.0,
+            view_dependent: false,
+            render: serde_json::json!({"analytic": true}),
+            renderer: "nerf::data::synthetic".into(),
+        };
+        for (split, recs) in splits {
+            if blender_layout {
+                let json = serde_json::json!({
+                    "camera_angle_x": intr.camera_angle_x(),
+                    "frames": recs.iter().map(|r| serde_json::json!({"file_path": r.file_path, "transform_matrix": r.transform_matrix})).collect::<Vec<_>>(),
+                });
+                dataset::io::atomic_write_json(&dir.join(split.file_name()), &json)?;
+            } else {
+                dataset::write_split_transforms(dir, split, &intr, recs, Some(facts.clone()))?;
+            }
+        }
+        Ok(())
+    }
+}

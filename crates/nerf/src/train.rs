@@ -1,1 +1,565 @@
-//! (in progress)
+//! The trainer: one [`TrainConfig`] holds every setting (model, data, schedule, logging) and
+//! is written to `<run>/config.json` before step 0, so a run is reproducible from that file
+//! alone; [`Trainer`] owns the data, the model and the run folder and advances one step at a
+//! time.
+//!
+//! Run folder: `config.json`, `metrics.jsonl` (one JSON object per line: training lines every
+//! `log_interval_steps` with `step`, `wall_s`, `loss`, `train_psnr`, `rays_per_s`,
+//! `samples_per_ray`, `lr`, `skipped_nonfinite`; validation lines with `val_psnr` and, when the
+//! dataset has ground truth, `val_depth_mae`), `checkpoints/step-*.ckpt`.
+//!
+//! Clock: `wall_s` counts training time only (steps, checkpoints excluded too): validation
+//! runs outside it. Validation happens every `val_interval_s` of that training clock (default:
+//! a tenth of the time budget, or 30 s without one) and at the end, on a fixed subset of the
+//! val views' pixels (at most `val_max_views` views, `val_max_pixels` pixels drawn once from
+//! the seed) so curves over time compare like with like.
+//!
+//! Randomness is counter-based on (seed, step): batches, jitter and grid updates do not depend
+//! on what ran before, and a checkpoint holds the whole optimiser and grid state, so a resumed
+//! run reproduces an uninterrupted one exactly (when both stop on a step count).
+
+use crate::checkpoint::{self, CheckpointError, StateDict};
+use crate::data::{Background, DataError, SceneBounds, TrainData, ViewPixels, pixel_ray};
+use crate::models::ops::{stream, uniform};
+use crate::models::{Model, ModelConfig, StepStats, StepTimings, fast::FastConfig, paper::PaperConfig};
+use burn::config::Config;
+use serde::{Deserialize, Serialize};
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
+
+/// Errors of training.
+#[derive(Debug, thiserror::Error)]
+pub enum TrainError {
+    /// Data problems.
+    #[error(transparent)]
+    Data(#[from] DataError),
+    /// Checkpoint problems.
+    #[error(transparent)]
+    Checkpoint(#[from] CheckpointError),
+    /// File problems.
+    #[error(transparent)]
+    Io(#[from] dataset::DatasetError),
+    /// A file operation failed.
+    #[error("{path}: {source}")]
+    File {
+        /// The file.
+        path: PathBuf,
+        /// The error.
+        source: std::io::Error,
+    },
+    /// Anything else, with its explanation.
+    #[error("{0}")]
+    Invalid(String),
+}
+
+/// Every setting of a training run.
+#[derive(Config, Debug)]
+pub struct TrainConfig {
+    /// The dataset folder.
+    pub dataset: PathBuf,
+    /// The model and its settings.
+    pub model: ModelConfig,
+    /// Seed of every random choice (initialisation, batches, jitter, grid updates).
+    #[config(default = 0)]
+    pub seed: u64,
+    /// Stop after this many steps (at least one of `steps`, `time_budget_s`).
+    #[config(default = "None")]
+    pub steps: Option<u64>,
+    /// Stop after this much training time (seconds, validation excluded).
+    #[config(default = "None")]
+    pub time_budget_s: Option<f64>,
+    /// Rays per batch.
+    pub batch_rays: usize,
+    /// Initial learning rate.
+    pub lr_init: f64,
+    /// Final learning rate, reached at `lr_decay_steps` by exponential decay and kept after.
+    pub lr_final: f64,
+    /// Steps of the learning-rate decay.
+    pub lr_decay_steps: u64,
+    /// Integer image downscale factor.
+    #[config(default = 1)]
+    pub downscale: u32,
+    /// Background for transparent pixels.
+    #[config(default = "Background::White")]
+    pub background: Background,
+    /// Scene bounds; resolved from the dataset before step 0 and recorded here.
+    #[config(default = "None")]
+    pub bounds: Option<SceneBounds>,
+    /// Padding of the scene-facts box, as a fraction of its largest side.
+    #[config(default = 0.05)]
+    pub bounds_padding: f32,
+    /// Scene radius assumed around the cameras' look-at point when the dataset has no facts
+    /// (√3: the half-diagonal of the [−1, 1]³ cube of the Blender scenes).
+    #[config(default = 1.732_050_8)]
+    pub assumed_scene_radius: f32,
+    /// Steps between training metric lines.
+    #[config(default = 25)]
+    pub log_interval_steps: u64,
+    /// Steps between checkpoints.
+    #[config(default = 500)]
+    pub checkpoint_interval_steps: u64,
+    /// Checkpoints kept.
+    #[config(default = 2)]
+    pub checkpoints_kept: usize,
+    /// Training seconds between validations (None: a tenth of the time budget, or 30 s).
+    #[config(default = "None")]
+    pub val_interval_s: Option<f64>,
+    /// Most val views used for validation during training.
+    #[config(default = 4)]
+    pub val_max_views: usize,
+    /// Most val pixels used for validation during training.
+    #[config(default = 4096)]
+    pub val_max_pixels: usize,
+}
+
+impl TrainConfig {
+    /// The published defaults of a model kind (`"paper"` or `"fast"`) with CPU-sized batches:
+    /// `paper` 1024 rays (4096 in the paper), Adam 5e-4 → 5e-5 over 200k steps; `fast` 4096
+    /// rays, Adam 1e-2 → 1e-3 over 20k steps, β = (0.9, 0.99), ε = 1e-15.
+    pub fn preset(kind: &str, dataset: PathBuf) -> Result<Self, String> {
+        match kind {
+            "paper" => Ok(TrainConfig::new(dataset, ModelConfig::Paper(PaperConfig::new()), 1024, 5e-4, 5e-5, 200_000)),
+            "fast" => Ok(TrainConfig::new(dataset, ModelConfig::Fast(FastConfig::new()), 4096, 1e-2, 1e-3, 20_000)),
+            other => Err(format!("unknown model '{other}' (paper or fast)")),
+        }
+    }
+
+    /// Learning rate at `step`: lr_init · (lr_final / lr_init)^min(step / decay_steps, 1).
+    pub fn lr(&self, step: u64) -> f64 {
+        let f = (step as f64 / self.lr_decay_steps.max(1) as f64).min(1.0);
+        self.lr_init * (self.lr_final / self.lr_init).powf(f)
+    }
+
+    /// Validation interval in training seconds.
+    pub fn val_interval(&self) -> f64 {
+        self.val_interval_s.unwrap_or_else(|| self.time_budget_s.map_or(30.0, |t| t / 10.0)).max(1e-3)
+    }
+
+    /// Reads a config written by a run.
+    pub fn read(path: &Path) -> Result<Self, TrainError> {
+        let bytes = dataset::io::read(path)?;
+        serde_json::from_slice(&bytes).map_err(|e| TrainError::Invalid(format!("{}: {e}", path.display())))
+    }
+}
+
+/// Validation pixels: fixed views and pixels, their rays, targets and ground truth.
+#[derive(Debug, Default)]
+struct ValSet {
+    origins: Vec<[f32; 3]>,
+    dirs: Vec<[f32; 3]>,
+    target: Vec<[f32; 3]>,
+    /// (camera index, pixel x + 0.5, y + 0.5, gt z-depth) for pixels with gt alpha 1.
+    depth: Vec<(usize, f64, f64, f32)>,
+    cameras: Vec<dataset::Camera>,
+    pixel_of: Vec<usize>,
+}
+
+impl ValSet {
+    fn load(frames: &[dataset::Frame], cfg: &TrainConfig) -> Result<Self, TrainError> {
+        let mut set = ValSet::default();
+        if frames.is_empty() || cfg.val_max_views == 0 {
+            return Ok(set);
+        }
+        let nv = cfg.val_max_views.min(frames.len());
+        let picks: Vec<usize> = (0..nv).map(|k| k * frames.len() / nv).collect();
+        let bg = cfg.background.eval_color();
+        let per_view = cfg.val_max_pixels.div_ceil(nv);
+        for (vi, &f) in picks.iter().enumerate() {
+            let view = ViewPixels::load(&frames[f], cfg.downscale, true)?;
+            let n = view.pixels();
+            let w = view.camera.intrinsics.width as usize;
+            set.cameras.push(view.camera);
+            let mut chosen: Vec<usize> = if per_view >= n {
+                (0..n).collect()
+            } else {
+                let mut v: Vec<(u64, usize)> = (0..n)
+                    .map(|p| ((uniform(cfg.seed, stream::VAL, f as u64, p as u64) * 16_777_216.0) as u64, p))
+                    .collect();
+                v.sort_unstable();
+                v.into_iter().take(per_view).map(|(_, p)| p).collect()
+            };
+            chosen.sort_unstable();
+            for p in chosen {
+                let (o, d) = pixel_ray(&view.camera, p);
+                set.origins.push(o);
+                set.dirs.push(d);
+                set.target.push(view.color(p, bg));
+                set.pixel_of.push(vi);
+                if let Some((depth, alpha)) = &view.gt
+                    && alpha[p] >= 0.999
+                {
+                    set.depth.push((set.origins.len() - 1, (p % w) as f64 + 0.5, (p / w) as f64 + 0.5, depth[p]));
+                }
+            }
+        }
+        Ok(set)
+    }
+}
+
+/// Results of a validation pass.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct ValMetrics {
+    /// PSNR over the validation pixels (display values, peak 1).
+    pub val_psnr: f64,
+    /// Mean |z-depth − gt z-depth| over validation pixels with gt alpha 1, when available.
+    pub val_depth_mae: Option<f64>,
+    /// Seconds the pass took (not on the training clock).
+    pub eval_s: f64,
+}
+
+/// A progress report after each step.
+#[derive(Clone, Debug)]
+pub struct Progress {
+    /// Steps done.
+    pub step: u64,
+    /// Training seconds so far.
+    pub wall_s: f64,
+    /// The step's loss.
+    pub loss: f32,
+    /// The step's train PSNR.
+    pub train_psnr: f64,
+    /// Rays per second of training (running average over the logging window).
+    pub rays_per_s: f64,
+    /// Fraction of the run done (by steps or by time, whichever is nearer its end).
+    pub fraction: f64,
+    /// Latest validation PSNR.
+    pub val_psnr: Option<f64>,
+}
+
+/// How a [`Trainer::run`] ended.
+#[derive(Clone, Debug)]
+pub struct Summary {
+    /// Steps done.
+    pub steps: u64,
+    /// Training seconds.
+    pub wall_s: f64,
+    /// Stopped by the stop flag (Ctrl-C) rather than by reaching the budget.
+    pub interrupted: bool,
+    /// Final validation, if any val views.
+    pub val: Option<ValMetrics>,
+    /// Steps skipped for non-finite values.
+    pub skipped_nonfinite: u64,
+}
+
+#[derive(Clone, Debug, Default)]
+struct Window {
+    loss: f64,
+    mse: f64,
+    steps: u64,
+    time: f64,
+    rays: u64,
+    samples: u64,
+}
+
+/// A training run in progress.
+#[derive(Debug)]
+pub struct Trainer {
+    /// The settings (bounds resolved).
+    pub config: TrainConfig,
+    /// The run folder.
+    pub run_dir: PathBuf,
+    /// The model.
+    pub model: Model,
+    data: TrainData,
+    val: ValSet,
+    /// Steps done.
+    pub step: u64,
+    /// Training seconds so far.
+    pub wall_s: f64,
+    /// Steps skipped for non-finite loss or gradients.
+    pub skipped_nonfinite: u64,
+    next_val_at: f64,
+    window: Window,
+    last_val: Option<f64>,
+    /// Accumulated time split over all steps of this process.
+    pub timings: StepTimings,
+}
+
+/// The file name of the config inside a run folder.
+pub const CONFIG_FILE: &str = "config.json";
+/// The file name of the metrics log inside a run folder.
+pub const METRICS_FILE: &str = "metrics.jsonl";
+
+impl Trainer {
+    /// Prepares a run: loads the data, resolves the bounds and writes `config.json` (fresh
+    /// runs), or reads the latest checkpoint (`resume`).
+    pub fn new(mut config: TrainConfig, run_dir: &Path, resume: bool) -> Result<Self, TrainError> {
+        if config.steps.is_none() && config.time_budget_s.is_none() {
+            return Err(TrainError::Invalid("give a step count or a time budget".into()));
+        }
+        if config.batch_rays == 0 {
+            return Err(TrainError::Invalid("batch_rays must be positive".into()));
+        }
+        let ds = crate::data::load_dataset(&config.dataset)?;
+        let data = TrainData::load(&ds.train, config.downscale, config.background, false)?;
+        if config.bounds.is_none() {
+            let cams: Vec<_> = ds.train.iter().map(|f| f.camera).collect();
+            config.bounds = Some(SceneBounds::for_dataset(
+                ds.facts.as_ref(),
+                &cams,
+                config.bounds_padding,
+                config.assumed_scene_radius,
+            ));
+        }
+        let bounds = config.bounds.clone().unwrap_or_else(|| unreachable!());
+        let val_frames = if ds.val.is_empty() { &ds.test } else { &ds.val };
+        let val = ValSet::load(val_frames, &config)?;
+        let model = config.model.init(&bounds, config.seed);
+        std::fs::create_dir_all(run_dir).map_err(|e| TrainError::File { path: run_dir.into(), source: e })?;
+        let mut t = Self {
+            next_val_at: config.val_interval(),
+            config,
+            run_dir: run_dir.to_path_buf(),
+            model,
+            data,
+            val,
+            step: 0,
+            wall_s: 0.0,
+            skipped_nonfinite: 0,
+            window: Window::default(),
+            last_val: None,
+            timings: StepTimings::default(),
+        };
+        let have_ckpt = checkpoint::latest(run_dir).is_some();
+        if resume && have_ckpt {
+            let s = checkpoint::load_latest(run_dir)?;
+            t.load_state(&s)?;
+            t.truncate_metrics()?;
+        } else {
+            dataset::io::atomic_write_json(&run_dir.join(CONFIG_FILE), &t.config)?;
+            dataset::io::atomic_write(&run_dir.join(METRICS_FILE), b"")?;
+        }
+        Ok(t)
+    }
+
+    /// Continues the run in `run_dir` from its latest checkpoint with the config it recorded.
+    pub fn resume(run_dir: &Path) -> Result<Self, TrainError> {
+        let config = TrainConfig::read(&run_dir.join(CONFIG_FILE))?;
+        Self::new(config, run_dir, true)
+    }
+
+    /// Whether the budget (steps or time) is used up.
+    pub fn finished(&self) -> bool {
+        self.config.steps.is_some_and(|s| self.step >= s) || self.config.time_budget_s.is_some_and(|t| self.wall_s >= t)
+    }
+
+    fn fraction(&self) -> f64 {
+        let a = self.config.steps.map_or(0.0, |s| self.step as f64 / s.max(1) as f64);
+        let b = self.config.time_budget_s.map_or(0.0, |t| self.wall_s / t.max(1e-9));
+        a.max(b).min(1.0)
+    }
+
+    /// One training step (batch of step `self.step`), on the training clock.
+    pub fn step_once(&mut self) -> StepStats {
+        let t0 = Instant::now();
+        let lr = self.config.lr(self.step);
+        match &mut self.model {
+            Model::Paper(m) => m.lr = lr,
+            Model::Fast(m) => m.lr = lr,
+        }
+        let batch = self.data.batch(self.config.seed, self.step, self.config.batch_rays);
+        let stats = self.model.train_step(&batch, self.step, self.config.seed);
+        self.step += 1;
+        if stats.skipped_nonfinite {
+            self.skipped_nonfinite += 1;
+        }
+        let dt = t0.elapsed().as_secs_f64();
+        self.wall_s += dt;
+        self.timings.add(&stats.timings);
+        if stats.loss.is_finite() {
+            self.window.loss += stats.loss as f64;
+            self.window.mse += stats.mse as f64;
+            self.window.steps += 1;
+        }
+        self.window.time += dt;
+        self.window.rays += batch.origins.len() as u64;
+        self.window.samples += stats.samples as u64;
+        stats
+    }
+
+    fn rays_per_s(&self) -> f64 {
+        self.window.rays as f64 / self.window.time.max(1e-9)
+    }
+
+    fn log_window(&mut self) -> Result<(), TrainError> {
+        let w = std::mem::take(&mut self.window);
+        let n = w.steps.max(1) as f64;
+        let line = serde_json::json!({
+            "step": self.step,
+            "wall_s": self.wall_s,
+            "loss": w.loss / n,
+            "train_psnr": psnr(w.mse / n),
+            "rays_per_s": w.rays as f64 / w.time.max(1e-9),
+            "samples_per_ray": w.samples as f64 / w.rays.max(1) as f64,
+            "lr": self.config.lr(self.step),
+            "skipped_nonfinite": self.skipped_nonfinite,
+        });
+        self.append_metrics(&line)
+    }
+
+    fn append_metrics(&self, line: &serde_json::Value) -> Result<(), TrainError> {
+        let path = self.run_dir.join(METRICS_FILE);
+        let mut f = std::fs::OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(&path)
+            .map_err(|e| TrainError::File { path: path.clone(), source: e })?;
+        writeln!(f, "{line}").map_err(|e| TrainError::File { path: path.clone(), source: e })?;
+        Ok(())
+    }
+
+    /// Drops metric lines past the checkpoint's step (written after it by a killed run).
+    fn truncate_metrics(&self) -> Result<(), TrainError> {
+        let path = self.run_dir.join(METRICS_FILE);
+        let text = std::fs::read_to_string(&path).unwrap_or_default();
+        let kept: String = text
+            .lines()
+            .filter(|l| {
+                serde_json::from_str::<serde_json::Value>(l)
+                    .ok()
+                    .and_then(|v| v.get("step").and_then(|s| s.as_u64()))
+                    .is_some_and(|s| s <= self.step)
+            })
+            .map(|l| format!("{l}\n"))
+            .collect();
+        dataset::io::atomic_write(&path, kept.as_bytes())?;
+        Ok(())
+    }
+
+    /// Evaluates the validation pixels (off the training clock).
+    pub fn validate(&self) -> Option<ValMetrics> {
+        if self.val.origins.is_empty() {
+            return None;
+        }
+        let t0 = Instant::now();
+        let out = self.model.render_rays(&self.val.origins, &self.val.dirs, self.config.background.eval_color());
+        let mse = out
+            .rgb
+            .iter()
+            .zip(&self.val.target)
+            .map(|(a, b)| (0..3).map(|k| ((a[k] - b[k]) as f64).powi(2)).sum::<f64>())
+            .sum::<f64>()
+            / (3 * out.rgb.len()).max(1) as f64;
+        let depth = (!self.val.depth.is_empty()).then(|| {
+            self.val
+                .depth
+                .iter()
+                .map(|&(i, px, py, gt)| {
+                    let cam = &self.val.cameras[self.val.pixel_of[i]];
+                    (cam.z_depth_from_distance(px, py, out.distance[i] as f64) - gt as f64).abs()
+                })
+                .sum::<f64>()
+                / self.val.depth.len() as f64
+        });
+        Some(ValMetrics { val_psnr: psnr(mse), val_depth_mae: depth, eval_s: t0.elapsed().as_secs_f64() })
+    }
+
+    fn log_val(&mut self) -> Result<Option<ValMetrics>, TrainError> {
+        let v = self.validate();
+        if let Some(m) = &v {
+            let mut line = serde_json::json!({
+                "step": self.step,
+                "wall_s": self.wall_s,
+                "val_psnr": m.val_psnr,
+                "eval_s": m.eval_s,
+            });
+            if let Some(d) = m.val_depth_mae {
+                line["val_depth_mae"] = serde_json::json!(d);
+            }
+            self.append_metrics(&line)?;
+            self.last_val = Some(m.val_psnr);
+        }
+        Ok(v)
+    }
+
+    /// Writes a checkpoint of the current state.
+    pub fn save_checkpoint(&self) -> Result<PathBuf, TrainError> {
+        let mut s = self.model.state();
+        s.scalars.insert("trainer.step".into(), self.step as f64);
+        s.scalars.insert("trainer.wall_s".into(), self.wall_s);
+        s.scalars.insert("trainer.skipped_nonfinite".into(), self.skipped_nonfinite as f64);
+        s.scalars.insert("trainer.next_val_at".into(), self.next_val_at);
+        let w = &self.window;
+        for (k, v) in [
+            ("loss", w.loss),
+            ("mse", w.mse),
+            ("steps", w.steps as f64),
+            ("time", w.time),
+            ("rays", w.rays as f64),
+            ("samples", w.samples as f64),
+        ] {
+            s.scalars.insert(format!("trainer.window.{k}"), v);
+        }
+        Ok(checkpoint::save(&self.run_dir, self.step, &s, self.config.checkpoints_kept)?)
+    }
+
+    fn load_state(&mut self, s: &StateDict) -> Result<(), TrainError> {
+        self.model.load_state(s).map_err(TrainError::Invalid)?;
+        let g = |k: &str| s.scalar(k).map_err(TrainError::Invalid);
+        self.step = g("trainer.step")? as u64;
+        self.wall_s = g("trainer.wall_s")?;
+        self.skipped_nonfinite = g("trainer.skipped_nonfinite")? as u64;
+        self.next_val_at = g("trainer.next_val_at")?;
+        self.window = Window {
+            loss: g("trainer.window.loss")?,
+            mse: g("trainer.window.mse")?,
+            steps: g("trainer.window.steps")? as u64,
+            time: g("trainer.window.time")?,
+            rays: g("trainer.window.rays")? as u64,
+            samples: g("trainer.window.samples")? as u64,
+        };
+        Ok(())
+    }
+
+    /// Trains until the budget is used or `stop` is set (then a checkpoint is written and the
+    /// run can be resumed), calling `progress` after every step.
+    pub fn run(&mut self, stop: &AtomicBool, progress: &mut dyn FnMut(&Progress)) -> Result<Summary, TrainError> {
+        let mut val = None;
+        while !self.finished() {
+            if stop.load(Ordering::SeqCst) {
+                self.save_checkpoint()?;
+                return Ok(self.summary(true, val));
+            }
+            let stats = self.step_once();
+            if self.step % self.config.log_interval_steps.max(1) == 0 {
+                self.log_window()?;
+            }
+            if self.step % self.config.checkpoint_interval_steps.max(1) == 0 {
+                self.save_checkpoint()?;
+            }
+            if self.wall_s >= self.next_val_at && !self.finished() {
+                val = self.log_val()?;
+                let iv = self.config.val_interval();
+                while self.next_val_at <= self.wall_s {
+                    self.next_val_at += iv;
+                }
+            }
+            progress(&Progress {
+                step: self.step,
+                wall_s: self.wall_s,
+                loss: stats.loss,
+                train_psnr: psnr(stats.mse as f64),
+                rays_per_s: self.rays_per_s(),
+                fraction: self.fraction(),
+                val_psnr: self.last_val,
+            });
+        }
+        if self.window.steps > 0 {
+            self.log_window()?;
+        }
+        self.save_checkpoint()?;
+        val = self.log_val()?;
+        Ok(self.summary(false, val))
+    }
+
+    fn summary(&self, interrupted: bool, val: Option<ValMetrics>) -> Summary {
+        Summary { steps: self.step, wall_s: self.wall_s, interrupted, val, skipped_nonfinite: self.skipped_nonfinite }
+    }
+}
+
+/// PSNR of a mean squared error with peak 1.
+pub fn psnr(mse: f64) -> f64 {
+    -10.0 * mse.max(1e-12).log10()
+}

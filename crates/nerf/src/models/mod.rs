@@ -1,1 +1,256 @@
-//! (in progress)
+//! Models: a field plus its samplers and renderer, with one training step and ray rendering.
+//!
+//! - [`paper`]: the NeRF paper (positional encoding, 8×256 MLP, hierarchical sampling).
+//! - [`fast`]: instant-ngp's recipe (hash encoding, tiny MLPs, occupancy grid).
+//!
+//! Both share the training-step pattern that fits burn: inputs are encoded in Rust, the
+//! networks run in burn, per-sample raw density and colour come back to Rust where the density
+//! activation, volume rendering ([`ops::composite_forward`]) and the loss and its gradient
+//! w.r.t. the per-sample outputs are computed; those gradients go back into burn through the
+//! surrogate `sum(output · grad.detach())`, whose backward gives exactly the parameter
+//! gradients of the loss; burn's Adam steps the network.
+
+pub mod fast;
+pub mod ops;
+pub mod paper;
+
+use crate::checkpoint::StateDict;
+use crate::data::{RayBatch, SceneBounds};
+use serde::{Deserialize, Serialize};
+
+/// Which model and its settings.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "lowercase")]
+pub enum ModelConfig {
+    /// The NeRF paper's model.
+    Paper(paper::PaperConfig),
+    /// The hash-grid model.
+    Fast(fast::FastConfig),
+}
+
+impl ModelConfig {
+    /// `"paper"` or `"fast"`.
+    pub fn name(&self) -> &'static str {
+        match self {
+            ModelConfig::Paper(_) => "paper",
+            ModelConfig::Fast(_) => "fast",
+        }
+    }
+    /// Builds the model, its parameters a function of `seed`.
+    pub fn init(&self, bounds: &SceneBounds, seed: u64) -> Model {
+        match self {
+            ModelConfig::Paper(c) => Model::Paper(Box::new(paper::PaperModel::new(c.clone(), bounds.clone(), seed))),
+            ModelConfig::Fast(c) => Model::Fast(Box::new(fast::FastModel::new(c.clone(), bounds.clone(), seed))),
+        }
+    }
+}
+
+/// Seconds spent in each part of a training step.
+#[derive(Clone, Copy, Debug, Default, Serialize, Deserialize)]
+pub struct StepTimings {
+    /// Sampling and input encodings (and, for `fast`, the hash-grid backward).
+    pub encoding: f64,
+    /// Network forward and backward in burn.
+    pub mlp: f64,
+    /// Volume rendering forward and backward, and the loss.
+    pub render: f64,
+    /// Optimiser steps (burn Adam for the networks, sparse Adam for the hash table) and the
+    /// occupancy-grid update.
+    pub optimizer: f64,
+}
+
+impl StepTimings {
+    /// Adds another step's timings.
+    pub fn add(&mut self, o: &StepTimings) {
+        self.encoding += o.encoding;
+        self.mlp += o.mlp;
+        self.render += o.render;
+        self.optimizer += o.optimizer;
+    }
+}
+
+/// What one training step did.
+#[derive(Clone, Debug, Default)]
+pub struct StepStats {
+    /// The loss (MSE of the final rendering; for `paper` coarse + fine).
+    pub loss: f32,
+    /// Mean squared error of the final colour (display values).
+    pub mse: f32,
+    /// Samples evaluated by the networks.
+    pub samples: usize,
+    /// Whether the update was skipped because the loss or a gradient was not finite.
+    pub skipped_nonfinite: bool,
+    /// Time split.
+    pub timings: StepTimings,
+}
+
+/// Per-ray rendering results.
+#[derive(Clone, Debug, Default)]
+pub struct RayOutputs {
+    /// Colour composited onto the background.
+    pub rgb: Vec<[f32; 3]>,
+    /// Opacity Σw.
+    pub opacity: Vec<f32>,
+    /// Expected distance Σwt / Σw (0 where opacity is 0).
+    pub distance: Vec<f32>,
+    /// Samples per ray: offsets (rays + 1), midpoints and weights.
+    pub offsets: Vec<u32>,
+    /// Sample midpoints.
+    pub t: Vec<f32>,
+    /// Sample weights.
+    pub w: Vec<f32>,
+}
+
+impl RayOutputs {
+    /// Appends another chunk's outputs.
+    pub fn append(&mut self, o: RayOutputs) {
+        let base = self.t.len() as u32;
+        if self.offsets.is_empty() {
+            self.offsets.push(0);
+        }
+        self.offsets.extend(o.offsets.iter().skip(1).map(|v| v + base));
+        self.rgb.extend(o.rgb);
+        self.opacity.extend(o.opacity);
+        self.distance.extend(o.distance);
+        self.t.extend(o.t);
+        self.w.extend(o.w);
+    }
+}
+
+/// A model of either kind.
+#[derive(Debug)]
+pub enum Model {
+    /// The NeRF paper's model.
+    Paper(Box<paper::PaperModel>),
+    /// The hash-grid model.
+    Fast(Box<fast::FastModel>),
+}
+
+impl Model {
+    /// One optimisation step on `batch` at step index `step` (random numbers keyed by
+    /// `(seed, step)`).
+    pub fn train_step(&mut self, batch: &RayBatch, step: u64, seed: u64) -> StepStats {
+        match self {
+            Model::Paper(m) => m.train_step(batch, step, seed),
+            Model::Fast(m) => m.train_step(batch, step, seed),
+        }
+    }
+
+    /// Renders rays (inference, deterministic).
+    pub fn render_rays(&self, origins: &[[f32; 3]], dirs: &[[f32; 3]], background: [f32; 3]) -> RayOutputs {
+        let chunk = match self {
+            Model::Paper(_) => 1024,
+            Model::Fast(_) => 8192,
+        };
+        let mut out = RayOutputs::default();
+        for (o, d) in origins.chunks(chunk).zip(dirs.chunks(chunk)) {
+            let part = match self {
+                Model::Paper(m) => m.render_rays(o, d, background),
+                Model::Fast(m) => m.render_rays(o, d, background),
+            };
+            out.append(part);
+        }
+        if out.offsets.is_empty() {
+            out.offsets.push(0);
+        }
+        out
+    }
+
+    /// Number of trainable parameters.
+    pub fn parameters(&self) -> usize {
+        match self {
+            Model::Paper(m) => m.parameters(),
+            Model::Fast(m) => m.parameters(),
+        }
+    }
+
+    /// Parameters, optimiser state and (for `fast`) the occupancy grid.
+    pub fn state(&self) -> StateDict {
+        match self {
+            Model::Paper(m) => m.state(),
+            Model::Fast(m) => m.state(),
+        }
+    }
+
+    /// Restores [`Self::state`].
+    pub fn load_state(&mut self, s: &StateDict) -> Result<(), String> {
+        match self {
+            Model::Paper(m) => m.load_state(s),
+            Model::Fast(m) => m.load_state(s),
+        }
+    }
+
+    /// Multiply-adds per network evaluation of one sample (forward), for FLOP estimates.
+    pub fn macs_per_sample(&self) -> f64 {
+        match self {
+            Model::Paper(m) => m.macs_per_sample(),
+            Model::Fast(m) => m.macs_per_sample(),
+        }
+    }
+}
+
+/// Mean squared error and its gradient w.r.t. the rendered colour (mean over rays and
+/// channels).
+pub(crate) fn mse_and_grad(rgb: &[[f32; 3]], target: &[[f32; 3]]) -> (f32, Vec<[f32; 3]>) {
+    let n = (rgb.len() * 3).max(1) as f32;
+    let mut loss = 0.0f64;
+    let grad = rgb
+        .iter()
+        .zip(target)
+        .map(|(c, t)| {
+            let mut g = [0.0; 3];
+            for k in 0..3 {
+                let e = c[k] - t[k];
+                loss += (e * e) as f64;
+                g[k] = 2.0 * e / n;
+            }
+            g
+        })
+        .collect();
+    ((loss / n as f64) as f32, grad)
+}
+
+/// Whether every value is finite.
+pub(crate) fn all_finite(v: &[f32]) -> bool {
+    v.iter().all(|x| x.is_finite())
+}
+
+/// Saves an [`crate::field::MlpAdam`] into a state dict under `prefix`.
+pub(crate) fn save_adam(s: &mut StateDict, prefix: &str, adam: &crate::field::MlpAdam) {
+    for (k, st) in adam.export().into_iter().enumerate() {
+        if let Some((time, m1, m2)) = st {
+            s.scalars.insert(format!("{prefix}.{k}.time"), time as f64);
+            s.arrays.insert(format!("{prefix}.{k}.m1"), m1);
+            s.arrays.insert(format!("{prefix}.{k}.m2"), m2);
+        }
+    }
+}
+
+/// Restores what [`save_adam`] wrote, for a module of `n_params` parameter tensors.
+pub(crate) fn load_adam(s: &StateDict, prefix: &str, adam: &mut crate::field::MlpAdam, n_params: usize) {
+    let states = (0..n_params)
+        .map(|k| {
+            let time = s.scalars.get(&format!("{prefix}.{k}.time"))?;
+            let m1 = s.arrays.get(&format!("{prefix}.{k}.m1"))?.clone();
+            let m2 = s.arrays.get(&format!("{prefix}.{k}.m2"))?.clone();
+            Some((*time as usize, m1, m2))
+        })
+        .collect();
+    adam.import(states);
+}
+
+/// Saves a module's parameters under `prefix`.
+pub(crate) fn save_params<M: burn::module::Module>(s: &mut StateDict, prefix: &str, m: &M) {
+    for (k, v) in crate::field::param_vectors(m).into_iter().enumerate() {
+        s.arrays.insert(format!("{prefix}.{k}"), v);
+    }
+}
+
+/// Restores what [`save_params`] wrote.
+pub(crate) fn load_params<M: burn::module::Module>(s: &StateDict, prefix: &str, m: M) -> Result<M, String> {
+    let n = crate::field::param_vectors(&m).len();
+    let values = (0..n)
+        .map(|k| s.arrays.get(&format!("{prefix}.{k}")).cloned().ok_or_else(|| format!("checkpoint lacks {prefix}.{k}")))
+        .collect::<Result<Vec<_>, _>>()?;
+    crate::field::load_param_vectors(m, &values)
+}
