@@ -48,7 +48,7 @@ struct Builder {
 
 impl Builder {
     fn view(&mut self, bytes: &[u8], stride: Option<usize>) -> usize {
-        while self.bin.len() % 4 != 0 {
+        while !self.bin.len().is_multiple_of(4) {
             self.bin.push(0);
         }
         let mut v = json!({"buffer": 0, "byteOffset": self.bin.len(), "byteLength": bytes.len()});
@@ -110,11 +110,11 @@ impl Builder {
     }
     fn glb(&self) -> Vec<u8> {
         let mut j = serde_json::to_vec(&self.json(&BufferMode::Glb)).unwrap();
-        while j.len() % 4 != 0 {
+        while !j.len().is_multiple_of(4) {
             j.push(b' ');
         }
         let mut b = self.bin.clone();
-        while b.len() % 4 != 0 {
+        while !b.len().is_multiple_of(4) {
             b.push(0);
         }
         let mut out = b"glTF".to_vec();
@@ -307,8 +307,8 @@ fn interleaved_buffer_view() {
     let nrm = b.accessor(json!({"bufferView": v, "byteOffset": 12, "componentType": 5126, "count": 3, "type": "VEC3"}));
     one_node(&mut b, json!({"attributes": {"POSITION": pos, "NORMAL": nrm}}), json!({}));
     let s = b.load().unwrap();
-    for k in 0..3 {
-        assert!(close(world(&s, k), DVec3::from(TRI[k].map(f64::from)), 1e-7));
+    for (k, p) in TRI.iter().enumerate() {
+        assert!(close(world(&s, k), DVec3::from(p.map(f64::from)), 1e-7));
         assert_eq!(s.mesh.normals[k], Vec3::NEG_Z);
     }
 }
@@ -370,9 +370,9 @@ fn glb_external_and_data_uri_buffers_agree() {
     let scenes: Vec<Scene> = [&glb, &ext, &data].iter().map(|p| load_gltf(p, &opts).unwrap()).collect();
     for s in &scenes {
         assert_eq!(s.mesh.indices.len(), 1);
-        for k in 0..3 {
-            let w = s.origin + s.mesh.positions[s.mesh.indices[0][k] as usize].as_dvec3();
-            assert!(close(w, DVec3::from(TRI[k].map(f64::from)), 1e-7));
+        for (&k, p) in s.mesh.indices[0].iter().zip(&TRI) {
+            let w = s.origin + s.mesh.positions[k as usize].as_dvec3();
+            assert!(close(w, DVec3::from(p.map(f64::from)), 1e-7));
         }
     }
     assert!(scenes[0].name.ends_with("tri.glb"));

@@ -203,10 +203,10 @@ impl Importer<'_> {
         let uv1 = self.read_attribute(prim, Semantic::TexCoords(1), &[2], &what)?;
         let colors = self.read_attribute(prim, Semantic::Colors(0), &[3, 4], &what)?;
         for (name, attr) in [("NORMAL", &normals), ("TANGENT", &tangents), ("TEXCOORD_0", &uv0), ("TEXCOORD_1", &uv1), ("COLOR_0", &colors)] {
-            if let Some(a) = attr {
-                if a.len() != n {
-                    return Err(self.error(format!("{what}: {name} has {} elements but POSITION has {n}", a.len())));
-                }
+            if let Some(a) = attr
+                && a.len() != n
+            {
+                return Err(self.error(format!("{what}: {name} has {} elements but POSITION has {n}", a.len())));
             }
         }
 
@@ -231,7 +231,7 @@ impl Importer<'_> {
                 (0..n32).collect()
             }
         };
-        if mode == Mode::Triangles && index_list.len() % 3 != 0 {
+        if mode == Mode::Triangles && !index_list.len().is_multiple_of(3) {
             self.warn(format!("{what}: {} indices is not a multiple of 3; the last {} ignored", index_list.len(), index_list.len() % 3));
         }
         let triangles = assemble(mode, &index_list);
@@ -375,7 +375,7 @@ impl Importer<'_> {
             return Err(self.error(format!("{what}: znear {znear} must be finite and positive")));
         }
         let zfar = match p.zfar().map(f64::from) {
-            Some(z) if !(z > znear) => return Err(self.error(format!("{what}: zfar {z} must exceed znear {znear}"))),
+            Some(z) if z.is_nan() || z <= znear => return Err(self.error(format!("{what}: zfar {z} must exceed znear {znear}"))),
             Some(z) if z.is_finite() => Some(z),
             _ => None,
         };

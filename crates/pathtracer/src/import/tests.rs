@@ -198,7 +198,7 @@ fn glb_with_embedded_image_and_missing_bin_chunk() {
     body["meshes"][0]["primitives"][0]["material"] = json!(0);
     let glb = |json: &Value, bin: Option<&[u8]>| {
         let mut j = serde_json::to_vec(json).unwrap();
-        while j.len() % 4 != 0 {
+        while !j.len().is_multiple_of(4) {
             j.push(b' ');
         }
         let mut out = b"glTF".to_vec();
@@ -209,7 +209,7 @@ fn glb_with_embedded_image_and_missing_bin_chunk() {
         out.extend(&j);
         if let Some(b) = bin {
             let mut b = b.to_vec();
-            while b.len() % 4 != 0 {
+            while !b.len().is_multiple_of(4) {
                 b.push(0);
             }
             out.extend((b.len() as u32).to_le_bytes());
