@@ -849,6 +849,49 @@ mod tests {
     }
 
     #[test]
+    fn back_faces_of_single_sided_triangles_and_masked_texels_are_transparent() {
+        use crate::scene::{AlphaMode, Filter, Texture, TextureRef, Wrap};
+        let mut b = Builder::new();
+        let floor = b.material(0.5, 0.0, false);
+        let one_sided = b.material(0.5, 0.0, false);
+        let two_sided = b.material(0.5, 0.0, true);
+        let masked = b.material(0.5, 0.0, true);
+        b.materials[masked as usize].alpha_mode = AlphaMode::Mask { cutoff: 0.5 };
+        // Left half of the texture has alpha 0.2 (cut out), right half alpha 0.9 (kept).
+        b.materials[masked as usize].base_color_texture = Some(TextureRef { texture: 0, tex_coord: 0, wrap_s: Wrap::ClampToEdge, wrap_t: Wrap::ClampToEdge, filter: Filter::Nearest });
+        b.quad([Vec3::new(-5.0, 0.0, 5.0), Vec3::new(5.0, 0.0, 5.0), Vec3::new(5.0, 0.0, -5.0), Vec3::new(-5.0, 0.0, -5.0)], 1, floor);
+        // Three horizontal quads at y = 1 whose fronts face down (seen from above: back faces).
+        let down = |x0: f32| [Vec3::new(x0, 1.0, -0.5), Vec3::new(x0 + 1.0, 1.0, -0.5), Vec3::new(x0 + 1.0, 1.0, 0.5), Vec3::new(x0, 1.0, 0.5)];
+        b.quad(down(-3.0), 1, one_sided);
+        b.quad(down(-1.0), 1, two_sided);
+        b.quad(down(1.0), 1, masked);
+        let mut scene = b.build(DVec3::ZERO);
+        scene.textures.push(Texture { width: 2, height: 1, texels: vec![Vec4::new(1.0, 1.0, 1.0, 0.2), Vec4::new(1.0, 1.0, 1.0, 0.9)] });
+        // UV u runs with x across the masked quad (its last 6 triangles' vertices).
+        let nv = scene.mesh.positions.len();
+        for k in nv - 6..nv {
+            let x = scene.mesh.positions[k].x;
+            scene.mesh.uv0[k] = Vec2::new(x - 1.0, 0.5);
+        }
+        let r = Renderer::new(scene, &AccelParams::fast_build()).unwrap();
+        let depth_at = |x: f64| r.trace_primary(&dataset::Ray { origin: DVec3::new(x, 3.0, 0.1), direction: -DVec3::Y }).map(|h| h.distance);
+        assert_eq!(depth_at(-2.5), Some(3.0), "single-sided back face must be invisible");
+        assert_eq!(depth_at(-0.5), Some(2.0), "double-sided back face is hit");
+        assert_eq!(depth_at(1.25), Some(3.0), "masked texel (alpha 0.2 < 0.5) is cut out");
+        assert_eq!(depth_at(1.75), Some(2.0), "kept texel (alpha 0.9 >= 0.5) is hit");
+        // From below the single-sided quad is a front face and is hit; its normal faces the ray.
+        let up = r.trace_primary(&dataset::Ray { origin: DVec3::new(-2.5, 0.5, 0.1), direction: DVec3::Y }).unwrap();
+        assert!((up.distance - 0.5).abs() < 1e-12 && (up.normal - Vec3::new(0.0, -1.0, 0.0)).length() < 1e-6);
+        // Double-sided from above: the normal is flipped to face the camera.
+        let two = r.trace_primary(&dataset::Ray { origin: DVec3::new(-0.5, 3.0, 0.1), direction: -DVec3::Y }).unwrap();
+        assert!((two.normal - Vec3::Y).length() < 1e-6);
+        // Shadow rays follow the same rules: going down through the quads (their back faces).
+        let integ = r.integrator(&settings(1, 1, 0.0, true));
+        let shadow = |x: f32| integ.occluded(&Ray::new(Vec3::new(x, 2.0, 0.1), -Vec3::Y), 1.9);
+        assert!(!shadow(-2.5) && shadow(-0.5) && !shadow(1.25) && shadow(1.75));
+    }
+
+    #[test]
     fn invalid_scenes_and_settings_are_errors() {
         let mut b = Builder::new();
         let m = b.material(0.5, 0.0, false);
