@@ -20,7 +20,119 @@ pub enum BenchWhat {
 /// Runs a benchmark.
 pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     match args.what {
-        BenchWhat::Render => anyhow::bail!("bench render is not implemented yet"),
+        BenchWhat::Render => bench_render(),
         BenchWhat::Nerf => crate::bench_nerf::run(),
     }
+}
+
+/// Repetitions per figure; the median is reported.
+const RENDER_RUNS: usize = 5;
+
+/// Median of a non-empty list.
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    if n == 0 {
+        0.0
+    } else if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    }
+}
+
+/// `cargo xtask bench render`: per scene in `scenes/`, the BVH build time (obvhs medium
+/// preset), primary-ray throughput (pixel-centre closest hits, 256×256 from the quick rig's
+/// first train camera) and path-tracing throughput at the quick preset (64×64, 16 spp, 4
+/// bounces) and at the standard preset's 128 spp and 8 bounces at 32×32; medians over
+/// [`RENDER_RUNS`] runs, all cores.
+fn bench_render() -> anyhow::Result<()> {
+    use anyhow::Context;
+    use pathtracer::accel::{Accel, AccelParams};
+    use pathtracer::dataset_render::{DatasetRenderConfig, Preset};
+    use pathtracer::render::{RenderSettings, Renderer};
+
+    let dir = crate::render::repo_root().join("scenes");
+    let mut scenes: Vec<std::path::PathBuf> = std::fs::read_dir(&dir)
+        .with_context(|| format!("reading {}", dir.display()))?
+        .flatten()
+        .map(|e| e.path())
+        .filter(|p| p.extension().is_some_and(|e| e == "gltf" || e == "glb"))
+        .collect();
+    scenes.sort();
+    if scenes.is_empty() {
+        anyhow::bail!("no scenes in {} (`cargo xtask gen-scenes` writes them)", dir.display());
+    }
+    println!(
+        "bench render: medians of {RENDER_RUNS} runs, {} threads; BVH = obvhs medium_build; primary = 256x256 \
+         pixel-centre closest hits; quick = 64x64 16 spp 4 bounces; std-spp = 32x32 128 spp 8 bounces",
+        std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1)
+    );
+    println!(
+        "{:<12} {:>9} {:>10} {:>9} {:>15} {:>16} {:>18}",
+        "scene", "triangles", "rig", "BVH ms", "primary Mray/s", "quick Msample/s", "std-spp Msample/s"
+    );
+    for path in scenes {
+        let name = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+        let scene = pathtracer::import::load_gltf(&path, &pathtracer::import::ImportOptions::default())?;
+        let params = AccelParams::medium_build();
+        let build_ms = median(
+            (0..RENDER_RUNS)
+                .map(|_| Accel::build(&scene, &params).map(|a| a.build_time().as_secs_f64() * 1e3))
+                .collect::<Result<Vec<_>, _>>()?,
+        );
+        let triangles = scene.mesh.indices.len();
+        let renderer = Renderer::new(scene, &params)?;
+        let quick = DatasetRenderConfig::preset(Preset::Quick);
+        let rig = pathtracer::rig::build_rig(renderer.scene(), &quick.rig_config())?;
+        let cameras = rig.split(dataset::SplitKind::Train);
+        let cam = cameras[0];
+        let scale = 256.0 / cam.intrinsics.width as f64;
+        let big = dataset::Camera {
+            intrinsics: dataset::Intrinsics {
+                width: 256,
+                height: (cam.intrinsics.height as f64 * scale).round() as u32,
+                fl_x: cam.intrinsics.fl_x * scale,
+                fl_y: cam.intrinsics.fl_y * scale,
+                cx: cam.intrinsics.cx * scale,
+                cy: cam.intrinsics.cy * scale,
+            },
+            c2w: cam.c2w,
+        };
+        let primary = median((0..RENDER_RUNS).map(|_| renderer.primary_ray_throughput(&big).rays_per_second).collect());
+        let path_rate = |settings: &RenderSettings, camera: &dataset::Camera| {
+            median(
+                (0..RENDER_RUNS)
+                    .map(|k| {
+                        let t = std::time::Instant::now();
+                        let out = renderer.render_view(camera, k as u32, settings);
+                        out.samples as f64 / t.elapsed().as_secs_f64().max(1e-9)
+                    })
+                    .collect(),
+            )
+        };
+        let quick_settings = RenderSettings {
+            spp: quick.spp,
+            max_bounces: quick.max_bounces,
+            seed: 0,
+            environment: quick.environment,
+            transparent_background: true,
+        };
+        let standard = DatasetRenderConfig::preset(Preset::Standard);
+        let std_settings = RenderSettings { spp: standard.spp, max_bounces: standard.max_bounces, ..quick_settings.clone() };
+        let quick_rate = path_rate(&quick_settings, &cam);
+        let small = cam.downscaled(2);
+        let std_rate = path_rate(&std_settings, &small);
+        println!(
+            "{:<12} {:>9} {:>10} {:>9.2} {:>15.2} {:>16.3} {:>18.3}",
+            name,
+            triangles,
+            rig.kind.name(),
+            build_ms,
+            primary * 1e-6,
+            quick_rate * 1e-6,
+            std_rate * 1e-6
+        );
+    }
+    Ok(())
 }

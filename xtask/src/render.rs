@@ -1,10 +1,259 @@
-//! `cargo xtask render` (being written).
+//! `cargo xtask render <scene.gltf | scene name> --out <dir> [options]`: renders a glTF scene
+//! into a posed train/val/test dataset with exact ground truth (see
+//! `pathtracer::dataset_render`). This file parses the options, shows progress and prints the
+//! result; the work is done by the library.
 
-/// Arguments of `render`.
-#[derive(clap::Args)]
-pub struct RenderArgs {}
+use anyhow::{Context, bail};
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use pathtracer::dataset_render::{
+    Background, DatasetRenderConfig, Preset, ProgressEvent, RunOptions, parse_rgb, render_dataset,
+};
+use pathtracer::rig::RigKind;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 
-/// Renders a dataset.
-pub fn run(_args: RenderArgs) -> anyhow::Result<std::path::PathBuf> {
-    anyhow::bail!("render is not implemented yet")
+/// Arguments of `render`. Explicit options override the preset's values.
+#[derive(clap::Args, Clone, Debug)]
+pub struct RenderArgs {
+    /// A `.gltf` / `.glb` file, or the name of a scene in `scenes/` (e.g. `tabletop`).
+    pub scene: String,
+    /// The dataset folder to write (created; an unfinished one with the same settings is resumed).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Starting settings: quick (64x64, 20/4/4 views, 16 spp) or standard (200x200, 100/10/20, 128 spp).
+    #[arg(long, default_value = "quick")]
+    pub preset: Preset,
+    /// Number of train views.
+    #[arg(long)]
+    pub train: Option<u32>,
+    /// Number of val views.
+    #[arg(long)]
+    pub val: Option<u32>,
+    /// Number of test views.
+    #[arg(long)]
+    pub test: Option<u32>,
+    /// Resolution, `W` (square) or `WxH`.
+    #[arg(long)]
+    pub res: Option<String>,
+    /// Samples per pixel.
+    #[arg(long)]
+    pub spp: Option<u32>,
+    /// Seed of the camera jitter and path sampling.
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// Maximum number of bounces per path.
+    #[arg(long)]
+    pub max_bounces: Option<u32>,
+    /// Camera rig: auto (glTF cameras if any, else hemisphere over a ground, else sphere), sphere, hemisphere, gltf.
+    #[arg(long)]
+    pub rig: Option<RigKind>,
+    /// Horizontal field of view of the sphere rigs, radians (default 0.6911, as the Blender scenes).
+    #[arg(long)]
+    pub fov_x: Option<f64>,
+    /// What missed rays show: transparent, environment, or a linear colour R,G,B.
+    #[arg(long)]
+    pub background: Option<Background>,
+    /// Constant environment radiance lighting the scene, linear R,G,B.
+    #[arg(long)]
+    pub environment: Option<String>,
+    /// Worker threads (default: all cores). Does not change the output.
+    #[arg(long)]
+    pub threads: Option<usize>,
+    /// Replace a dataset in --out that was rendered with different settings.
+    #[arg(long)]
+    pub force: bool,
+}
+
+/// The repository root (the parent of `xtask/`).
+pub fn repo_root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).parent().map(Path::to_path_buf).unwrap_or_else(|| PathBuf::from("."))
+}
+
+/// Resolves the scene argument: an existing file, or a name `NAME` meaning
+/// `<repo>/scenes/NAME.gltf` (or `.glb`).
+pub fn resolve_scene(scene: &str) -> anyhow::Result<PathBuf> {
+    let p = Path::new(scene);
+    if p.is_file() {
+        return Ok(p.to_path_buf());
+    }
+    let is_name = p.extension().is_none() && p.components().count() == 1;
+    if is_name {
+        let dir = repo_root().join("scenes");
+        for ext in ["gltf", "glb"] {
+            let f = dir.join(format!("{scene}.{ext}"));
+            if f.is_file() {
+                return Ok(f);
+            }
+        }
+        let mut known: Vec<String> = std::fs::read_dir(&dir)
+            .map(|d| {
+                d.flatten()
+                    .filter_map(|e| {
+                        let path = e.path();
+                        let ext = path.extension()?.to_str()?;
+                        (ext == "gltf" || ext == "glb").then(|| path.file_stem()?.to_str().map(str::to_string))?
+                    })
+                    .collect()
+            })
+            .unwrap_or_default();
+        known.sort();
+        bail!(
+            "scene '{scene}' is neither a file nor a scene in {} (known: {}; `cargo xtask gen-scenes` writes them)",
+            dir.display(),
+            if known.is_empty() { "none".to_string() } else { known.join(", ") }
+        );
+    }
+    bail!("scene file {} does not exist", p.display())
+}
+
+/// Parses `W` or `WxH`.
+pub fn parse_resolution(s: &str) -> anyhow::Result<(u32, u32)> {
+    let parse = |v: &str| v.trim().parse::<u32>().with_context(|| format!("--res {s}: '{v}' is not a whole number"));
+    match s.split_once(['x', 'X']) {
+        Some((w, h)) => Ok((parse(w)?, parse(h)?)),
+        None => {
+            let w = parse(s)?;
+            Ok((w, w))
+        }
+    }
+}
+
+/// The render settings: the preset's, overridden by every option given. Checks them.
+pub fn build_config(args: &RenderArgs) -> anyhow::Result<DatasetRenderConfig> {
+    let mut cfg = DatasetRenderConfig::preset(args.preset);
+    if let Some(res) = &args.res {
+        (cfg.width, cfg.height) = parse_resolution(res)?;
+    }
+    cfg.train = args.train.unwrap_or(cfg.train);
+    cfg.val = args.val.unwrap_or(cfg.val);
+    cfg.test = args.test.unwrap_or(cfg.test);
+    cfg.spp = args.spp.unwrap_or(cfg.spp);
+    cfg.seed = args.seed.unwrap_or(cfg.seed);
+    cfg.max_bounces = args.max_bounces.unwrap_or(cfg.max_bounces);
+    cfg.rig = args.rig.unwrap_or(cfg.rig);
+    cfg.fov_x = args.fov_x.unwrap_or(cfg.fov_x);
+    cfg.background = args.background.unwrap_or(cfg.background);
+    if let Some(env) = &args.environment {
+        cfg.environment = parse_rgb(env).map_err(|m| anyhow::anyhow!("--environment {env}: {m}"))?;
+    }
+    cfg.validate()?;
+    Ok(cfg)
+}
+
+/// The process-wide Ctrl-C flag: installed once, set when the user presses Ctrl-C.
+pub fn cancel_flag() -> Arc<AtomicBool> {
+    static FLAG: std::sync::OnceLock<Arc<AtomicBool>> = std::sync::OnceLock::new();
+    FLAG.get_or_init(|| {
+        let flag = Arc::new(AtomicBool::new(false));
+        let f = flag.clone();
+        if let Err(e) = ctrlc::try_set_handler(move || {
+            f.store(true, Ordering::SeqCst);
+            eprintln!("\ninterrupt: finishing the current view, then stopping");
+        }) {
+            tracing::warn!("cannot install the Ctrl-C handler ({e}); Ctrl-C will stop without saving the view in progress");
+        }
+        flag
+    })
+    .clone()
+}
+
+/// Renders a dataset; returns its folder.
+pub fn run(args: RenderArgs) -> anyhow::Result<PathBuf> {
+    let cfg = build_config(&args)?;
+    let scene = resolve_scene(&args.scene)?;
+    let opts = RunOptions { threads: args.threads, force: args.force };
+    let cancel = cancel_flag();
+
+    let bar = ProgressBar::with_draw_target(None, ProgressDrawTarget::stderr());
+    bar.set_style(
+        ProgressStyle::with_template("{spinner} [{elapsed_precise}] {bar:30} {pos}/{len} views  {msg}  ETA {eta}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    bar.set_message(format!("loading {}", scene.display()));
+    let start = std::time::Instant::now();
+    let mut samples = 0u64;
+    let mut done_here = 0u64;
+    let mut progress = |e: ProgressEvent| match e {
+        ProgressEvent::Started { total, reused, rig } => {
+            bar.set_length(total);
+            bar.set_position(reused);
+            bar.reset_eta();
+            bar.set_message(format!("rig {}{}", rig.name(), if reused > 0 { format!(", {reused} kept") } else { String::new() }));
+        }
+        ProgressEvent::ViewRendered { samples: s, .. } => {
+            samples += s;
+            done_here += 1;
+            let rate = samples as f64 / start.elapsed().as_secs_f64().max(1e-9);
+            bar.set_message(format!("{:.2} Msamples/s", rate * 1e-6));
+            bar.inc(1);
+        }
+    };
+    let result = render_dataset(&scene, &args.out, &cfg, &opts, &mut progress, &cancel);
+    bar.finish_and_clear();
+    match result {
+        Ok(sum) => {
+            let rate = sum.samples as f64 / sum.seconds.max(1e-9);
+            println!("dataset: {}", sum.out.display());
+            println!(
+                "{} views ({} rendered, {} kept; {}x{}, {} spp, rig {}) in {:.1} s, {:.2} Msamples/s; near {:.3}, far {:.3}",
+                sum.views_total,
+                sum.views_rendered,
+                sum.views_reused,
+                cfg.width,
+                cfg.height,
+                cfg.spp,
+                sum.rig.name(),
+                sum.seconds,
+                rate * 1e-6,
+                sum.facts.near,
+                sum.facts.far,
+            );
+            Ok(sum.out)
+        }
+        Err(pathtracer::PathTracerError::Interrupted) => bail!(
+            "interrupted after {done_here} new views; finished views are kept in {} — re-run the same command to resume",
+            args.out.display()
+        ),
+        Err(e) => Err(e).with_context(|| format!("rendering {} into {}", scene.display(), args.out.display())),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Parser)]
+    struct Cli {
+        #[command(flatten)]
+        args: RenderArgs,
+    }
+
+    fn parse(cmd: &[&str]) -> RenderArgs {
+        Cli::try_parse_from(std::iter::once("render").chain(cmd.iter().copied())).unwrap().args
+    }
+
+    #[test]
+    fn options_override_the_preset() {
+        let a = parse(&["x.gltf", "--out", "o", "--preset", "standard", "--res", "32x16", "--spp", "3", "--rig", "sphere", "--background", "1,1,1"]);
+        let c = build_config(&a).unwrap();
+        assert_eq!((c.width, c.height, c.spp, c.train, c.val, c.test), (32, 16, 3, 100, 10, 20));
+        assert_eq!(c.rig, RigKind::Sphere);
+        assert_eq!(c.background, Background::Color([1.0; 3]));
+        assert_eq!(build_config(&parse(&["x", "--out", "o", "--res", "48"])).unwrap().height, 48);
+        for bad in [["--res", "0"], ["--spp", "0"], ["--train", "0"], ["--res", "4y4"], ["--environment", "1,2"]] {
+            let mut cmd = vec!["x", "--out", "o"];
+            cmd.extend(bad);
+            assert!(build_config(&parse(&cmd)).is_err(), "{bad:?} accepted");
+        }
+        assert!(Cli::try_parse_from(["render", "x", "--out", "o", "--rig", "cube"]).is_err());
+    }
+
+    #[test]
+    fn unknown_scene_names_list_the_known_ones() {
+        let e = resolve_scene("no_such_scene_name").unwrap_err().to_string();
+        assert!(e.contains("no_such_scene_name") && e.contains("known"), "{e}");
+        assert!(resolve_scene("missing/file.gltf").unwrap_err().to_string().contains("does not exist"));
+    }
 }
