@@ -1,1 +1,466 @@
-//! (in progress)
+//! An occupancy grid over the scene box that lets ray marching skip empty space
+//! (instant-ngp's density grid, nerfacc's `OccGridEstimator`, one level).
+//!
+//! # Update (instant-ngp / nerfacc)
+//! Each cell keeps a running density `ρ_c`. An update at training step `s`:
+//! 1. selects cells: all of them while `s < warmup_steps`; afterwards each cell with probability
+//!    `update_fraction`, plus each occupied cell with probability `update_fraction` again
+//!    (keyed by `(seed, s, cell)`);
+//! 2. evaluates the density at one point per selected cell, jittered uniformly inside the cell
+//!    (keyed by `(seed, s, cell, axis)`), in batches of [`UPDATE_BATCH`] points;
+//! 3. sets `ρ_c ← max(decay · ρ_c, σ(x_c))` for the selected cells (others keep `ρ_c`);
+//! 4. marks a cell occupied when its opacity `ρ_c · step_size` exceeds
+//!    `min(threshold, mean_c(ρ_c) · step_size)` (nerfacc's rule; `threshold = 0.01` there).
+//!
+//! A new grid has every cell occupied (so marching works before the first update) and
+//! `ρ_c = 0`.
+//!
+//! # Marching
+//! [`OccupancyGrid::march`] clips each ray's `[near, far]` to the grid box, then steps with a
+//! **constant** step `Δ`: interval `k` is `[t_k, min(t_k + Δ, t_hi)]` with
+//! `t_k = t_lo + (k + u) Δ`, `u` uniform in [0, 1) keyed by `(seed, step, ray)` in
+//! [`SampleMode::Random`] and `u = 0` in [`SampleMode::Deterministic`]. An interval is kept when
+//! the cell holding its midpoint is occupied; from an empty cell the march jumps (DDA) to the
+//! first interval whose midpoint lies past the cell's exit. At most `max_samples_per_ray`
+//! intervals per ray.
+//!
+//! Example: unit box, everything occupied, `near = 0.2`, `far = 0.5`, `Δ = 0.1`,
+//! deterministic → `[0.2, 0.3] [0.3, 0.4] [0.4, 0.5]`.
+
+use crate::sampling::{Aabb, RaySamples, SampleMode, ray_aabb, rng};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+/// Points per call of the density closure during an update.
+pub const UPDATE_BATCH: usize = 1 << 16;
+
+/// Rays per rayon task while marching.
+const MARCH_BLOCK: usize = 256;
+
+/// Occupancy-grid settings.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct OccupancyGridConfig {
+    /// The box the grid covers (world units); nothing outside it is ever sampled.
+    pub aabb: Aabb,
+    /// Cells per axis (e.g. 64 or 128).
+    pub resolution: u32,
+    /// Decay of the running density per update (instant-ngp: 0.95).
+    pub decay: f32,
+    /// Updates with `step < warmup_steps` refresh every cell (nerfacc: 256).
+    pub warmup_steps: u64,
+    /// Fraction of cells refreshed per update afterwards (nerfacc: 0.25).
+    pub update_fraction: f32,
+    /// Seed of the update jitter.
+    pub seed: u64,
+}
+
+/// Options of [`OccupancyGrid::march`].
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct MarchOptions {
+    /// Constant step `Δ` in world units (instant-ngp: `√3 / 1024` of the box for 1024 steps
+    /// across the diagonal).
+    pub step_size: f32,
+    /// Cap on intervals per ray.
+    pub max_samples_per_ray: usize,
+    /// Jitter of the first sample.
+    pub jitter: SampleMode,
+}
+
+/// The grid: running densities and the occupancy bitfield.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct OccupancyGrid {
+    pub config: OccupancyGridConfig,
+    /// Running density `ρ_c` per cell, index `x + R (y + R z)`.
+    pub density: Vec<f32>,
+    /// Occupancy bits, cell `i` at `bits[i / 64] >> (i % 64)`.
+    pub bits: Vec<u64>,
+}
+
+impl OccupancyGrid {
+    /// A grid with every cell occupied and zero running density.
+    ///
+    /// # Panics
+    /// If `resolution` is 0 or above 1024, or the box is empty.
+    pub fn new(config: OccupancyGridConfig) -> Self {
+        assert!((1..=1024).contains(&config.resolution), "resolution must be 1..=1024");
+        assert!((0..3).all(|a| config.aabb.max[a] > config.aabb.min[a]), "empty box");
+        let n = (config.resolution as usize).pow(3);
+        let mut g = Self { config, density: vec![0.0; n], bits: vec![0; n.div_ceil(64)] };
+        g.mark_all(true);
+        g
+    }
+
+    /// Number of cells `R³`.
+    pub fn n_cells(&self) -> usize {
+        self.density.len()
+    }
+
+    /// Sets every cell occupied (`true`) or empty.
+    pub fn mark_all(&mut self, occupied: bool) {
+        let n = self.n_cells();
+        for (w, word) in self.bits.iter_mut().enumerate() {
+            *word = if occupied { u64::MAX } else { 0 };
+            if occupied && (w + 1) * 64 > n {
+                *word = (1u64 << (n - w * 64)) - 1;
+            }
+        }
+    }
+
+    /// Sets one cell's bit.
+    pub fn set_occupied(&mut self, cell: [u32; 3], occupied: bool) {
+        let i = self.cell_index(cell);
+        if occupied {
+            self.bits[i / 64] |= 1 << (i % 64);
+        } else {
+            self.bits[i / 64] &= !(1 << (i % 64));
+        }
+    }
+
+    /// Linear index `x + R (y + R z)`.
+    #[inline]
+    pub fn cell_index(&self, c: [u32; 3]) -> usize {
+        let r = self.config.resolution as usize;
+        c[0] as usize + r * (c[1] as usize + r * c[2] as usize)
+    }
+
+    #[inline]
+    fn bit(&self, i: usize) -> bool {
+        (self.bits[i / 64] >> (i % 64)) & 1 == 1
+    }
+
+    /// Whether a cell is occupied.
+    pub fn is_occupied(&self, c: [u32; 3]) -> bool {
+        self.bit(self.cell_index(c))
+    }
+
+    /// The cell holding a world point, `None` outside the box (or NaN).
+    #[inline]
+    pub fn cell_of(&self, p: [f32; 3]) -> Option<[u32; 3]> {
+        let (b, r) = (&self.config.aabb, self.config.resolution);
+        let mut c = [0u32; 3];
+        for a in 0..3 {
+            let u = (p[a] - b.min[a]) / (b.max[a] - b.min[a]);
+            if !(0.0..=1.0).contains(&u) {
+                return None;
+            }
+            c[a] = ((u * r as f32) as u32).min(r - 1);
+        }
+        Some(c)
+    }
+
+    /// Fraction of occupied cells.
+    pub fn occupied_fraction(&self) -> f32 {
+        let n: u32 = self.bits.iter().map(|w| w.count_ones()).sum();
+        n as f32 / self.n_cells() as f32
+    }
+
+    /// One update (see the module doc). `density_fn` maps world points to densities (≥ 0;
+    /// NaN and negatives count as 0) and must return one value per point.
+    pub fn update(
+        &mut self,
+        step: u64,
+        step_size: f32,
+        threshold: f32,
+        density_fn: &mut dyn FnMut(&[[f32; 3]]) -> Vec<f32>,
+    ) {
+        let cfg = &self.config;
+        let r = cfg.resolution;
+        let all = step < cfg.warmup_steps;
+        let selected: Vec<u32> = (0..self.n_cells() as u32)
+            .filter(|&i| {
+                all || rng::uniform_f32(rng::key(&[cfg.seed, step, i as u64, 0])) < cfg.update_fraction
+                    || (self.bit(i as usize)
+                        && rng::uniform_f32(rng::key(&[cfg.seed, step, i as u64, 1])) < cfg.update_fraction)
+            })
+            .collect();
+        let size: [f32; 3] = [0, 1, 2].map(|a| (cfg.aabb.max[a] - cfg.aabb.min[a]) / r as f32);
+        for batch in selected.chunks(UPDATE_BATCH) {
+            let pts: Vec<[f32; 3]> = batch
+                .iter()
+                .map(|&i| {
+                    let c = [i % r, (i / r) % r, i / (r * r)];
+                    [0, 1, 2].map(|a| {
+                        let u = rng::uniform_f32(rng::key(&[cfg.seed, step, i as u64, 2 + a as u64]));
+                        cfg.aabb.min[a] + (c[a] as f32 + u) * size[a]
+                    })
+                })
+                .collect();
+            let sigma = density_fn(&pts);
+            assert_eq!(sigma.len(), pts.len(), "density_fn must return one density per point");
+            for (&i, &s) in batch.iter().zip(&sigma) {
+                let s = if s > 0.0 { s.min(f32::MAX) } else { 0.0 };
+                let d = &mut self.density[i as usize];
+                *d = (*d * cfg.decay).max(s);
+            }
+        }
+        let mean = self.density.iter().map(|&d| d as f64).sum::<f64>() / self.n_cells() as f64;
+        let thr = (threshold as f64).min(mean * step_size as f64);
+        for (w, chunk) in self.bits.iter_mut().zip(self.density.chunks(64)) {
+            *w = 0;
+            for (b, &d) in chunk.iter().enumerate() {
+                if d as f64 * step_size as f64 > thr {
+                    *w |= 1 << b;
+                }
+            }
+        }
+    }
+
+    /// Marches rays through the occupied cells (see the module doc).
+    ///
+    /// # Shapes
+    /// `origins`, `dirs`, `near`, `far`: `[n_rays]` → `RaySamples`
+    pub fn march(
+        &self,
+        origins: &[[f32; 3]],
+        dirs: &[[f32; 3]],
+        near: &[f32],
+        far: &[f32],
+        options: &MarchOptions,
+    ) -> RaySamples {
+        let n_rays = origins.len();
+        assert!(dirs.len() == n_rays && near.len() == n_rays && far.len() == n_rays, "per-ray lengths differ");
+        assert!(options.step_size > 0.0, "step_size must be > 0");
+        let blocks: Vec<(Vec<u32>, Vec<f32>, Vec<f32>)> = (0..n_rays.div_ceil(MARCH_BLOCK))
+            .into_par_iter()
+            .map(|b| {
+                let (mut counts, mut ts, mut te) = (Vec::new(), Vec::new(), Vec::new());
+                for r in b * MARCH_BLOCK..((b + 1) * MARCH_BLOCK).min(n_rays) {
+                    let before = ts.len();
+                    self.march_ray(r, origins[r], dirs[r], near[r], far[r], options, &mut ts, &mut te);
+                    counts.push((ts.len() - before) as u32);
+                }
+                (counts, ts, te)
+            })
+            .collect();
+        let mut out = RaySamples::with_rays(n_rays);
+        let total: usize = blocks.iter().map(|b| b.1.len()).sum();
+        out.t_start.reserve(total);
+        out.t_end.reserve(total);
+        out.ray_index.reserve(total);
+        let mut r = 0u32;
+        let mut end = 0u32;
+        for (counts, ts, te) in blocks {
+            out.t_start.extend_from_slice(&ts);
+            out.t_end.extend_from_slice(&te);
+            for c in counts {
+                out.ray_index.extend(std::iter::repeat_n(r, c as usize));
+                end += c;
+                out.offsets.push(end);
+                r += 1;
+            }
+        }
+        out
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn march_ray(
+        &self,
+        r: usize,
+        o: [f32; 3],
+        d: [f32; 3],
+        near: f32,
+        far: f32,
+        opt: &MarchOptions,
+        ts: &mut Vec<f32>,
+        te: &mut Vec<f32>,
+    ) {
+        if !(near.is_finite() && far.is_finite() && far > near) {
+            return;
+        }
+        let Some((t_in, t_out)) = ray_aabb(o, d, &self.config.aabb) else { return };
+        let (lo, hi) = (near.max(t_in), far.min(t_out));
+        if !(hi > lo) {
+            return;
+        }
+        let u = match opt.jitter {
+            SampleMode::Deterministic => 0.0,
+            SampleMode::Random { seed, step } => rng::uniform_f32(rng::key(&[seed, step, r as u64])),
+        };
+        let dt = opt.step_size;
+        let size: [f32; 3] = [0, 1, 2].map(|a| (self.config.aabb.max[a] - self.config.aabb.min[a]) / self.config.resolution as f32);
+        let mut k: u64 = 0;
+        let mut emitted = 0;
+        while emitted < opt.max_samples_per_ray {
+            let t0 = lo + (k as f32 + u) * dt;
+            if !(t0 < hi) {
+                break;
+            }
+            let t1 = (t0 + dt).min(hi);
+            let tm = 0.5 * (t0 + t1);
+            let p = [o[0] + tm * d[0], o[1] + tm * d[1], o[2] + tm * d[2]];
+            // clipping to the box leaves the midpoint inside up to rounding
+            let c = self.cell_of(p).unwrap_or_else(|| {
+                let b = &self.config.aabb;
+                let q = [0, 1, 2].map(|a| p[a].clamp(b.min[a], b.max[a]));
+                self.cell_of(q).unwrap_or([0; 3])
+            });
+            if self.is_occupied(c) {
+                ts.push(t0);
+                te.push(t1);
+                emitted += 1;
+                k += 1;
+                continue;
+            }
+            // DDA skip: the first interval whose midpoint lies past this cell's exit
+            let mut t_exit = f32::INFINITY;
+            for a in 0..3 {
+                if d[a] != 0.0 {
+                    let lo_a = self.config.aabb.min[a] + c[a] as f32 * size[a];
+                    let plane = if d[a] > 0.0 { lo_a + size[a] } else { lo_a };
+                    t_exit = t_exit.min((plane - o[a]) / d[a]);
+                }
+            }
+            if !(t_exit < hi) {
+                break;
+            }
+            let k_next = ((t_exit - lo) / dt - u - 0.5).floor() + 1.0;
+            k = if k_next > k as f32 { (k_next as u64).max(k + 1) } else { k + 1 };
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn cfg(res: u32) -> OccupancyGridConfig {
+        OccupancyGridConfig {
+            aabb: Aabb { min: [0.0; 3], max: [1.0; 3] },
+            resolution: res,
+            decay: 0.95,
+            warmup_steps: 256,
+            update_fraction: 0.25,
+            seed: 1,
+        }
+    }
+
+    fn opts(step: f32, jitter: SampleMode) -> MarchOptions {
+        MarchOptions { step_size: step, max_samples_per_ray: 10_000, jitter }
+    }
+
+    #[test]
+    fn worked_example_everything_occupied_covers_near_far() {
+        let g = OccupancyGrid::new(cfg(8));
+        assert_eq!(g.occupied_fraction(), 1.0);
+        let s = g.march(&[[0.5, 0.5, -1.0]], &[[0.0, 0.0, 1.0]], &[1.2], &[1.5], &opts(0.1, SampleMode::Deterministic));
+        assert_eq!(s.len(), 3);
+        for (k, (a, b)) in s.t_start.iter().zip(&s.t_end).enumerate() {
+            assert!((a - (1.2 + 0.1 * k as f32)).abs() < 1e-6 && (b - (1.3 + 0.1 * k as f32)).abs() < 1e-6);
+        }
+        assert_eq!(*s.t_end.last().unwrap(), 1.5);
+        // a diagonal ray, jittered: contiguous steps up to far
+        let (o, d) = ([-0.5f32, -0.5, -0.5], [1.0f32 / 3f32.sqrt(); 3]);
+        let (n, f) = (1.0f32, 2.0f32);
+        let s = g.march(&[o], &[d], &[n], &[f], &opts(0.01, SampleMode::Random { seed: 3, step: 7 }));
+        assert!(s.t_start[0] >= n && s.t_start[0] < n + 0.01);
+        assert!(s.t_start[1..].iter().zip(&s.t_end).all(|(a, b)| (a - b).abs() < 1e-5));
+        assert_eq!(*s.t_end.last().unwrap(), f);
+        assert!((s.len() as i32 - 100).abs() <= 1);
+        // the box clips: a ray from far outside starts at the box
+        let s = g.march(&[[0.5, 0.5, -1.0]], &[[0.0, 0.0, 1.0]], &[0.0], &[100.0], &opts(0.25, SampleMode::Deterministic));
+        assert_eq!((s.t_start.clone(), s.t_end.clone()), (vec![1.0, 1.25, 1.5, 1.75], vec![1.25, 1.5, 1.75, 2.0]));
+    }
+
+    #[test]
+    fn one_occupied_cell() {
+        let mut g = OccupancyGrid::new(cfg(8));
+        g.mark_all(false);
+        g.set_occupied([3, 4, 5], true); // [0.375, 0.5] × [0.5, 0.625] × [0.625, 0.75]
+        assert_eq!(g.occupied_fraction(), 1.0 / 512.0);
+        let origins = [[-1.0, 0.55, 0.7], [0.42, -1.0, 0.7], [-1.0, 0.3, 0.7], [-1.0, 0.55, 0.2], [0.45, 0.56, 2.0], [-0.6, -0.4, -0.3]];
+        let dirs = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.6, 0.555, 0.55]];
+        let hits = [true, true, false, false, true, true];
+        let near = vec![0.0; 6];
+        let far = vec![10.0; 6];
+        for mode in [SampleMode::Deterministic, SampleMode::Random { seed: 5, step: 2 }] {
+            let s = g.march(&origins, &dirs, &near, &far, &opts(0.01, mode));
+            for r in 0..6 {
+                let (a, b) = s.ray(r);
+                assert_eq!(!a.is_empty(), hits[r], "ray {r}");
+                for (&t0, &t1) in a.iter().zip(b) {
+                    let tm = 0.5 * (t0 + t1);
+                    let p = [0, 1, 2].map(|k| origins[r][k] + tm * dirs[r][k]);
+                    assert_eq!(g.cell_of(p), Some([3, 4, 5]), "ray {r} sample at {p:?}");
+                }
+                if hits[r] {
+                    // the samples cover the chord through the cell: ~ 0.125 / 0.01 of them
+                    assert!(a.len() >= 10, "ray {r}: {} samples", a.len());
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn degenerate_rays_get_no_samples() {
+        let g = OccupancyGrid::new(cfg(4));
+        let s = g.march(
+            &[[0.5; 3], [0.5; 3], [f32::NAN, 0.5, 0.5], [2.0, 2.0, 2.0]],
+            &[[1.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 0.0, 0.0]],
+            &[0.3, f32::NAN, 0.0, 0.0],
+            &[0.3, 1.0, 1.0, 1.0],
+            &opts(0.01, SampleMode::Deterministic),
+        );
+        assert_eq!(s.offsets, vec![0, 0, 0, 0, 0]);
+        // the cap
+        let s = g.march(&[[0.0, 0.5, 0.5]], &[[1.0, 0.0, 0.0]], &[0.0], &[1.0], &MarchOptions { step_size: 0.001, max_samples_per_ray: 17, jitter: SampleMode::Deterministic });
+        assert_eq!(s.len(), 17);
+    }
+
+    #[test]
+    fn update_marks_dense_regions_and_decays() {
+        let mut g = OccupancyGrid::new(cfg(16));
+        let ball = |p: &[[f32; 3]]| -> Vec<f32> {
+            p.iter().map(|q| if q.iter().map(|v| (v - 0.5).powi(2)).sum::<f32>() < 0.04 { 1000.0 } else { 0.0 }).collect()
+        };
+        let step_size = 1.7e-3;
+        g.update(0, step_size, 0.01, &mut |p| ball(p));
+        let center = 0.5 / 16.0;
+        for z in 0..16u32 {
+            for y in 0..16u32 {
+                for x in 0..16u32 {
+                    let c = [x, y, z].map(|v| v as f32 / 16.0 + center);
+                    let dist = c.iter().map(|v| (v - 0.5).powi(2)).sum::<f32>().sqrt();
+                    let half_diag = 3f32.sqrt() * center;
+                    if dist + half_diag < 0.2 {
+                        assert!(g.is_occupied([x, y, z]), "inside cell {x},{y},{z}");
+                    }
+                    if dist - half_diag > 0.2 {
+                        assert!(!g.is_occupied([x, y, z]), "outside cell {x},{y},{z}");
+                    }
+                }
+            }
+        }
+        let frac = g.occupied_fraction();
+        assert!(frac > 0.02 && frac < 0.1, "{frac}");
+        // with the density gone, running densities decay by 0.95 per warm-up update
+        let i = g.cell_index([8, 8, 8]);
+        let before = g.density[i];
+        g.update(1, step_size, 0.01, &mut |p| vec![0.0; p.len()]);
+        assert_eq!(g.density[i], before * 0.95);
+        // after warm-up only a subset is refreshed
+        let mut calls = 0;
+        g.update(1000, step_size, 0.01, &mut |p| {
+            calls += p.len();
+            vec![0.0; p.len()]
+        });
+        assert!(calls > 4096 / 8 && calls < 4096 / 2, "{calls}");
+    }
+
+    #[test]
+    fn deterministic_across_thread_counts() {
+        let mut g = OccupancyGrid::new(cfg(32));
+        g.update(0, 0.01, 0.01, &mut |p| p.iter().map(|q| if q[0] + q[1] > 1.0 { 50.0 } else { 0.0 }).collect());
+        let n = 3000;
+        let origins: Vec<[f32; 3]> = (0..n).map(|i| [-0.5, (i % 50) as f32 / 50.0, (i / 50) as f32 / 60.0]).collect();
+        let dirs: Vec<[f32; 3]> = (0..n).map(|i| [1.0, 0.1 * ((i % 7) as f32 - 3.0), 0.05]).collect();
+        let run = |t: usize| {
+            rayon::ThreadPoolBuilder::new().num_threads(t).build().unwrap().install(|| {
+                g.march(&origins, &dirs, &vec![0.0; n], &vec![3.0; n], &opts(0.004, SampleMode::Random { seed: 1, step: 3 }))
+            })
+        };
+        let a = run(1);
+        assert!(!a.is_empty());
+        assert_eq!(a, run(3));
+        assert_eq!(a.ray_index.len(), a.len());
+    }
+}

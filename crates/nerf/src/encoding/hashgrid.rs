@@ -1,0 +1,607 @@
+//! Multiresolution hash encoding (Müller et al. 2022, "Instant Neural Graphics Primitives"),
+//! forward and exact backward over slices, and a dense [`Adam`] for its table.
+//!
+//! # Formula
+//! Level `l < L` has `N_l = floor(N_min · b^l)` cells per axis with
+//! `b = exp((ln N_max − ln N_min) / (L − 1))` (`b = 1` when `L = 1`; the floor tolerates 1e-6
+//! so that `N_{L−1} = N_max` exactly). A point `p ∈ [0, 1]³` maps to `x = p · N_l`, the cell
+//! `c = min(floor(x), N_l − 1)` and the fraction `f = x − c ∈ [0, 1]` (so `p = 1` lies in the
+//! last cell with `f = 1`, and vertices sit exactly at `p = k / N_l`). The level's features are
+//! the trilinear interpolation of its 8 corner vertices `v = c + {0,1}³`:
+//!
+//! ```text
+//! enc_l(p) = Σ_{corners v} Π_a (f_a if v_a = c_a + 1 else 1 − f_a) · θ_l[index_l(v)]
+//! index_l(v) = v_x + v_y (N_l+1) + v_z (N_l+1)²                if (N_l+1)³ ≤ T  (dense)
+//!            = (v_x · 1 ⊕ v_y · 2654435761 ⊕ v_z · 805459861) mod T   otherwise (u32 wrapping)
+//! ```
+//!
+//! with `T = 2^log2_table_size` entries of `F` features per level. Every level owns a full
+//! table of `T` entries (dense levels use the first `(N_l+1)³`).
+//!
+//! Points outside `[0, 1]` are clamped to it per axis; a NaN coordinate is treated as 0.
+//!
+//! # Worked example
+//! `L = 1, F = 1, N = 2` (dense, vertices 3 per axis), `p = (0.25, 0, 0)`: `x = (0.5, 0, 0)`,
+//! `c = 0`, `f = (0.5, 0, 0)`, so `enc = 0.5 θ[0] + 0.5 θ[1]` (vertex (0,0,0) and (1,0,0)).
+//!
+//! # Layout
+//! - `params`: `[L][T][F]`, i.e. `params[(l · T + i) · F + j]`
+//! - `encode` output: `[N][L · F]` row-major, `out[n · L·F + l · F + j]`
+//!
+//! # Determinism
+//! The forward is parallel over fixed chunks of points (each output written once); the
+//! backward is parallel over levels, each level summing its points in index order. Results are
+//! bit-identical whatever the thread count.
+
+use super::EncodingError;
+use crate::sampling::rng;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+/// The spatial-hash primes of instant-ngp (the first is 1 for coherence along x).
+pub const PRIMES: [u32; 3] = [1, 2_654_435_761, 805_459_861];
+
+/// Points per rayon task in the forward.
+const POINT_CHUNK: usize = 512;
+
+/// Hash-grid hyper-parameters (instant-ngp's NeRF defaults: 16 levels, 2 features,
+/// `2^19` entries, `N_min = 16`, `N_max = 2048 · scene scale`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct HashGridConfig {
+    /// Number of levels `L` (≥ 1).
+    pub levels: usize,
+    /// Features per level `F`: 1, 2, 4 or 8.
+    pub features_per_level: usize,
+    /// `log2 T`, the entries per level (1 ..= 28).
+    pub log2_table_size: u32,
+    /// `N_min`, cells per axis of the coarsest level (≥ 1).
+    pub base_resolution: u32,
+    /// `N_max`, cells per axis of the finest level (≥ `N_min`).
+    pub finest_resolution: u32,
+}
+
+impl HashGridConfig {
+    /// Checks the ranges documented on the fields.
+    pub fn validate(&self) -> Result<(), EncodingError> {
+        let bad = |m: &str| Err(EncodingError::InvalidConfig(m.to_string()));
+        if self.levels == 0 {
+            return bad("levels must be ≥ 1");
+        }
+        if ![1, 2, 4, 8].contains(&self.features_per_level) {
+            return bad("features_per_level must be 1, 2, 4 or 8");
+        }
+        if !(1..=28).contains(&self.log2_table_size) {
+            return bad("log2_table_size must be in 1..=28");
+        }
+        if self.base_resolution == 0 || self.finest_resolution < self.base_resolution {
+            return bad("need 1 ≤ base_resolution ≤ finest_resolution");
+        }
+        if self.finest_resolution > 1 << 20 {
+            return bad("finest_resolution must be ≤ 2^20");
+        }
+        Ok(())
+    }
+
+    /// Growth factor `b` between levels.
+    pub fn growth_factor(&self) -> f64 {
+        if self.levels <= 1 {
+            1.0
+        } else {
+            (((self.finest_resolution as f64).ln() - (self.base_resolution as f64).ln()) / (self.levels - 1) as f64).exp()
+        }
+    }
+
+    /// `N_l`, cells per axis of level `l`.
+    pub fn resolution(&self, l: usize) -> u32 {
+        let x = self.base_resolution as f64 * self.growth_factor().powi(l as i32);
+        ((x + 1e-6).floor() as u32).clamp(self.base_resolution, self.finest_resolution)
+    }
+
+    /// `T`, entries per level.
+    pub fn table_size(&self) -> usize {
+        1 << self.log2_table_size
+    }
+
+    /// Whether level `l` is indexed densely (`(N_l + 1)³ ≤ T`).
+    pub fn is_dense(&self, l: usize) -> bool {
+        let v = self.resolution(l) as u64 + 1;
+        v * v * v <= self.table_size() as u64
+    }
+
+    /// `L · F`, the encoding's width.
+    pub fn output_dim(&self) -> usize {
+        self.levels * self.features_per_level
+    }
+
+    /// `L · T · F`, the parameter count.
+    pub fn n_params(&self) -> usize {
+        self.levels * self.table_size() * self.features_per_level
+    }
+}
+
+/// Per-level constants of the hot loops.
+#[derive(Clone, Copy, Debug)]
+struct Level {
+    res: u32,
+    res_f: f64,
+    dense: bool,
+    s1: u32,
+    s2: u32,
+    mask: u32,
+}
+
+fn levels(c: &HashGridConfig) -> Vec<Level> {
+    (0..c.levels)
+        .map(|l| {
+            let res = c.resolution(l);
+            Level {
+                res,
+                res_f: res as f64,
+                dense: c.is_dense(l),
+                s1: res + 1,
+                s2: (res + 1).wrapping_mul(res + 1),
+                mask: (c.table_size() - 1) as u32,
+            }
+        })
+        .collect()
+}
+
+#[inline(always)]
+fn clamp01(v: f32) -> f32 {
+    // NaN >= 0 is false → 0
+    if v >= 0.0 { v.min(1.0) } else { 0.0 }
+}
+
+/// The 8 corner entries (table indices) and trilinear weights of `p` at one level.
+#[inline(always)]
+fn corners(p: [f32; 3], lv: &Level) -> ([u32; 8], [f32; 8]) {
+    let mut c = [0u32; 3];
+    let mut f = [0f32; 3];
+    for a in 0..3 {
+        // f64: the product of a 24-bit mantissa and N ≤ 2^20 is exact, so the fraction is
+        // rounded once (f32 would lose up to 1e-4 of a cell at N = 2048)
+        let x = clamp01(p[a]) as f64 * lv.res_f;
+        let i = (x as u32).min(lv.res - 1);
+        c[a] = i;
+        f[a] = (x - i as f64) as f32;
+    }
+    let mut idx = [0u32; 8];
+    let mut w = [0f32; 8];
+    for k in 0..8u32 {
+        let (bx, by, bz) = (k & 1, (k >> 1) & 1, (k >> 2) & 1);
+        let (x, y, z) = (c[0] + bx, c[1] + by, c[2] + bz);
+        idx[k as usize] = if lv.dense {
+            x + y * lv.s1 + z * lv.s2
+        } else {
+            (x.wrapping_mul(PRIMES[0]) ^ y.wrapping_mul(PRIMES[1]) ^ z.wrapping_mul(PRIMES[2])) & lv.mask
+        };
+        let wx = if bx == 1 { f[0] } else { 1.0 - f[0] };
+        let wy = if by == 1 { f[1] } else { 1.0 - f[1] };
+        let wz = if bz == 1 { f[2] } else { 1.0 - f[2] };
+        w[k as usize] = wx * wy * wz;
+    }
+    (idx, w)
+}
+
+/// A multiresolution hash encoding with its parameters.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct HashGrid {
+    pub config: HashGridConfig,
+    /// `[L][T][F]`, see the module doc.
+    pub params: Vec<f32>,
+}
+
+impl HashGrid {
+    /// A grid with parameters uniform in `±1e-4` (instant-ngp's initialisation), drawn with the
+    /// counter-based RNG keyed by `(seed, index)`.
+    pub fn new(config: HashGridConfig, seed: u64) -> Result<Self, EncodingError> {
+        config.validate()?;
+        let mut params = vec![0f32; config.n_params()];
+        params.par_chunks_mut(1 << 16).enumerate().for_each(|(c, chunk)| {
+            for (k, v) in chunk.iter_mut().enumerate() {
+                let i = (c << 16) + k;
+                *v = (2.0 * rng::uniform_f32(rng::key(&[seed, i as u64])) - 1.0) * 1e-4;
+            }
+        });
+        Ok(Self { config, params })
+    }
+
+    /// `L · F`.
+    pub fn output_dim(&self) -> usize {
+        self.config.output_dim()
+    }
+
+    /// Encodes points (see the module doc for the formula).
+    ///
+    /// # Shapes
+    /// - `points`: `[N]` in `[0, 1]³` (clamped)
+    /// - `out`: `[N · L · F]`, row-major `[N][L · F]`, overwritten
+    pub fn encode(&self, points: &[[f32; 3]], out: &mut [f32]) {
+        match self.config.features_per_level {
+            1 => self.encode_f::<1>(points, out),
+            2 => self.encode_f::<2>(points, out),
+            4 => self.encode_f::<4>(points, out),
+            8 => self.encode_f::<8>(points, out),
+            f => panic!("unsupported features_per_level {f}"),
+        }
+    }
+
+    /// Accumulates the gradient of `L = Σ d_out · encode(points)` with respect to the params:
+    /// `grad[l][index_l(v)][j] += w_v(p) · d_out[p][l][j]` over points and corners. Exact
+    /// (the encoding is linear in the params) and deterministic.
+    ///
+    /// # Shapes
+    /// - `points`: `[N]`, `d_out`: `[N · L · F]` (as `encode`'s `out`)
+    /// - `grad`: `[L · T · F]` (as `params`), accumulated into
+    pub fn backward(&self, points: &[[f32; 3]], d_out: &[f32], grad: &mut [f32]) {
+        match self.config.features_per_level {
+            1 => self.backward_f::<1>(points, d_out, grad),
+            2 => self.backward_f::<2>(points, d_out, grad),
+            4 => self.backward_f::<4>(points, d_out, grad),
+            8 => self.backward_f::<8>(points, d_out, grad),
+            f => panic!("unsupported features_per_level {f}"),
+        }
+    }
+
+    fn encode_f<const F: usize>(&self, points: &[[f32; 3]], out: &mut [f32]) {
+        let lf = self.output_dim();
+        assert_eq!(out.len(), points.len() * lf, "out must hold N · L · F floats");
+        assert_eq!(self.params.len(), self.config.n_params());
+        let lvs = levels(&self.config);
+        let tf = self.config.table_size() * F;
+        points.par_chunks(POINT_CHUNK).zip(out.par_chunks_mut(POINT_CHUNK * lf)).for_each(|(pts, o)| {
+            for (l, lv) in lvs.iter().enumerate() {
+                let table = &self.params[l * tf..(l + 1) * tf];
+                for (k, &p) in pts.iter().enumerate() {
+                    let (idx, w) = corners(p, lv);
+                    let mut acc = [0f32; F];
+                    for c in 0..8 {
+                        let e = &table[idx[c] as usize * F..idx[c] as usize * F + F];
+                        for j in 0..F {
+                            acc[j] += w[c] * e[j];
+                        }
+                    }
+                    o[k * lf + l * F..k * lf + l * F + F].copy_from_slice(&acc);
+                }
+            }
+        });
+    }
+
+    fn backward_f<const F: usize>(&self, points: &[[f32; 3]], d_out: &[f32], grad: &mut [f32]) {
+        let lf = self.output_dim();
+        assert_eq!(d_out.len(), points.len() * lf, "d_out must hold N · L · F floats");
+        assert_eq!(grad.len(), self.config.n_params(), "grad must have the params' shape");
+        let lvs = levels(&self.config);
+        let tf = self.config.table_size() * F;
+        grad.par_chunks_mut(tf).zip(lvs.par_iter()).enumerate().for_each(|(l, (g, lv))| {
+            for (k, &p) in points.iter().enumerate() {
+                let d: [f32; F] = std::array::from_fn(|j| d_out[k * lf + l * F + j]);
+                let (idx, w) = corners(p, lv);
+                for c in 0..8 {
+                    let e = &mut g[idx[c] as usize * F..idx[c] as usize * F + F];
+                    for j in 0..F {
+                        e[j] += w[c] * d[j];
+                    }
+                }
+            }
+        });
+    }
+}
+
+/// Adam hyper-parameters (Kingma & Ba). instant-ngp trains its table with
+/// `lr = 1e-2, beta1 = 0.9, beta2 = 0.99, eps = 1e-15`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct AdamConfig {
+    pub lr: f32,
+    pub beta1: f32,
+    pub beta2: f32,
+    pub eps: f32,
+}
+
+impl AdamConfig {
+    /// instant-ngp's settings with the given learning rate.
+    pub fn instant_ngp(lr: f32) -> Self {
+        Self { lr, beta1: 0.9, beta2: 0.99, eps: 1e-15 }
+    }
+}
+
+/// Dense Adam over a flat `f32` parameter vector: every entry is updated every step (as
+/// instant-ngp does for its hash table), so entries no point touched this step still move with
+/// their momentum. Parallel over fixed chunks, elementwise, hence deterministic.
+///
+/// ```text
+/// t += 1;  m = β1 m + (1 − β1) g;  v = β2 v + (1 − β2) g²
+/// p -= lr · (m / (1 − β1^t)) / (sqrt(v / (1 − β2^t)) + eps)
+/// ```
+///
+/// A NaN or infinite gradient entry is treated as 0. Example: first step with `g = 0.5`,
+/// `lr = 0.1`: `m̂ = 0.5`, `v̂ = 0.25`, `p -= 0.1 · 0.5 / 0.5 = 0.1`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Adam {
+    pub config: AdamConfig,
+    /// Steps taken.
+    pub step: u64,
+    pub m: Vec<f32>,
+    pub v: Vec<f32>,
+}
+
+impl Adam {
+    /// Zero moments for `n_params` parameters.
+    pub fn new(config: AdamConfig, n_params: usize) -> Self {
+        Self { config, step: 0, m: vec![0.0; n_params], v: vec![0.0; n_params] }
+    }
+
+    /// One update of `params` with `grads` at the configured learning rate.
+    pub fn step(&mut self, params: &mut [f32], grads: &[f32]) {
+        let lr = self.config.lr;
+        self.step_with_lr(params, grads, lr);
+    }
+
+    /// One update with an explicit learning rate (for schedules).
+    pub fn step_with_lr(&mut self, params: &mut [f32], grads: &[f32], lr: f32) {
+        assert!(params.len() == self.m.len() && grads.len() == self.m.len(), "Adam: length mismatch");
+        self.step += 1;
+        let AdamConfig { beta1: b1, beta2: b2, eps, .. } = self.config;
+        let t = self.step.min(i32::MAX as u64) as i32;
+        let c1 = (1.0 - (b1 as f64).powi(t)) as f32;
+        let c2 = (1.0 - (b2 as f64).powi(t)) as f32;
+        const CHUNK: usize = 1 << 14;
+        params
+            .par_chunks_mut(CHUNK)
+            .zip(grads.par_chunks(CHUNK))
+            .zip(self.m.par_chunks_mut(CHUNK))
+            .zip(self.v.par_chunks_mut(CHUNK))
+            .for_each(|(((p, g), m), v)| {
+                for i in 0..p.len() {
+                    let gi = if g[i].is_finite() { g[i] } else { 0.0 };
+                    m[i] = b1 * m[i] + (1.0 - b1) * gi;
+                    v[i] = b2 * v[i] + (1.0 - b2) * gi * gi;
+                    p[i] -= lr * (m[i] / c1) / ((v[i] / c2).sqrt() + eps);
+                }
+            });
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn cfg(levels: usize, f: usize, log2_t: u32, nmin: u32, nmax: u32) -> HashGridConfig {
+        HashGridConfig { levels, features_per_level: f, log2_table_size: log2_t, base_resolution: nmin, finest_resolution: nmax }
+    }
+
+    fn rnd(i: u64) -> f32 {
+        rng::uniform_f32(rng::key(&[4242, i]))
+    }
+
+    fn random_points(n: usize, seed: u64) -> Vec<[f32; 3]> {
+        (0..n as u64).map(|i| [0, 1, 2].map(|a| rnd(seed * 1_000_003 + 3 * i + a))).collect()
+    }
+
+    /// Naive f64 reference: per point, per level, independent of the fast path's code.
+    fn reference(c: &HashGridConfig, params: &[f64], p: [f32; 3]) -> Vec<f64> {
+        let (t, f) = (c.table_size(), c.features_per_level);
+        let b = if c.levels > 1 { (c.finest_resolution as f64 / c.base_resolution as f64).powf(1.0 / (c.levels - 1) as f64) } else { 1.0 };
+        let mut out = vec![0.0; c.output_dim()];
+        for l in 0..c.levels {
+            let n = (c.base_resolution as f64 * b.powi(l as i32) + 1e-6).floor() as u64;
+            let dense = (n + 1).pow(3) <= t as u64;
+            let x: Vec<f64> = p.iter().map(|&v| (v as f64).clamp(0.0, 1.0) * n as f64).collect();
+            let cell: Vec<u64> = x.iter().map(|&v| (v.floor() as u64).min(n - 1)).collect();
+            for dz in 0..2u64 {
+                for dy in 0..2u64 {
+                    for dx in 0..2u64 {
+                        let v = [cell[0] + dx, cell[1] + dy, cell[2] + dz];
+                        let mut w = 1.0;
+                        for a in 0..3 {
+                            let fr = x[a] - cell[a] as f64;
+                            w *= if [dx, dy, dz][a] == 1 { fr } else { 1.0 - fr };
+                        }
+                        let i = if dense {
+                            (v[0] + v[1] * (n + 1) + v[2] * (n + 1) * (n + 1)) as usize
+                        } else {
+                            let h = (v[0] * 1) ^ ((v[1] * 2_654_435_761) & 0xFFFF_FFFF) ^ ((v[2] * 805_459_861) & 0xFFFF_FFFF);
+                            (h as usize) % t
+                        };
+                        for j in 0..f {
+                            out[l * f + j] += w * params[(l * t + i) * f + j];
+                        }
+                    }
+                }
+            }
+        }
+        out
+    }
+
+    fn grid(c: HashGridConfig, seed: u64, scale: f32) -> HashGrid {
+        let mut g = HashGrid::new(c, seed).unwrap();
+        // larger params than the ±1e-4 init so that differences are visible
+        for (i, p) in g.params.iter_mut().enumerate() {
+            *p = (rnd(1_000_000_007 + i as u64) - 0.5) * scale;
+        }
+        g
+    }
+
+    #[test]
+    fn resolutions_follow_the_paper() {
+        let c = cfg(16, 2, 19, 16, 2048);
+        assert_eq!(c.resolution(0), 16);
+        assert_eq!(c.resolution(15), 2048);
+        assert!((c.growth_factor() - 1.3819).abs() < 1e-4);
+        assert_eq!(c.resolution(1), 22); // floor(16 · 1.3819)
+        assert_eq!((0..16).map(|l| c.resolution(l)).collect::<Vec<_>>(), [16, 22, 30, 42, 58, 80, 111, 153, 212, 294, 406, 561, 776, 1072, 1482, 2048]);
+        assert!(c.is_dense(4) && !c.is_dense(5)); // 59³ ≤ 2^19 < 81³
+        assert_eq!(cfg(1, 2, 19, 16, 16).resolution(0), 16);
+        assert!(cfg(1, 3, 19, 16, 16).validate().is_err());
+        assert!(cfg(2, 2, 19, 32, 16).validate().is_err());
+        assert!(HashGrid::new(cfg(0, 2, 19, 16, 16), 0).is_err());
+    }
+
+    #[test]
+    fn init_is_small_and_seeded() {
+        let g = HashGrid::new(cfg(2, 2, 10, 4, 64), 7).unwrap();
+        assert!(g.params.iter().all(|v| v.abs() <= 1e-4));
+        assert!(g.params.iter().any(|v| v.abs() > 5e-5));
+        assert_eq!(g, HashGrid::new(cfg(2, 2, 10, 4, 64), 7).unwrap());
+        assert_ne!(g, HashGrid::new(cfg(2, 2, 10, 4, 64), 8).unwrap());
+    }
+
+    #[test]
+    fn worked_example() {
+        let mut g = HashGrid::new(cfg(1, 1, 10, 2, 2), 0).unwrap();
+        g.params[0] = 1.0;
+        g.params[1] = 3.0;
+        let mut out = [0.0];
+        g.encode(&[[0.25, 0.0, 0.0]], &mut out);
+        assert_eq!(out[0], 2.0);
+    }
+
+    #[test]
+    fn forward_matches_f64_reference() {
+        // dense and hashed levels, collisions (tiny tables), every feature count
+        for (c, n) in [
+            (cfg(8, 2, 12, 4, 300), 3000),
+            (cfg(3, 1, 4, 8, 64), 500), // T = 16: heavy collisions
+            (cfg(4, 4, 9, 2, 40), 500),
+            (cfg(2, 8, 14, 16, 512), 500),
+            (cfg(1, 2, 19, 16, 16), 100),
+        ] {
+            let g = grid(c.clone(), 1, 2.0);
+            let p64: Vec<f64> = g.params.iter().map(|&v| v as f64).collect();
+            let mut pts = random_points(n, 2);
+            // edges, corners, vertices, outside and NaN
+            pts.extend([[0.0; 3], [1.0; 3], [0.0, 1.0, 0.5], [0.5, 0.25, 0.125], [-0.5, 1.5, 0.3], [f32::NAN, 0.2, f32::INFINITY]]);
+            let mut out = vec![0.0; pts.len() * c.output_dim()];
+            g.encode(&pts, &mut out);
+            for (k, &p) in pts.iter().enumerate() {
+                let p_clean = p.map(|v| if v.is_nan() { 0.0 } else { v });
+                let r = reference(&c, &p64, p_clean);
+                for (j, &rv) in r.iter().enumerate() {
+                    let v = out[k * c.output_dim() + j] as f64;
+                    assert!((v - rv).abs() < 2e-6, "config {c:?} point {p:?} feature {j}: {v} vs {rv}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn continuous_across_cell_boundaries() {
+        let c = cfg(4, 2, 12, 4, 32);
+        let g = grid(c.clone(), 3, 1.0);
+        // p = 0.25 is a vertex on every level (N = 4, 8, 16, 32)
+        let pts = [[0.25, 0.5, 0.75], [0.25 - 1e-6, 0.5, 0.75], [0.25 + 1e-6, 0.5, 0.75]];
+        let mut out = vec![0.0; 3 * c.output_dim()];
+        g.encode(&pts, &mut out);
+        let d = c.output_dim();
+        for j in 0..d {
+            assert!((out[j] - out[d + j]).abs() < 1e-4 && (out[j] - out[2 * d + j]).abs() < 1e-4);
+        }
+        // clamping: outside equals the clamped point exactly
+        let mut o2 = vec![0.0; 2 * d];
+        g.encode(&[[-3.0, 2.0, 0.5], [0.0, 1.0, 0.5]], &mut o2);
+        assert_eq!(o2[..d], o2[d..]);
+    }
+
+    #[test]
+    fn backward_is_the_exact_adjoint_and_matches_finite_differences() {
+        for c in [cfg(6, 2, 10, 4, 200), cfg(3, 1, 4, 8, 64), cfg(2, 4, 8, 2, 30)] {
+            let g = grid(c.clone(), 5, 1.0);
+            let pts = random_points(400, 6);
+            let d = c.output_dim();
+            let d_out: Vec<f32> = (0..pts.len() * d).map(|i| rnd(77_000_000 + i as u64) - 0.5).collect();
+            let mut grad = vec![0.0; c.n_params()];
+            g.backward(&pts, &d_out, &mut grad);
+            // finite differences of L(θ) = Σ d_out · enc(θ) with the f64 reference
+            let p64: Vec<f64> = g.params.iter().map(|&v| v as f64).collect();
+            let loss = |params: &[f64]| -> f64 {
+                pts.iter().enumerate().map(|(k, &p)| reference(&c, params, p).iter().enumerate().map(|(j, v)| v * d_out[k * d + j] as f64).sum::<f64>()).sum()
+            };
+            let touched: Vec<usize> = (0..grad.len()).filter(|&i| grad[i] != 0.0).collect();
+            assert!(touched.len() > 10);
+            let h = 1e-3;
+            for &i in touched.iter().step_by(touched.len() / 12 + 1).chain([0usize, grad.len() - 1].iter()) {
+                let (mut a, mut b) = (p64.clone(), p64.clone());
+                a[i] += h;
+                b[i] -= h;
+                let fd = (loss(&a) - loss(&b)) / (2.0 * h);
+                assert!((grad[i] as f64 - fd).abs() < 1e-4 * (1.0 + fd.abs()), "param {i}: {} vs {fd}", grad[i]);
+            }
+            // adjoint identity over all params: <d_out, enc(θ)> = <grad, θ>
+            let mut out = vec![0.0; pts.len() * d];
+            g.encode(&pts, &mut out);
+            let lhs: f64 = out.iter().zip(&d_out).map(|(a, b)| *a as f64 * *b as f64).sum();
+            let rhs: f64 = grad.iter().zip(&g.params).map(|(a, b)| *a as f64 * *b as f64).sum();
+            assert!((lhs - rhs).abs() < 1e-4 * (1.0 + lhs.abs()), "{lhs} vs {rhs}");
+            // accumulation: a second call doubles
+            let mut grad2 = grad.clone();
+            g.backward(&pts, &d_out, &mut grad2);
+            assert!(grad2.iter().zip(&grad).all(|(a, b)| (*a - 2.0 * *b).abs() <= 1e-5 * (1.0 + b.abs())));
+        }
+    }
+
+    #[test]
+    fn deterministic_across_thread_counts() {
+        let c = cfg(5, 2, 12, 4, 128);
+        let g = grid(c.clone(), 8, 1.0);
+        let pts = random_points(5000, 9);
+        let d_out: Vec<f32> = (0..pts.len() * c.output_dim()).map(|i| rnd(i as u64) - 0.5).collect();
+        let run = |threads: usize| {
+            rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap().install(|| {
+                let mut out = vec![0.0; pts.len() * c.output_dim()];
+                g.encode(&pts, &mut out);
+                let mut grad = vec![0.0; c.n_params()];
+                g.backward(&pts, &d_out, &mut grad);
+                (out, grad)
+            })
+        };
+        assert_eq!(run(1), run(4));
+    }
+
+    #[test]
+    fn adam_first_step_and_finite() {
+        let mut adam = Adam::new(AdamConfig::instant_ngp(0.1), 4);
+        let mut p = vec![1.0, 1.0, 1.0, 1.0];
+        adam.step(&mut p, &[0.5, -2.0, 0.0, f32::NAN]);
+        assert!((p[0] - 0.9).abs() < 1e-6 && (p[1] - 1.1).abs() < 1e-6);
+        assert_eq!(&p[2..], &[1.0, 1.0]);
+        // converges on a quadratic
+        let mut adam = Adam::new(AdamConfig { lr: 0.05, beta1: 0.9, beta2: 0.999, eps: 1e-8 }, 1);
+        let mut x = vec![3.0f32];
+        for _ in 0..500 {
+            let g = [2.0 * (x[0] - 1.0)];
+            adam.step(&mut x, &g);
+        }
+        assert!((x[0] - 1.0).abs() < 1e-2, "{}", x[0]);
+    }
+
+    /// `cargo test -p nerf hashgrid_timing -- --ignored --nocapture`
+    #[test]
+    #[ignore]
+    fn hashgrid_timing() {
+        let n = 262_144;
+        let pts = random_points(n, 10);
+        for levels in [1usize, 16] {
+            let c = cfg(levels, 2, 19, 16, 2048);
+            let g = HashGrid::new(c.clone(), 0).unwrap();
+            let mut out = vec![0.0; n * c.output_dim()];
+            let d_out = vec![1e-3f32; n * c.output_dim()];
+            let mut grad = vec![0.0; c.n_params()];
+            let mut best = (f64::MAX, f64::MAX);
+            for _ in 0..5 {
+                let t0 = std::time::Instant::now();
+                g.encode(&pts, &mut out);
+                let t1 = std::time::Instant::now();
+                g.backward(&pts, &d_out, &mut grad);
+                let t2 = std::time::Instant::now();
+                best.0 = best.0.min((t1 - t0).as_secs_f64());
+                best.1 = best.1.min((t2 - t1).as_secs_f64());
+            }
+            println!(
+                "hashgrid L={levels} F=2 T=2^19, {n} points, {} threads: forward {:.1} ms, backward {:.1} ms",
+                rayon::current_num_threads(),
+                best.0 * 1e3,
+                best.1 * 1e3
+            );
+        }
+    }
+}
