@@ -1,17 +1,218 @@
-//! `cargo xtask train` and `render-nerf` (being written).
+//! `cargo xtask train` and `cargo xtask render-nerf`: argument parsing, the progress bar and
+//! Ctrl-C; the work is in the `nerf` crate.
+
+use anyhow::Context;
+use nerf::data::Background;
+use nerf::render::RunModel;
+use nerf::train::{TrainConfig, Trainer};
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 /// Arguments of `train`.
 #[derive(clap::Args)]
-pub struct TrainArgs {}
+pub struct TrainArgs {
+    /// Dataset folder (ours, or a Blender-synthetic one).
+    pub dataset: Option<PathBuf>,
+    /// Run folder (config.json, metrics.jsonl, checkpoints/).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Model: paper or fast.
+    #[arg(long, default_value = "fast")]
+    pub model: String,
+    /// Stop after this many steps.
+    #[arg(long)]
+    pub steps: Option<u64>,
+    /// Stop after this much training time: 90s, 5m, 1h.
+    #[arg(long)]
+    pub time: Option<String>,
+    /// Continue the run in --out from its latest checkpoint, with its recorded config.
+    #[arg(long)]
+    pub resume: bool,
+    /// Seed of every random choice.
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// A config.json (e.g. from an earlier run) to start from; other flags override it.
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Integer image downscale factor.
+    #[arg(long)]
+    pub downscale: Option<u32>,
+    /// Background of transparent pixels: white, black or random.
+    #[arg(long)]
+    pub background: Option<Background>,
+    /// Rays per batch.
+    #[arg(long)]
+    pub batch_rays: Option<usize>,
+}
+
 /// Arguments of `render-nerf`.
 #[derive(clap::Args)]
-pub struct RenderNerfArgs {}
+pub struct RenderNerfArgs {
+    /// Run folder.
+    pub run: PathBuf,
+    /// Render this split of the run's dataset (default test).
+    #[arg(long)]
+    pub split: Option<String>,
+    /// Render N views on a circle around the scene instead.
+    #[arg(long)]
+    pub orbit: Option<usize>,
+    /// Output folder (default <run>/renders/<split or orbit>).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+}
+
+fn parse_duration(s: &str) -> anyhow::Result<f64> {
+    let (num, unit) = s.split_at(s.find(|c: char| c.is_alphabetic()).unwrap_or(s.len()));
+    let v: f64 = num.trim().parse().with_context(|| format!("bad duration '{s}' (e.g. 90s, 5m, 1h)"))?;
+    let scale = match unit {
+        "" | "s" => 1.0,
+        "m" | "min" => 60.0,
+        "h" => 3600.0,
+        _ => anyhow::bail!("bad duration unit in '{s}' (s, m or h)"),
+    };
+    Ok(v * scale)
+}
+
+fn build_config(args: &TrainArgs) -> anyhow::Result<TrainConfig> {
+    let mut cfg = match &args.config {
+        Some(p) => TrainConfig::read(p)?,
+        None => {
+            let ds = args.dataset.clone().context("give a dataset folder (or --config)")?;
+            TrainConfig::preset(&args.model, ds).map_err(anyhow::Error::msg)?
+        }
+    };
+    if let Some(d) = &args.dataset {
+        if args.config.is_some() && *d != cfg.dataset {
+            cfg.bounds = None;
+        }
+        cfg.dataset = d.clone();
+    }
+    if let Some(s) = args.steps {
+        cfg.steps = Some(s);
+    }
+    if let Some(t) = &args.time {
+        cfg.time_budget_s = Some(parse_duration(t)?);
+    }
+    if cfg.steps.is_none() && cfg.time_budget_s.is_none() {
+        cfg.time_budget_s = Some(300.0);
+    }
+    if let Some(s) = args.seed {
+        cfg.seed = s;
+    }
+    if let Some(d) = args.downscale {
+        cfg.downscale = d;
+    }
+    if let Some(b) = args.background {
+        cfg.background = b;
+    }
+    if let Some(b) = args.batch_rays {
+        cfg.batch_rays = b;
+    }
+    Ok(cfg)
+}
 
 /// Trains a model.
-pub fn run(_args: TrainArgs) -> anyhow::Result<()> {
-    anyhow::bail!("train is not implemented yet")
+pub fn run(args: TrainArgs) -> anyhow::Result<()> {
+    let stop = Arc::new(AtomicBool::new(false));
+    {
+        let stop = stop.clone();
+        ctrlc::set_handler(move || stop.store(true, Ordering::SeqCst)).context("installing the Ctrl-C handler")?;
+    }
+    let mut trainer = if args.resume {
+        Trainer::resume(&args.out).with_context(|| format!("resuming {}", args.out.display()))?
+    } else {
+        Trainer::new(build_config(&args)?, &args.out, false)?
+    };
+    eprintln!(
+        "training {} ({} parameters, backend {}) on {} from step {}; run folder {}",
+        trainer.config.model.name(),
+        trainer.model.parameters(),
+        nerf::backend::backend_name(),
+        trainer.config.dataset.display(),
+        trainer.step,
+        args.out.display()
+    );
+    let bar = indicatif::ProgressBar::new(1000);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("{bar:30} {percent:>3}% {msg}")
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    let summary = trainer.run(&stop, &mut |p| {
+        bar.set_position((p.fraction * 1000.0) as u64);
+        let left = if p.fraction > 0.0 { p.wall_s * (1.0 - p.fraction) / p.fraction } else { 0.0 };
+        let val = p.val_psnr.map_or(String::new(), |v| format!(" val {v:.2} dB"));
+        bar.set_message(format!(
+            "step {} loss {:.5} train {:.2} dB{val} {:.0} rays/s {:.0}s left",
+            p.step, p.loss, p.train_psnr, p.rays_per_s, left
+        ));
+    })?;
+    bar.finish_and_clear();
+    let val = summary.val.as_ref().map_or("no val views".to_string(), |v| {
+        format!(
+            "val PSNR {:.2} dB{}",
+            v.val_psnr,
+            v.val_depth_mae.map_or(String::new(), |d| format!(", val depth MAE {d:.4}"))
+        )
+    });
+    eprintln!(
+        "{} at step {} after {:.1}s of training: {val}; {} non-finite steps skipped",
+        if summary.interrupted { "interrupted (checkpoint written; --resume continues)" } else { "done" },
+        summary.steps,
+        summary.wall_s,
+        summary.skipped_nonfinite
+    );
+    eprintln!("outputs in {}", args.out.display());
+    Ok(())
 }
+
 /// Renders views from a run.
-pub fn run_render(_args: RenderNerfArgs) -> anyhow::Result<()> {
-    anyhow::bail!("render-nerf is not implemented yet")
+pub fn run_render(args: RenderNerfArgs) -> anyhow::Result<()> {
+    let model = RunModel::load(&args.run).with_context(|| format!("loading {}", args.run.display()))?;
+    let (label, cameras): (String, Vec<(String, dataset::Camera)>) = if let Some(n) = args.orbit {
+        let ds = dataset::Dataset::load(model.dataset_dir())?;
+        let first = ds.train.first().context("dataset has no train views")?.camera.downscaled(model.config.downscale);
+        let b = model.config.bounds.clone().context("run has no bounds")?;
+        let cams = nerf::render::orbit_cameras(&first, b.center(), n)
+            .into_iter()
+            .enumerate()
+            .map(|(k, c)| (format!("orbit_{k:03}"), c))
+            .collect();
+        ("orbit".into(), cams)
+    } else {
+        let split = args.split.clone().unwrap_or_else(|| "test".into());
+        let kind = match split.as_str() {
+            "train" => dataset::SplitKind::Train,
+            "val" => dataset::SplitKind::Val,
+            "test" => dataset::SplitKind::Test,
+            s => anyhow::bail!("unknown split '{s}' (train, val or test)"),
+        };
+        let ds = dataset::Dataset::load(model.dataset_dir())?;
+        let cams = ds.split(kind).iter().map(|f| (f.name.clone(), f.camera.downscaled(model.config.downscale))).collect();
+        (split, cams)
+    };
+    let out = args.out.clone().unwrap_or_else(|| args.run.join("renders").join(&label));
+    let bg = model.eval_background();
+    let bar = indicatif::ProgressBar::new(cameras.len() as u64);
+    for (name, cam) in &cameras {
+        let v = model.render_view(cam, bg);
+        let mut img = dataset::RgbaImage::new(v.width, v.height);
+        for p in 0..(v.width * v.height) as usize {
+            img.data[4 * p..4 * p + 3].copy_from_slice(&v.rgb[3 * p..3 * p + 3]);
+            img.data[4 * p + 3] = 1.0;
+        }
+        dataset::write_png_rgba(&out.join(format!("{name}.png")), &img)?;
+        dataset::write_npy_f32(&out.join(format!("{name}_opacity.npy")), v.width, v.height, &v.opacity)?;
+        dataset::write_npy_f32(&out.join(format!("{name}_depth.npy")), v.width, v.height, &v.depth)?;
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    eprintln!(
+        "rendered {} views of {} (step {}): colour PNG, opacity and z-depth .npy in {}",
+        cameras.len(),
+        args.run.display(),
+        model.train_steps(),
+        out.display()
+    );
+    Ok(())
 }

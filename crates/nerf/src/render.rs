@@ -124,3 +124,18 @@ impl RunModel {
         }
     }
 }
+
+/// `n` cameras on a horizontal circle around `center` at the height and horizontal distance of
+/// `first` (e.g. the first training camera), all with its intrinsics, looking at `center`.
+pub fn orbit_cameras(first: &Camera, center: [f32; 3], n: usize) -> Vec<Camera> {
+    let c = glam::DVec3::from(center.map(f64::from));
+    let e = first.origin() - c;
+    let (r, h) = ((e.x * e.x + e.z * e.z).sqrt().max(1e-6), e.y);
+    (0..n)
+        .filter_map(|k| {
+            let a = std::f64::consts::TAU * k as f64 / n as f64;
+            let eye = c + glam::DVec3::new(r * a.cos(), h, r * a.sin());
+            Camera::new(first.intrinsics, Camera::look_at(eye, c, glam::DVec3::Y)).ok()
+        })
+        .collect()
+}
