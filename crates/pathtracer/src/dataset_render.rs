@@ -498,13 +498,16 @@ fn prepare_folder(out: &Path, record: &RenderRecord, force: bool) -> Result<(), 
         None
     };
     match conflict {
-        None => Ok(()),
+        None => remove_stale_temporaries(out),
         Some(why) if !force => Err(PathTracerError::Config(format!(
             "{} holds a dataset rendered with different settings: {why}; choose a new --out folder, \
              or pass --force to replace it",
             out.display()
         ))),
-        Some(_) => remove_dataset_files(out),
+        Some(_) => {
+            remove_dataset_files(out)?;
+            remove_stale_temporaries(out)
+        }
     }
 }
 
@@ -551,6 +554,30 @@ fn has_dataset_files(out: &Path) -> bool {
                 .map(|d| d.flatten().any(|e| is_view_file(&e.file_name().to_string_lossy())))
                 .unwrap_or(false)
         })
+}
+
+/// Whether `name` is the temporary name (`.<file>.<pid>.tmp`, see
+/// [`dataset::io::temp_path_for`]) of a dataset file, left behind by a killed run.
+fn is_stale_temporary(name: &str) -> bool {
+    let Some(inner) = name.strip_prefix('.').and_then(|n| n.strip_suffix(".tmp")) else { return false };
+    let Some((file, pid)) = inner.rsplit_once('.') else { return false };
+    !pid.is_empty()
+        && pid.chars().all(|c| c.is_ascii_digit())
+        && (is_view_file(file) || file == RENDER_CONFIG_FILE || dataset_top_files().iter().any(|f| f == file))
+}
+
+/// Removes temporaries of dataset files that a killed run left behind.
+fn remove_stale_temporaries(out: &Path) -> Result<(), PathTracerError> {
+    for dir in std::iter::once(out.to_path_buf()).chain(SplitKind::ALL.iter().map(|s| out.join(s.name()))) {
+        let Ok(entries) = std::fs::read_dir(&dir) else { continue };
+        for e in entries.flatten() {
+            if is_stale_temporary(&e.file_name().to_string_lossy()) {
+                let p = e.path();
+                std::fs::remove_file(&p).map_err(|e| dataset::DatasetError::Io { path: p.clone(), source: e })?;
+            }
+        }
+    }
+    Ok(())
 }
 
 /// Removes only the files a dataset render writes (never the folder or other files).
@@ -855,6 +882,7 @@ mod tests {
         std::fs::remove_file(b.join("val/r_1.png")).unwrap();
         std::fs::remove_file(b.join("train/r_0_gt.exr")).unwrap();
         std::fs::remove_file(b.join("transforms.json")).unwrap();
+        std::fs::write(b.join("val/.r_1.png.99999.tmp"), b"half a png").unwrap();
         let mut events = Vec::new();
         let s = scene();
         let src = SceneSource { path: "elsewhere/box.gltf".into(), hash: "1".into() };
@@ -949,6 +977,8 @@ mod tests {
         assert_eq!("Quick".parse::<Preset>().unwrap(), Preset::Quick);
         assert!(is_view_file("r_12_depth.npy") && is_view_file("r_0.png"));
         assert!(!is_view_file("r_.png") && !is_view_file("notes.png") && !is_view_file("r_1.txt"));
+        assert!(is_stale_temporary(".r_3_gt.exr.1234.tmp") && is_stale_temporary(".transforms.json.7.tmp"));
+        assert!(!is_stale_temporary(".r_3_gt.exr.tmp") && !is_stale_temporary(".notes.txt.12.tmp"));
         assert_eq!(view_key(SplitKind::Test, 5), (2 << 24) | 5);
         assert_eq!(view_files(SplitKind::Val, 3)[2], "val/r_3_gt.exr");
     }

@@ -204,7 +204,20 @@ fn every_committed_scene_renders() {
         assert!(mean > 1e-3 && mean.is_finite(), "{name}: black or non-finite render (mean {mean})");
         // Scenes with glTF cameras keep them (cornell: closed room; deep: corridor).
         let has_cameras = !load_gltf(&p, &ImportOptions::default()).unwrap().cameras.is_empty();
+        if name == "cornell" {
+            assert!(has_cameras, "the Cornell room should carry its camera");
+        }
         assert_eq!(sum.rig == RigKind::Gltf, has_cameras, "{name}: rig {:?}", sum.rig);
+        // A camera inside the scene's box (cornell: a closed room) keeps every view inside it.
+        let facts = ds.facts.unwrap();
+        let (lo, hi) = (DVec3::from_array(facts.aabb_min), DVec3::from_array(facts.aabb_max));
+        let inside = |p: DVec3| p.cmpgt(lo).all() && p.cmplt(hi).all();
+        let scene = load_gltf(&p, &ImportOptions::default()).unwrap();
+        if scene.cameras.iter().all(|c| inside(c.c2w.w_axis.truncate())) && !scene.cameras.is_empty() {
+            for f in ds.train.iter().chain(&ds.val).chain(&ds.test) {
+                assert!(inside(f.camera.origin()), "{name}: view {} left the room", f.name);
+            }
+        }
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }
