@@ -20,6 +20,9 @@
 //! - Among hits at exactly the same `t` (e.g. on a shared edge) the lowest triangle index
 //!   wins, so the answer does not depend on the BVH's layout or build.
 
+// Negated comparisons (`!(x > 0.0)`) are deliberate: they also reject NaN.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
 use crate::PathTracerError;
 use crate::geometry::{Ray, TriangleHit, WatertightRay, intersect_triangle};
 use crate::scene::{AlphaMode, Scene};

@@ -20,6 +20,9 @@
 //! Tracing Gems ch. 6), so secondary rays neither re-hit their own surface (acne) nor start
 //! on the far side of it (leaks). The bound scales with the magnitude of the hit point.
 
+// Negated comparisons (`!(x > 0.0)`) are deliberate: they also reject NaN.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
 use glam::{DVec3, Vec3};
 
 /// A ray in the scene's local `f32` frame. `direction` need not be unit length for the

@@ -17,6 +17,9 @@
 //! Shadow and bounce rays start at [`offset_ray_origin`] so they neither re-hit their own
 //! surface nor leak through it; shadow rays to a point stop `1e-4` (relative) short of it.
 
+// Negated comparisons (`!(x > 0.0)`) are deliberate: they also reject NaN.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
 use crate::accel::{Accel, Hit};
 use crate::geometry::{Frame, Ray, hit_point_error, offset_ray_origin};
 use crate::light::{EmissiveTriangles, Environment, punctual_incidence};

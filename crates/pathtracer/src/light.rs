@@ -16,6 +16,9 @@
 //! - [`Environment`]: constant radiance from every direction, sampled uniformly on the
 //!   sphere (`pdf = 1/4π`).
 
+// Negated comparisons (`!(x > 0.0)`) are deliberate: they also reject NaN.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
 use crate::sampler::{sample_uniform_sphere, sample_uniform_triangle};
 use crate::scene::{Light, Scene};
 use glam::{Vec2, Vec3};
