@@ -602,3 +602,150 @@ fn project_scenes_import() {
         assert!(!s.bounds.is_empty());
     }
 }
+
+// ---------------------------------------------------------------------------------------
+// Structural mutation: every field of a feature-rich file set to hostile values or removed.
+
+fn rich_file() -> Value {
+    let mut b = Builder::default();
+    let pos = b.positions(&[[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [1.0, 1.0, 0.0]]);
+    let nrm = b.f32s(&[[0.0, 0.0, 1.0]; 4], "VEC3");
+    let tan = b.f32s(&[[1.0, 0.0, 0.0, 1.0]; 4], "VEC4");
+    let uv = b.f32s(&[[0.0, 0.0], [1.0, 0.0], [0.0, 1.0], [1.0, 1.0]], "VEC2");
+    let col = b.f32s(&[[1.0, 0.5, 0.25, 1.0]; 4], "VEC4");
+    let idx = b.indices_u16(&[0, 1, 2, 2, 1, 3]);
+    let sp_i = b.view(&[1u8, 0, 0, 0], None);
+    let sp_v = b.view(&f32_bytes_test(&[0.5, 0.5]), None);
+    b.accessors[uv]["sparse"] = json!({"count": 1, "indices": {"bufferView": sp_i, "componentType": 5121}, "values": {"bufferView": sp_v}});
+    b.set("extensionsUsed", json!(["KHR_lights_punctual", "KHR_materials_emissive_strength"]));
+    b.set("meshes", json!([{"name": "quad", "primitives": [{"attributes": {"POSITION": pos, "NORMAL": nrm, "TANGENT": tan, "TEXCOORD_0": uv, "COLOR_0": col}, "indices": idx, "material": 0, "mode": 4}]}]));
+    b.set("images", json!([{"uri": png_data_uri([10, 20, 30, 255])}]));
+    b.set("samplers", json!([{"magFilter": 9729, "minFilter": 9987, "wrapS": 10497, "wrapT": 33071}]));
+    b.set("textures", json!([{"source": 0, "sampler": 0}]));
+    b.set("materials", json!([{"pbrMetallicRoughness": {"baseColorFactor": [1, 1, 1, 1], "baseColorTexture": {"index": 0, "texCoord": 0}, "metallicFactor": 0.5, "roughnessFactor": 0.5},
+        "emissiveFactor": [0.1, 0.1, 0.1], "alphaMode": "MASK", "alphaCutoff": 0.5,
+        "extensions": {"KHR_materials_emissive_strength": {"emissiveStrength": 2.0}}}]));
+    b.set("cameras", json!([{"type": "perspective", "perspective": {"yfov": 0.7, "znear": 0.1, "zfar": 100, "aspectRatio": 1.0}}]));
+    b.set("extensions", json!({"KHR_lights_punctual": {"lights": [{"type": "spot", "intensity": 5, "range": 9, "spot": {"innerConeAngle": 0.1, "outerConeAngle": 0.5}}]}}));
+    b.set("nodes", json!([
+        {"children": [1, 2], "translation": [1, 2, 3], "rotation": [0, 0, 0, 1], "scale": [1, 2, 1]},
+        {"mesh": 0, "matrix": [1,0,0,0, 0,1,0,0, 0,0,1,0, 0,0,0,1]},
+        {"camera": 0, "children": [3]},
+        {"extensions": {"KHR_lights_punctual": {"light": 0}}}
+    ]));
+    b.set("scenes", json!([{"nodes": [0]}]));
+    b.set("scene", json!(0));
+    b.json(&BufferMode::DataUri)
+}
+
+fn f32_bytes_test(v: &[f32]) -> Vec<u8> {
+    v.iter().flat_map(|x| x.to_le_bytes()).collect()
+}
+
+/// Every JSON pointer to a leaf or container below `v` (skipping the long data URIs).
+fn pointers(v: &Value, at: String, out: &mut Vec<String>) {
+    match v {
+        Value::Object(m) => {
+            for (k, c) in m {
+                pointers(c, format!("{at}/{k}"), out);
+            }
+        }
+        Value::Array(a) => {
+            for (i, c) in a.iter().enumerate() {
+                pointers(c, format!("{at}/{i}"), out);
+            }
+        }
+        _ => {}
+    }
+    if !at.is_empty() {
+        out.push(at);
+    }
+}
+
+#[test]
+fn hostile_mutations_never_panic() {
+    let base = rich_file();
+    let opts = ImportOptions::default();
+    let ok = load_gltf_from_slice(&serde_json::to_vec(&base).unwrap(), None, "fuzz.gltf", &opts).unwrap();
+    assert_eq!((ok.mesh.indices.len(), ok.cameras.len(), ok.lights.len(), ok.textures.len()), (2, 1, 1, 1));
+    let mut ptrs = Vec::new();
+    pointers(&base, String::new(), &mut ptrs);
+    let variants = [json!(-1), json!(0), json!(3), json!(1e10), json!(4294967296u64), json!(0.5), json!("x"), json!([]), json!({})];
+    let (mut errors, mut loads) = (0, 0);
+    for p in &ptrs {
+        let mut docs = Vec::new();
+        for v in &variants {
+            let mut d = base.clone();
+            *d.pointer_mut(p).unwrap() = v.clone();
+            docs.push(d);
+        }
+        // Removal of the member or element.
+        let (parent, last) = p.rsplit_once('/').unwrap();
+        let mut d = base.clone();
+        match d.pointer_mut(if parent.is_empty() { "" } else { parent }).unwrap() {
+            Value::Object(m) => {
+                m.remove(last);
+            }
+            Value::Array(a) => {
+                a.remove(last.parse::<usize>().unwrap());
+            }
+            _ => unreachable!(),
+        }
+        docs.push(d);
+        for d in docs {
+            loads += 1;
+            match load_gltf_from_slice(&serde_json::to_vec(&d).unwrap(), None, "fuzz.gltf", &opts) {
+                Err(e) => {
+                    errors += 1;
+                    assert!(e.to_string().starts_with("fuzz.gltf: "), "{p}: {e}");
+                }
+                Ok(s) => {
+                    let m = &s.mesh;
+                    assert!(m.indices.iter().flatten().all(|&k| (k as usize) < m.positions.len()), "{p}");
+                    assert!(m.material.iter().all(|&k| (k as usize) < s.materials.len()), "{p}");
+                    assert_eq!(m.normals.len(), m.positions.len());
+                    assert!(m.normals.iter().all(|n| n.is_finite() && (n.length() - 1.0).abs() < 1e-3), "{p}");
+                    assert!(m.positions.iter().all(|q| q.is_finite()), "{p}");
+                    for mat in &s.materials {
+                        for t in [mat.base_color_texture, mat.emissive_texture, mat.metallic_roughness_texture].into_iter().flatten() {
+                            assert!((t.texture as usize) < s.textures.len(), "{p}");
+                        }
+                    }
+                }
+            }
+        }
+    }
+    assert!(errors > 0 && errors < loads, "{errors} errors in {loads} loads");
+}
+
+#[test]
+fn byte_flips_in_glb_never_panic() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/import");
+    let glb = std::fs::read(dir.join("valid_triangle.glb")).unwrap();
+    let mut state = 0x9E37_79B9_7F4A_7C15u64;
+    let mut next = move || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        state
+    };
+    let (mut errors, mut oks) = (0, 0);
+    for _ in 0..3000 {
+        let mut bytes = glb.clone();
+        for _ in 0..1 + next() % 3 {
+            let at = (next() % bytes.len() as u64) as usize;
+            bytes[at] = next() as u8;
+        }
+        match load_gltf_from_slice(&bytes, None, "flip.glb", &ImportOptions::default()) {
+            Ok(s) => {
+                oks += 1;
+                assert!(s.mesh.indices.iter().flatten().all(|&k| (k as usize) < s.mesh.positions.len()));
+            }
+            Err(e) => {
+                errors += 1;
+                assert!(e.to_string().starts_with("flip.glb: "), "{e}");
+            }
+        }
+    }
+    assert!(errors > 0 && oks > 0, "{errors} errors, {oks} successes");
+}

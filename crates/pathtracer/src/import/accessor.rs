@@ -107,6 +107,25 @@ pub(crate) fn view_bytes<'b>(
     Ok((bytes, v.byte_stride.map(|s| s.0).filter(|&s| s != 0)))
 }
 
+/// Checks that `count` elements of `elem_size` bytes, `stride` apart from `offset`, lie in
+/// `bytes`.
+fn check_range(bytes: &[u8], offset: u64, stride: usize, elem_size: usize, count: usize, what: &str) -> Result<(), String> {
+    if count == 0 {
+        return Ok(());
+    }
+    let last_end = (count as u64 - 1)
+        .checked_mul(stride as u64)
+        .and_then(|x| x.checked_add(offset))
+        .and_then(|x| x.checked_add(elem_size as u64));
+    match last_end {
+        Some(end) if end <= bytes.len() as u64 => Ok(()),
+        _ => Err(format!(
+            "{what}: {count} elements of {elem_size} bytes (stride {stride}) from byteOffset {offset} overrun its bufferView ({} bytes)",
+            bytes.len()
+        )),
+    }
+}
+
 /// Reads `count` tightly or stride-packed elements of `elem_size` bytes starting at `offset`
 /// of `bytes`, calling `f(element_index, element_bytes)`.
 fn for_each_element(
@@ -118,22 +137,7 @@ fn for_each_element(
     what: &str,
     mut f: impl FnMut(usize, &[u8]),
 ) -> Result<(), String> {
-    if count == 0 {
-        return Ok(());
-    }
-    let last_end = (count as u64 - 1)
-        .checked_mul(stride as u64)
-        .and_then(|x| x.checked_add(offset))
-        .and_then(|x| x.checked_add(elem_size as u64));
-    match last_end {
-        Some(end) if end <= bytes.len() as u64 => {}
-        _ => {
-            return Err(format!(
-                "{what}: {count} elements of {elem_size} bytes (stride {stride}) from byteOffset {offset} overrun its bufferView ({} bytes)",
-                bytes.len()
-            ));
-        }
-    }
+    check_range(bytes, offset, stride, elem_size, count, what)?;
     for i in 0..count {
         let start = offset as usize + i * stride;
         let e = bytes.get(start..start + elem_size).ok_or_else(|| format!("{what}: element {i} out of range"))?;
@@ -195,14 +199,22 @@ pub(crate) fn read(
     }
     let csize = component_size(ct);
     let elem_size = csize * dims;
-    let mut values = vec![0.0f64; count * dims];
-    if let Some(view) = acc.buffer_view {
-        let (bytes, stride) = view_bytes(root, buffers, view.value()).map_err(|e| format!("{what}: {e}"))?;
-        let stride = stride.unwrap_or(elem_size);
-        if stride < elem_size {
-            return Err(format!("{what}: byteStride {stride} is smaller than the element size {elem_size}"));
+    // Check the dense data fits its view before allocating anything.
+    let dense = match acc.buffer_view {
+        Some(view) => {
+            let (bytes, stride) = view_bytes(root, buffers, view.value()).map_err(|e| format!("{what}: {e}"))?;
+            let stride = stride.unwrap_or(elem_size);
+            if stride < elem_size {
+                return Err(format!("{what}: byteStride {stride} is smaller than the element size {elem_size}"));
+            }
+            let offset = acc.byte_offset.map_or(0, |o| o.0);
+            check_range(bytes, offset, stride, elem_size, count, &what)?;
+            Some((bytes, stride, offset))
         }
-        let offset = acc.byte_offset.map_or(0, |o| o.0);
+        None => None,
+    };
+    let mut values = vec![0.0f64; count * dims];
+    if let Some((bytes, stride, offset)) = dense {
         for_each_element(bytes, offset, stride, elem_size, count, &what, |i, e| {
             for k in 0..dims {
                 values[i * dims + k] = decode_component(&e[k * csize..(k + 1) * csize], ct, normalized);
@@ -224,7 +236,7 @@ pub(crate) fn read(
         }
         let isize = component_size(ict);
         let (ibytes, _) = view_bytes(root, buffers, sparse.indices.buffer_view.value()).map_err(|e| format!("{what} indices: {e}"))?;
-        let mut targets = Vec::with_capacity(scount);
+        let mut targets = Vec::new();
         for_each_element(ibytes, sparse.indices.byte_offset.0, isize, isize, scount, &format!("{what} indices"), |_, e| {
             targets.push(decode_component(e, ict, false) as usize);
         })?;
