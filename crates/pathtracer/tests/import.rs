@@ -600,6 +600,7 @@ fn project_scenes_import() {
         assert!(s.mesh.material.iter().all(|&m| (m as usize) < s.materials.len()));
         assert!(s.mesh.indices.iter().flatten().all(|&k| (k as usize) < s.mesh.positions.len()));
         assert!(!s.bounds.is_empty());
+        assert!(s.warnings.is_empty(), "{}: our own scenes import without warnings: {:?}", f.display(), s.warnings);
     }
 }
 
