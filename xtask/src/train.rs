@@ -62,6 +62,26 @@ pub struct RenderNerfArgs {
     pub out: Option<PathBuf>,
 }
 
+impl TrainArgs {
+    /// The arguments `demo` trains with: defaults of `model`, a time budget, resuming when
+    /// the run folder already has a checkpoint.
+    pub fn for_demo(dataset: &std::path::Path, out: &std::path::Path, model: &str, time: &str, resume: bool) -> Self {
+        Self {
+            dataset: Some(dataset.to_path_buf()),
+            out: out.to_path_buf(),
+            model: model.to_string(),
+            steps: None,
+            time: Some(time.to_string()),
+            resume,
+            seed: None,
+            config: None,
+            downscale: None,
+            background: None,
+            batch_rays: None,
+        }
+    }
+}
+
 fn parse_duration(s: &str) -> anyhow::Result<f64> {
     let (num, unit) = s.split_at(s.find(|c: char| c.is_alphabetic()).unwrap_or(s.len()));
     let v: f64 = num.trim().parse().with_context(|| format!("bad duration '{s}' (e.g. 90s, 5m, 1h)"))?;
