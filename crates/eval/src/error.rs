@@ -93,6 +93,17 @@ pub enum EvalError {
         #[source]
         source: image::ImageError,
     },
+    /// Reading the dataset (cameras, ground truth) failed.
+    #[error(transparent)]
+    Dataset(#[from] dataset::DatasetError),
+    /// Loading or rendering the trained run failed.
+    #[error("{run}: {message}")]
+    Run {
+        /// The run folder.
+        run: PathBuf,
+        /// What went wrong.
+        message: String,
+    },
     /// The inputs to a report are inconsistent (e.g. no views, or no runs to compare).
     #[error("{0}")]
     Input(String),

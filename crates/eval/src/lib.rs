@@ -36,6 +36,7 @@ pub mod io;
 pub mod metrics;
 pub mod plot;
 pub mod report;
+pub mod run;
 
 pub use compare::{ParetoAxis, RunSummary, compare_runs, compare_table, pareto_front};
 pub use curve::{MetricsRecord, parse_metrics_jsonl, read_metrics_jsonl, time_to_psnr};
@@ -44,3 +45,4 @@ pub use evaluate::{EvalOptions, EvalReport, RunInfo, ViewInput, ViewMetrics, Vie
 pub use io::read_json;
 pub use metrics::RaySamples;
 pub use report::write_report;
+pub use run::{EvalRunOptions, EvalRunOutput, evaluate_run, summarise_run};

@@ -1,0 +1,204 @@
+//! Evaluating a trained run end to end: load the run's latest checkpoint (through the `nerf`
+//! crate's public rendering API only), render every view of a split at the dataset's full
+//! resolution, compare with the dataset's ground truth, and write `eval.json`, `report.md`,
+//! `report.json` and the pictures into the run folder.
+//!
+//! Colour is compared in display space (sRGB in [0, 1]), the space the models are trained in:
+//! the ground-truth PNG (straight alpha) is composited onto the same background the NeRF
+//! renders with (`RunModel::eval_background`). Depth metrics use z-depth; the off-surface mass
+//! uses the Euclidean distance along the pixel-centre ray, both from the ground-truth EXR.
+
+use crate::curve::read_metrics_jsonl;
+use crate::evaluate::{EvalOptions, EvalReport, RunInfo, ViewInput, evaluate_views};
+use crate::metrics::RaySamples;
+use crate::report::write_report;
+use crate::{EvalError, RunSummary};
+use dataset::{Dataset, Frame, GroundTruth, SplitKind};
+use nerf::render::{RenderedView, RunModel};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// What to evaluate and how.
+#[derive(Clone, Debug)]
+pub struct EvalRunOptions {
+    /// The split whose views are rendered and compared (normally `test`).
+    pub split: SplitKind,
+    /// How many views get a picture grid in the report (the first ones of the split).
+    pub grid_views: usize,
+    /// Evaluate at most this many views (all when `None`).
+    pub max_views: Option<usize>,
+}
+
+impl EvalRunOptions {
+    /// All views of `split`, with grids for the first three.
+    pub fn split(split: SplitKind) -> Self {
+        Self { split, grid_views: 3, max_views: None }
+    }
+}
+
+/// The result of [`evaluate_run`].
+#[derive(Clone, Debug)]
+pub struct EvalRunOutput {
+    /// The content of `eval.json`.
+    pub report: EvalReport,
+    /// The content of `report.json`.
+    pub summary: RunSummary,
+    /// Path of `report.md`.
+    pub report_md: PathBuf,
+}
+
+struct LoadedView {
+    name: String,
+    width: usize,
+    height: usize,
+    gt_rgb: Vec<f32>,
+    gt: Option<GroundTruth>,
+    pred: RenderedView,
+    pixel: Vec<usize>,
+    offsets: Vec<usize>,
+    render_s: f64,
+}
+
+fn run_error(run: &Path, message: impl ToString) -> EvalError {
+    EvalError::Run { run: run.to_path_buf(), message: message.to_string() }
+}
+
+fn load_view(
+    run_dir: &Path,
+    model: &RunModel,
+    frame: &Frame,
+    background: [f32; 3],
+) -> Result<LoadedView, EvalError> {
+    let png = dataset::read_png_rgba(&frame.image_path)?;
+    let k = frame.camera.intrinsics;
+    if (png.width, png.height) != (k.width, k.height) {
+        return Err(run_error(
+            run_dir,
+            format!("{}: image is {}x{}, camera says {}x{}", frame.image_path.display(), png.width, png.height, k.width, k.height),
+        ));
+    }
+    let gt_rgb: Vec<f32> = png
+        .data
+        .chunks_exact(4)
+        .flat_map(|p| {
+            let a = p[3];
+            [0, 1, 2].map(|c| p[c] * a + background[c] * (1.0 - a))
+        })
+        .collect();
+    let gt = match &frame.gt_path {
+        Some(p) => Some(dataset::read_ground_truth(p)?),
+        None => None,
+    };
+    if let Some(g) = &gt {
+        if (g.width, g.height) != (k.width, k.height) {
+            return Err(run_error(run_dir, format!("{}: ground truth is {}x{}", frame.name, g.width, g.height)));
+        }
+    }
+    let start = Instant::now();
+    let pred = model.render_view(&frame.camera, background);
+    let render_s = start.elapsed().as_secs_f64();
+    let n = k.width as usize * k.height as usize;
+    let offsets = pred.samples.offsets.iter().map(|&o| o as usize).collect();
+    Ok(LoadedView {
+        name: frame.name.clone(),
+        width: k.width as usize,
+        height: k.height as usize,
+        gt_rgb,
+        gt,
+        pred,
+        pixel: (0..n).collect(),
+        offsets,
+        render_s,
+    })
+}
+
+fn view_input(v: &LoadedView) -> ViewInput<'_> {
+    let samples = (v.offsets.len() == v.pixel.len() + 1).then(|| RaySamples {
+        pixel: &v.pixel,
+        offsets: &v.offsets,
+        t: &v.pred.samples.t,
+        w: &v.pred.samples.w,
+    });
+    ViewInput {
+        name: &v.name,
+        width: v.width,
+        height: v.height,
+        pred_rgb: &v.pred.rgb,
+        gt_rgb: &v.gt_rgb,
+        pred_depth: v.gt.as_ref().map(|_| v.pred.depth.as_slice()),
+        gt_depth: v.gt.as_ref().map(|g| g.depth.as_slice()),
+        gt_distance: v.gt.as_ref().map(|g| g.distance.as_slice()),
+        gt_alpha: v.gt.as_ref().map(|g| g.alpha.as_slice()),
+        pred_opacity: &v.pred.opacity,
+        samples: v.gt.as_ref().and(samples),
+        render_s: v.render_s,
+    }
+}
+
+/// Evaluates the run in `run_dir` on `opts.split` and writes its report into the run folder.
+/// `progress(done, total)` is called after every view.
+pub fn evaluate_run(
+    run_dir: &Path,
+    opts: &EvalRunOptions,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<EvalRunOutput, EvalError> {
+    let model = RunModel::load(run_dir).map_err(|e| run_error(run_dir, e))?;
+    let dataset = Dataset::load(model.dataset_dir())?;
+    let mut frames: Vec<&Frame> = dataset.split(opts.split).iter().collect();
+    if frames.is_empty() {
+        return Err(run_error(
+            run_dir,
+            format!("dataset {} has no {} views", dataset.root.display(), opts.split.name()),
+        ));
+    }
+    if let Some(m) = opts.max_views {
+        frames.truncate(m.max(1));
+    }
+    let background = model.eval_background();
+    let mut views = Vec::with_capacity(frames.len());
+    for (k, frame) in frames.iter().enumerate() {
+        views.push(load_view(run_dir, &model, frame, background)?);
+        progress(k + 1, frames.len());
+    }
+    let options = match &dataset.facts {
+        Some(f) => EvalOptions::for_scene_bbox(f.aabb_min.map(|v| v as f32), f.aabb_max.map(|v| v as f32)),
+        None => EvalOptions::with_surface_tol(0.0),
+    };
+    let inputs: Vec<ViewInput<'_>> = views.iter().map(view_input).collect();
+    let info = RunInfo {
+        train_wall_s: model.train_wall_s(),
+        train_steps: model.train_steps(),
+        parameters: model.parameters() as u64,
+    };
+    let mut report = evaluate_views(&inputs, info, &options)?;
+    if dataset.facts.is_none() {
+        report.notes.push(
+            "the dataset carries no scene facts (e.g. Blender synthetic): no bounding box for the off-surface tolerance".into(),
+        );
+    }
+    let metrics_path = run_dir.join("metrics.jsonl");
+    let curve = if metrics_path.exists() { read_metrics_jsonl(&metrics_path)? } else { Vec::new() };
+    let name = run_name(run_dir);
+    let grids: Vec<ViewInput<'_>> = inputs.iter().take(opts.grid_views).copied().collect();
+    let report_md = write_report(run_dir, &name, &report, &curve, &grids)?;
+    let summary = RunSummary::from_report(&name, &report, &curve);
+    Ok(EvalRunOutput { report, summary, report_md })
+}
+
+/// A run's display name: its folder name.
+pub fn run_name(run_dir: &Path) -> String {
+    run_dir
+        .canonicalize()
+        .ok()
+        .and_then(|p| p.file_name().map(|n| n.to_string_lossy().into_owned()))
+        .unwrap_or_else(|| run_dir.display().to_string())
+}
+
+/// Reads an evaluated run's `report.json` (written by [`evaluate_run`]).
+pub fn summarise_run(run_dir: &Path) -> Result<RunSummary, EvalError> {
+    let path = run_dir.join("report.json");
+    if !path.exists() {
+        return Err(run_error(run_dir, "no report.json: run `cargo xtask eval` on it first"));
+    }
+    crate::io::read_json(&path)
+}
