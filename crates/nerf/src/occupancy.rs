@@ -27,6 +27,9 @@
 //! Example: unit box, everything occupied, `near = 0.2`, `far = 0.5`, `Δ = 0.1`,
 //! deterministic → `[0.2, 0.3] [0.3, 0.4] [0.4, 0.5]`.
 
+// `!(a < b)` is deliberate throughout: it is true for NaN, which must count as invalid.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
 use crate::sampling::{Aabb, RaySamples, SampleMode, ray_aabb, rng};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};

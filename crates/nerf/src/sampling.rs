@@ -8,6 +8,9 @@
 //! `delta = t_end − t_start`. A batch is ragged: ray `r` owns `offsets[r]..offsets[r + 1]`.
 //! A ray with no valid range (`!(far > near)`, NaN, a miss) gets no sample.
 
+// `!(a < b)` is deliberate throughout: it is true for NaN, which must count as invalid.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
 use serde::{Deserialize, Serialize};
 
 /// Counter-based random numbers: every number is a pure function of its key, so results never

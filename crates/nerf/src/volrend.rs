@@ -320,7 +320,7 @@ pub fn composite_backward(
             let base = offsets[r0] as usize;
             // Inclusive prefix sums of the optical thickness: tau[i] = Σ_{j≤i} x_j.
             let mut tau_incl: Vec<f32> = Vec::new();
-            for k in 0..dbg_blk.len() {
+            for (k, dbg) in dbg_blk.iter_mut().enumerate() {
                 let r = r0 + k;
                 let (s0, s1) = (offsets[r] as usize, offsets[r + 1] as usize);
                 let (bg, _) = clean3(background[r]);
@@ -334,7 +334,7 @@ pub fn composite_backward(
                     tau_incl.push(tau);
                 }
                 let t_final = (-tau).exp();
-                dbg_blk[k] = dc.map(|v| t_final * v);
+                *dbg = dc.map(|v| t_final * v);
                 let mut suffix = 0.0f32; // Σ_{i>k} w_i g_i
                 for i in (s0..s1).rev() {
                     let (_, d, t_mid, _) = sample_terms(sigma[i], t_start[i], t_end[i]);
@@ -398,6 +398,7 @@ pub fn softplus_backward(x: f32, grad: f32) -> f32 {
 }
 
 #[cfg(test)]
+#[allow(clippy::needless_range_loop)]
 mod tests {
     use super::*;
 
@@ -515,7 +516,7 @@ mod tests {
         close(out.rgb[0][0], 0.393469);
         close(out.rgb[0][1], 0.383400);
         close(out.distance[0], 1.162788);
-        close(normalized_distance(out.distance[0], out.opacity[0], 1e-6), 1.496760);
+        close(normalized_distance(out.distance[0], out.opacity[0], 1e-6), 1.496_76);
         let g = composite_backward(&[0, 2], &[1.0, 2.0], &[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], &[1.0, 1.5], &[1.5, 2.0], &[[0.0; 3]], &out, &[[0.0; 3]], &[1.0], &[0.0]);
         close(g.d_sigma[0], 0.111565);
         close(g.d_sigma[1], 0.111565);

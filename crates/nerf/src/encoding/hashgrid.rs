@@ -365,6 +365,7 @@ impl Adam {
 }
 
 #[cfg(test)]
+#[allow(clippy::needless_range_loop)]
 mod tests {
     use super::*;
 
@@ -402,7 +403,7 @@ mod tests {
                         let i = if dense {
                             (v[0] + v[1] * (n + 1) + v[2] * (n + 1) * (n + 1)) as usize
                         } else {
-                            let h = (v[0] * 1) ^ ((v[1] * 2_654_435_761) & 0xFFFF_FFFF) ^ ((v[2] * 805_459_861) & 0xFFFF_FFFF);
+                            let h = v[0] ^ ((v[1] * 2_654_435_761) & 0xFFFF_FFFF) ^ ((v[2] * 805_459_861) & 0xFFFF_FFFF);
                             (h as usize) % t
                         };
                         for j in 0..f {

@@ -66,6 +66,7 @@ pub fn sh_encode_batch(dirs: &[[f32; 3]], degree: usize, out: &mut [f32]) {
 }
 
 #[cfg(test)]
+#[allow(clippy::needless_range_loop)]
 mod tests {
     use super::*;
 
