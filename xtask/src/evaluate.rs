@@ -1,24 +1,134 @@
-//! `cargo xtask eval`, `compare` and `demo` (being written).
+//! `cargo xtask eval`, `compare` and `demo`: argument parsing and printing; the work is in
+//! the `eval`, `nerf` and `pathtracer` crates.
+
+use anyhow::Context;
+use dataset::SplitKind;
+use std::path::PathBuf;
 
 /// Arguments of `eval`.
 #[derive(clap::Args)]
-pub struct EvalArgs {}
+pub struct EvalArgs {
+    /// Run folder (from `cargo xtask train`).
+    pub run: PathBuf,
+    /// Split to evaluate: train, val or test.
+    #[arg(long, default_value = "test")]
+    pub split: String,
+    /// Number of views that get a picture grid in the report.
+    #[arg(long, default_value_t = 3)]
+    pub grids: usize,
+    /// Evaluate only the first N views of the split.
+    #[arg(long)]
+    pub max_views: Option<usize>,
+}
+
 /// Arguments of `compare`.
 #[derive(clap::Args)]
-pub struct CompareArgs {}
+pub struct CompareArgs {
+    /// Evaluated run folders.
+    #[arg(required = true)]
+    pub runs: Vec<PathBuf>,
+    /// Where `compare.png` and `compare.md` go (default: the current folder).
+    #[arg(long, default_value = ".")]
+    pub out: PathBuf,
+}
+
 /// Arguments of `demo`.
 #[derive(clap::Args)]
-pub struct DemoArgs {}
+pub struct DemoArgs {
+    /// Scene name in `scenes/` or a glTF path.
+    #[arg(long, default_value = "tabletop")]
+    pub scene: String,
+    /// Output folder: `<out>/dataset` and `<out>/run-fast`.
+    #[arg(long, default_value = "out/demo")]
+    pub out: PathBuf,
+    /// Training time budget (e.g. 90s, 3m).
+    #[arg(long, default_value = "3m")]
+    pub time: String,
+    /// Render preset of the dataset.
+    #[arg(long, default_value = "quick")]
+    pub preset: pathtracer::dataset_render::Preset,
+    /// Model to train.
+    #[arg(long, default_value = "fast")]
+    pub model: String,
+}
 
-/// Evaluates a run.
-pub fn run(_args: EvalArgs) -> anyhow::Result<()> {
-    anyhow::bail!("eval is not implemented yet")
+fn parse_split(s: &str) -> anyhow::Result<SplitKind> {
+    SplitKind::ALL
+        .into_iter()
+        .find(|k| k.name() == s)
+        .with_context(|| format!("unknown split '{s}' (train, val or test)"))
 }
-/// Compares runs.
-pub fn run_compare(_args: CompareArgs) -> anyhow::Result<()> {
-    anyhow::bail!("compare is not implemented yet")
+
+fn fmt_opt(v: Option<f64>, digits: usize) -> String {
+    v.map_or("-".into(), |x| format!("{x:.digits$}"))
 }
-/// Runs the demo.
-pub fn run_demo(_args: DemoArgs) -> anyhow::Result<()> {
-    anyhow::bail!("demo is not implemented yet")
+
+/// Evaluates a run and prints its summary table.
+pub fn run(args: EvalArgs) -> anyhow::Result<()> {
+    let opts = eval::EvalRunOptions {
+        split: parse_split(&args.split)?,
+        grid_views: args.grids,
+        max_views: args.max_views,
+    };
+    let bar = indicatif::ProgressBar::new(0);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("evaluating {pos}/{len} views {bar:30} {elapsed}")
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    let out = eval::evaluate_run(&args.run, &opts, &mut |done, total| {
+        bar.set_length(total as u64);
+        bar.set_position(done as u64);
+    })?;
+    bar.finish_and_clear();
+    print_summary(&out);
+    Ok(())
+}
+
+fn print_summary(out: &eval::EvalRunOutput) {
+    let m = &out.report.mean;
+    let s = &out.summary;
+    println!("| run | PSNR dB | SSIM | depth MAE | depth δ<1.25 | mask IoU | off-surface mass | train s | steps | params | to 25 dB s | to 30 dB s |");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|---|");
+    println!(
+        "| {} | {:.2} | {:.4} | {} | {} | {} | {} | {:.1} | {} | {} | {} | {} |",
+        s.name,
+        m.psnr,
+        m.ssim,
+        fmt_opt(m.depth_mae, 4),
+        fmt_opt(m.depth_delta_1_25, 3),
+        fmt_opt(m.mask_iou, 3),
+        fmt_opt(m.off_surface_mass, 3),
+        s.train_wall_s,
+        s.train_steps,
+        s.parameters,
+        fmt_opt(s.time_to_25db_s, 1),
+        fmt_opt(s.time_to_30db_s, 1),
+    );
+    for note in &out.report.notes {
+        println!("note: {note}");
+    }
+    println!("report: {}", out.report_md.display());
+}
+
+/// Compares evaluated runs.
+pub fn run_compare(args: CompareArgs) -> anyhow::Result<()> {
+    let runs = args.runs.iter().map(|r| eval::summarise_run(r)).collect::<Result<Vec<_>, _>>()?;
+    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
+    let table = eval::compare_runs(&runs, &args.out)?;
+    println!("{table}");
+    println!("comparison: {}", args.out.join("compare.md").display());
+    Ok(())
+}
+
+/// Renders the default scene, trains, evaluates and prints the summary.
+pub fn run_demo(args: DemoArgs) -> anyhow::Result<()> {
+    let dataset_dir = args.out.join("dataset");
+    let run_dir = args.out.join(format!("run-{}", args.model));
+    eprintln!("== 1/3 render {} ({} preset) into {}", args.scene, args.preset.name(), dataset_dir.display());
+    crate::render::run(crate::render::RenderArgs::for_demo(&args.scene, &dataset_dir, args.preset))?;
+    eprintln!("== 2/3 train {} for {} into {}", args.model, args.time, run_dir.display());
+    let resume = nerf::checkpoint::latest(&run_dir).is_some();
+    crate::train::run(crate::train::TrainArgs::for_demo(&dataset_dir, &run_dir, &args.model, &args.time, resume))?;
+    eprintln!("== 3/3 evaluate on the test views");
+    run(EvalArgs { run: run_dir, split: "test".into(), grids: 3, max_views: None })
 }

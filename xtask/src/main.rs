@@ -2,6 +2,8 @@
 //! holds no rendering or training logic of its own.
 
 use clap::{Parser, Subcommand};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, OnceLock};
 
 mod bench;
 mod bench_nerf;
@@ -36,6 +38,25 @@ enum Command {
     Demo(evaluate::DemoArgs),
     /// Performance figures (render, nerf).
     Bench(bench::BenchArgs),
+}
+
+/// The process-wide stop flag, set by Ctrl-C (the handler is installed on first use, once, so
+/// `demo` can render and then train under the same handler). Long commands check it between
+/// units of work (views, steps), save what they have, and stop so that a re-run resumes.
+pub fn stop_flag() -> Arc<AtomicBool> {
+    static FLAG: OnceLock<Arc<AtomicBool>> = OnceLock::new();
+    FLAG.get_or_init(|| {
+        let flag = Arc::new(AtomicBool::new(false));
+        let f = flag.clone();
+        if let Err(e) = ctrlc::try_set_handler(move || {
+            f.store(true, Ordering::SeqCst);
+            eprintln!("\ninterrupt: finishing the current unit of work, then stopping (re-run to resume)");
+        }) {
+            tracing::warn!("cannot install the Ctrl-C handler ({e}); Ctrl-C will stop without saving");
+        }
+        flag
+    })
+    .clone()
 }
 
 fn main() -> std::process::ExitCode {

@@ -11,7 +11,7 @@ use pathtracer::dataset_render::{
 use pathtracer::rig::RigKind;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::AtomicBool;
 
 /// Arguments of `render`. Explicit options override the preset's values.
 #[derive(clap::Args, Clone, Debug)]
@@ -63,6 +63,31 @@ pub struct RenderArgs {
     /// Replace a dataset in --out that was rendered with different settings.
     #[arg(long)]
     pub force: bool,
+}
+
+impl RenderArgs {
+    /// The arguments `cargo xtask demo` renders with: `scene` at `preset`, every other option
+    /// at the preset's value.
+    pub fn for_demo(scene: &str, out: &Path, preset: Preset) -> Self {
+        Self {
+            scene: scene.to_string(),
+            out: out.to_path_buf(),
+            preset,
+            train: None,
+            val: None,
+            test: None,
+            res: None,
+            spp: None,
+            seed: None,
+            max_bounces: None,
+            rig: None,
+            fov_x: None,
+            background: None,
+            environment: None,
+            threads: None,
+            force: false,
+        }
+    }
 }
 
 /// The repository root (the parent of `xtask/`).
@@ -143,19 +168,7 @@ pub fn build_config(args: &RenderArgs) -> anyhow::Result<DatasetRenderConfig> {
 
 /// The process-wide Ctrl-C flag: installed once, set when the user presses Ctrl-C.
 pub fn cancel_flag() -> Arc<AtomicBool> {
-    static FLAG: std::sync::OnceLock<Arc<AtomicBool>> = std::sync::OnceLock::new();
-    FLAG.get_or_init(|| {
-        let flag = Arc::new(AtomicBool::new(false));
-        let f = flag.clone();
-        if let Err(e) = ctrlc::try_set_handler(move || {
-            f.store(true, Ordering::SeqCst);
-            eprintln!("\ninterrupt: finishing the current view, then stopping");
-        }) {
-            tracing::warn!("cannot install the Ctrl-C handler ({e}); Ctrl-C will stop without saving the view in progress");
-        }
-        flag
-    })
-    .clone()
+    crate::stop_flag()
 }
 
 /// Renders a dataset; returns its folder.

@@ -6,8 +6,6 @@ use nerf::data::Background;
 use nerf::render::RunModel;
 use nerf::train::{TrainConfig, Trainer};
 use std::path::PathBuf;
-use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
 
 /// Arguments of `train`.
 #[derive(clap::Args)]
@@ -134,11 +132,7 @@ fn build_config(args: &TrainArgs) -> anyhow::Result<TrainConfig> {
 
 /// Trains a model.
 pub fn run(args: TrainArgs) -> anyhow::Result<()> {
-    let stop = Arc::new(AtomicBool::new(false));
-    {
-        let stop = stop.clone();
-        ctrlc::set_handler(move || stop.store(true, Ordering::SeqCst)).context("installing the Ctrl-C handler")?;
-    }
+    let stop = crate::stop_flag();
     let mut trainer = if args.resume {
         Trainer::resume(&args.out).with_context(|| format!("resuming {}", args.out.display()))?
     } else {
