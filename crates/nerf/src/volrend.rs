@@ -702,4 +702,33 @@ mod tests {
         assert_eq!(softplus_backward(f32::NAN, 1.0), 0.0);
         assert!(softplus_backward(-1e30, 1.0) == 0.0 && softplus_backward(1e30, 1.0) == 1.0);
     }
+
+    /// `cargo test -p nerf composite_timing -- --ignored --nocapture`
+    #[test]
+    #[ignore]
+    fn composite_timing() {
+        let (n_rays, per_ray) = (4096usize, 256usize);
+        let b = batch(&vec![per_ray; n_rays], 12, 10.0);
+        let lc = loss_coeffs(n_rays);
+        let mut best = (f64::MAX, f64::MAX);
+        for _ in 0..5 {
+            let t0 = std::time::Instant::now();
+            let o = forward(&b);
+            let t1 = std::time::Instant::now();
+            let g = composite_backward(&b.offsets, &b.sigma, &b.rgb, &b.t0, &b.t1, &b.bg, &o, &lc.0, &lc.1, &lc.2);
+            let t2 = std::time::Instant::now();
+            assert!(g.d_sigma.iter().all(|v| v.is_finite()));
+            best.0 = best.0.min((t1 - t0).as_secs_f64());
+            best.1 = best.1.min((t2 - t1).as_secs_f64());
+        }
+        let n = (n_rays * per_ray) as f64;
+        println!(
+            "composite {n_rays} rays x {per_ray} samples, {} threads: forward {:.1} ms ({:.0} M samples/s), backward {:.1} ms ({:.0} M samples/s)",
+            rayon::current_num_threads(),
+            best.0 * 1e3,
+            n / best.0 / 1e6,
+            best.1 * 1e3,
+            n / best.1 / 1e6
+        );
+    }
 }

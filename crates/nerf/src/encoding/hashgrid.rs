@@ -275,18 +275,47 @@ impl HashGrid {
         assert_eq!(grad.len(), self.config.n_params(), "grad must have the params' shape");
         let lvs = levels(&self.config);
         let tf = self.config.table_size() * F;
-        grad.par_chunks_mut(tf).zip(lvs.par_iter()).with_max_len(1).enumerate().for_each(|(l, (g, lv))| {
-            for (k, &p) in points.iter().enumerate() {
-                let d: [f32; F] = std::array::from_fn(|j| d_out[k * lf + l * F + j]);
-                let (idx, w) = corners(p, lv);
-                for c in 0..8 {
-                    let e = &mut g[idx[c] as usize * F..idx[c] as usize * F + F];
-                    for j in 0..F {
-                        e[j] += w[c] * d[j];
-                    }
+        let n = points.len();
+        if n == 0 {
+            return;
+        }
+        // Level-major copy of d_out ([L][N][F]) so that each level's task streams its own
+        // contiguous slice instead of one cache line per point; filled in parallel over fixed
+        // point chunks.
+        let mut d_lvl = vec![0f32; d_out.len()];
+        if self.config.levels > 1 {
+            let mut per_chunk: Vec<Vec<&mut [f32]>> = (0..n.div_ceil(POINT_CHUNK)).map(|_| Vec::new()).collect();
+            for lvl in d_lvl.chunks_mut(n * F) {
+                for (c, piece) in lvl.chunks_mut(POINT_CHUNK * F).enumerate() {
+                    per_chunk[c].push(piece);
                 }
             }
-        });
+            per_chunk.into_par_iter().enumerate().for_each(|(c, mut pieces)| {
+                let rows = &d_out[c * POINT_CHUNK * lf..((c + 1) * POINT_CHUNK).min(n) * lf];
+                for (k, row) in rows.chunks_exact(lf).enumerate() {
+                    for (l, piece) in pieces.iter_mut().enumerate() {
+                        piece[k * F..k * F + F].copy_from_slice(&row[l * F..l * F + F]);
+                    }
+                }
+            });
+        } else {
+            d_lvl.copy_from_slice(d_out);
+        }
+        grad.par_chunks_mut(tf)
+            .zip(d_lvl.par_chunks(n * F))
+            .zip(lvs.par_iter())
+            .with_max_len(1)
+            .for_each(|((g, d_l), lv)| {
+                for (&p, d) in points.iter().zip(d_l.chunks_exact(F)) {
+                    let (idx, w) = corners(p, lv);
+                    for c in 0..8 {
+                        let e = &mut g[idx[c] as usize * F..idx[c] as usize * F + F];
+                        for j in 0..F {
+                            e[j] += w[c] * d[j];
+                        }
+                    }
+                }
+            });
     }
 }
 
@@ -488,6 +517,34 @@ mod tests {
     }
 
     #[test]
+    fn vertices_are_exact() {
+        // a dense level (N = 4) and a hashed one (N = 64, T = 2^10): at a vertex the encoding
+        // is that vertex's entry exactly, including p = 0 and p = 1
+        let c = cfg(2, 2, 10, 4, 64);
+        let g = grid(c.clone(), 4, 1.0);
+        let t = c.table_size();
+        let entry = |l: usize, v: [u32; 3]| -> [f32; 2] {
+            let n = c.resolution(l);
+            let i = if c.is_dense(l) {
+                (v[0] + v[1] * (n + 1) + v[2] * (n + 1) * (n + 1)) as usize
+            } else {
+                ((v[0] ^ v[1].wrapping_mul(PRIMES[1]) ^ v[2].wrapping_mul(PRIMES[2])) as usize) % t
+            };
+            [g.params[(l * t + i) * 2], g.params[(l * t + i) * 2 + 1]]
+        };
+        for (p, v4, v64) in [
+            ([0.0, 0.0, 0.0], [0, 0, 0], [0, 0, 0]),
+            ([1.0, 1.0, 1.0], [4, 4, 4], [64, 64, 64]),
+            ([0.25, 0.5, 1.0], [1, 2, 4], [16, 32, 64]),
+        ] {
+            let mut out = [0.0; 4];
+            g.encode(&[p], &mut out);
+            assert_eq!(out[..2], entry(0, v4));
+            assert_eq!(out[2..], entry(1, v64));
+        }
+    }
+
+    #[test]
     fn continuous_across_cell_boundaries() {
         let c = cfg(4, 2, 12, 4, 32);
         let g = grid(c.clone(), 3, 1.0);
@@ -499,6 +556,11 @@ mod tests {
         for j in 0..d {
             assert!((out[j] - out[d + j]).abs() < 1e-4 && (out[j] - out[2 * d + j]).abs() < 1e-4);
         }
+        // no points: nothing written, nothing accumulated
+        let mut grad = vec![0.0; c.n_params()];
+        g.encode(&[], &mut []);
+        g.backward(&[], &[], &mut grad);
+        assert!(grad.iter().all(|v| *v == 0.0));
         // clamping: outside equals the clamped point exactly
         let mut o2 = vec![0.0; 2 * d];
         g.encode(&[[-3.0, 2.0, 0.5], [0.0, 1.0, 0.5]], &mut o2);
@@ -590,7 +652,7 @@ mod tests {
             let d_out = vec![1e-3f32; n * c.output_dim()];
             let mut grad = vec![0.0; c.n_params()];
             let mut best = (f64::MAX, f64::MAX);
-            for _ in 0..5 {
+            for _ in 0..10 {
                 let t0 = std::time::Instant::now();
                 g.encode(&pts, &mut out);
                 let t1 = std::time::Instant::now();
