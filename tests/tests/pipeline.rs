@@ -1,0 +1,66 @@
+//! The whole pipeline on a small scene: render (quick, reduced) → train `fast` for a few
+//! seconds → eval. Checks that `eval.json` has every documented key with sane values and that
+//! the report and pictures exist.
+
+use dataset::SplitKind;
+use pathtracer::dataset_render::{DatasetRenderConfig, Preset, RunOptions, render_dataset};
+use std::sync::atomic::AtomicBool;
+
+#[test]
+fn render_train_eval_writes_a_complete_report() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("dataset");
+    let run = tmp.path().join("run");
+
+    let mut cfg = DatasetRenderConfig::preset(Preset::Quick);
+    (cfg.width, cfg.height, cfg.train, cfg.val, cfg.test, cfg.spp) = (48, 48, 12, 2, 2, 8);
+    let stop = AtomicBool::new(false);
+    render_dataset(&e2e_tests::scene("tabletop"), &data, &cfg, &RunOptions { threads: None, force: false }, &mut |_| {}, &stop)
+        .expect("render");
+
+    let mut tc = nerf::train::TrainConfig::preset("fast", data.clone()).unwrap();
+    tc.steps = Some(40);
+    tc.batch_rays = 1024;
+    let mut trainer = nerf::train::Trainer::new(tc, &run, false).expect("trainer");
+    let summary = trainer.run(&stop, &mut |_| {}).expect("training");
+    assert_eq!(summary.steps, 40);
+    assert_eq!(summary.skipped_nonfinite, 0);
+
+    let out = eval::evaluate_run(&run, &eval::EvalRunOptions::split(SplitKind::Test), &mut |_, _| {})
+        .expect("eval");
+    let json: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(run.join("eval.json")).unwrap()).unwrap();
+    let mean = &json["mean"];
+    for key in [
+        "psnr",
+        "ssim",
+        "depth_mae",
+        "depth_rmse",
+        "depth_abs_rel",
+        "depth_delta_1_25",
+        "depth_delta_1_01",
+        "mask_iou",
+        "off_surface_mass",
+        "render_s_per_view",
+    ] {
+        assert!(mean.get(key).is_some_and(|v| v.is_number()), "mean.{key} missing in {mean}");
+    }
+    for key in ["train_wall_s", "train_steps", "parameters"] {
+        assert!(json.get(key).is_some_and(|v| v.is_number()), "{key} missing");
+    }
+    assert_eq!(json["views"].as_array().map(Vec::len), Some(2));
+    assert_eq!(json["train_steps"], 40);
+
+    // Sane values: 40 steps learn something but are far from perfect; metrics in range.
+    let m = &out.report.mean;
+    assert!(m.psnr.is_finite() && m.psnr > 8.0 && m.psnr < 60.0, "psnr {}", m.psnr);
+    assert!(m.ssim > 0.0 && m.ssim <= 1.0);
+    for f in [m.depth_delta_1_25, m.depth_delta_1_01, m.mask_iou, m.off_surface_mass] {
+        let f = f.expect("ground-truth metric present");
+        assert!((0.0..=1.0).contains(&f), "fraction {f}");
+    }
+    assert!(m.depth_mae.unwrap() >= 0.0 && m.depth_rmse.unwrap() >= m.depth_mae.unwrap());
+    for f in ["report.md", "report.json", "speed_vs_error.png", "grid_r_0.png", "metrics.jsonl", "config.json"] {
+        assert!(run.join(f).is_file(), "{f} missing");
+    }
+}
