@@ -404,7 +404,8 @@ impl HashGrid {
                 g[0] as usize + r * (g[1] as usize + r * g[2] as usize)
             } else {
                 let h = g[0].wrapping_mul(PRIMES[0]) ^ g[1].wrapping_mul(PRIMES[1]) ^ g[2].wrapping_mul(PRIMES[2]);
-                h as usize % n
+                // Hashed levels have a power-of-two table (dense ones index directly).
+                h as usize & (n - 1)
             };
             w[k] = wk;
         }
