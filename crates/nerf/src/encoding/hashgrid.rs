@@ -705,9 +705,9 @@ mod tests {
             let mut wall = (f64::MAX, f64::MAX);
             for _ in 0..5 {
                 let t0 = std::time::Instant::now();
-                g.encode(&pts, &mut out);
+                g.encode(pts, &mut out);
                 let t1 = std::time::Instant::now();
-                g.backward(&pts, &d_out, &mut grad);
+                g.backward(pts, &d_out, &mut grad);
                 let t2 = std::time::Instant::now();
                 wall.0 = wall.0.min((t1 - t0).as_secs_f64());
                 wall.1 = wall.1.min((t2 - t1).as_secs_f64());
@@ -717,9 +717,9 @@ mod tests {
                 let mut cpu = (f64::MAX, f64::MAX);
                 for _ in 0..5 {
                     let t0 = thread_cpu_seconds().unwrap_or(0.0);
-                    g.encode(&pts, &mut out);
+                    g.encode(pts, &mut out);
                     let t1 = thread_cpu_seconds().unwrap_or(0.0);
-                    g.backward(&pts, &d_out, &mut grad);
+                    g.backward(pts, &d_out, &mut grad);
                     let t2 = thread_cpu_seconds().unwrap_or(0.0);
                     cpu.0 = cpu.0.min(t1 - t0);
                     cpu.1 = cpu.1.min(t2 - t1);
