@@ -676,7 +676,8 @@ mod tests {
     /// `cargo test -p nerf hashgrid_timing -- --ignored --nocapture`
     ///
     /// Prints wall time on the default pool and on-CPU time on one thread (the machine is
-    /// shared, so wall times vary with load; CPU time much less).
+    /// shared, so wall times vary with load; CPU time much less, but the kernel updates it at
+    /// scheduler ticks, so values below ~10 ms are coarse).
     #[test]
     #[ignore]
     fn hashgrid_timing() {
