@@ -189,18 +189,20 @@ fn every_committed_scene_renders() {
     paths.sort();
     assert!(!paths.is_empty(), "no scenes in {}", scenes.display());
     let dir = tmp("scenes");
-    let cfg = DatasetRenderConfig { width: 32, height: 32, train: 2, val: 1, test: 1, spp: 4, ..DatasetRenderConfig::preset(Preset::Quick) };
+    // Exactly what `cargo xtask render <scene> --preset quick` renders (64x64, 20/4/4, 16 spp).
+    let cfg = DatasetRenderConfig::preset(Preset::Quick);
+    let (w, h) = (cfg.width as usize, cfg.height as usize);
     for p in paths {
         let name = p.file_stem().unwrap().to_string_lossy().into_owned();
         let out = dir.join(&name);
         let sum = render(&p, &out, &cfg, 2).unwrap_or_else(|e| panic!("{name}: {e}"));
         let ds = Dataset::load(&out).unwrap();
-        assert_eq!(ds.train.len() + ds.val.len() + ds.test.len(), 4);
+        assert_eq!(ds.train.len() + ds.val.len() + ds.test.len(), cfg.total_views() as usize);
         let gt = dataset::read_ground_truth(ds.train[0].gt_path.as_ref().unwrap()).unwrap();
         let covered = gt.alpha.iter().filter(|a| **a > 0.0).count();
-        assert!(covered > 32 * 32 / 10, "{name}: the first view sees almost nothing ({covered} px)");
+        assert!(covered > w * h / 10, "{name}: the first view sees almost nothing ({covered} px)");
         let img = dataset::read_exr_rgba(ds.train[0].exr_path.as_ref().unwrap()).unwrap();
-        let mean = img.data.chunks(4).map(|p| (p[0] + p[1] + p[2]) as f64).sum::<f64>() / (3.0 * 32.0 * 32.0);
+        let mean = img.data.chunks(4).map(|p| (p[0] + p[1] + p[2]) as f64).sum::<f64>() / (3.0 * (w * h) as f64);
         assert!(mean > 1e-3 && mean.is_finite(), "{name}: black or non-finite render (mean {mean})");
         // Scenes with glTF cameras keep them (cornell: closed room; deep: corridor).
         let has_cameras = !load_gltf(&p, &ImportOptions::default()).unwrap().cameras.is_empty();
