@@ -14,7 +14,8 @@
 //! Sphere placement is a Fibonacci lattice per split (even coverage) with a per-split random
 //! azimuth offset and per-view jitter inside each lattice cell, so train, val and test poses
 //! differ. The radius keeps the bounding sphere inside the image for the chosen field of view
-//! (see [`framing_distance`]). All randomness is counter-based, keyed by (seed, split, view,
+//! (see [`framing_distance`]); the hemisphere rig frames the content standing on the ground
+//! rather than the whole ground (see [`framing_sphere`]). All randomness is counter-based, keyed by (seed, split, view,
 //! dimension): a rig depends only on the scene and the [`RigConfig`].
 
 use crate::PathTracerError;
@@ -138,6 +139,50 @@ pub fn bounding_sphere(scene: &Scene) -> (DVec3, f64) {
     (c, 0.5 * (scene.bounds.max - scene.bounds.min).as_dvec3().length())
 }
 
+/// The sphere a sphere or hemisphere rig frames (centre, radius). For the hemisphere rig it is
+/// the bounding sphere of the scene's *content*: every triangle except the ground's (the
+/// up-facing triangles at the bottom of the bounds that [`has_ground`] counts), so objects
+/// standing on a large ground plane fill the frame as in the Blender synthetic scenes instead
+/// of shrinking to the middle of a view of the whole plane; the ground is then partly out of
+/// frame, as in a real capture. Falls back to [`bounding_sphere`] when nothing stands on the
+/// ground, and for the sphere rig.
+pub fn framing_sphere(scene: &Scene, kind: RigKind) -> (DVec3, f64) {
+    if kind != RigKind::Hemisphere {
+        return bounding_sphere(scene);
+    }
+    let mesh = &scene.mesh;
+    let mut lo = DVec3::INFINITY;
+    let mut hi = DVec3::NEG_INFINITY;
+    for tri in &mesh.indices {
+        let p = tri.map(|i| mesh.positions.get(i as usize).copied().unwrap_or(glam::Vec3::NAN));
+        if p.iter().any(|v| !v.is_finite()) || is_ground_triangle(scene, &p) {
+            continue;
+        }
+        for v in p {
+            lo = lo.min(v.as_dvec3());
+            hi = hi.max(v.as_dvec3());
+        }
+    }
+    if !(lo.cmple(hi).all()) || (hi - lo).length() <= 0.0 {
+        return bounding_sphere(scene);
+    }
+    (scene.origin + 0.5 * (lo + hi), 0.5 * (hi - lo).length())
+}
+
+/// Whether a triangle is part of a ground (see [`has_ground`]): near the bounds' bottom and
+/// facing up within ~25°.
+fn is_ground_triangle(scene: &Scene, p: &[glam::Vec3; 3]) -> bool {
+    let b = scene.bounds;
+    let size = b.max - b.min;
+    let eps = (0.01 * size.y).max(0.001 * b.diagonal());
+    if p.iter().any(|v| v.y.is_nan() || v.y - b.min.y > eps) {
+        return false;
+    }
+    let n = (p[1] - p[0]).as_dvec3().cross((p[2] - p[0]).as_dvec3());
+    let len = n.length();
+    len > 0.0 && n.y / len > 0.9
+}
+
 /// Distance from a sphere of `radius` at which it stays inside the image of `intr` when the
 /// camera looks at its centre: the sphere's silhouette is a cone of half-angle
 /// `asin(radius / d)`, which must not exceed the smaller half field of view `θ`, so
@@ -161,18 +206,12 @@ pub fn has_ground(scene: &Scene) -> bool {
     if footprint <= 0.0 {
         return false;
     }
-    let eps = (0.01 * size.y).max(0.001 * b.diagonal());
     let mesh = &scene.mesh;
     let mut covered = 0.0f64;
     for tri in &mesh.indices {
         let p = tri.map(|i| mesh.positions.get(i as usize).copied().unwrap_or(glam::Vec3::INFINITY));
-        if p.iter().any(|v| v.y.is_nan() || v.y - b.min.y > eps) {
-            continue;
-        }
-        let n = (p[1] - p[0]).as_dvec3().cross((p[2] - p[0]).as_dvec3());
-        let len = n.length();
-        if len > 0.0 && n.y / len > 0.9 {
-            covered += 0.5 * n.y;
+        if is_ground_triangle(scene, &p) {
+            covered += 0.5 * (p[1] - p[0]).as_dvec3().cross((p[2] - p[0]).as_dvec3()).y;
         }
     }
     covered >= 0.5 * footprint
@@ -235,7 +274,7 @@ fn sphere_rig(
     intr: &Intrinsics,
     upper: bool,
 ) -> Result<[Vec<Camera>; 3], PathTracerError> {
-    let (centre, radius) = bounding_sphere(scene);
+    let (centre, radius) = framing_sphere(scene, if upper { RigKind::Hemisphere } else { RigKind::Sphere });
     let dist = framing_distance(radius, intr);
     // Band of y = sin(elevation) covered; uniform in y is uniform in area on a sphere band.
     let (y_lo, y_hi) =
@@ -436,7 +475,7 @@ mod tests {
             let s = scene(ground, vec![]);
             let rig = build_rig(&s, &cfg(kind)).unwrap();
             assert_eq!(rig.kind, kind);
-            let (c, r) = bounding_sphere(&s);
+            let (c, r) = framing_sphere(&s, kind);
             for (_, _, cam) in rig.views() {
                 // The silhouette of the sphere: sample its points tangent to the viewing cone,
                 // i.e. every point of the sphere; all must project inside the image.
@@ -464,6 +503,21 @@ mod tests {
             let half = 0.5 * cam.intrinsics.camera_angle_y();
             assert!((r / d).asin() > 0.8 * half);
         }
+    }
+
+    #[test]
+    fn hemisphere_frames_the_content_not_the_ground() {
+        // The unit cube on a 4 m ground: the hemisphere rig frames the cube's bounding sphere
+        // (centre = the cube's centre, radius = half its diagonal); the sphere rig the whole box.
+        let s = scene(true, vec![]);
+        let (c, r) = framing_sphere(&s, RigKind::Hemisphere);
+        assert!((c - s.origin - s.bounds.center().as_dvec3() - DVec3::new(0.0, 0.0, 0.0)).length() < 1e-6);
+        assert!((r - 3f64.sqrt() / 2.0).abs() < 1e-6, "radius {r}");
+        let (_, r_all) = framing_sphere(&s, RigKind::Sphere);
+        assert!((r_all - bounding_sphere(&s).1).abs() < 1e-12 && r_all > 2.0 * r);
+        // Without a ground there is nothing to leave out.
+        let s = scene(false, vec![]);
+        assert_eq!(framing_sphere(&s, RigKind::Hemisphere), bounding_sphere(&s));
     }
 
     #[test]
