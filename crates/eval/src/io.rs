@@ -1,7 +1,7 @@
 //! Atomic file output: every file is written to a temporary name in its destination folder
 //! and then renamed over the destination, so a reader never sees a half-written file.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use crate::error::EvalError;
 
@@ -9,22 +9,10 @@ fn io_err(path: &Path) -> impl Fn(std::io::Error) -> EvalError + '_ {
     move |source| EvalError::Io { path: path.to_path_buf(), source }
 }
 
-/// Write `bytes` to `path` atomically (temporary file `<name>.<pid>.tmp` in the same folder,
-/// then rename). Creates the parent folder if needed.
+/// Write `bytes` to `path` atomically through the project's one implementation,
+/// [`dataset::io::atomic_write`] (temporary name in the same folder, then rename).
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), EvalError> {
-    let parent = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
-    std::fs::create_dir_all(parent).map_err(io_err(parent))?;
-    let file_name = path
-        .file_name()
-        .ok_or_else(|| EvalError::Input(format!("{}: not a file path", path.display())))?;
-    let mut tmp_name = file_name.to_os_string();
-    tmp_name.push(format!(".{}.tmp", std::process::id()));
-    let tmp: PathBuf = parent.join(tmp_name);
-    std::fs::write(&tmp, bytes).map_err(io_err(&tmp))?;
-    std::fs::rename(&tmp, path).map_err(|e| {
-        let _ = std::fs::remove_file(&tmp);
-        io_err(path)(e)
-    })
+    dataset::io::atomic_write(path, bytes).map_err(EvalError::from)
 }
 
 /// Serialise `value` as pretty JSON and write it atomically.
