@@ -23,19 +23,20 @@ pub fn run() -> anyhow::Result<()> {
             t.step_once();
         }
         t.timings = Default::default();
-        let (wall0, mut samples) = (t.wall_s, 0usize);
+        let (wall0, mut samples, mut rays) = (t.wall_s, 0usize, 0usize);
         for _ in 0..steps {
+            rays += t.config.rays_for(t.samples_per_ray);
             samples += t.step_once().samples;
         }
         let wall = t.wall_s - wall0;
         let tm = t.timings;
-        let rays = (t.config.batch_rays as u64 * steps) as f64;
+        let rays = rays as f64;
         // Forward multiply-adds ×2 FLOPs, ×3 for forward + backward (two matmuls per layer back).
         let flops = samples as f64 * t.model.macs_per_sample() * 2.0 * 3.0;
         let per = |x: f64| 1e3 * x / steps as f64;
         println!(
-            "{kind:>5}: {} rays/step, {:.0} samples/ray | {:.0} rays/s, {:.0} samples/s | step {:.0} ms = encoding {:.0} + MLP fwd+bwd {:.0} + rendering {:.0} + optimizer {:.0} (+ {:.0} other) ms | MLP {:.1} GFLOP/s = {:.0}% of peak | {} parameters",
-            t.config.batch_rays,
+            "{kind:>5}: {:.0} rays/step, {:.0} samples/ray | {:.0} rays/s, {:.0} samples/s | step {:.0} ms = encoding {:.0} + MLP fwd+bwd {:.0} + rendering {:.0} + optimizer {:.0} (+ {:.0} other) ms | MLP {:.1} GFLOP/s = {:.0}% of peak | {} parameters",
+            rays / steps as f64,
             samples as f64 / rays,
             rays / wall,
             samples as f64 / wall,

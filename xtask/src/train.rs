@@ -39,9 +39,12 @@ pub struct TrainArgs {
     /// Background of transparent pixels: white, black or random.
     #[arg(long)]
     pub background: Option<Background>,
-    /// Rays per batch.
+    /// Rays per batch (fixed: turns off batching by samples).
     #[arg(long)]
     pub batch_rays: Option<usize>,
+    /// Target samples per batch (rays adapted to the samples per ray, as instant-ngp).
+    #[arg(long)]
+    pub batch_samples: Option<usize>,
 }
 
 /// Arguments of `render-nerf`.
@@ -76,6 +79,7 @@ impl TrainArgs {
             downscale: None,
             background: None,
             batch_rays: None,
+            batch_samples: None,
         }
     }
 }
@@ -126,6 +130,10 @@ fn build_config(args: &TrainArgs) -> anyhow::Result<TrainConfig> {
     }
     if let Some(b) = args.batch_rays {
         cfg.batch_rays = b;
+        cfg.batch_samples = None;
+    }
+    if let Some(b) = args.batch_samples {
+        cfg.batch_samples = Some(b);
     }
     Ok(cfg)
 }

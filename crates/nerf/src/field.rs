@@ -123,11 +123,11 @@ pub struct NerfField {
 impl NerfFieldConfig {
     /// Width of γ(x).
     pub fn pos_dims(&self) -> usize {
-        crate::models::ops::frequency_dims(self.pos_freqs)
+        crate::encoding::frequency_output_dim(self.pos_freqs)
     }
     /// Width of γ(d).
     pub fn dir_dims(&self) -> usize {
-        crate::models::ops::frequency_dims(self.dir_freqs)
+        crate::encoding::frequency_output_dim(self.dir_freqs)
     }
     /// Builds the network.
     pub fn init(&self, device: &Device) -> NerfField {

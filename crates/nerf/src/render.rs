@@ -69,7 +69,7 @@ impl RunModel {
             .ok_or_else(|| TrainError::Invalid("config.json has no resolved bounds".into()))?;
         let path = checkpoint::latest(run_dir).ok_or_else(|| checkpoint::CheckpointError::Missing(run_dir.into()))?;
         let state = checkpoint::load(&path)?;
-        let mut model = config.model.init(&bounds, config.seed);
+        let mut model = config.model.init(&bounds, config.seed).map_err(TrainError::Invalid)?;
         model.load_state(&state).map_err(TrainError::Invalid)?;
         let steps = state.scalars.get("trainer.step").copied().unwrap_or(0.0) as u64;
         let wall_s = state.scalars.get("trainer.wall_s").copied().unwrap_or(0.0);

@@ -5,7 +5,10 @@
 use burn::module::Module;
 use burn::tensor::Tensor;
 use nerf::field::{NerfField, NerfFieldConfig, param_vectors, seeded_init, tensor2, to_vec};
-use nerf::models::ops::{self, DensityActivation, RaySamples};
+use nerf::encoding::frequency_encode;
+use nerf::models::ops::{self, DensityActivation};
+use nerf::sampling::{RaySamples, SampleMode, stratified};
+use nerf::volrend;
 
 struct Setup {
     samples: RaySamples,
@@ -25,8 +28,9 @@ fn outputs(s: &Setup, net: &NerfField, dev: &burn::tensor::Device) -> (Tensor<2>
 
 fn loss_of(s: &Setup, raw: &[f32], rgb: &[f32]) -> (f64, Vec<f32>, Vec<f32>) {
     let sigma: Vec<f32> = raw.iter().map(|x| ACT.forward(*x)).collect();
-    let rgb3: Vec<[f32; 3]> = rgb.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
-    let comp = ops::composite_forward(&s.samples, &sigma, &rgb3, &s.bg);
+    let rgb3 = ops::rgb3(rgb);
+    let sm = &s.samples;
+    let comp = volrend::composite_forward(&sm.offsets, &sigma, &rgb3, &sm.t_start, &sm.t_end, &s.bg);
     let n = (comp.rgb.len() * 3) as f64;
     let mut loss = 0.0;
     let mut g = Vec::new();
@@ -39,9 +43,10 @@ fn loss_of(s: &Setup, raw: &[f32], rgb: &[f32]) -> (f64, Vec<f32>, Vec<f32>) {
         }
         g.push(gg);
     }
-    let (ds, dc) = ops::composite_backward(&s.samples, &sigma, &rgb3, &s.bg, &comp.weights, &g);
-    let draw = ds.iter().zip(raw).map(|(d, x)| d * ACT.derivative(*x)).collect();
-    (loss, draw, dc.into_iter().flatten().collect())
+    let zeros = vec![0.0; g.len()];
+    let gr = volrend::composite_backward(&sm.offsets, &sigma, &rgb3, &sm.t_start, &sm.t_end, &s.bg, &comp, &g, &zeros, &zeros);
+    let draw = gr.d_sigma.iter().zip(raw).map(|(d, x)| ACT.backward(*x, *d)).collect();
+    (loss, draw, gr.d_rgb.into_iter().flatten().collect())
 }
 
 #[test]
@@ -49,19 +54,16 @@ fn surrogate_gradient_matches_finite_differences() {
     let train = nerf::backend::train_device();
     let plain = nerf::backend::inference_device();
     let cfg = NerfFieldConfig::new().with_pos_freqs(2).with_dir_freqs(1).with_width(8).with_depth(3).with_skip(2).with_color_width(8);
-    let ids = [0u64, 1];
-    let samples = ops::stratified(&[1.0, 1.2], &[3.0, 3.5], 8, Some((3, 0)), &ids);
+    let samples = stratified(&[1.0, 1.2], &[3.0, 3.5], 8, SampleMode::Random { seed: 3, step: 0 });
     let origins = [[0.0f32, 0.0, 2.0], [0.3, -0.2, 2.2]];
     let dirs = [[0.0f32, 0.0, -1.0], [-0.1, 0.1, -0.99]];
-    let pts = samples.points(&origins, &dirs);
-    let sd = samples.sample_dirs(&dirs);
+    let pts: Vec<[f32; 3]> = samples.positions(&origins, &dirs).into_iter().map(|p| p.map(|v| v * 0.5)).collect();
+    let sd = ops::sample_dirs(&samples.ray_index, &dirs);
     let (pd, dd) = (cfg.pos_dims(), cfg.dir_dims());
     let mut pos = vec![0.0; pts.len() * pd];
     let mut dir = vec![0.0; pts.len() * dd];
-    for k in 0..pts.len() {
-        ops::frequency_encode(pts[k].map(|v| v * 0.5), cfg.pos_freqs, &mut pos[k * pd..(k + 1) * pd]);
-        ops::frequency_encode(sd[k], cfg.dir_freqs, &mut dir[k * dd..(k + 1) * dd]);
-    }
+    frequency_encode(&pts, cfg.pos_freqs, &mut pos);
+    frequency_encode(&sd, cfg.dir_freqs, &mut dir);
     let s = Setup { samples, pos, dir, target: vec![[0.9, 0.2, 0.4], [0.1, 0.8, 0.3]], bg: vec![[1.0; 3]; 2], cfg: cfg.clone() };
     let net = seeded_init(cfg.init(&train), 11);
 

@@ -241,11 +241,25 @@ impl HashGrid {
     /// - `points`: `[N]`, `d_out`: `[N · L · F]` (as `encode`'s `out`)
     /// - `grad`: `[L · T · F]` (as `params`), accumulated into
     pub fn backward(&self, points: &[[f32; 3]], d_out: &[f32], grad: &mut [f32]) {
+        self.backward_dispatch(points, d_out, grad, None);
+    }
+
+    /// [`Self::backward`] that also sets `touched[l · T + i] = true` for every table entry a
+    /// point's corner reached (with a nonzero weight or not), for [`Adam::step_sparse`].
+    ///
+    /// # Shapes
+    /// As [`Self::backward`]; `touched`: `[L · T]` (one flag per entry, not per float).
+    pub fn backward_touched(&self, points: &[[f32; 3]], d_out: &[f32], grad: &mut [f32], touched: &mut [bool]) {
+        assert_eq!(touched.len(), self.config.levels * self.config.table_size(), "touched must hold L · T flags");
+        self.backward_dispatch(points, d_out, grad, Some(touched));
+    }
+
+    fn backward_dispatch(&self, points: &[[f32; 3]], d_out: &[f32], grad: &mut [f32], touched: Option<&mut [bool]>) {
         match self.config.features_per_level {
-            1 => self.backward_f::<1>(points, d_out, grad),
-            2 => self.backward_f::<2>(points, d_out, grad),
-            4 => self.backward_f::<4>(points, d_out, grad),
-            8 => self.backward_f::<8>(points, d_out, grad),
+            1 => self.backward_f::<1>(points, d_out, grad, touched),
+            2 => self.backward_f::<2>(points, d_out, grad, touched),
+            4 => self.backward_f::<4>(points, d_out, grad, touched),
+            8 => self.backward_f::<8>(points, d_out, grad, touched),
             f => panic!("unsupported features_per_level {f}"),
         }
     }
@@ -270,7 +284,7 @@ impl HashGrid {
         }
     }
 
-    fn backward_f<const F: usize>(&self, points: &[[f32; 3]], d_out: &[f32], grad: &mut [f32]) {
+    fn backward_f<const F: usize>(&self, points: &[[f32; 3]], d_out: &[f32], grad: &mut [f32], touched: Option<&mut [bool]>) {
         let lf = self.output_dim();
         assert_eq!(d_out.len(), points.len() * lf, "d_out must hold N · L · F floats");
         assert_eq!(grad.len(), self.config.n_params(), "grad must have the params' shape");
@@ -302,17 +316,31 @@ impl HashGrid {
         } else {
             d_lvl.copy_from_slice(d_out);
         }
-        grad.par_chunks_mut(tf)
-            .zip(d_lvl.par_chunks(n * F))
-            .zip(lvs.par_iter())
-            .with_max_len(1)
-            .for_each(|((g, d_l), lv)| {
-                if lv.dense {
-                    backward_level::<F, true>(points, lv, d_l, g);
-                } else {
-                    backward_level::<F, false>(points, lv, d_l, g);
-                }
-            });
+        let t = self.config.table_size();
+        match touched {
+            None => grad.par_chunks_mut(tf).zip(d_lvl.par_chunks(n * F)).zip(lvs.par_iter()).with_max_len(1).for_each(
+                |((g, d_l), lv)| {
+                    if lv.dense {
+                        backward_level::<F, true, false>(points, lv, d_l, g, &mut []);
+                    } else {
+                        backward_level::<F, false, false>(points, lv, d_l, g, &mut []);
+                    }
+                },
+            ),
+            Some(touched) => grad
+                .par_chunks_mut(tf)
+                .zip(touched.par_chunks_mut(t))
+                .zip(d_lvl.par_chunks(n * F))
+                .zip(lvs.par_iter())
+                .with_max_len(1)
+                .for_each(|(((g, tl), d_l), lv)| {
+                    if lv.dense {
+                        backward_level::<F, true, true>(points, lv, d_l, g, tl);
+                    } else {
+                        backward_level::<F, false, true>(points, lv, d_l, g, tl);
+                    }
+                }),
+        }
     }
 }
 
@@ -332,12 +360,22 @@ fn encode_level<const F: usize, const DENSE: bool>(pts: &[[f32; 3]], lv: &Level,
     }
 }
 
-/// One level of the backward, points in index order: `g[index(v)] += w_v(p) · d`.
+/// One level of the backward, points in index order: `g[index(v)] += w_v(p) · d` (and, when
+/// `MARK`, `touched[index(v)] = true`).
 #[inline(always)]
-fn backward_level<const F: usize, const DENSE: bool>(points: &[[f32; 3]], lv: &Level, d_l: &[f32], g: &mut [f32]) {
+fn backward_level<const F: usize, const DENSE: bool, const MARK: bool>(
+    points: &[[f32; 3]],
+    lv: &Level,
+    d_l: &[f32],
+    g: &mut [f32],
+    touched: &mut [bool],
+) {
     for (&p, d) in points.iter().zip(d_l.chunks_exact(F)) {
         let (idx, w) = corners::<DENSE>(p, lv);
         for c in 0..8 {
+            if MARK {
+                touched[idx[c] as usize] = true;
+            }
             let e = &mut g[idx[c] as usize * F..idx[c] as usize * F + F];
             for j in 0..F {
                 e[j] += w[c] * d[j];
@@ -415,6 +453,51 @@ impl Adam {
                     m[i] = b1 * m[i] + (1.0 - b1) * gi;
                     v[i] = b2 * v[i] + (1.0 - b2) * gi * gi;
                     p[i] -= lr * (m[i] / c1) / ((v[i] / c2).sqrt() + eps);
+                }
+            });
+    }
+
+    /// Sparse (lazy) Adam: the update above applied only to the entries flagged in `touched`
+    /// (groups of `group` consecutive parameters share one flag: the `F` features of a hash
+    /// table entry, as [`HashGrid::backward_touched`] marks them); untouched entries keep their
+    /// values and moments. The step counter, and so the bias correction, is global. Afterwards
+    /// the touched entries' gradients are reset to 0 and their flags to `false`, so the buffers
+    /// are ready for the next step's backward without a full clear (on a CPU the table is far
+    /// larger than what one batch touches).
+    ///
+    /// Example: with every flag set this is exactly [`Self::step_with_lr`] (then clears `grads`).
+    ///
+    /// # Shapes
+    /// `params`, `grads`: `[n]`; `touched`: `[n / group]`
+    pub fn step_sparse(&mut self, params: &mut [f32], grads: &mut [f32], touched: &mut [bool], group: usize, lr: f32) {
+        assert!(params.len() == self.m.len() && grads.len() == self.m.len(), "Adam: length mismatch");
+        assert_eq!(touched.len() * group, params.len(), "one flag per group of parameters");
+        self.step += 1;
+        let AdamConfig { beta1: b1, beta2: b2, eps, .. } = self.config;
+        let t = self.step.min(i32::MAX as u64) as i32;
+        let c1 = (1.0 - (b1 as f64).powi(t)) as f32;
+        let c2 = (1.0 - (b2 as f64).powi(t)) as f32;
+        const ENTRIES: usize = 1 << 14;
+        let chunk = ENTRIES * group;
+        params
+            .par_chunks_mut(chunk)
+            .zip(grads.par_chunks_mut(chunk))
+            .zip(self.m.par_chunks_mut(chunk))
+            .zip(self.v.par_chunks_mut(chunk))
+            .zip(touched.par_chunks_mut(ENTRIES))
+            .for_each(|((((p, g), m), v), tch)| {
+                for (e, hit) in tch.iter_mut().enumerate() {
+                    if !*hit {
+                        continue;
+                    }
+                    *hit = false;
+                    for i in e * group..(e + 1) * group {
+                        let gi = if g[i].is_finite() { g[i] } else { 0.0 };
+                        g[i] = 0.0;
+                        m[i] = b1 * m[i] + (1.0 - b1) * gi;
+                        v[i] = b2 * v[i] + (1.0 - b2) * gi * gi;
+                        p[i] -= lr * (m[i] / c1) / ((v[i] / c2).sqrt() + eps);
+                    }
                 }
             });
     }
@@ -664,6 +747,36 @@ mod tests {
             adam.step(&mut x, &g);
         }
         assert!((x[0] - 1.0).abs() < 1e-2, "{}", x[0]);
+    }
+
+    #[test]
+    fn sparse_adam_updates_only_touched_entries_and_clears() {
+        let c = cfg(3, 2, 8, 2, 40);
+        let g = grid(c.clone(), 2, 1.0);
+        let pts = random_points(50, 3);
+        let d_out: Vec<f32> = (0..pts.len() * c.output_dim()).map(|i| rnd(5_000 + i as u64) - 0.5).collect();
+        let mut grad = vec![0.0; c.n_params()];
+        let mut touched = vec![false; c.levels * c.table_size()];
+        g.backward_touched(&pts, &d_out, &mut grad, &mut touched);
+        let mut plain = vec![0.0; c.n_params()];
+        g.backward(&pts, &d_out, &mut plain);
+        assert_eq!(grad, plain);
+        // every entry with a nonzero gradient is flagged
+        assert!(grad.chunks(2).zip(&touched).all(|(gr, t)| *t || gr.iter().all(|v| *v == 0.0)));
+        let n_touched = touched.iter().filter(|t| **t).count();
+        assert!(n_touched > 10 && n_touched < touched.len());
+        // sparse on the touched entries = dense on them; untouched entries unchanged
+        let (mut dense, mut sparse) = (Adam::new(AdamConfig::instant_ngp(0.01), c.n_params()), Adam::new(AdamConfig::instant_ngp(0.01), c.n_params()));
+        let (mut pd, mut ps) = (g.params.clone(), g.params.clone());
+        dense.step(&mut pd, &grad);
+        let flags = touched.clone();
+        sparse.step_sparse(&mut ps, &mut grad, &mut touched, 2, 0.01);
+        for (e, hit) in flags.iter().enumerate() {
+            for i in 2 * e..2 * e + 2 {
+                assert_eq!(ps[i], if *hit { pd[i] } else { g.params[i] }, "entry {e}");
+            }
+        }
+        assert!(grad.iter().all(|v| *v == 0.0) && touched.iter().all(|t| !*t));
     }
 
     /// On-CPU time of the calling thread in seconds (Linux `schedstat`), insensitive to other

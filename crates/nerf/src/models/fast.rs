@@ -1,14 +1,26 @@
-//! The fast model (instant-ngp's recipe on the CPU): a multiresolution hash encoding (plain
-//! Rust, hand-written backward, sparse Adam), a tiny density network and a colour network on
-//! spherical harmonics of the direction (burn), an occupancy grid that skips empty space, and
-//! early ray termination at inference (transmittance < 1e-4).
+//! The fast model (instant-ngp's recipe on the CPU): a multiresolution hash encoding
+//! ([`crate::encoding::hashgrid`], sparse Adam), a tiny density network and a colour network on
+//! spherical harmonics of the direction (burn), an occupancy grid ([`crate::occupancy`]) that
+//! skips empty space while marching with a constant step, and early ray termination at
+//! inference (transmittance < 1e-4, [`volrend::CompositeOptions::INFERENCE`]).
+//!
+//! CPU-sized defaults (instant-ngp's in brackets): 16 levels × 2 features, 2^18 entries per
+//! level [2^19] so that one level's table (2 MiB) stays near the core's cache, finest resolution
+//! 1024 over the bounding cube [2048 · scale] (enough for the 64–400 pixel images trained on a
+//! CPU; issue #6 will derive it from the image resolution), 64-wide networks, a 64³ occupancy
+//! grid over the scene box [128³] and a marching step of the cube's diagonal / 1024 [√3/1024].
 
-use super::ops::{self, DensityActivation, HashGrid, HashGridSettings, OccupancyGrid, RaySamples, SparseAdam};
-use super::{RayOutputs, StepStats, StepTimings, all_finite, mse_and_grad};
+use super::ops::{self, DensityActivation, stream, stream_seed};
+use super::{RayOutputs, StepStats, StepTimings, all_finite, expected_distance, mse_and_grad};
 use crate::backend;
 use crate::checkpoint::StateDict;
 use crate::data::{RayBatch, SceneBounds};
+use crate::encoding::hashgrid::{Adam, AdamConfig, HashGrid, HashGridConfig};
+use crate::encoding::sh::{sh_encode, sh_output_dim};
 use crate::field::{AdamSettings, HashField, HashFieldConfig, MlpAdam, seeded_init, tensor2, to_vec};
+use crate::occupancy::{MarchOptions, OccupancyGrid, OccupancyGridConfig};
+use crate::sampling::{Aabb, RaySamples, SampleMode};
+use crate::volrend;
 use burn::config::Config;
 use burn::module::Module;
 use burn::optim::GradientsParams;
@@ -25,7 +37,7 @@ pub struct FastConfig {
     #[config(default = 2)]
     pub features_per_level: usize,
     /// log2 of the entries per level T.
-    #[config(default = 19)]
+    #[config(default = 18)]
     pub log2_table_size: u32,
     /// Coarsest grid resolution over the bounding cube.
     #[config(default = 16)]
@@ -52,21 +64,27 @@ pub struct FastConfig {
     /// Occupancy-grid cells per axis.
     #[config(default = 64)]
     pub grid_resolution: usize,
-    /// Marching steps along the bounding cube's diagonal (the step size is diagonal / this).
-    #[config(default = 256)]
+    /// Marching steps along the bounding cube's diagonal (the step size is diagonal / this;
+    /// instant-ngp: 1024).
+    #[config(default = 1024)]
     pub steps_per_diagonal: usize,
     /// Most samples per ray.
-    #[config(default = 256)]
+    #[config(default = 1024)]
     pub max_samples_per_ray: usize,
-    /// Steps between occupancy-grid updates (instant-ngp: 16).
+    /// Steps between occupancy-grid updates (instant-ngp: 16); the first update is at this step
+    /// (before it every cell is occupied).
     #[config(default = 16)]
     pub grid_update_interval: u64,
-    /// First step at which the grid is updated (before it every cell is occupied).
+    /// Updates before this step refresh every cell, later ones a random quarter (nerfacc: 256).
     #[config(default = 256)]
     pub grid_warmup_steps: u64,
-    /// A cell is occupied when σ·step_size exceeds this (nerfacc's `occ_thre`).
+    /// A cell is occupied when σ·step_size exceeds this, or the mean of σ·step_size when that
+    /// is lower (nerfacc's `occ_thre`).
     #[config(default = 0.01)]
     pub grid_threshold: f32,
+    /// Decay of a cell's running density per update (instant-ngp: 0.95).
+    #[config(default = 0.95)]
+    pub grid_decay: f32,
     /// Adam β₁ (instant-ngp 0.9).
     #[config(default = 0.9)]
     pub beta1: f32,
@@ -79,8 +97,8 @@ pub struct FastConfig {
 }
 
 impl FastConfig {
-    fn hash_settings(&self) -> HashGridSettings {
-        HashGridSettings {
+    fn hash_config(&self) -> HashGridConfig {
+        HashGridConfig {
             levels: self.levels,
             features_per_level: self.features_per_level,
             log2_table_size: self.log2_table_size,
@@ -89,7 +107,7 @@ impl FastConfig {
         }
     }
     fn field_config(&self) -> HashFieldConfig {
-        HashFieldConfig::new(self.levels * self.features_per_level, ops::sh_dims(self.sh_degree))
+        HashFieldConfig::new(self.levels * self.features_per_level, sh_output_dim(self.sh_degree))
             .with_density_width(self.density_width)
             .with_geo_features(self.geo_features)
             .with_color_width(self.color_width)
@@ -102,20 +120,22 @@ impl FastConfig {
 pub struct FastModel {
     /// Settings.
     pub config: FastConfig,
-    /// Scene bounds (the hash grid and occupancy grid cover their bounding cube).
+    /// Scene bounds (the hash grid covers their bounding cube, the occupancy grid their box).
     pub bounds: SceneBounds,
     /// The networks (on the training device).
     pub field: HashField,
     /// Hash tables.
     pub grid: HashGrid,
-    /// Adam of the hash tables.
-    pub grid_adam: SparseAdam,
+    /// Sparse Adam of the hash tables.
+    pub grid_adam: Adam,
     /// burn's Adam of the networks.
     pub adam: MlpAdam,
-    /// Occupancy grid over the bounding cube.
+    /// Occupancy grid over the scene box.
     pub occupancy: OccupancyGrid,
     device: Device,
+    /// Hash-table gradient, all zeros between steps (the sparse Adam clears what it used).
     grad: Vec<f32>,
+    /// Table entries touched this step, all false between steps.
     touched: Vec<bool>,
     /// Learning rate used by the next step (set by the trainer).
     pub lr: f64,
@@ -123,19 +143,32 @@ pub struct FastModel {
 
 const ACT: DensityActivation = DensityActivation::TruncExp;
 
+/// Samples evaluated per live ray and round at inference, between early-termination checks.
+const INFERENCE_ROUND: usize = 16;
+
 impl FastModel {
     /// A new model with parameters keyed by `seed`.
-    pub fn new(config: FastConfig, bounds: SceneBounds, seed: u64) -> Self {
+    pub fn new(config: FastConfig, bounds: SceneBounds, seed: u64) -> Result<Self, String> {
         let device = backend::train_device();
         let field = seeded_init(config.field_config().init(&device), seed);
-        let grid = HashGrid::new(config.hash_settings(), seed);
+        let hash = config.hash_config();
+        let grid = HashGrid::new(hash.clone(), stream_seed(seed, stream::INIT)).map_err(|e| e.to_string())?;
         let n = grid.params.len();
-        let entries: usize = grid.entries.iter().sum();
-        let (lo, hi) = bounds.cube();
-        let occupancy = OccupancyGrid::new(config.grid_resolution, lo, hi);
+        if !(1..=1024).contains(&config.grid_resolution) {
+            return Err(format!("grid_resolution must be 1..=1024, not {}", config.grid_resolution));
+        }
+        let occupancy = OccupancyGrid::new(OccupancyGridConfig {
+            aabb: Aabb { min: bounds.aabb_min, max: bounds.aabb_max },
+            resolution: config.grid_resolution as u32,
+            decay: config.grid_decay,
+            warmup_steps: config.grid_warmup_steps,
+            update_fraction: 0.25,
+            seed: stream_seed(seed, stream::OCCUPANCY),
+        });
         let adam = MlpAdam::new(&AdamSettings::new(config.beta1, config.beta2, config.eps));
-        Self {
-            grid_adam: SparseAdam::new(n, config.beta1, config.beta2, config.eps),
+        let grid_adam = Adam::new(AdamConfig { lr: 1e-2, beta1: config.beta1, beta2: config.beta2, eps: config.eps }, n);
+        Ok(Self {
+            grid_adam,
             config,
             bounds,
             field,
@@ -144,75 +177,79 @@ impl FastModel {
             occupancy,
             device,
             grad: vec![0.0; n],
-            touched: vec![false; entries],
+            touched: vec![false; hash.levels * hash.table_size()],
             lr: 1e-2,
-        }
+        })
     }
 
-    /// Marching step size.
+    /// Marching step size: the bounding cube's diagonal / `steps_per_diagonal`.
     pub fn step_size(&self) -> f32 {
-        2.0 * self.bounds.half_extent() * 3f32.sqrt() / self.config.steps_per_diagonal as f32
+        2.0 * self.bounds.half_extent() * 3f32.sqrt() / self.config.steps_per_diagonal.max(1) as f32
     }
 
-    fn encode(&self, samples: &RaySamples, origins: &[[f32; 3]], dirs: &[[f32; 3]]) -> (Vec<[f32; 3]>, Vec<f32>, Vec<f32>) {
-        let unit: Vec<[f32; 3]> = samples.points(origins, dirs).into_iter().map(|p| self.bounds.to_unit(p)).collect();
-        let mut enc = vec![0.0; unit.len() * self.grid.output_dims()];
+    fn march(&self, origins: &[[f32; 3]], dirs: &[[f32; 3]], jitter: SampleMode) -> RaySamples {
+        let n = origins.len();
+        let (near, far) = (vec![self.bounds.near; n], vec![self.bounds.far; n]);
+        let opt = MarchOptions { step_size: self.step_size(), max_samples_per_ray: self.config.max_samples_per_ray, jitter };
+        self.occupancy.march(origins, dirs, &near, &far, &opt)
+    }
+
+    /// Hash encoding `[n][L·F]` and SH `[n][deg²]` of samples, and their unit-cube points.
+    fn encode(&self, samples: &RaySamples, idx: Option<&[usize]>, origins: &[[f32; 3]], dirs: &[[f32; 3]]) -> (Vec<[f32; 3]>, Vec<f32>, Vec<f32>) {
+        let mid = |s: usize| 0.5 * samples.t_start[s] + 0.5 * samples.t_end[s];
+        let point = |s: usize| {
+            let r = samples.ray_index[s] as usize;
+            let (o, d, t) = (origins[r], dirs[r], mid(s));
+            self.bounds.to_unit([o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]])
+        };
+        let unit: Vec<[f32; 3]> = match idx {
+            Some(ix) => ix.iter().map(|&s| point(s)).collect(),
+            None => (0..samples.len()).map(point).collect(),
+        };
+        let mut enc = vec![0.0; unit.len() * self.grid.output_dim()];
         self.grid.encode(&unit, &mut enc);
-        let shd = ops::sh_dims(self.config.sh_degree);
+        // SH once per ray, copied to its samples
+        let shd = sh_output_dim(self.config.sh_degree);
+        let per_ray: Vec<[f32; 16]> = dirs.iter().map(|d| sh_encode(*d)).collect();
         let mut sh = vec![0.0; unit.len() * shd];
-        for (s, d) in samples.sample_dirs(dirs).iter().enumerate() {
-            ops::sh_encode(*d, self.config.sh_degree, &mut sh[s * shd..(s + 1) * shd]);
+        let ray_of = |k: usize| match idx {
+            Some(ix) => samples.ray_index[ix[k]] as usize,
+            None => samples.ray_index[k] as usize,
+        };
+        for (k, o) in sh.chunks_exact_mut(shd).enumerate() {
+            o.copy_from_slice(&per_ray[ray_of(k)][..shd]);
         }
         (unit, enc, sh)
     }
 
-    fn maybe_update_occupancy(&mut self, step: u64, seed: u64) {
-        let c = &self.config;
-        if step == 0 || step < c.grid_warmup_steps || step % c.grid_update_interval.max(1) != 0 {
+    fn maybe_update_occupancy(&mut self, step: u64) {
+        let interval = self.config.grid_update_interval.max(1);
+        if step == 0 || step % interval != 0 {
             return;
         }
-        let pts = self.occupancy.update_points(seed, step);
-        let sigma = self.density(&pts);
         let dt = self.step_size();
-        self.occupancy.update(&sigma, dt, self.config.grid_threshold);
+        let (grid, field, bounds) = (&self.grid, self.field.valid(), &self.bounds);
+        let thr = self.config.grid_threshold;
+        self.occupancy.update(step, dt, thr, &mut |pts| density_at(grid, &field, bounds, pts));
     }
 
     /// Density at world points (inference).
     pub fn density(&self, points: &[[f32; 3]]) -> Vec<f32> {
         let net = self.field.valid();
-        let dev = backend::inference_device();
-        let dims = self.grid.output_dims();
-        let mut out = Vec::with_capacity(points.len());
-        for chunk in points.chunks(65536) {
-            let unit: Vec<[f32; 3]> = chunk.iter().map(|p| self.bounds.to_unit(*p)).collect();
-            let mut enc = vec![0.0; unit.len() * dims];
-            self.grid.encode(&unit, &mut enc);
-            let geo = net.density.forward(tensor2(enc, unit.len(), dims, &dev));
-            let [n, _] = geo.dims();
-            let raw = to_vec(geo.slice([0..n, 0..1]));
-            out.extend(raw.into_iter().map(|x| ACT.forward(x)));
-        }
-        out
+        points.chunks(65536).flat_map(|c| density_at(&self.grid, &net, &self.bounds, c)).collect()
     }
 
     /// One training step.
     pub fn train_step(&mut self, batch: &RayBatch, step: u64, seed: u64) -> StepStats {
         let mut tm = StepTimings::default();
         let t0 = Instant::now();
-        self.maybe_update_occupancy(step, seed);
+        self.maybe_update_occupancy(step);
         tm.optimizer += t0.elapsed().as_secs_f64();
 
         let t0 = Instant::now();
-        let samples = self.occupancy.march(
-            &batch.origins,
-            &batch.dirs,
-            self.step_size(),
-            self.config.max_samples_per_ray,
-            Some((seed, step)),
-            &batch.ids,
-        );
+        let samples = self.march(&batch.origins, &batch.dirs, SampleMode::Random { seed: stream_seed(seed, stream::MARCH), step });
         let n = samples.len();
-        let (unit, enc, sh) = self.encode(&samples, &batch.origins, &batch.dirs);
+        let (unit, enc, sh) = self.encode(&samples, None, &batch.origins, &batch.dirs);
         tm.encoding += t0.elapsed().as_secs_f64();
         if n == 0 {
             // Nothing to learn from: every ray missed the occupied cells.
@@ -221,8 +258,8 @@ impl FastModel {
         }
 
         let t0 = Instant::now();
-        let dims = self.grid.output_dims();
-        let shd = ops::sh_dims(self.config.sh_degree);
+        let dims = self.grid.output_dim();
+        let shd = sh_output_dim(self.config.sh_degree);
         let enc_t = tensor2(enc, n, dims, &self.device).require_grad();
         let sh_t = tensor2(sh, n, shd, &self.device);
         let (raw_t, rgb_t) = self.field.forward(enc_t.clone(), sh_t);
@@ -231,13 +268,15 @@ impl FastModel {
         tm.mlp += t0.elapsed().as_secs_f64();
 
         let t0 = Instant::now();
-        let rgb: Vec<[f32; 3]> = rgb_flat.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+        let rgb = ops::rgb3(&rgb_flat);
         let sigma: Vec<f32> = raw.iter().map(|x| ACT.forward(*x)).collect();
-        let comp = ops::composite_forward(&samples, &sigma, &rgb, &batch.background);
+        let (o, ts, te, bg) = (&samples.offsets, &samples.t_start, &samples.t_end, &batch.background);
+        let comp = volrend::composite_forward(o, &sigma, &rgb, ts, te, bg);
         let (mse, d_out) = mse_and_grad(&comp.rgb, &batch.target);
-        let (d_sigma, d_rgb) = ops::composite_backward(&samples, &sigma, &rgb, &batch.background, &comp.weights, &d_out);
-        let d_raw: Vec<f32> = d_sigma.iter().zip(&raw).map(|(g, x)| g * ACT.derivative(*x)).collect();
-        let d_rgb_flat: Vec<f32> = d_rgb.iter().flatten().copied().collect();
+        let zeros = vec![0.0; d_out.len()];
+        let g = volrend::composite_backward(o, &sigma, &rgb, ts, te, bg, &comp, &d_out, &zeros, &zeros);
+        let d_raw: Vec<f32> = g.d_sigma.iter().zip(&raw).map(|(g, x)| ACT.backward(*x, *g)).collect();
+        let d_rgb_flat: Vec<f32> = g.d_rgb.iter().flatten().copied().collect();
         tm.render += t0.elapsed().as_secs_f64();
         let stats = |skipped, tm| StepStats { loss: mse, mse, samples: n, skipped_nonfinite: skipped, timings: tm };
         if !mse.is_finite() || !all_finite(&d_raw) || !all_finite(&d_rgb_flat) {
@@ -256,92 +295,87 @@ impl FastModel {
         }
 
         let t0 = Instant::now();
-        self.grad.fill(0.0);
-        self.touched.fill(false);
-        self.grid.backward(&unit, &d_enc, &mut self.grad, &mut self.touched);
+        self.grid.backward_touched(&unit, &d_enc, &mut self.grad, &mut self.touched);
         tm.encoding += t0.elapsed().as_secs_f64();
 
         let t0 = Instant::now();
         self.field = self.adam.step(self.lr, self.field.clone(), &mut gp);
         let f = self.config.features_per_level;
-        self.grid_adam.step(self.lr as f32, &mut self.grid.params, &self.grad, &self.touched, f);
+        self.grid_adam.step_sparse(&mut self.grid.params, &mut self.grad, &mut self.touched, f, self.lr as f32);
         tm.optimizer += t0.elapsed().as_secs_f64();
         stats(false, tm)
     }
 
-    /// Renders rays: marches the occupancy grid, then evaluates samples in rounds of 32 per
-    /// live ray, compositing front to back and stopping a ray once its transmittance drops
-    /// below 1e-4.
+    /// Renders rays: marches the occupancy grid (no jitter), evaluates the network in rounds of
+    /// [`INFERENCE_ROUND`] samples per ray that is still live (transmittance ≥ 1e-4 and samples
+    /// left), then composites with [`volrend::CompositeOptions::INFERENCE`]; samples never
+    /// evaluated lie past the termination point and get weight 0.
     pub fn render_rays(&self, origins: &[[f32; 3]], dirs: &[[f32; 3]], background: [f32; 3]) -> RayOutputs {
-        let ids: Vec<u64> = (0..origins.len() as u64).collect();
-        let samples = self.occupancy.march(origins, dirs, self.step_size(), usize::MAX / 2, None, &ids);
+        let samples = self.march(origins, dirs, SampleMode::Deterministic);
         let net = self.field.valid();
         let dev = backend::inference_device();
         let rays = origins.len();
-        let mut trans = vec![1.0f32; rays];
-        let mut acc_rgb = vec![[0.0f32; 3]; rays];
-        let mut acc_d = vec![0.0f32; rays];
-        let mut next: Vec<usize> = (0..rays).map(|r| samples.offsets[r] as usize).collect();
-        let mut weights = vec![f32::NAN; samples.len()];
-        const ROUND: usize = 32;
+        let n = samples.len();
+        let (dims, shd) = (self.grid.output_dim(), sh_output_dim(self.config.sh_degree));
+        let mut sigma = vec![0.0f32; n];
+        let mut rgb = vec![[0.0f32; 3]; n];
+        let mut evaluated = vec![false; n];
+        let mut tau = vec![0.0f32; rays];
+        let mut next: Vec<usize> = samples.offsets[..rays].iter().map(|&o| o as usize).collect();
+        let tau_stop = -volrend::CompositeOptions::INFERENCE.min_transmittance.ln();
         loop {
-            let live: Vec<usize> =
-                (0..rays).filter(|&r| trans[r] >= 1e-4 && next[r] < samples.offsets[r + 1] as usize).collect();
-            if live.is_empty() {
+            let mut idx = Vec::new();
+            let mut live = Vec::new();
+            for r in 0..rays {
+                let end = samples.offsets[r + 1] as usize;
+                if tau[r] <= tau_stop && next[r] < end {
+                    let e = (next[r] + INFERENCE_ROUND).min(end);
+                    idx.extend(next[r]..e);
+                    live.push((r, e));
+                }
+            }
+            if idx.is_empty() {
                 break;
             }
-            let mut sub = RaySamples { offsets: vec![0], ..Default::default() };
-            for &r in &live {
-                let end = (next[r] + ROUND).min(samples.offsets[r + 1] as usize);
-                for s in next[r]..end {
-                    sub.t.push(samples.t[s]);
-                    sub.t_start.push(samples.t_start[s]);
-                    sub.t_end.push(samples.t_end[s]);
-                }
-                sub.offsets.push(sub.t.len() as u32);
+            let (_, enc, sh) = self.encode(&samples, Some(&idx), origins, dirs);
+            let m = idx.len();
+            let (raw_t, rgb_t) = net.forward(tensor2(enc, m, dims, &dev), tensor2(sh, m, shd, &dev));
+            let (raw, rgb_flat) = (to_vec(raw_t), to_vec(rgb_t));
+            for (k, &s) in idx.iter().enumerate() {
+                sigma[s] = ACT.forward(raw[k]);
+                rgb[s] = [rgb_flat[3 * k], rgb_flat[3 * k + 1], rgb_flat[3 * k + 2]];
+                evaluated[s] = true;
             }
-            let o: Vec<[f32; 3]> = live.iter().map(|&r| origins[r]).collect();
-            let d: Vec<[f32; 3]> = live.iter().map(|&r| dirs[r]).collect();
-            let (_, enc, sh) = self.encode(&sub, &o, &d);
-            let n = sub.len();
-            let (raw_t, rgb_t) = net.forward(
-                tensor2(enc, n, self.grid.output_dims(), &dev),
-                tensor2(sh, n, ops::sh_dims(self.config.sh_degree), &dev),
-            );
-            let raw = to_vec(raw_t);
-            let rgb = to_vec(rgb_t);
-            for (k, &r) in live.iter().enumerate() {
-                for (j, s) in sub.range(k).enumerate() {
-                    if trans[r] < 1e-4 {
-                        break;
-                    }
-                    let sigma = ACT.forward(raw[s]);
-                    let alpha = 1.0 - (-sigma * (sub.t_end[s] - sub.t_start[s])).exp();
-                    let w = trans[r] * alpha;
-                    for c in 0..3 {
-                        acc_rgb[r][c] += w * rgb[3 * s + c];
-                    }
-                    acc_d[r] += w * sub.t[s];
-                    trans[r] *= 1.0 - alpha;
-                    weights[next[r] + j] = w;
+            for (r, e) in live {
+                for s in next[r]..e {
+                    tau[r] += sigma[s] * (samples.t_end[s] - samples.t_start[s]);
                 }
-                next[r] = (next[r] + sub.range(k).len()).min(samples.offsets[r + 1] as usize);
+                next[r] = e;
             }
         }
+        let bg = vec![background; rays];
+        let comp = volrend::composite_forward_with(
+            &samples.offsets,
+            &sigma,
+            &rgb,
+            &samples.t_start,
+            &samples.t_end,
+            &bg,
+            volrend::CompositeOptions::INFERENCE,
+        );
         let mut out = RayOutputs { offsets: vec![0], ..Default::default() };
         for r in 0..rays {
-            let o = 1.0 - trans[r];
-            out.rgb.push([0, 1, 2].map(|c| acc_rgb[r][c] + trans[r] * background[c]));
-            out.opacity.push(o);
-            out.distance.push(if o > 1e-6 { acc_d[r] / o } else { 0.0 });
-            for s in samples.range(r) {
-                if weights[s].is_finite() {
-                    out.t.push(samples.t[s]);
-                    out.w.push(weights[s]);
+            for s in samples.offsets[r] as usize..samples.offsets[r + 1] as usize {
+                if evaluated[s] {
+                    out.t.push(0.5 * samples.t_start[s] + 0.5 * samples.t_end[s]);
+                    out.w.push(comp.weights[s]);
                 }
             }
             out.offsets.push(out.t.len() as u32);
         }
+        out.distance = comp.distance.iter().zip(&comp.opacity).map(|(d, o)| expected_distance(*d, *o)).collect();
+        out.rgb = comp.rgb;
+        out.opacity = comp.opacity;
         out
     }
 
@@ -355,7 +389,7 @@ impl FastModel {
         let c = &self.config;
         let enc = (c.levels * c.features_per_level) as f64;
         let dens = enc * c.density_width as f64 + c.density_width as f64 * c.geo_features as f64;
-        let cin = (c.geo_features + ops::sh_dims(c.sh_degree)) as f64;
+        let cin = (c.geo_features + sh_output_dim(c.sh_degree)) as f64;
         let col = cin * c.color_width as f64
             + (c.color_depth.saturating_sub(1)) as f64 * (c.color_width * c.color_width) as f64
             + c.color_width as f64 * 3.0;
@@ -372,10 +406,8 @@ impl FastModel {
         s.arrays.insert("grid_adam.v".into(), self.grid_adam.v.clone());
         s.scalars.insert("grid_adam.step".into(), self.grid_adam.step as f64);
         s.arrays.insert("occupancy.density".into(), self.occupancy.density.clone());
-        s.arrays.insert(
-            "occupancy.occupied".into(),
-            self.occupancy.occupied.iter().map(|o| if *o { 1.0 } else { 0.0 }).collect(),
-        );
+        let occupied = (0..self.occupancy.n_cells()).map(|i| ((self.occupancy.bits[i / 64] >> (i % 64)) & 1) as f32).collect();
+        s.arrays.insert("occupancy.occupied".into(), occupied);
         s
     }
 
@@ -396,9 +428,27 @@ impl FastModel {
         self.grid_adam.m = get("grid_adam.m", n)?;
         self.grid_adam.v = get("grid_adam.v", n)?;
         self.grid_adam.step = s.scalar("grid_adam.step")? as u64;
-        let cells = self.occupancy.density.len();
+        let cells = self.occupancy.n_cells();
         self.occupancy.density = get("occupancy.density", cells)?;
-        self.occupancy.occupied = get("occupancy.occupied", cells)?.iter().map(|v| *v > 0.5).collect();
+        let occupied = get("occupancy.occupied", cells)?;
+        self.occupancy.bits.iter_mut().for_each(|w| *w = 0);
+        for (i, v) in occupied.iter().enumerate() {
+            if *v > 0.5 {
+                self.occupancy.bits[i / 64] |= 1 << (i % 64);
+            }
+        }
         Ok(())
     }
+}
+
+/// σ at world points: hash encoding, the density network's first output, [`ACT`].
+fn density_at(grid: &HashGrid, net: &HashField, bounds: &SceneBounds, points: &[[f32; 3]]) -> Vec<f32> {
+    let dev = backend::inference_device();
+    let dims = grid.output_dim();
+    let unit: Vec<[f32; 3]> = points.iter().map(|p| bounds.to_unit(*p)).collect();
+    let mut enc = vec![0.0; unit.len() * dims];
+    grid.encode(&unit, &mut enc);
+    let geo = net.density.forward(tensor2(enc, unit.len(), dims, &dev));
+    let [n, _] = geo.dims();
+    to_vec(geo.slice([0..n, 0..1])).into_iter().map(|x| ACT.forward(x)).collect()
 }

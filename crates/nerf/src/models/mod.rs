@@ -5,7 +5,7 @@
 //!
 //! Both share the training-step pattern that fits burn: inputs are encoded in Rust, the
 //! networks run in burn, per-sample raw density and colour come back to Rust where the density
-//! activation, volume rendering ([`ops::composite_forward`]) and the loss and its gradient
+//! activation, volume rendering ([`crate::volrend::composite_forward`]) and the loss and its gradient
 //! w.r.t. the per-sample outputs are computed; those gradients go back into burn through the
 //! surrogate `sum(output · grad.detach())`, whose backward gives exactly the parameter
 //! gradients of the loss; burn's Adam steps the network.
@@ -36,12 +36,12 @@ impl ModelConfig {
             ModelConfig::Fast(_) => "fast",
         }
     }
-    /// Builds the model, its parameters a function of `seed`.
-    pub fn init(&self, bounds: &SceneBounds, seed: u64) -> Model {
-        match self {
+    /// Builds the model, its parameters a function of `seed`; errors on invalid settings.
+    pub fn init(&self, bounds: &SceneBounds, seed: u64) -> Result<Model, String> {
+        Ok(match self {
             ModelConfig::Paper(c) => Model::Paper(Box::new(paper::PaperModel::new(c.clone(), bounds.clone(), seed))),
-            ModelConfig::Fast(c) => Model::Fast(Box::new(fast::FastModel::new(c.clone(), bounds.clone(), seed))),
-        }
+            ModelConfig::Fast(c) => Model::Fast(Box::new(fast::FastModel::new(c.clone(), bounds.clone(), seed)?)),
+        })
     }
 }
 
@@ -208,6 +208,11 @@ pub(crate) fn mse_and_grad(rgb: &[[f32; 3]], target: &[[f32; 3]]) -> (f32, Vec<[
         })
         .collect();
     ((loss / n as f64) as f32, grad)
+}
+
+/// Σwt / Σw from [`crate::volrend`]'s unnormalised distance (0 where the opacity is ≤ 1e-6).
+pub(crate) fn expected_distance(distance: f32, opacity: f32) -> f32 {
+    if opacity > 1e-6 { crate::volrend::normalized_distance(distance, opacity, 1e-6) } else { 0.0 }
 }
 
 /// Whether every value is finite.

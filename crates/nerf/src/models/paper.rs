@@ -8,8 +8,11 @@
 //! Blender scenes already lie in about [−1.5, 1.5]³; ours are in metres at any scale).
 //! Near/far come from [`SceneBounds`] (scene facts, or the cameras plus an assumed radius).
 
-use super::ops::{self, DensityActivation, RaySamples};
-use super::{RayOutputs, StepStats, StepTimings, all_finite, mse_and_grad};
+use super::ops::{self, DensityActivation, stream, stream_seed};
+use crate::encoding::frequency_encode;
+use crate::sampling::{self, RaySamples, SampleMode};
+use crate::volrend;
+use super::{RayOutputs, StepStats, StepTimings, all_finite, expected_distance, mse_and_grad};
 use crate::backend;
 use crate::checkpoint::StateDict;
 use crate::data::{RayBatch, SceneBounds};
@@ -92,16 +95,12 @@ impl PaperModel {
         let f = &self.config.field;
         let (pd, dd) = (f.pos_dims(), f.dir_dims());
         let (c, h) = (self.bounds.center(), self.bounds.half_extent());
-        let pts = s.points(origins, dirs);
+        let pts: Vec<[f32; 3]> =
+            s.positions(origins, dirs).into_iter().map(|p| [0, 1, 2].map(|i| (p[i] - c[i]) / h)).collect();
         let mut pos = vec![0.0; pts.len() * pd];
-        for (k, p) in pts.iter().enumerate() {
-            let q = [0, 1, 2].map(|i| (p[i] - c[i]) / h);
-            ops::frequency_encode(q, f.pos_freqs, &mut pos[k * pd..(k + 1) * pd]);
-        }
+        frequency_encode(&pts, f.pos_freqs, &mut pos);
         let mut dir = vec![0.0; pts.len() * dd];
-        for (k, d) in s.sample_dirs(dirs).iter().enumerate() {
-            ops::frequency_encode(*d, f.dir_freqs, &mut dir[k * dd..(k + 1) * dd]);
-        }
+        frequency_encode(&ops::sample_dirs(&s.ray_index, dirs), f.dir_freqs, &mut dir);
         Encoded { pos, dir }
     }
 
@@ -114,15 +113,46 @@ impl PaperModel {
         net.forward(tensor2(e.pos, n, f.pos_dims(), dev), tensor2(e.dir, n, f.dir_dims(), dev))
     }
 
+    /// Volume rendering of one network's outputs and the gradients of its MSE w.r.t. the raw
+    /// outputs: (composite, mse, ∂L/∂raw density, ∂L/∂rgb flat).
+    fn render_and_grad(
+        &self,
+        s: &RaySamples,
+        raw: &[f32],
+        rgb: &[f32],
+        batch: &RayBatch,
+    ) -> (volrend::CompositeOutput, f32, Vec<f32>, Vec<f32>) {
+        let act = self.config.density_activation;
+        let sigma: Vec<f32> = raw.iter().map(|x| act.forward(*x)).collect();
+        let rgb3 = ops::rgb3(rgb);
+        let comp = volrend::composite_forward(&s.offsets, &sigma, &rgb3, &s.t_start, &s.t_end, &batch.background);
+        let (mse, d_out) = mse_and_grad(&comp.rgb, &batch.target);
+        let zeros = vec![0.0; d_out.len()];
+        let g = volrend::composite_backward(
+            &s.offsets,
+            &sigma,
+            &rgb3,
+            &s.t_start,
+            &s.t_end,
+            &batch.background,
+            &comp,
+            &d_out,
+            &zeros,
+            &zeros,
+        );
+        let d_raw = g.d_sigma.iter().zip(raw).map(|(g, x)| act.backward(*x, *g)).collect();
+        (comp, mse, d_raw, g.d_rgb.into_iter().flatten().collect())
+    }
+
     /// One training step.
     pub fn train_step(&mut self, batch: &RayBatch, step: u64, seed: u64) -> StepStats {
         let mut tm = StepTimings::default();
-        let act = self.config.density_activation;
         let rays = batch.origins.len();
         let (near, far) = self.near_far(rays);
 
         let t0 = Instant::now();
-        let coarse = ops::stratified(&near, &far, self.config.coarse_samples, Some((seed, step)), &batch.ids);
+        let strat = SampleMode::Random { seed: stream_seed(seed, stream::STRATIFIED), step };
+        let coarse = sampling::stratified(&near, &far, self.config.coarse_samples, strat);
         let ec = self.encode(&coarse, &batch.origins, &batch.dirs);
         tm.encoding += t0.elapsed().as_secs_f64();
 
@@ -134,13 +164,12 @@ impl PaperModel {
         tm.mlp += t0.elapsed().as_secs_f64();
 
         let t0 = Instant::now();
-        let sig_c: Vec<f32> = raw_c.iter().map(|x| act.forward(*x)).collect();
-        let rgb_c3: Vec<[f32; 3]> = rgb_c.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
-        let comp_c = ops::composite_forward(&coarse, &sig_c, &rgb_c3, &batch.background);
+        let (comp_c, mse_c, draw_c, drgb_c) = self.render_and_grad(&coarse, &raw_c, &rgb_c, batch);
         tm.render += t0.elapsed().as_secs_f64();
 
         let t0 = Instant::now();
-        let fine = ops::importance(&coarse, &comp_c.weights, self.config.fine_samples, Some((seed, step)), &batch.ids);
+        let pdf = SampleMode::Random { seed: stream_seed(seed, stream::PDF), step };
+        let fine = sampling::sample_pdf(&coarse, &comp_c.weights, self.config.fine_samples, pdf);
         let ef = self.encode(&fine, &batch.origins, &batch.dirs);
         tm.encoding += t0.elapsed().as_secs_f64();
 
@@ -152,17 +181,7 @@ impl PaperModel {
         tm.mlp += t0.elapsed().as_secs_f64();
 
         let t0 = Instant::now();
-        let sig_f: Vec<f32> = raw_f.iter().map(|x| act.forward(*x)).collect();
-        let rgb_f3: Vec<[f32; 3]> = rgb_f.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
-        let comp_f = ops::composite_forward(&fine, &sig_f, &rgb_f3, &batch.background);
-        let (mse_c, g_c) = mse_and_grad(&comp_c.rgb, &batch.target);
-        let (mse_f, g_f) = mse_and_grad(&comp_f.rgb, &batch.target);
-        let (ds_c, dc_c) = ops::composite_backward(&coarse, &sig_c, &rgb_c3, &batch.background, &comp_c.weights, &g_c);
-        let (ds_f, dc_f) = ops::composite_backward(&fine, &sig_f, &rgb_f3, &batch.background, &comp_f.weights, &g_f);
-        let draw_c: Vec<f32> = ds_c.iter().zip(&raw_c).map(|(g, x)| g * act.derivative(*x)).collect();
-        let draw_f: Vec<f32> = ds_f.iter().zip(&raw_f).map(|(g, x)| g * act.derivative(*x)).collect();
-        let drgb_c: Vec<f32> = dc_c.iter().flatten().copied().collect();
-        let drgb_f: Vec<f32> = dc_f.iter().flatten().copied().collect();
+        let (_, mse_f, draw_f, drgb_f) = self.render_and_grad(&fine, &raw_f, &rgb_f, batch);
         tm.render += t0.elapsed().as_secs_f64();
         let loss = mse_c + mse_f;
         let stats = |skipped, tm| StepStats { loss, mse: mse_f, samples: nc + nf, skipped_nonfinite: skipped, timings: tm };
@@ -193,27 +212,20 @@ impl PaperModel {
         let nets = self.nets.valid();
         let dev = backend::inference_device();
         let rays = origins.len();
-        let ids: Vec<u64> = (0..rays as u64).collect();
         let (near, far) = self.near_far(rays);
         let bg = vec![background; rays];
-        let coarse = ops::stratified(&near, &far, self.config.coarse_samples, None, &ids);
+        let coarse = sampling::stratified(&near, &far, self.config.coarse_samples, SampleMode::Deterministic);
         let (raw, _) = self.forward(&nets.coarse, self.encode(&coarse, origins, dirs), coarse.len(), &dev);
         let sig: Vec<f32> = to_vec(raw).iter().map(|x| act.forward(*x)).collect();
         let zeros = vec![[0.0; 3]; coarse.len()];
-        let comp_c = ops::composite_forward(&coarse, &sig, &zeros, &bg);
-        let fine = ops::importance(&coarse, &comp_c.weights, self.config.fine_samples, None, &ids);
+        let comp_c = volrend::composite_forward(&coarse.offsets, &sig, &zeros, &coarse.t_start, &coarse.t_end, &bg);
+        let fine = sampling::sample_pdf(&coarse, &comp_c.weights, self.config.fine_samples, SampleMode::Deterministic);
         let (raw, rgb) = self.forward(&nets.fine, self.encode(&fine, origins, dirs), fine.len(), &dev);
         let sig: Vec<f32> = to_vec(raw).iter().map(|x| act.forward(*x)).collect();
-        let rgb: Vec<[f32; 3]> = to_vec(rgb).chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
-        let comp = ops::composite_forward(&fine, &sig, &rgb, &bg);
-        RayOutputs {
-            rgb: comp.rgb,
-            opacity: comp.opacity,
-            distance: comp.distance,
-            offsets: fine.offsets,
-            t: fine.t,
-            w: comp.weights,
-        }
+        let rgb = ops::rgb3(&to_vec(rgb));
+        let comp = volrend::composite_forward(&fine.offsets, &sig, &rgb, &fine.t_start, &fine.t_end, &bg);
+        let distance = comp.distance.iter().zip(&comp.opacity).map(|(d, o)| expected_distance(*d, *o)).collect();
+        RayOutputs { rgb: comp.rgb, opacity: comp.opacity, distance, t: fine.t_mid(), offsets: fine.offsets, w: comp.weights }
     }
 
     /// Trainable parameters (coarse + fine).
