@@ -213,11 +213,11 @@ impl Renderer {
         &self.emitters
     }
 
-    /// Whether any material is shaded view-dependently. Always false for now: every
-    /// material is shaded Lambertian (see [`crate::material`]); becomes true per material
-    /// once the metallic-roughness BRDF lands.
+    /// Whether any material that some triangle uses is view-dependent (metallic, or a
+    /// dielectric specular layer rougher than nothing; the rule and its threshold are
+    /// [`crate::material::is_view_dependent`]).
     pub fn is_view_dependent(&self) -> bool {
-        self.scene.materials.iter().any(crate::material::is_view_dependent)
+        crate::material::scene_is_view_dependent(&self.scene)
     }
 
     /// The path integrator for `settings`.
@@ -359,7 +359,10 @@ mod tests {
             Self { mesh: Mesh::default(), materials: Vec::new(), lights: Vec::new() }
         }
         fn material(&mut self, albedo: f32, emissive: f32, double_sided: bool) -> u32 {
+            // Exactly Lambertian (metallic 0, KHR_materials_specular 0), the closed forms' BRDF.
             let mut m = Material::gltf_default();
+            m.metallic_factor = 0.0;
+            m.specular_factor = 0.0;
             m.base_color_factor = Vec4::new(albedo, albedo, albedo, 1.0);
             m.emissive = Vec3::splat(emissive);
             m.double_sided = double_sided;

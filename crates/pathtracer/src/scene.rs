@@ -129,6 +129,10 @@ pub struct Material {
     pub alpha_mode: AlphaMode,
     /// Whether back faces are rendered (single-sided back faces are invisible).
     pub double_sided: bool,
+    /// `KHR_materials_specular` `specularFactor` (specularColor taken as 1): the strength of
+    /// the dielectric's specular layer, 1 for plain glTF. 0 with metallic 0 makes the BRDF
+    /// exactly Lambertian (the extension's "pure diffuse material").
+    pub specular_factor: f32,
 }
 
 impl Material {
@@ -147,6 +151,7 @@ impl Material {
             emissive_texture: None,
             alpha_mode: AlphaMode::Opaque,
             double_sided: false,
+            specular_factor: 1.0,
         }
     }
     /// Whether the material emits light.

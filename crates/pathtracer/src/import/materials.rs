@@ -113,6 +113,7 @@ impl Importer<'_> {
             emissive_texture,
             alpha_mode,
             double_sided: material.double_sided(),
+            specular_factor: 1.0,
         })
     }
 }
