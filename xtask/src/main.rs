@@ -7,6 +7,7 @@ use std::sync::{Arc, OnceLock};
 
 mod bench;
 mod bench_nerf;
+mod crosscheck;
 mod evaluate;
 mod gen_scenes;
 mod render;
@@ -38,6 +39,8 @@ enum Command {
     Demo(evaluate::DemoArgs),
     /// Performance figures (render, nerf).
     Bench(bench::BenchArgs),
+    /// Render a scene with Mitsuba 3 and compare with our renderer.
+    Crosscheck(crosscheck::CrosscheckArgs),
 }
 
 /// The process-wide stop flag, set by Ctrl-C (the handler is installed on first use, once, so
@@ -73,6 +76,7 @@ fn main() -> std::process::ExitCode {
         Command::Compare(a) => evaluate::run_compare(a),
         Command::Demo(a) => evaluate::run_demo(a),
         Command::Bench(a) => bench::run(a),
+        Command::Crosscheck(a) => crosscheck::run(a),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

@@ -17,6 +17,7 @@
 pub mod accel;
 pub mod dataset_render;
 pub mod error;
+pub mod export;
 pub mod geometry;
 pub mod import;
 pub mod integrator;

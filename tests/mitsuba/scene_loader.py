@@ -1,0 +1,237 @@
+"""Build a Mitsuba 3 scene from an export folder written by `pathtracer::export::export_scene`.
+
+The export holds the scene exactly as our renderer loaded it (world-space triangles, resolved
+materials, lights in physical units, the dataset cameras). Geometry is placed in the scene's
+local frame (world - origin), as our renderer does, so both trace in the same f32 frame.
+
+Mapping (ours -> Mitsuba):
+- triangles of material k -> one `mi.Mesh` with vertex normals and TEXCOORD_0;
+- Lambertian material (view_dependent false): `diffuse` with reflectance
+  clamp(base_color_factor x base_color_texture x COLOR_0, 0, 1) (texture: `bitmap`, raw linear
+  texels, glTF filter and wrap; vertex colours: `mesh_attribute`); double-sided -> `twosided`;
+- view-dependent material -> the `gltf` BSDF plugin of `gltf_bsdf.py` (our BRDF, written from
+  the Rust doc comments) when available;
+- emissive material -> `area` emitter, radiance = emissive (x emissive texture);
+- point -> `point` (intensity W/sr = candela); directional -> `directional` (irradiance = lux);
+  spot -> `gltf_spot` (glTF's smooth falloff, `gltf_lights.py`);
+- environment -> `constant`;
+- camera -> `perspective`, to_world = M @ diag(-1, 1, -1, 1) (Mitsuba: x left, y up, z forward),
+  fov_axis y from fl_y and height, box pixel filter (colour = average over the pixel area);
+- integrator -> `path`, max_depth = max_bounces + 1 (Mitsuba counts path segments: 1 shows
+  emitters only, 2 is direct light; ours counts scattering events: 0 emitters only, 1 direct).
+
+Anything the mapping cannot reproduce exactly raises `Unsupported` naming it.
+"""
+
+import json
+import math
+import os
+
+import numpy as np
+
+
+class Unsupported(Exception):
+    """The exported scene uses a feature this harness cannot reproduce exactly in Mitsuba."""
+
+
+WRAP = {"repeat": "repeat", "mirrored_repeat": "mirror", "clamp_to_edge": "clamp"}
+FILTER = {"nearest": "nearest", "linear": "bilinear"}
+
+
+def load_export(folder):
+    """The manifest (dict) and the arrays (dict of numpy arrays) of an export folder."""
+    with open(os.path.join(folder, "scene.json")) as f:
+        man = json.load(f)
+    arrays = {}
+    for name in ["positions", "normals", "tangents", "uv0", "uv1", "colors", "indices", "material"]:
+        arrays[name] = np.load(os.path.join(folder, name + ".npy"))
+    arrays["textures"] = [np.load(os.path.join(folder, t["file"])) for t in man["textures"]]
+    return man, arrays
+
+
+def rgb(v):
+    return {"type": "rgb", "value": [float(x) for x in v[:3]]}
+
+
+def bitmap_texture(mi, texels, ref, scale):
+    """A raw (linear) `bitmap` texture of texels[..., :3] x scale with the reference's sampler."""
+    if ref["wrap_s"] != ref["wrap_t"]:
+        raise Unsupported(f"texture {ref['texture']}: different wrap modes per axis ({ref['wrap_s']}, {ref['wrap_t']})")
+    if ref["tex_coord"] != 0:
+        raise Unsupported(f"texture {ref['texture']}: TEXCOORD_1")
+    data = np.ascontiguousarray(texels[..., :3] * np.asarray(scale[:3], np.float32)[None, None, :], dtype=np.float32)
+    return {
+        "type": "bitmap",
+        "bitmap": mi.Bitmap(data),
+        "raw": True,
+        "filter_type": FILTER[ref["filter"]],
+        "wrap_mode": WRAP[ref["wrap_s"]],
+    }
+
+
+def lambert_reflectance(mi, mat, textures, has_vertex_colors):
+    """Mitsuba texture (dict) for clamp(factor x texture x COLOR_0, 0, 1)."""
+    factor = np.asarray(mat["base_color_factor"][:3], np.float32)
+    tex = mat["base_color_texture"]
+    if tex is not None and has_vertex_colors:
+        raise Unsupported(f"material {mat['name']}: base colour texture x vertex colours")
+    if tex is not None:
+        texels = np.clip(textures[tex["texture"]][..., :3] * factor, 0.0, 1.0)
+        return bitmap_texture(mi, texels, tex, [1.0, 1.0, 1.0])
+    if has_vertex_colors:
+        return {"type": "mesh_attribute", "name": "vertex_color"}
+    return rgb(np.clip(factor, 0.0, 1.0))
+
+
+def material_bsdf(mi, mat, textures, has_vertex_colors, glossy_plugin):
+    if mat["alpha_mode"] == "mask":
+        raise Unsupported(f"material {mat['name']}: alpha mask")
+    if mat["view_dependent"]:
+        if glossy_plugin is None:
+            raise Unsupported(f"material {mat['name']}: view-dependent shading without the gltf BSDF plugin")
+        inner = glossy_plugin(mi, mat, textures, has_vertex_colors)
+    else:
+        inner = {"type": "diffuse", "reflectance": lambert_reflectance(mi, mat, textures, has_vertex_colors)}
+    if mat["double_sided"]:
+        return {"type": "twosided", "bsdf": inner}
+    return inner
+
+
+def emitter(mi, mat, textures):
+    if max(mat["emissive"]) <= 0.0:
+        return None
+    if mat["double_sided"]:
+        raise Unsupported(f"material {mat['name']}: double-sided emitter (Mitsuba's area light is one-sided)")
+    tex = mat["emissive_texture"]
+    if tex is not None:
+        radiance = bitmap_texture(mi, textures[tex["texture"]], tex, mat["emissive"])
+    else:
+        radiance = rgb(mat["emissive"])
+    return {"type": "area", "radiance": radiance}
+
+
+def build_meshes(mi, man, arrays, glossy_plugin=None):
+    """One `mi.Mesh` per material, in the scene's local frame."""
+    origin = np.asarray(man["origin"], np.float64)
+    pos = (arrays["positions"] - origin[None, :]).astype(np.float32)
+    nrm = arrays["normals"].astype(np.float32)
+    uv = arrays["uv0"].astype(np.float32)
+    col = arrays["colors"].astype(np.float32)
+    idx = arrays["indices"].astype(np.int64)
+    mat_of = arrays["material"].astype(np.int64)
+    meshes = {}
+    for k, mat in enumerate(man["materials"]):
+        tris = idx[mat_of == k]
+        if len(tris) == 0:
+            continue
+        used, inverse = np.unique(tris.ravel(), return_inverse=True)
+        faces = inverse.reshape(-1, 3).astype(np.uint32)
+        vcol = col[used, :3] * np.asarray(mat["base_color_factor"][:3], np.float32)[None, :]
+        has_vc = bool(np.any(np.abs(col[used, :3] - 1.0) > 0.0))
+        props = mi.Properties()
+        props["bsdf"] = mi.load_dict(material_bsdf(mi, mat, arrays["textures"], has_vc, glossy_plugin))
+        em = emitter(mi, mat, arrays["textures"])
+        if em is not None:
+            props["emitter"] = mi.load_dict(em)
+        if np.any(np.linalg.norm(nrm[used], axis=1) < 1e-6):
+            raise Unsupported(f"material {mat['name']}: vertices without normals")
+        mesh = mi.Mesh(f"material_{k}", len(used), len(faces), props, has_vertex_normals=True, has_vertex_texcoords=True)
+        params = mi.traverse(mesh)
+        floats, uints = type(params["vertex_positions"]), type(params["faces"])
+        params["vertex_positions"] = floats(pos[used].ravel())
+        params["vertex_normals"] = floats(nrm[used].ravel())
+        params["vertex_texcoords"] = floats(uv[used].ravel())
+        params["faces"] = uints(faces.ravel())
+        params.update()
+        if has_vc:
+            mesh.add_attribute("vertex_color", 3, floats(np.clip(vcol, 0.0, 1.0).ravel()))
+        meshes[f"material_{k}"] = mesh
+    return meshes
+
+
+def build_lights(man, spot_plugin=None):
+    origin = np.asarray(man["origin"], np.float64)
+    out = {}
+    for k, light in enumerate(man["lights"]):
+        if light.get("range") is not None:
+            raise Unsupported(f"light {k}: glTF range cutoff")
+        kind = light["type"]
+        if kind == "point":
+            p = (np.asarray(light["position"]) - origin).tolist()
+            out[f"light_{k}"] = {"type": "point", "position": p, "intensity": rgb(light["intensity"])}
+        elif kind == "directional":
+            out[f"light_{k}"] = {"type": "directional", "direction": light["direction"], "irradiance": rgb(light["illuminance"])}
+        elif kind == "spot":
+            if spot_plugin is None:
+                raise Unsupported(f"light {k}: spot light without the gltf_spot plugin")
+            out[f"light_{k}"] = spot_plugin(light, origin)
+        else:
+            raise Unsupported(f"light {k}: type {kind}")
+    env = man["environment"]
+    if max(env) > 0.0:
+        out["environment"] = {"type": "constant", "radiance": rgb(env)}
+    return out
+
+
+def local_c2w(cam, origin):
+    m = np.asarray(cam["c2w"], np.float64).copy()
+    m[:3, 3] -= origin
+    return m
+
+
+def sensor(mi, cam, origin, spp):
+    """Mitsuba `perspective` sensor reproducing the dataset camera (see the module docs)."""
+    w, h = cam["width"], cam["height"]
+    if abs(cam["fl_x"] - cam["fl_y"]) > 1e-9 * cam["fl_y"]:
+        raise Unsupported("non-square pixels (fl_x != fl_y)")
+    fov_y = math.degrees(2.0 * math.atan(0.5 * h / cam["fl_y"]))
+    to_world = local_c2w(cam, origin) @ np.diag([-1.0, 1.0, -1.0, 1.0])
+    return {
+        "type": "perspective",
+        "fov_axis": "y",
+        "fov": fov_y,
+        # Mitsuba's offsets are fractions of the film size, measured from its centre.
+        "principal_point_offset_x": (cam["cx"] - 0.5 * w) / w,
+        "principal_point_offset_y": (cam["cy"] - 0.5 * h) / h,
+        "near_clip": 1e-5,
+        "far_clip": 1e7,
+        "to_world": mi.ScalarTransform4f(to_world.tolist()),
+        "film": {
+            "type": "hdrfilm",
+            "width": w,
+            "height": h,
+            "rfilter": {"type": "box"},
+            "pixel_format": "rgba",
+            "component_format": "float32",
+        },
+        "sampler": {"type": "independent", "sample_count": spp},
+    }
+
+
+def build_scene(mi, man, arrays, view, spp, glossy_plugin=None, spot_plugin=None):
+    origin = np.asarray(man["origin"], np.float64)
+    d = {"type": "scene"}
+    d["integrator"] = {
+        "type": "path",
+        "max_depth": int(man["settings"]["max_bounces"]) + 1,
+        "hide_emitters": False,
+    }
+    if man["settings"]["transparent_background"]:
+        raise Unsupported("transparent background (render with the environment as background)")
+    d.update(build_meshes(mi, man, arrays, glossy_plugin))
+    d.update(build_lights(man, spot_plugin))
+    d["sensor"] = sensor(mi, man["cameras"][view], origin, spp)
+    return mi.load_dict(d)
+
+
+def pixel_center_rays(cam, origin):
+    """Origins (3,) and unit directions (H, W, 3) of the pixel-centre rays, local frame, with
+    the formula of `dataset::Camera::pixel_ray`; also the camera-frame z of each direction."""
+    w, h = cam["width"], cam["height"]
+    i, j = np.meshgrid(np.arange(w, dtype=np.float64) + 0.5, np.arange(h, dtype=np.float64) + 0.5)
+    d = np.stack([(i - cam["cx"]) / cam["fl_x"], -(j - cam["cy"]) / cam["fl_y"], -np.ones_like(i)], axis=-1)
+    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    m = local_c2w(cam, origin)
+    dw = d @ m[:3, :3].T
+    dw /= np.linalg.norm(dw, axis=-1, keepdims=True)
+    return m[:3, 3], dw, d[..., 2]

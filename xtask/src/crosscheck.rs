@@ -1,0 +1,152 @@
+//! `cargo xtask crosscheck <scene> [--spp S] [--res WxH] [--views N] [--out dir]`: renders a
+//! scene with our path tracer and with Mitsuba 3 and compares them.
+//!
+//! Steps: load the scene as `render` does, place `N` cameras with the dataset rig, export the
+//! scene exactly as loaded (`pathtracer::export::export_scene` → `<out>/export/`), render the
+//! views with our renderer as independent groups to estimate per-pixel noise
+//! (`pathtracer::export::render_reference` → `<out>/ours/`), then run the Python harness
+//! `tests/mitsuba/crosscheck.py` with the repository's `.venv`, which renders the same views
+//! with Mitsuba, compares, writes `<out>/crosscheck.{md,json}` and images, and exits non-zero
+//! on failure.
+
+use crate::render::{parse_resolution, repo_root, resolve_scene};
+use anyhow::{Context, bail};
+use pathtracer::accel::AccelParams;
+use pathtracer::dataset_render::DatasetRenderConfig;
+use pathtracer::dataset_render::Preset;
+use pathtracer::export::{export_scene, reference_groups, render_reference, write_reference};
+use pathtracer::import::{ImportOptions, load_gltf};
+use pathtracer::render::{RenderSettings, Renderer};
+use pathtracer::rig::build_rig;
+use std::path::PathBuf;
+
+/// Arguments of `crosscheck`.
+#[derive(clap::Args, Clone, Debug)]
+pub struct CrosscheckArgs {
+    /// A `.gltf` / `.glb` file, or the name of a scene in `scenes/` (e.g. `cornell`).
+    pub scene: String,
+    /// Samples per pixel, on both sides (at least 2: split into independent groups).
+    #[arg(long, default_value_t = 64)]
+    pub spp: u32,
+    /// Resolution, `W` (square) or `WxH`.
+    #[arg(long, default_value = "64")]
+    pub res: String,
+    /// Number of views (the first views of the dataset rig's train split).
+    #[arg(long, default_value_t = 1)]
+    pub views: u32,
+    /// Report folder (default `out/crosscheck/<scene>`).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Maximum number of bounces (ours; Mitsuba's max_depth is one more).
+    #[arg(long, default_value_t = 4)]
+    pub max_bounces: u32,
+    /// Constant environment radiance, linear R,G,B (shown by camera misses and lighting the scene).
+    #[arg(long, default_value = "0.1,0.1,0.1")]
+    pub environment: String,
+    /// Seed of our renderer (group g uses seed + g).
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Most independent groups the spp are split into (the largest divisor of spp up to this).
+    #[arg(long, default_value_t = 64)]
+    pub max_groups: u32,
+    /// Mitsuba variant (scalar_rgb needs nothing else; llvm_ad_rgb needs a working libLLVM).
+    #[arg(long, default_value = "scalar_rgb")]
+    pub variant: String,
+}
+
+/// Runs the cross-check; fails when the harness reports a failed criterion.
+pub fn run(args: CrosscheckArgs) -> anyhow::Result<()> {
+    let root = repo_root();
+    let python = root.join(".venv/bin/python");
+    if !python.is_file() {
+        bail!(
+            "{} not found: the Mitsuba cross-check needs a Python virtual environment; create it with\n  \
+             python3 -m venv .venv && .venv/bin/pip install -r tests/mitsuba/requirements.txt\n(in {})",
+            python.display(),
+            root.display()
+        );
+    }
+    let harness = root.join("tests/mitsuba/crosscheck.py");
+    if args.spp < 2 {
+        bail!("--spp {}: at least 2 samples per pixel are needed (the noise is estimated from independent groups)", args.spp);
+    }
+    if args.views == 0 {
+        bail!("--views 0: at least one view is needed");
+    }
+    let scene_path = resolve_scene(&args.scene)?;
+    let name = scene_path.file_stem().and_then(|s| s.to_str()).unwrap_or("scene").to_string();
+    let out = args.out.clone().unwrap_or_else(|| root.join("out/crosscheck").join(&name));
+
+    let mut cfg = DatasetRenderConfig::preset(Preset::Quick);
+    (cfg.width, cfg.height) = parse_resolution(&args.res)?;
+    cfg.train = args.views;
+    cfg.spp = args.spp;
+    cfg.max_bounces = args.max_bounces;
+    cfg.seed = args.seed;
+    cfg.environment = pathtracer::dataset_render::parse_rgb(&args.environment)
+        .map_err(|m| anyhow::anyhow!("--environment {}: {m}", args.environment))?;
+    cfg.validate()?;
+
+    let scene = load_gltf(&scene_path, &ImportOptions::default()).with_context(|| format!("loading {}", scene_path.display()))?;
+    let rig = build_rig(&scene, &cfg.rig_config())?;
+    let cameras: Vec<_> = rig.split(dataset::SplitKind::Train).to_vec();
+    let settings = RenderSettings {
+        spp: cfg.spp,
+        max_bounces: cfg.max_bounces,
+        seed: cfg.seed,
+        environment: cfg.environment,
+        transparent_background: false,
+    };
+    settings.validate()?;
+    let groups = reference_groups(settings.spp, args.max_groups.max(2));
+    if groups < 2 {
+        bail!("--spp {} is prime above --max-groups {}: choose an spp with a divisor between 2 and {}", args.spp, args.max_groups, args.max_groups);
+    }
+
+    let export_dir = out.join("export");
+    let ours_dir = out.join("ours");
+    export_scene(&scene, &cameras, &settings, &export_dir).with_context(|| format!("exporting to {}", export_dir.display()))?;
+    println!("exported {} ({} triangles, {} views, rig {}) to {}", name, scene.mesh.indices.len(), cameras.len(), rig.kind.name(), export_dir.display());
+
+    let renderer = Renderer::new(scene, &AccelParams::medium_build())?;
+    let start = std::time::Instant::now();
+    for (k, cam) in cameras.iter().enumerate() {
+        let v = render_reference(&renderer, cam, k as u32, &settings, groups)?;
+        if v.nonfinite_samples > 0 {
+            tracing::warn!("view {k}: {} non-finite radiance samples replaced by zero", v.nonfinite_samples);
+        }
+        write_reference(&ours_dir, &format!("view_{k}"), &v)?;
+    }
+    println!(
+        "ours: {} view(s) at {}x{}, {} spp in {groups} groups, {:.1} s",
+        cameras.len(),
+        cfg.width,
+        cfg.height,
+        settings.spp,
+        start.elapsed().as_secs_f64()
+    );
+
+    let status = std::process::Command::new(&python)
+        .arg(&harness)
+        .arg("--export")
+        .arg(&export_dir)
+        .arg("--ours")
+        .arg(&ours_dir)
+        .arg("--out")
+        .arg(&out)
+        .arg("--groups")
+        .arg(groups.to_string())
+        .arg("--variant")
+        .arg(&args.variant)
+        .status()
+        .with_context(|| format!("running {} {}", python.display(), harness.display()))?;
+    match status.code() {
+        Some(0) => {
+            println!("cross-check passed: {}", out.join("crosscheck.md").display());
+            Ok(())
+        }
+        Some(1) => bail!("cross-check FAILED: see {}", out.join("crosscheck.md").display()),
+        Some(2) => bail!("the scene uses a feature the Mitsuba cross-check cannot reproduce (message above)"),
+        _ => bail!("the Mitsuba harness failed ({status})"),
+    }
+}
