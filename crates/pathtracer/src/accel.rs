@@ -199,7 +199,7 @@ impl Accel {
                         if !m.double_sided {
                             f |= CULL_BACK;
                         }
-                        if matches!(m.alpha_mode, AlphaMode::Mask { .. }) {
+                        if matches!(m.alpha_mode, AlphaMode::Mask { .. } | AlphaMode::Blend) {
                             f |= ALPHA_TEST;
                         }
                         f

@@ -13,6 +13,17 @@
 //!   `min(1, max throughput component)`.
 //! - Camera rays that miss return the environment radiance, or zero with `primary_hit =
 //!   false` when the background is transparent (the environment still lights the scene).
+//!   The environment (constant or an equirectangular map) is sampled with its own density
+//!   ([`Environment::sample`] / [`Environment::pdf`]) and MIS-combined like the emitters.
+//! - Shading: BSDFs are evaluated in [`shading_frame`] around the interpolated normal,
+//!   perturbed by the material's normal map ([`normal_mapped`], with the asset's TANGENT or a
+//!   per-triangle tangent from the normal map's UV set, [`triangle_tangent`]) and bent
+//!   towards the viewer when it faces away. The ground-truth normal ([`Interaction::frame`])
+//!   is the interpolated normal without the normal map.
+//! - Alpha: `Mask` cuts where alpha < cutoff; `Blend` is stochastic coverage: a ray passes
+//!   through a blended triangle when `hash(ray, triangle) ≥ alpha` ([`alpha_test`]), so the
+//!   decision is deterministic per ray and coverage averages to alpha over rays. Light
+//!   sampled on a blended emitter is weighted by its alpha (the expected coverage).
 //!
 //! Shadow and bounce rays start at [`offset_ray_origin`] so they neither re-hit their own
 //! surface nor leak through it; shadow rays to a point stop `1e-4` (relative) short of it.
@@ -23,8 +34,8 @@
 use crate::accel::{Accel, Hit};
 use crate::geometry::{Frame, Ray, hit_point_error, offset_ray_origin};
 use crate::light::{EmissiveTriangles, Environment, punctual_incidence};
-use crate::material::{SurfaceAttributes, base_color, emission, facing_frame, resolve};
-use crate::sampler::{Sampler, power_heuristic};
+use crate::material::{SurfaceAttributes, base_color, emission, facing_frame, normal_mapped, resolve, shading_frame, triangle_tangent};
+use crate::sampler::{Sampler, power_heuristic, splitmix64};
 use crate::scene::{AlphaMode, Scene};
 use glam::{Vec2, Vec3, Vec4};
 
@@ -32,11 +43,11 @@ use glam::{Vec2, Vec3, Vec4};
 pub const SHADOW_EPSILON: f32 = 1e-4;
 
 /// The integrator's settings.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct IntegratorSettings {
     /// Maximum number of scattering events along a path.
     pub max_bounces: u32,
-    /// The constant environment (lights the scene; seen by camera misses unless transparent).
+    /// The environment (lights the scene; seen by camera misses unless transparent).
     pub environment: Environment,
     /// Camera rays that miss return zero radiance (alpha 0) instead of the environment.
     pub transparent_background: bool,
@@ -66,6 +77,10 @@ pub struct Interaction {
     pub ng_front: Vec3,
     /// Shading frame; its `n` is the interpolated normal facing the incoming ray.
     pub frame: Frame,
+    /// Unit interpolated normal on the front side (not flipped).
+    pub ns_front: Vec3,
+    /// Barycentrics of the hit.
+    pub b: [f32; 3],
     /// Interpolated texture coordinates and vertex colour.
     pub attr: SurfaceAttributes,
     /// Material index.
@@ -84,17 +99,50 @@ pub fn surface_attributes(scene: &Scene, prim: u32, b: [f32; 3]) -> SurfaceAttri
     SurfaceAttributes { uv: [lerp2(&m.uv0), lerp2(&m.uv1)], color }
 }
 
-/// Whether an alpha-masked triangle is present at barycentrics `b`: base-colour alpha
-/// (factor × texture × vertex colour) ≥ cutoff. Non-masked materials always pass.
-pub fn alpha_test(scene: &Scene, prim: u32, b: [f32; 3]) -> bool {
+/// A uniform number in `[0, 1)` that is a pure function of a ray and a triangle (SplitMix64
+/// over the bits of origin, direction and triangle index): the coin of stochastic `Blend`
+/// coverage.
+pub fn blend_hash(ray: &Ray, prim: u32) -> f32 {
+    let mut h = splitmix64(prim as u64);
+    for x in [ray.origin.x, ray.origin.y, ray.origin.z, ray.direction.x, ray.direction.y, ray.direction.z] {
+        h = splitmix64(h ^ x.to_bits() as u64);
+    }
+    (h >> 40) as f32 * (1.0 / 16_777_216.0)
+}
+
+/// Whether the triangle `prim` is present at barycentrics `b` for `ray`: `Mask`: base-colour
+/// alpha (factor × texture × vertex colour) ≥ cutoff; `Blend`: `blend_hash(ray, prim) <
+/// alpha` (present with probability alpha); `Opaque`: always.
+pub fn alpha_test(scene: &Scene, ray: &Ray, prim: u32, b: [f32; 3]) -> bool {
     let Some(mat) = scene.mesh.material.get(prim as usize).and_then(|&m| scene.materials.get(m as usize)) else { return true };
     match mat.alpha_mode {
         AlphaMode::Mask { cutoff } => {
             let attr = surface_attributes(scene, prim, b);
             base_color(mat, &scene.textures, &attr).w >= cutoff
         }
-        AlphaMode::Opaque | AlphaMode::Blend => true,
+        AlphaMode::Blend => {
+            let attr = surface_attributes(scene, prim, b);
+            blend_hash(ray, prim) < base_color(mat, &scene.textures, &attr).w
+        }
+        AlphaMode::Opaque => true,
     }
+}
+
+/// The tangent (xyz, handedness w) at a hit for normal mapping: the interpolated asset
+/// TANGENT when all three vertices have one, else [`triangle_tangent`] from the UV set
+/// `tex_coord`; zero when neither exists.
+pub fn tangent_at(scene: &Scene, prim: u32, b: [f32; 3], tex_coord: u32, n: Vec3) -> Vec4 {
+    let m = &scene.mesh;
+    let idx = m.indices[prim as usize];
+    let t = idx.map(|i| m.tangents.get(i as usize).copied().unwrap_or(Vec4::ZERO));
+    if t.iter().all(|v| v.truncate().length_squared() > 0.0) {
+        let xyz = (0..3).fold(Vec3::ZERO, |acc, k| acc + b[k] * t[k].truncate());
+        return xyz.extend(if t[0].w < 0.0 { -1.0 } else { 1.0 });
+    }
+    let uvs = if tex_coord == 1 { &m.uv1 } else { &m.uv0 };
+    let uv = idx.map(|i| uvs.get(i as usize).copied().unwrap_or(Vec2::ZERO));
+    let p = idx.map(|i| m.positions[i as usize]);
+    triangle_tangent(p, uv, n).unwrap_or(Vec4::ZERO)
 }
 
 /// Builds the [`Interaction`] for `hit` of `ray` (hit point from barycentrics, normals
@@ -107,6 +155,7 @@ pub fn interaction(scene: &Scene, ray: &Ray, hit: &Hit) -> Interaction {
     let ng_front = (p[1] - p[0]).cross(p[2] - p[0]).normalize_or_zero();
     let ns = (0..3).fold(Vec3::ZERO, |acc, k| acc + hit.b[k] * m.normals.get(idx[k] as usize).copied().unwrap_or(Vec3::ZERO));
     let ns = if ns.length_squared() > 1e-12 { ns } else { ng_front };
+    let ns_front = ns.normalize_or_zero();
     let (ng, frame) = facing_frame(ng_front, ns, ray.direction);
     Interaction {
         prim: hit.prim,
@@ -115,6 +164,8 @@ pub fn interaction(scene: &Scene, ray: &Ray, hit: &Hit) -> Interaction {
         ng,
         ng_front,
         frame,
+        ns_front,
+        b: hit.b,
         attr: surface_attributes(scene, hit.prim, hit.b),
         material: m.material.get(hit.prim as usize).copied().unwrap_or(0),
     }
@@ -141,19 +192,19 @@ impl std::fmt::Debug for PathIntegrator<'_> {
 impl PathIntegrator<'_> {
     /// Closest hit honouring alpha masks and back-face culling.
     pub fn intersect(&self, ray: &Ray) -> Option<Hit> {
-        self.accel.closest_hit(ray, f32::INFINITY, |prim, h| alpha_test(self.scene, prim, h.b))
+        self.accel.closest_hit(ray, f32::INFINITY, |prim, h| alpha_test(self.scene, ray, prim, h.b))
     }
 
     /// Whether anything blocks `ray` before `t_max`.
     pub fn occluded(&self, ray: &Ray, t_max: f32) -> bool {
-        self.accel.occluded(ray, t_max, |prim, h| alpha_test(self.scene, prim, h.b))
+        self.accel.occluded(ray, t_max, |prim, h| alpha_test(self.scene, ray, prim, h.b))
     }
 
     /// The radiance arriving at `ray.origin` from direction `−ray.direction` (unit).
     pub fn radiance(&self, ray: &Ray, sampler: &mut Sampler) -> RadianceSample {
-        let env = self.settings.environment;
+        let env = &self.settings.environment;
         let Some(first) = self.intersect(ray) else {
-            let radiance = if self.settings.transparent_background { Vec3::ZERO } else { env.radiance };
+            let radiance = if self.settings.transparent_background { Vec3::ZERO } else { env.eval(ray.direction) };
             return RadianceSample { radiance, primary_hit: false };
         };
         let scene = self.scene;
@@ -188,6 +239,15 @@ impl PathIntegrator<'_> {
             let u_rr = sampler.next_1d();
 
             let wo = -ray.direction;
+            let ns = match &mat.normal_texture {
+                Some((r, _)) => {
+                    let tangent = tangent_at(scene, si.prim, si.b, r.tex_coord, si.ng_front);
+                    normal_mapped(mat, &scene.textures, &si.attr, si.ns_front, tangent)
+                }
+                None => si.ns_front,
+            };
+            let frame = shading_frame(ns, si.frame.n.dot(si.ns_front) < 0.0, wo);
+            let si = Interaction { frame, ..si };
             let wo_l = si.frame.to_local(wo);
             let bsdf = surf.bsdf;
 
@@ -223,17 +283,18 @@ impl PathIntegrator<'_> {
             }
 
             // Environment: one sample, MIS with BSDF sampling.
-            if !env.is_black() {
-                let (wi, pdf) = env.sample(u_env);
-                if wi.dot(si.ng) > 0.0 {
-                    let wi_l = si.frame.to_local(wi);
-                    let f = bsdf.evaluate(wo_l, wi_l);
-                    if f.max_element() > 0.0 {
-                        let o = offset_ray_origin(si.p, si.p_err, si.ng, wi);
-                        if !self.occluded(&Ray::new(o, wi), f32::INFINITY) {
-                            let w = power_heuristic(pdf, bsdf.pdf(wo_l, wi_l));
-                            l += beta * f * env.radiance * (w / pdf);
-                        }
+            if !env.is_black()
+                && let Some((wi, pdf)) = env.sample(u_env)
+                && wi.dot(si.ng) > 0.0
+            {
+                let wi_l = si.frame.to_local(wi);
+                let f = bsdf.evaluate(wo_l, wi_l);
+                let le = env.eval(wi);
+                if f.max_element() > 0.0 && le.max_element() > 0.0 {
+                    let o = offset_ray_origin(si.p, si.p_err, si.ng, wi);
+                    if !self.occluded(&Ray::new(o, wi), f32::INFINITY) {
+                        let w = power_heuristic(pdf, bsdf.pdf(wo_l, wi_l));
+                        l += beta * f * le * (w / pdf);
                     }
                 }
             }
@@ -262,7 +323,7 @@ impl PathIntegrator<'_> {
                 }
                 None => {
                     if !env.is_black() {
-                        l += beta * env.radiance * power_heuristic(prev_bsdf_pdf, Environment::PDF);
+                        l += beta * env.eval(ray.direction) * power_heuristic(prev_bsdf_pdf, env.pdf(ray.direction));
                     }
                     break;
                 }
@@ -294,10 +355,15 @@ impl PathIntegrator<'_> {
         if !lmat.double_sided && cos_l <= 0.0 {
             return Vec3::ZERO;
         }
-        if lmat.alpha_mode != AlphaMode::Opaque && !alpha_test(scene, es.prim, es.b) {
-            return Vec3::ZERO;
-        }
-        let le = emission(lmat, &scene.textures, &surface_attributes(scene, es.prim, es.b));
+        let lattr = surface_attributes(scene, es.prim, es.b);
+        let coverage = match lmat.alpha_mode {
+            AlphaMode::Opaque => 1.0,
+            AlphaMode::Mask { cutoff } => {
+                if base_color(lmat, &scene.textures, &lattr).w >= cutoff { 1.0 } else { 0.0 }
+            }
+            AlphaMode::Blend => base_color(lmat, &scene.textures, &lattr).w.clamp(0.0, 1.0),
+        };
+        let le = emission(lmat, &scene.textures, &lattr) * coverage;
         if le.max_element() <= 0.0 {
             return Vec3::ZERO;
         }

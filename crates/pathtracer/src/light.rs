@@ -13,16 +13,22 @@
 //!   triangle with probability proportional to its power proxy `area × luminance(emissive
 //!   factor) × sides` (a CDF, binary search), then a uniform point on it; the solid-angle
 //!   density at the receiver is `pmf / area · r² / |cos θ_light|`.
-//! - [`Environment`]: constant radiance from every direction, sampled uniformly on the
-//!   sphere (`pdf = 1/4π`).
+//!   With an emissive texture the proxy is multiplied by the texture's mean luminance (a
+//!   cheap per-material estimate; the pdf stays exact because it uses the same table).
+//! - [`Environment`]: radiance `scale × map(ω)` from every direction `ω`. Without a map, a
+//!   constant sampled uniformly on the sphere (`pdf = 1/4π`). With an [`EnvironmentMap`] (an
+//!   equirectangular HDR image), importance sampled in proportion to luminance × sin θ.
 
 // Negated comparisons (`!(x > 0.0)`) are deliberate: they also reject NaN.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
+use crate::PathTracerError;
 use crate::sampler::{sample_uniform_sphere, sample_uniform_triangle};
 use crate::scene::{Light, Scene};
 use glam::{Vec2, Vec3};
 use std::f32::consts::PI;
+use std::path::Path;
+use std::sync::Arc;
 
 /// Rec. 709 luminance of linear RGB.
 #[inline]
@@ -90,23 +96,219 @@ pub fn punctual_incidence(light: &Light, p: Vec3) -> Option<PunctualIncidence> {
     }
 }
 
-/// A constant environment: radiance `radiance` from every direction.
-#[derive(Clone, Copy, Debug, PartialEq)]
+/// An equirectangular environment map in Mitsuba 3's `envmap` convention (so the Mitsuba
+/// cross-check can load the same file with an identity `to_world`): the direction towards
+/// the environment for image coordinates `(u, v) ∈ [0, 1)²` (u to the right, v down from the
+/// top row) is, with `φ = 2π u`, `θ = π v`,
+/// `ω = (sin φ sin θ, cos θ, −cos φ sin θ)` (world +Y up: the top row is the zenith), and
+/// inversely `u = atan2(ω.x, −ω.z) / 2π (mod 1)`, `v = acos(ω.y) / π`.
+///
+/// Radiance is piecewise constant (nearest texel; texel `(i, j)` covers
+/// `[i/W, (i+1)/W) × [j/H, (j+1)/H)`). Sampling: a 2D piecewise-constant distribution with
+/// texel weights `w_ij = Y(L_ij) · sin θ_j` (Y luminance, θ_j at the row's centre; a texel
+/// with zero luminance but some positive channel gets `10⁻³ × max channel`): a row from the
+/// marginal CDF, a texel from that row's conditional CDF, a uniform point inside it. The
+/// density per unit area of the unit square is `p(u, v) = W H w_ij / Σ w`, and per steradian
+/// `pdf(ω) = p(u, v) / (2π² sin θ)` (the Jacobian of the equirectangular map).
+#[derive(Clone, Debug, PartialEq)]
+pub struct EnvironmentMap {
+    width: u32,
+    height: u32,
+    /// Linear RGB radiance, row-major from the top row.
+    texels: Vec<Vec3>,
+    /// Inclusive CDF over rows (normalised), `height` entries.
+    marginal_cdf: Vec<f32>,
+    /// Per row, the inclusive CDF over its texels (normalised), `width × height` entries.
+    conditional_cdf: Vec<f32>,
+    /// `W H w_ij / Σ w` per texel: the density over the unit square.
+    density: Vec<f32>,
+}
+
+impl EnvironmentMap {
+    /// A map from `width × height` linear RGB texels (row-major, top row first). Negative or
+    /// non-finite channels are read as 0. Errors name what is wrong.
+    pub fn from_texels(width: u32, height: u32, texels: Vec<Vec3>) -> Result<Self, String> {
+        let (w, h) = (width as usize, height as usize);
+        if w == 0 || h == 0 || texels.len() != w * h {
+            return Err(format!("environment map of {width}×{height} with {} texels", texels.len()));
+        }
+        let texels: Vec<Vec3> = texels.into_iter().map(|c| Vec3::from_array(c.to_array().map(|x| if x.is_finite() && x > 0.0 { x } else { 0.0 }))).collect();
+        let mut weights = vec![0.0f64; w * h];
+        let mut row_sums = vec![0.0f64; h];
+        for j in 0..h {
+            let sin_t = (PI as f64 * (j as f64 + 0.5) / h as f64).sin();
+            for i in 0..w {
+                let c = texels[j * w + i];
+                let y = luminance(c);
+                let y = if y > 0.0 { y } else { 1e-3 * c.max_element() };
+                let wt = y as f64 * sin_t;
+                weights[j * w + i] = wt;
+                row_sums[j] += wt;
+            }
+        }
+        let total: f64 = row_sums.iter().sum();
+        let mut marginal_cdf = vec![0.0f32; h];
+        let mut conditional_cdf = vec![0.0f32; w * h];
+        let mut density = vec![0.0f32; w * h];
+        let mut acc = 0.0f64;
+        for j in 0..h {
+            acc += row_sums[j];
+            marginal_cdf[j] = if total > 0.0 { (acc / total) as f32 } else { (j + 1) as f32 / h as f32 };
+            let mut racc = 0.0f64;
+            for i in 0..w {
+                racc += weights[j * w + i];
+                conditional_cdf[j * w + i] = if row_sums[j] > 0.0 { (racc / row_sums[j]) as f32 } else { (i + 1) as f32 / w as f32 };
+                density[j * w + i] = if total > 0.0 { (weights[j * w + i] * (w * h) as f64 / total) as f32 } else { 0.0 };
+            }
+            conditional_cdf[j * w + w - 1] = 1.0;
+        }
+        marginal_cdf[h - 1] = 1.0;
+        Ok(Self { width, height, texels, marginal_cdf, conditional_cdf, density })
+    }
+
+    /// Reads an equirectangular map: OpenEXR (`.exr`, first RGBA layer) or Radiance HDR
+    /// (`.hdr`), linear radiance.
+    pub fn load(path: &Path) -> Result<Self, PathTracerError> {
+        let err = |m: String| PathTracerError::import(path, m);
+        let ext = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).unwrap_or_default();
+        let (w, h, texels) = match ext.as_str() {
+            "exr" => {
+                struct Px {
+                    w: usize,
+                    data: Vec<Vec3>,
+                }
+                let img = exr::prelude::read_first_rgba_layer_from_file(
+                    path,
+                    |res, _| Px { w: res.width(), data: vec![Vec3::ZERO; res.width() * res.height()] },
+                    |px: &mut Px, pos, (r, g, b, _a): (f32, f32, f32, f32)| {
+                        let w = px.w;
+                        px.data[pos.y() * w + pos.x()] = Vec3::new(r, g, b);
+                    },
+                )
+                .map_err(|e| err(format!("reading environment map: {e}")))?;
+                let size = img.layer_data.size;
+                (size.width() as u32, size.height() as u32, img.layer_data.channel_data.pixels.data)
+            }
+            "hdr" => {
+                let img = image::ImageReader::open(path)
+                    .map_err(|e| err(format!("reading environment map: {e}")))?
+                    .with_guessed_format()
+                    .map_err(|e| err(format!("reading environment map: {e}")))?
+                    .decode()
+                    .map_err(|e| err(format!("decoding environment map: {e}")))?
+                    .into_rgb32f();
+                let (w, h) = img.dimensions();
+                (w, h, img.pixels().map(|p| Vec3::new(p.0[0], p.0[1], p.0[2])).collect())
+            }
+            _ => return Err(err("environment map must be .exr or .hdr".into())),
+        };
+        Self::from_texels(w, h, texels).map_err(err)
+    }
+
+    /// Width and height in texels.
+    pub fn size(&self) -> (u32, u32) {
+        (self.width, self.height)
+    }
+
+    /// The direction for image coordinates `uv` (see the type docs).
+    pub fn direction(uv: Vec2) -> Vec3 {
+        let (phi, theta) = (2.0 * PI * uv.x, PI * uv.y);
+        let (st, ct) = theta.sin_cos();
+        let (sp, cp) = phi.sin_cos();
+        Vec3::new(sp * st, ct, -cp * st)
+    }
+
+    /// Image coordinates of a unit direction (inverse of [`EnvironmentMap::direction`]).
+    pub fn uv(dir: Vec3) -> Vec2 {
+        let u = (dir.x.atan2(-dir.z) / (2.0 * PI)).rem_euclid(1.0);
+        let v = dir.y.clamp(-1.0, 1.0).acos() / PI;
+        Vec2::new(if u < 1.0 { u } else { 0.0 }, v)
+    }
+
+    fn texel_index(&self, uv: Vec2) -> usize {
+        let i = ((uv.x * self.width as f32) as usize).min(self.width as usize - 1);
+        let j = ((uv.y * self.height as f32) as usize).min(self.height as usize - 1);
+        j * self.width as usize + i
+    }
+
+    /// Radiance towards unit direction `dir` (nearest texel).
+    pub fn radiance(&self, dir: Vec3) -> Vec3 {
+        self.texels[self.texel_index(Self::uv(dir))]
+    }
+
+    /// Density per steradian with which [`EnvironmentMap::sample`] draws `dir`.
+    pub fn pdf(&self, dir: Vec3) -> f32 {
+        let uv = Self::uv(dir);
+        let sin_t = (1.0 - dir.y * dir.y).max(0.0).sqrt();
+        if !(sin_t > 0.0) {
+            return 0.0;
+        }
+        self.density[self.texel_index(uv)] / (2.0 * PI * PI * sin_t)
+    }
+
+    /// A direction drawn in proportion to luminance × sin θ, and its density per steradian
+    /// (`None` at the poles, where the density is undefined).
+    pub fn sample(&self, u: Vec2) -> Option<(Vec3, f32)> {
+        let (w, h) = (self.width as usize, self.height as usize);
+        let j = self.marginal_cdf.partition_point(|&c| c <= u.y).min(h - 1);
+        let lo = if j == 0 { 0.0 } else { self.marginal_cdf[j - 1] };
+        let fy = ((u.y - lo) / (self.marginal_cdf[j] - lo)).clamp(0.0, 1.0);
+        let row = &self.conditional_cdf[j * w..(j + 1) * w];
+        let i = row.partition_point(|&c| c <= u.x).min(w - 1);
+        let lo = if i == 0 { 0.0 } else { row[i - 1] };
+        let fx = ((u.x - lo) / (row[i] - lo)).clamp(0.0, 1.0);
+        let fx = if fx.is_finite() { fx } else { 0.5 };
+        let fy = if fy.is_finite() { fy } else { 0.5 };
+        let uv = Vec2::new((i as f32 + fx) / w as f32, (j as f32 + fy) / h as f32);
+        let dir = Self::direction(uv);
+        let sin_t = (PI * uv.y).sin();
+        let pdf = self.density[j * w + i] / (2.0 * PI * PI * sin_t);
+        (pdf > 0.0 && pdf.is_finite()).then_some((dir, pdf))
+    }
+}
+
+/// The environment: radiance `radiance × map(ω)` from every direction ω, or `radiance`
+/// everywhere without a map (see the module docs).
+#[derive(Clone, Debug, PartialEq)]
 pub struct Environment {
-    /// Linear RGB radiance.
+    /// Linear RGB radiance (without a map) or scale of the map.
     pub radiance: Vec3,
+    /// Optional equirectangular map.
+    pub map: Option<Arc<EnvironmentMap>>,
 }
 
 impl Environment {
-    /// Density of [`Environment::sample`]: `1 / 4π` per steradian.
+    /// Density of the constant environment's sampling: `1 / 4π` per steradian.
     pub const PDF: f32 = 1.0 / (4.0 * PI);
-    /// Whether the environment emits anything.
+    /// A constant environment.
+    pub fn constant(radiance: Vec3) -> Self {
+        Self { radiance, map: None }
+    }
+    /// Whether the environment emits nothing.
     pub fn is_black(&self) -> bool {
         self.radiance.max_element() <= 0.0
     }
-    /// A uniformly distributed direction and its density.
-    pub fn sample(&self, u: Vec2) -> (Vec3, f32) {
-        (sample_uniform_sphere(u), Self::PDF)
+    /// Radiance arriving from unit direction `dir` (pointing away from the scene).
+    pub fn eval(&self, dir: Vec3) -> Vec3 {
+        match &self.map {
+            None => self.radiance,
+            Some(m) => self.radiance * m.radiance(dir),
+        }
+    }
+    /// A direction and its density per steradian (uniform without a map, importance sampled
+    /// with one).
+    pub fn sample(&self, u: Vec2) -> Option<(Vec3, f32)> {
+        match &self.map {
+            None => Some((sample_uniform_sphere(u), Self::PDF)),
+            Some(m) => m.sample(u),
+        }
+    }
+    /// Density of [`Environment::sample`] at `dir`.
+    pub fn pdf(&self, dir: Vec3) -> f32 {
+        match &self.map {
+            None => Self::PDF,
+            Some(m) => m.pdf(dir),
+        }
     }
 }
 
@@ -143,6 +345,18 @@ impl EmissiveTriangles {
         let mut prims = Vec::new();
         let mut weights = Vec::new();
         let mut area_by_prim = vec![0.0f32; n];
+        // Mean luminance of each emissive material's emissive texture (1 without one).
+        let tex_mean: Vec<f64> = scene
+            .materials
+            .iter()
+            .map(|m| {
+                let Some(t) = m.emissive_texture.filter(|_| m.is_emissive()).and_then(|r| scene.textures.get(r.texture as usize)) else { return 1.0 };
+                if t.texels.is_empty() {
+                    return 1.0;
+                }
+                t.texels.iter().map(|c| luminance(c.truncate().max(Vec3::ZERO)) as f64).sum::<f64>() / t.texels.len() as f64
+            })
+            .collect();
         for (k, idx) in mesh.indices.iter().enumerate() {
             let Some(m) = mesh.material.get(k).and_then(|&m| scene.materials.get(m as usize)) else { continue };
             if !m.is_emissive() {
@@ -155,7 +369,8 @@ impl EmissiveTriangles {
             }
             area_by_prim[k] = area;
             let sides = if m.double_sided { 2.0 } else { 1.0 };
-            let w = area as f64 * luminance(m.emissive.max(Vec3::ZERO)) as f64 * sides * std::f64::consts::PI;
+            let tex = tex_mean[mesh.material[k] as usize];
+            let w = area as f64 * luminance(m.emissive.max(Vec3::ZERO)) as f64 * tex * sides * std::f64::consts::PI;
             if w > 0.0 && w.is_finite() {
                 prims.push(k as u32);
                 weights.push(w);
@@ -186,7 +401,7 @@ impl EmissiveTriangles {
         self.prims.len()
     }
 
-    /// Sum of the power proxies (W, using the emissive factors, ignoring textures).
+    /// Sum of the power proxies (W: emissive factors × mean emissive-texture luminance).
     pub fn total_power(&self) -> f64 {
         self.total_power
     }

@@ -21,7 +21,8 @@ use crate::PathTracerError;
 use crate::accel::{Accel, AccelParams, Hit};
 use crate::geometry::{Ray, ray_triangle_plane_distance_f64};
 use crate::integrator::{IntegratorSettings, PathIntegrator, interaction};
-use crate::light::{EmissiveTriangles, Environment};
+use crate::light::{EmissiveTriangles, Environment, EnvironmentMap};
+use std::sync::Arc;
 use crate::sampler::Sampler;
 use crate::scene::{Light, Scene};
 use dataset::{Camera, GroundTruth, RgbaImage};
@@ -39,7 +40,9 @@ pub struct RenderSettings {
     pub max_bounces: u32,
     /// Seed of the counter-based sampler.
     pub seed: u64,
-    /// Constant environment radiance (linear RGB, ≥ 0); lights the scene in every case.
+    /// Constant environment radiance (linear RGB, ≥ 0), or the scale of the renderer's
+    /// environment map when it has one ([`Renderer::set_environment_map`]); lights the scene
+    /// in every case.
     pub environment: [f32; 3],
     /// Whether camera rays that miss are transparent (alpha 0, RGB 0) instead of showing the
     /// environment.
@@ -68,11 +71,11 @@ impl RenderSettings {
         }
         Ok(())
     }
-    fn integrator_settings(&self) -> IntegratorSettings {
+    fn integrator_settings(&self, map: Option<Arc<EnvironmentMap>>) -> IntegratorSettings {
         let env = Vec3::from_array(self.environment.map(|c| if c.is_finite() && c > 0.0 { c } else { 0.0 }));
         IntegratorSettings {
             max_bounces: self.max_bounces.min(1024),
-            environment: Environment { radiance: env },
+            environment: Environment { radiance: env, map },
             transparent_background: self.transparent_background,
         }
     }
@@ -124,6 +127,9 @@ pub struct Renderer {
     scene: Scene,
     accel: Accel,
     emitters: EmissiveTriangles,
+    /// Equirectangular environment map lighting the scene (scaled by
+    /// [`RenderSettings::environment`]); `None`: the constant environment.
+    environment_map: Option<Arc<EnvironmentMap>>,
 }
 
 impl std::fmt::Debug for Renderer {
@@ -195,7 +201,7 @@ impl Renderer {
         validate_scene(&scene)?;
         let accel = Accel::build(&scene, accel)?;
         let emitters = EmissiveTriangles::build(&scene);
-        Ok(Renderer { scene, accel, emitters })
+        Ok(Renderer { scene, accel, emitters, environment_map: None })
     }
 
     /// The scene.
@@ -220,9 +226,21 @@ impl Renderer {
         crate::material::scene_is_view_dependent(&self.scene)
     }
 
+    /// Lights the scene with an equirectangular environment map (e.g.
+    /// [`EnvironmentMap::load`]), scaled by [`RenderSettings::environment`]; `None` restores
+    /// the constant environment.
+    pub fn set_environment_map(&mut self, map: Option<Arc<EnvironmentMap>>) {
+        self.environment_map = map;
+    }
+
+    /// The environment map, if any.
+    pub fn environment_map(&self) -> Option<&Arc<EnvironmentMap>> {
+        self.environment_map.as_ref()
+    }
+
     /// The path integrator for `settings`.
     pub fn integrator(&self, settings: &RenderSettings) -> PathIntegrator<'_> {
-        PathIntegrator { scene: &self.scene, accel: &self.accel, emitters: &self.emitters, settings: settings.integrator_settings() }
+        PathIntegrator { scene: &self.scene, accel: &self.accel, emitters: &self.emitters, settings: settings.integrator_settings(self.environment_map.clone()) }
     }
 
     /// A world-space (`f64`) ray moved into the scene's local `f32` frame.
@@ -235,7 +253,7 @@ impl Renderer {
     /// the hit, its `f64` distance and the shading normal facing the ray.
     pub fn trace_primary(&self, ray: &dataset::Ray) -> Option<PrimaryHit> {
         let local = self.local_ray(ray);
-        let integ = PathIntegrator { scene: &self.scene, accel: &self.accel, emitters: &self.emitters, settings: RenderSettings::preview(0).integrator_settings() };
+        let integ = PathIntegrator { scene: &self.scene, accel: &self.accel, emitters: &self.emitters, settings: RenderSettings::preview(0).integrator_settings(None) };
         let hit = integ.intersect(&local)?;
         let m = &self.scene.mesh;
         let p = m.indices[hit.prim as usize].map(|i| m.positions[i as usize]);
