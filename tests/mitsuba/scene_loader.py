@@ -6,11 +6,11 @@ local frame (world - origin), as our renderer does, so both trace in the same f3
 
 Mapping (ours -> Mitsuba):
 - triangles of material k -> one `mi.Mesh` with vertex normals and TEXCOORD_0;
-- Lambertian material (view_dependent false): `diffuse` with reflectance
+- exactly Lambertian material (metallic 0 and specular weight 0): `diffuse` with reflectance
   clamp(base_color_factor x base_color_texture x COLOR_0, 0, 1) (texture: `bitmap`, raw linear
   texels, glTF filter and wrap; vertex colours: `mesh_attribute`); double-sided -> `twosided`;
-- view-dependent material -> the `gltf` BSDF plugin of `gltf_bsdf.py` (our BRDF, written from
-  the Rust doc comments) when available;
+- every other material -> the `gltf` BSDF plugin of `gltf_bsdf.py` (our glTF BRDF, written
+  from the Rust doc comments), with the same base colour texture;
 - emissive material -> `area` emitter, radiance = emissive (x emissive texture);
 - point -> `point` (intensity W/sr = candela); directional -> `directional` (irradiance = lux);
   spot -> `gltf_spot` (glTF's smooth falloff, `gltf_lights.py`);
@@ -86,9 +86,12 @@ def lambert_reflectance(mi, mat, textures, has_vertex_colors):
 def material_bsdf(mi, mat, textures, has_vertex_colors, glossy_plugin):
     if mat["alpha_mode"] == "mask":
         raise Unsupported(f"material {mat['name']}: alpha mask")
-    if mat["view_dependent"]:
+    # Ours shades exactly Lambertian only when metallic and the specular weight are both 0
+    # (material.rs `resolve`); everything else goes through the glTF BRDF.
+    lambertian = mat["metallic"] <= 0.0 and mat.get("specular", 1.0) <= 0.0 and mat["metallic_roughness_texture"] is None
+    if not lambertian:
         if glossy_plugin is None:
-            raise Unsupported(f"material {mat['name']}: view-dependent shading without the gltf BSDF plugin")
+            raise Unsupported(f"material {mat['name']}: glTF BRDF without the gltf BSDF plugin")
         inner = glossy_plugin(mi, mat, textures, has_vertex_colors)
     else:
         inner = {"type": "diffuse", "reflectance": lambert_reflectance(mi, mat, textures, has_vertex_colors)}
