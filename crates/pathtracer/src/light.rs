@@ -239,7 +239,7 @@ impl EnvironmentMap {
     /// Density per steradian with which [`EnvironmentMap::sample`] draws `dir`.
     pub fn pdf(&self, dir: Vec3) -> f32 {
         let uv = Self::uv(dir);
-        let sin_t = (1.0 - dir.y * dir.y).max(0.0).sqrt();
+        let sin_t = (dir.x * dir.x + dir.z * dir.z).sqrt();
         if !(sin_t > 0.0) {
             return 0.0;
         }
@@ -442,6 +442,94 @@ impl EmissiveTriangles {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    use crate::sampler::Sampler;
+
+    /// A 16 × 8 map with a bright spot, a gradient and a black texel.
+    fn test_map() -> EnvironmentMap {
+        let (w, h) = (16u32, 8u32);
+        let mut t = Vec::new();
+        for j in 0..h {
+            for i in 0..w {
+                let mut c = Vec3::new(0.2 + 0.05 * i as f32, 0.1 + 0.1 * j as f32, 0.3);
+                if (i, j) == (5, 2) {
+                    c = Vec3::new(50.0, 40.0, 30.0);
+                }
+                if (i, j) == (9, 6) {
+                    c = Vec3::ZERO;
+                }
+                t.push(c);
+            }
+        }
+        EnvironmentMap::from_texels(w, h, t).unwrap()
+    }
+
+    #[test]
+    fn environment_map_directions_round_trip_in_mitsuba_orientation() {
+        // Top row is +Y; u = 0 looks down −Z, u = 1/4 down +X (Mitsuba 3 envmap).
+        assert!((EnvironmentMap::direction(Vec2::new(0.3, 0.0)) - Vec3::Y).length() < 1e-6);
+        assert!((EnvironmentMap::direction(Vec2::new(0.0, 0.5)) - Vec3::new(0.0, 0.0, -1.0)).length() < 1e-6);
+        assert!((EnvironmentMap::direction(Vec2::new(0.25, 0.5)) - Vec3::X).length() < 1e-6);
+        for k in 0..1000u64 {
+            let uv = Sampler::new(1, 0, k, 0).next_2d() * 0.998 + Vec2::splat(0.001);
+            let back = EnvironmentMap::uv(EnvironmentMap::direction(uv));
+            assert!((back - uv).length() < 1e-4, "{uv} -> {back}");
+        }
+    }
+
+    #[test]
+    fn environment_map_pdf_integrates_to_one_and_matches_sampling() {
+        let m = test_map();
+        // ∫ pdf dω = ∫∫ pdf sin θ dθ dφ by the midpoint rule on a (θ, φ) grid aligned with the
+        // texels (8 × 8 points per texel), so the piecewise-constant density is integrated
+        // exactly up to the sin θ quadrature: 1.
+        let (nt, np) = (8 * 8, 16 * 8);
+        let mut total = 0.0f64;
+        for a in 0..nt {
+            for b in 0..np {
+                let (t, phi) = (PI * (a as f32 + 0.5) / nt as f32, 2.0 * PI * (b as f32 + 0.5) / np as f32);
+                let d = EnvironmentMap::direction(Vec2::new(phi / (2.0 * PI), t / PI));
+                total += (m.pdf(d) * t.sin()) as f64;
+            }
+        }
+        total *= (PI as f64 / nt as f64) * (2.0 * std::f64::consts::PI / np as f64);
+        assert!((total - 1.0).abs() < 1e-4, "∫pdf = {total}");
+        // Sampled pdf equals pdf(dir); the importance-sampled estimate of ∫ L dω equals the
+        // exact sum Σ L_ij ΔΩ_ij with ΔΩ_ij = (2π/W)(cos θ_j − cos θ_j+1), within 4σ.
+        let (w, h) = m.size();
+        let mut exact = 0.0f64;
+        for j in 0..h {
+            let (t0, t1) = (PI * j as f32 / h as f32, PI * (j + 1) as f32 / h as f32);
+            let dw = 2.0 * std::f64::consts::PI / w as f64 * (t0.cos() - t1.cos()) as f64;
+            for i in 0..w {
+                exact += luminance(m.texels[(j * w + i) as usize]) as f64 * dw;
+            }
+        }
+        let n = 200_000u64;
+        let (mut s1, mut s2) = (0.0f64, 0.0f64);
+        for k in 0..n {
+            let Some((d, pdf)) = m.sample(Sampler::new(2, 0, k, 0).next_2d()) else { continue };
+            assert!((m.pdf(d) - pdf).abs() <= 1e-3 * pdf, "{} vs {pdf}", m.pdf(d));
+            let v = luminance(m.radiance(d)) as f64 / pdf as f64;
+            s1 += v;
+            s2 += v * v;
+        }
+        let mean = s1 / n as f64;
+        let se = ((s2 / n as f64 - mean * mean).max(0.0) / n as f64).sqrt();
+        assert!((mean - exact).abs() < 4.0 * se + 1e-6 * exact, "{mean} ± {se} vs {exact}");
+        // The bright texel (1/128 of the texels) is sampled in proportion to its weight.
+        let hits = (0..10_000u64).filter(|&k| m.sample(Sampler::new(3, 0, k, 0).next_2d()).is_some_and(|(d, _)| {
+            let uv = EnvironmentMap::uv(d);
+            ((uv.x * 16.0) as u32, (uv.y * 8.0) as u32) == (5, 2)
+        })).count();
+        // Its probability is its weight share, density / (W H) (binomial 4σ).
+        let p = m.density[(2 * w + 5) as usize] as f64 / (w * h) as f64;
+        let sd = (p * (1.0 - p) / 10_000.0).sqrt();
+        assert!(p > 0.4 && (hits as f64 / 10_000.0 - p).abs() < 4.0 * sd, "{hits} vs {p}");
+        // A black texel is never sampled; bad inputs are errors.
+        assert_eq!(m.pdf(EnvironmentMap::direction(Vec2::new(9.5 / 16.0, 6.5 / 8.0))), 0.0);
+        assert!(EnvironmentMap::from_texels(2, 2, vec![Vec3::ONE; 3]).is_err());
+    }
 
     #[test]
     fn spot_falloff_matches_gltf_formula() {

@@ -25,6 +25,9 @@
 //! double-sided triangles shade with the normal flipped towards the incoming ray and emit
 //! from both sides.
 
+// Negated comparisons (`!(x > 0.0)`) are deliberate: they also reject NaN.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
 use crate::geometry::Frame;
 use crate::light::luminance;
 use crate::sampler::sample_cosine_hemisphere;
@@ -785,7 +788,7 @@ mod tests {
                         if let Some(s) = b.sample(wo, u) {
                             assert!(s.weight.is_finite() && s.pdf.is_finite() && s.pdf > 0.0, "r {r} m {m} θ {theta}: {s:?}");
                         }
-                        let wi = dir(89.9 * u.x, 6.28 * u.y);
+                        let wi = dir(89.9 * u.x, std::f32::consts::TAU * u.y);
                         assert!(b.evaluate(wo, wi).is_finite() && b.pdf(wo, wi).is_finite());
                     }
                     // Exact mirror direction at roughness 0.

@@ -675,6 +675,80 @@ mod tests {
         assert_eq!(out.color.pixel(0, 0), [env, env, env, 1.0]);
     }
 
+    #[test]
+    fn constant_environment_map_renders_like_the_constant_environment() {
+        // Lambertian plane (closed form ρE) and a glossy metal plane (compared between the two
+        // environments, 4σ of the difference), with an 8 × 4 map of ones scaled by E.
+        let env = 2.0f32;
+        for (metallic, roughness) in [(0.0f32, 1.0f32), (1.0, 0.3)] {
+            let mut b = Builder::new();
+            let m = b.material(0.5, 0.0, false);
+            if metallic > 0.0 {
+                b.materials[m as usize].metallic_factor = metallic;
+                b.materials[m as usize].roughness_factor = roughness;
+                b.materials[m as usize].specular_factor = 1.0;
+            }
+            b.quad([Vec3::new(-100.0, 0.0, 100.0), Vec3::new(100.0, 0.0, 100.0), Vec3::new(100.0, 0.0, -100.0), Vec3::new(-100.0, 0.0, -100.0)], 1, m);
+            let mut r = Renderer::new(b.build(DVec3::ZERO), &AccelParams::fast_build()).unwrap();
+            let s = settings(1, 3, env, true);
+            let ray = Ray::new(Vec3::new(0.0, 1.0, 0.0), Vec3::new(0.4, -1.0, 0.1).normalize());
+            let (c_mean, c_se) = estimate(&r, &s, &ray, 20_000);
+            r.set_environment_map(Some(Arc::new(EnvironmentMap::from_texels(8, 4, vec![Vec3::ONE; 32]).unwrap())));
+            let (m_mean, m_se) = estimate(&r, &s, &ray, 20_000);
+            assert!((c_mean - m_mean).abs() < 4.0 * (c_se * c_se + m_se * m_se).sqrt(), "metallic {metallic}: {c_mean} ± {c_se} vs map {m_mean} ± {m_se}");
+            if metallic == 0.0 {
+                assert!((m_mean - 1.0).abs() < 4.0 * m_se + 1e-6, "{m_mean} ± {m_se} vs ρE = 1");
+            }
+            // Misses see the map.
+            let up = r.integrator(&settings(1, 3, env, false)).radiance(&Ray::new(Vec3::Y, Vec3::Y), &mut Sampler::new(0, 0, 0, 0));
+            assert_eq!(up.radiance, Vec3::splat(env));
+        }
+    }
+
+    #[test]
+    fn blended_surfaces_cover_alpha_of_the_rays_and_gltf_materials_render_finite() {
+        use crate::scene::{AlphaMode, Filter, Texture, TextureRef, Wrap};
+        let mut b = Builder::new();
+        let floor = b.material(0.5, 0.0, false);
+        let glass = b.material(0.5, 0.0, true);
+        b.materials[glass as usize].alpha_mode = AlphaMode::Blend;
+        b.materials[glass as usize].base_color_factor.w = 0.3;
+        // Floor: glTF default metal with a bumpy normal map (generated tangents).
+        b.materials[floor as usize] = Material::gltf_default();
+        b.materials[floor as usize].roughness_factor = 0.0;
+        b.materials[floor as usize].normal_texture = Some((TextureRef { texture: 0, tex_coord: 0, wrap_s: Wrap::Repeat, wrap_t: Wrap::Repeat, filter: Filter::Linear }, 1.0));
+        b.quad([Vec3::new(-5.0, 0.0, 5.0), Vec3::new(5.0, 0.0, 5.0), Vec3::new(5.0, 0.0, -5.0), Vec3::new(-5.0, 0.0, -5.0)], 4, floor);
+        b.quad([Vec3::new(-5.0, 1.0, 5.0), Vec3::new(5.0, 1.0, 5.0), Vec3::new(5.0, 1.0, -5.0), Vec3::new(-5.0, 1.0, -5.0)], 1, glass);
+        let mut scene = b.build(DVec3::ZERO);
+        for (k, p) in scene.mesh.positions.iter().enumerate() {
+            scene.mesh.uv0[k] = Vec2::new(p.x * 0.7, -p.z * 0.7);
+        }
+        // Strong tilts, including normals that face away from grazing viewers.
+        scene.textures.push(Texture { width: 2, height: 2, texels: vec![Vec4::new(1.0, 0.5, 0.05, 1.0), Vec4::new(0.0, 0.5, 0.3, 1.0), Vec4::new(0.5, 1.0, 0.1, 1.0), Vec4::new(0.5, 0.0, 0.5, 1.0)] });
+        scene.lights.push(Light::Point { position: Vec3::new(0.5, 3.0, 0.2), intensity: Vec3::splat(20.0), range: None });
+        let r = Renderer::new(scene, &AccelParams::fast_build()).unwrap();
+        assert!(r.is_view_dependent());
+        // Coverage: about 30 % of the rays stop at the blended quad (binomial 4σ).
+        let n = 20_000u64;
+        let stopped = (0..n)
+            .filter(|&k| {
+                let u = Sampler::new(4, 0, k, 0).next_2d();
+                let ray = dataset::Ray { origin: DVec3::new(u.x as f64 * 4.0 - 2.0, 3.0, u.y as f64 * 4.0 - 2.0), direction: DVec3::new(0.1, -1.0, 0.05).normalize() };
+                r.trace_primary(&ray).is_some_and(|h| h.distance < 2.5)
+            })
+            .count() as f64
+            / n as f64;
+        assert!((stopped - 0.3).abs() < 4.0 * (0.3f64 * 0.7 / n as f64).sqrt(), "coverage {stopped}");
+        // Deterministic per ray.
+        let ray = dataset::Ray { origin: DVec3::new(0.3, 3.0, 0.1), direction: -DVec3::Y };
+        assert_eq!(r.trace_primary(&ray).map(|h| h.distance), r.trace_primary(&ray).map(|h| h.distance));
+        // A mirror-like normal-mapped metal seen at grazing angles renders finite and lit.
+        let cam = camera(24, 16, 60.0, DVec3::new(0.0, 0.3, 4.0), DVec3::new(0.0, 0.0, -5.0));
+        let out = r.render_view(&cam, 0, &settings(8, 4, 0.5, true));
+        assert_eq!(out.nonfinite_samples, 0);
+        assert!(out.color.data.iter().all(|x| x.is_finite()) && out.color.data.iter().any(|&x| x > 0.0));
+    }
+
     /// Direct light at a point on a receiver from a parallel emissive rectangle of half-sizes
     /// (a, b) at height h centred above it: L = ρ · Le · F with F the point-to-rectangle form
     /// factor (sum of four corner rectangles).
