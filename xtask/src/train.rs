@@ -184,6 +184,11 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         summary.wall_s,
         summary.skipped_nonfinite
     );
+    let tm = trainer.timings;
+    eprintln!(
+        "time in steps: encoding {:.1}s, MLP {:.1}s, rendering {:.1}s, optimizer and grid updates {:.1}s",
+        tm.encoding, tm.mlp, tm.render, tm.optimizer
+    );
     eprintln!("outputs in {}", args.out.display());
     Ok(())
 }

@@ -8,7 +8,9 @@
 //! level [2^19] so that one level's table (2 MiB) stays near the core's cache, finest resolution
 //! 1024 over the bounding cube [2048 · scale] (enough for the 64–400 pixel images trained on a
 //! CPU; issue #6 will derive it from the image resolution), 64-wide networks, a 64³ occupancy
-//! grid over the scene box [128³] and a marching step of the cube's diagonal / 1024 [√3/1024].
+//! grid over the scene box [128³] and a marching step of the cube's diagonal / 512 [/ 1024].
+//! Training rays are compacted as in instant-ngp: a density-only pass finds where each ray
+//! becomes opaque, and only the samples before it are trained on.
 
 use super::ops::{self, DensityActivation, stream, stream_seed};
 use super::{RayOutputs, StepStats, StepTimings, all_finite, expected_distance, mse_and_grad};
@@ -65,8 +67,8 @@ pub struct FastConfig {
     #[config(default = 64)]
     pub grid_resolution: usize,
     /// Marching steps along the bounding cube's diagonal (the step size is diagonal / this;
-    /// instant-ngp: 1024).
-    #[config(default = 1024)]
+    /// instant-ngp: 1024 for 800-pixel images; 512 suits the ≤ 400-pixel images of CPU runs).
+    #[config(default = 512)]
     pub steps_per_diagonal: usize,
     /// Most samples per ray.
     #[config(default = 1024)]
@@ -75,8 +77,10 @@ pub struct FastConfig {
     /// (before it every cell is occupied).
     #[config(default = 16)]
     pub grid_update_interval: u64,
-    /// Updates before this step refresh every cell, later ones a random quarter (nerfacc: 256).
-    #[config(default = 256)]
+    /// Updates before this step refresh every cell, later ones a random quarter of the cells
+    /// plus a quarter of the occupied ones (nerfacc: 256 steps; 64 here: a full refresh of
+    /// 64³ cells costs several CPU steps, and CPU runs are short).
+    #[config(default = 64)]
     pub grid_warmup_steps: u64,
     /// A cell is occupied when σ·step_size exceeds this, or the mean of σ·step_size when that
     /// is lower (nerfacc's `occ_thre`).
@@ -85,6 +89,10 @@ pub struct FastConfig {
     /// Decay of a cell's running density per update (instant-ngp: 0.95).
     #[config(default = 0.95)]
     pub grid_decay: f32,
+    /// Training rays stop once their transmittance, from a density-only pass over the marched
+    /// samples, drops below this (instant-ngp: 1e-4); 0 trains on every marched sample.
+    #[config(default = 1e-4)]
+    pub train_min_transmittance: f32,
     /// Adam β₁ (instant-ngp 0.9).
     #[config(default = 0.9)]
     pub beta1: f32,
@@ -194,31 +202,46 @@ impl FastModel {
         self.occupancy.march(origins, dirs, &near, &far, &opt)
     }
 
-    /// Hash encoding `[n][L·F]` and SH `[n][deg²]` of samples, and their unit-cube points.
-    fn encode(&self, samples: &RaySamples, idx: Option<&[usize]>, origins: &[[f32; 3]], dirs: &[[f32; 3]]) -> (Vec<[f32; 3]>, Vec<f32>, Vec<f32>) {
-        let mid = |s: usize| 0.5 * samples.t_start[s] + 0.5 * samples.t_end[s];
+    /// Unit-cube points of samples (all, or those listed in `idx`).
+    fn unit_points(&self, samples: &RaySamples, idx: Option<&[usize]>, origins: &[[f32; 3]], dirs: &[[f32; 3]]) -> Vec<[f32; 3]> {
         let point = |s: usize| {
             let r = samples.ray_index[s] as usize;
-            let (o, d, t) = (origins[r], dirs[r], mid(s));
+            let (o, d, t) = (origins[r], dirs[r], 0.5 * samples.t_start[s] + 0.5 * samples.t_end[s]);
             self.bounds.to_unit([o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]])
         };
-        let unit: Vec<[f32; 3]> = match idx {
+        match idx {
             Some(ix) => ix.iter().map(|&s| point(s)).collect(),
             None => (0..samples.len()).map(point).collect(),
-        };
+        }
+    }
+
+    /// Hash encoding `[n][L·F]` of unit points.
+    fn hash_encode(&self, unit: &[[f32; 3]]) -> Vec<f32> {
         let mut enc = vec![0.0; unit.len() * self.grid.output_dim()];
-        self.grid.encode(&unit, &mut enc);
-        // SH once per ray, copied to its samples
+        self.grid.encode(unit, &mut enc);
+        enc
+    }
+
+    /// SH `[n][deg²]` of each sample's ray direction (`ray_of[k]` is sample `k`'s ray), computed
+    /// once per ray.
+    fn sh_of(&self, ray_of: impl Iterator<Item = usize>, n: usize, dirs: &[[f32; 3]]) -> Vec<f32> {
         let shd = sh_output_dim(self.config.sh_degree);
         let per_ray: Vec<[f32; 16]> = dirs.iter().map(|d| sh_encode(*d)).collect();
-        let mut sh = vec![0.0; unit.len() * shd];
-        let ray_of = |k: usize| match idx {
-            Some(ix) => samples.ray_index[ix[k]] as usize,
-            None => samples.ray_index[k] as usize,
-        };
-        for (k, o) in sh.chunks_exact_mut(shd).enumerate() {
-            o.copy_from_slice(&per_ray[ray_of(k)][..shd]);
+        let mut sh = vec![0.0; n * shd];
+        for (o, r) in sh.chunks_exact_mut(shd).zip(ray_of) {
+            o.copy_from_slice(&per_ray[r][..shd]);
         }
+        sh
+    }
+
+    /// Hash encoding, SH and unit points of samples (all, or those in `idx`).
+    fn encode(&self, samples: &RaySamples, idx: Option<&[usize]>, origins: &[[f32; 3]], dirs: &[[f32; 3]]) -> (Vec<[f32; 3]>, Vec<f32>, Vec<f32>) {
+        let unit = self.unit_points(samples, idx, origins, dirs);
+        let enc = self.hash_encode(&unit);
+        let sh = match idx {
+            Some(ix) => self.sh_of(ix.iter().map(|&s| samples.ray_index[s] as usize), ix.len(), dirs),
+            None => self.sh_of(samples.ray_index.iter().map(|&r| r as usize), samples.len(), dirs),
+        };
         (unit, enc, sh)
     }
 
@@ -247,9 +270,36 @@ impl FastModel {
         tm.optimizer += t0.elapsed().as_secs_f64();
 
         let t0 = Instant::now();
-        let samples = self.march(&batch.origins, &batch.dirs, SampleMode::Random { seed: stream_seed(seed, stream::MARCH), step });
+        let dims = self.grid.output_dim();
+        let marched = self.march(&batch.origins, &batch.dirs, SampleMode::Random { seed: stream_seed(seed, stream::MARCH), step });
+        let unit_all = self.unit_points(&marched, None, &batch.origins, &batch.dirs);
+        let enc_all = self.hash_encode(&unit_all);
+        tm.encoding += t0.elapsed().as_secs_f64();
+
+        // Compaction (instant-ngp, nerfacc): a density-only pass without gradients over every
+        // marched sample finds where each ray's transmittance falls below
+        // `train_min_transmittance`; only the samples before that are trained on.
+        let t0 = Instant::now();
+        let keep = (self.config.train_min_transmittance > 0.0 && !marched.is_empty()).then(|| {
+            let sigma = density_from_encoding(&self.field.valid(), enc_all.clone(), dims);
+            let tau_stop = -self.config.train_min_transmittance.ln();
+            keep_until_opaque(&marched, &sigma, tau_stop)
+        });
+        tm.mlp += t0.elapsed().as_secs_f64();
+        let t0 = Instant::now();
+        let (samples, unit, enc) = match keep {
+            Some((kept, idx)) if idx.len() < marched.len() => {
+                let unit = idx.iter().map(|&i| unit_all[i]).collect();
+                let mut enc = Vec::with_capacity(idx.len() * dims);
+                for &i in &idx {
+                    enc.extend_from_slice(&enc_all[i * dims..(i + 1) * dims]);
+                }
+                (kept, unit, enc)
+            }
+            _ => (marched, unit_all, enc_all),
+        };
         let n = samples.len();
-        let (unit, enc, sh) = self.encode(&samples, None, &batch.origins, &batch.dirs);
+        let sh = self.sh_of(samples.ray_index.iter().map(|&r| r as usize), n, &batch.dirs);
         tm.encoding += t0.elapsed().as_secs_f64();
         if n == 0 {
             // Nothing to learn from: every ray missed the occupied cells.
@@ -258,7 +308,6 @@ impl FastModel {
         }
 
         let t0 = Instant::now();
-        let dims = self.grid.output_dim();
         let shd = sh_output_dim(self.config.sh_degree);
         let enc_t = tensor2(enc, n, dims, &self.device).require_grad();
         let sh_t = tensor2(sh, n, shd, &self.device);
@@ -443,12 +492,36 @@ impl FastModel {
 
 /// σ at world points: hash encoding, the density network's first output, [`ACT`].
 fn density_at(grid: &HashGrid, net: &HashField, bounds: &SceneBounds, points: &[[f32; 3]]) -> Vec<f32> {
-    let dev = backend::inference_device();
-    let dims = grid.output_dim();
     let unit: Vec<[f32; 3]> = points.iter().map(|p| bounds.to_unit(*p)).collect();
-    let mut enc = vec![0.0; unit.len() * dims];
+    let mut enc = vec![0.0; unit.len() * grid.output_dim()];
     grid.encode(&unit, &mut enc);
-    let geo = net.density.forward(tensor2(enc, unit.len(), dims, &dev));
-    let [n, _] = geo.dims();
+    density_from_encoding(net, enc, grid.output_dim())
+}
+
+/// σ from hash encodings `[n][dims]` (inference).
+fn density_from_encoding(net: &HashField, enc: Vec<f32>, dims: usize) -> Vec<f32> {
+    let n = enc.len() / dims.max(1);
+    let geo = net.density.forward(tensor2(enc, n, dims, &backend::inference_device()));
     to_vec(geo.slice([0..n, 0..1])).into_iter().map(|x| ACT.forward(x)).collect()
+}
+
+/// The samples of each ray up to (and including) the one at which the optical depth
+/// `Σ σ_j δ_j` before it still is ≤ `tau_stop` (transmittance ≥ e^−tau_stop): a prefix of
+/// every ray. Returns the kept samples and their indices in `s`.
+fn keep_until_opaque(s: &RaySamples, sigma: &[f32], tau_stop: f32) -> (RaySamples, Vec<usize>) {
+    let mut out = RaySamples::with_rays(s.n_rays());
+    let mut idx = Vec::with_capacity(s.len());
+    for r in 0..s.n_rays() {
+        let mut tau = 0.0f32;
+        for i in s.offsets[r] as usize..s.offsets[r + 1] as usize {
+            if tau > tau_stop {
+                break;
+            }
+            out.push(s.t_start[i], s.t_end[i]);
+            idx.push(i);
+            tau += sigma[i] * (s.t_end[i] - s.t_start[i]);
+        }
+        out.end_ray();
+    }
+    (out, idx)
 }
