@@ -110,12 +110,16 @@ fn render_killed_at_random_moments_resumes_to_the_identical_dataset() {
     let reference = files(&a);
     assert!(reference.iter().all(|(rel, _)| !is_temporary(rel)), "temporary files left by the uninterrupted run");
 
-    // Kill points spread over the uninterrupted run's duration (process start included).
+    // Kill points spread over what is left of the run: a random fraction of the uninterrupted
+    // run's duration times the fraction of views still to render (a resumed run is shorter).
+    let views = reference.iter().filter(|(rel, _)| rel.ends_with(".png")).count();
     let mut state = 0x5EED_u64;
     let mut kills = 0;
     let mut partial_states = 0;
     for round in 0..6 {
-        let at = full.mul_f64(0.1 + 0.85 * splitmix(&mut state));
+        let done = files(&b).iter().filter(|(rel, _)| rel.ends_with(".png")).count();
+        let left = 1.0 - done as f64 / views as f64;
+        let at = full.mul_f64((0.1 + 0.8 * splitmix(&mut state)) * left.max(0.2));
         let mut child = render_cmd(&b).spawn().unwrap();
         let deadline = Instant::now() + at;
         let mut finished = None;
