@@ -23,7 +23,7 @@
 // Negated comparisons (`!(x > 0.0)`) are deliberate: they also reject NaN.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
-use glam::{DVec3, Vec3};
+use glam::{DVec3, Vec3, Vec3Swizzles};
 
 /// A ray in the scene's local `f32` frame. `direction` need not be unit length for the
 /// intersection routines, but the renderer always passes unit directions so that `t` is a
@@ -60,9 +60,8 @@ pub fn gamma(n: i32) -> f32 {
 #[derive(Clone, Copy, Debug)]
 pub struct WatertightRay {
     origin: Vec3,
-    kx: usize,
-    ky: usize,
-    kz: usize,
+    /// The dominant axis; `(kx, ky) = (kz + 1, kz + 2) mod 3`.
+    kz: u8,
     sx: f32,
     sy: f32,
     sz: f32,
@@ -84,7 +83,20 @@ impl WatertightRay {
         let kx = (kz + 1) % 3;
         let ky = (kx + 1) % 3;
         let dz = d[kz];
-        Some(Self { origin: ray.origin, kx, ky, kz, sx: -d[kx] / dz, sy: -d[ky] / dz, sz: 1.0 / dz })
+        Some(Self { origin: ray.origin, kz: kz as u8, sx: -d[kx] / dz, sy: -d[ky] / dz, sz: 1.0 / dz })
+    }
+
+    /// The vertices translated to the origin (`v − origin`) with their components permuted
+    /// to `(kx, ky, kz)`: one fixed swizzle per dominant axis, so the hot loop has no
+    /// per-component indexing.
+    #[inline(always)]
+    fn permuted(&self, p: [Vec3; 3]) -> [Vec3; 3] {
+        let o = self.origin;
+        match self.kz {
+            0 => p.map(|v| (v - o).yzx()),
+            1 => p.map(|v| (v - o).zxy()),
+            _ => p.map(|v| v - o),
+        }
     }
 }
 
@@ -102,17 +114,12 @@ pub struct TriangleHit {
 /// Both faces are reported; culling is the caller's decision.
 #[inline]
 pub fn intersect_triangle(ray: &WatertightRay, p: [Vec3; 3], t_max: f32) -> Option<TriangleHit> {
-    let o = ray.origin;
-    let (kx, ky, kz) = (ray.kx, ray.ky, ray.kz);
     // Translate, permute, shear (x and y only; z is sheared after the edge test).
-    let tr = |v: Vec3| {
-        let v = v - o;
-        let (x, y, z) = (v[kx], v[ky], v[kz]);
-        (x + ray.sx * z, y + ray.sy * z, z)
-    };
-    let (p0x, p0y, p0z) = tr(p[0]);
-    let (p1x, p1y, p1z) = tr(p[1]);
-    let (p2x, p2y, p2z) = tr(p[2]);
+    let [q0, q1, q2] = ray.permuted(p);
+    let tr = |v: Vec3| (v.x + ray.sx * v.z, v.y + ray.sy * v.z, v.z);
+    let (p0x, p0y, p0z) = tr(q0);
+    let (p1x, p1y, p1z) = tr(q1);
+    let (p2x, p2y, p2z) = tr(q2);
 
     let mut e0 = p1x * p2y - p1y * p2x;
     let mut e1 = p2x * p0y - p2y * p0x;
