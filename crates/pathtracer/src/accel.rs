@@ -263,15 +263,16 @@ impl Accel {
         bvh.ray_traverse(oray, &mut rh, |_r, id| {
             let p = self.tris[id];
             // Accept ties (t == best_t) so the lowest index can win them.
-            let limit = if best.is_some() { crate::geometry::next_float_up(best_t) } else { best_t };
-            let Some(h) = intersect_triangle(&wr, p, limit) else { return f32::INFINITY };
-            let prim = self.prim[id];
             let f = self.flags[id];
+            // Culling first: it is cheaper than the intersection test and rejects the same.
             let n = (p[1] - p[0]).cross(p[2] - p[0]);
             let front = n.dot(ray.direction) < 0.0;
             if f & CULL_BACK != 0 && !front {
                 return f32::INFINITY;
             }
+            let limit = if best.is_some() { crate::geometry::next_float_up(best_t) } else { best_t };
+            let Some(h) = intersect_triangle(&wr, p, limit) else { return f32::INFINITY };
+            let prim = self.prim[id];
             if f & ALPHA_TEST != 0 && !alpha_test(prim, &h) {
                 return f32::INFINITY;
             }
@@ -295,11 +296,11 @@ impl Accel {
         let Some(wr) = WatertightRay::new(ray) else { return false };
         !bvh.ray_traverse_miss(oray, |_r, id| {
             let p = self.tris[id];
-            let Some(h) = intersect_triangle(&wr, p, t_max) else { return f32::INFINITY };
             let f = self.flags[id];
             if f & CULL_BACK != 0 && (p[1] - p[0]).cross(p[2] - p[0]).dot(ray.direction) >= 0.0 {
                 return f32::INFINITY;
             }
+            let Some(h) = intersect_triangle(&wr, p, t_max) else { return f32::INFINITY };
             if f & ALPHA_TEST != 0 && !alpha_test(self.prim[id], &h) {
                 return f32::INFINITY;
             }
