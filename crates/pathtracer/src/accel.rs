@@ -241,6 +241,7 @@ impl Accel {
         self.tris.len()
     }
 
+    #[inline]
     fn obvhs_ray(ray: &Ray, t_max: f32) -> Option<obvhs::ray::Ray> {
         if !ray.origin.is_finite() || !ray.direction.is_finite() || ray.direction == Vec3::ZERO || !(t_max > 0.0) {
             return None;

@@ -38,6 +38,7 @@ pub struct Ray {
 
 impl Ray {
     /// A ray from `origin` along `direction`.
+    #[inline]
     pub fn new(origin: Vec3, direction: Vec3) -> Self {
         Self { origin, direction }
     }
@@ -70,6 +71,7 @@ pub struct WatertightRay {
 impl WatertightRay {
     /// Precomputes the permutation and shear for `ray`. Returns `None` for a zero or
     /// non-finite direction (no triangle can be hit).
+    #[inline]
     pub fn new(ray: &Ray) -> Option<Self> {
         let d = ray.direction;
         if !d.is_finite() || !ray.origin.is_finite() {
@@ -254,6 +256,7 @@ pub struct Frame {
 
 impl Frame {
     /// The frame with `n` (unit) as its z axis.
+    #[inline]
     pub fn from_normal(n: Vec3) -> Self {
         let sign = 1.0f32.copysign(n.z);
         let a = -1.0 / (sign + n.z);
@@ -263,10 +266,12 @@ impl Frame {
         Self { s, t, n }
     }
     /// Local (frame) coordinates → world.
+    #[inline]
     pub fn to_world(&self, v: Vec3) -> Vec3 {
         v.x * self.s + v.y * self.t + v.z * self.n
     }
     /// World → local coordinates.
+    #[inline]
     pub fn to_local(&self, v: Vec3) -> Vec3 {
         Vec3::new(v.dot(self.s), v.dot(self.t), v.dot(self.n))
     }

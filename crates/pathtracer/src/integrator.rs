@@ -89,6 +89,7 @@ pub struct Interaction {
 
 /// Interpolated texture coordinates and vertex colour of triangle `prim` at barycentrics `b`
 /// (attributes missing from the mesh take glTF defaults: UV 0, colour white).
+#[inline]
 pub fn surface_attributes(scene: &Scene, prim: u32, b: [f32; 3]) -> SurfaceAttributes {
     let m = &scene.mesh;
     let idx = m.indices[prim as usize];
@@ -113,6 +114,7 @@ pub fn blend_hash(ray: &Ray, prim: u32) -> f32 {
 /// Whether the triangle `prim` is present at barycentrics `b` for `ray`: `Mask`: base-colour
 /// alpha (factor × texture × vertex colour) ≥ cutoff; `Blend`: `blend_hash(ray, prim) <
 /// alpha` (present with probability alpha); `Opaque`: always.
+#[inline]
 pub fn alpha_test(scene: &Scene, ray: &Ray, prim: u32, b: [f32; 3]) -> bool {
     let Some(mat) = scene.mesh.material.get(prim as usize).and_then(|&m| scene.materials.get(m as usize)) else { return true };
     match mat.alpha_mode {
@@ -147,6 +149,7 @@ pub fn tangent_at(scene: &Scene, prim: u32, b: [f32; 3], tex_coord: u32, n: Vec3
 
 /// Builds the [`Interaction`] for `hit` of `ray` (hit point from barycentrics, normals
 /// facing the ray).
+#[inline]
 pub fn interaction(scene: &Scene, ray: &Ray, hit: &Hit) -> Interaction {
     let m = &scene.mesh;
     let idx = m.indices[hit.prim as usize];

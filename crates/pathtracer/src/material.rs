@@ -129,16 +129,19 @@ impl MetallicRoughness {
     }
 
     /// Smith masking `G1(c) = 2c / (c + √(α² + (1 − α²)c²))` for `c = N·X`.
+    #[inline]
     pub fn g1(&self, c: f32) -> f32 {
         if c <= 0.0 { 0.0 } else { 2.0 * c / self.smith_den(c) }
     }
 
     /// The spec's `V_GGX(N·L, N·V)` (see the type docs).
+    #[inline]
     pub fn vis(&self, nl: f32, nv: f32) -> f32 {
         if nl <= 0.0 || nv <= 0.0 { 0.0 } else { 1.0 / (self.smith_den(nl) * self.smith_den(nv)) }
     }
 
     /// `f(wo, wi)` without the cosine.
+    #[inline]
     pub fn f(&self, wo: Vec3, wi: Vec3) -> Vec3 {
         if wo.z <= 0.0 || wi.z <= 0.0 {
             return Vec3::ZERO;
@@ -155,6 +158,7 @@ impl MetallicRoughness {
     }
 
     /// Probability `P_s` of sampling the specular lobe at `wo` (see the type docs).
+    #[inline]
     pub fn specular_probability(&self, wo: Vec3) -> f32 {
         let (m, s, rho) = (self.metallic, self.specular, self.base_color);
         let has_diffuse = m < 1.0 && rho.max_element() > 0.0;
@@ -174,6 +178,7 @@ impl MetallicRoughness {
     }
 
     /// Density of the VNDF lobe: `D(H) / (2 (N·V + √(α² + (1 − α²)(N·V)²)))`.
+    #[inline]
     pub fn pdf_specular(&self, wo: Vec3, wi: Vec3) -> f32 {
         if wo.z <= 0.0 || wi.z <= 0.0 {
             return 0.0;
@@ -231,6 +236,7 @@ pub struct BsdfSample {
 
 impl Bsdf {
     /// `f(wo, wi) · |cos θᵢ|` in the local frame (see the variant docs for `f`).
+    #[inline]
     pub fn evaluate(&self, wo: Vec3, wi: Vec3) -> Vec3 {
         if wo.z <= 0.0 || wi.z <= 0.0 {
             return Vec3::ZERO;
@@ -278,6 +284,7 @@ impl Bsdf {
     }
 
     /// Solid-angle density with which [`Bsdf::sample`] draws `wi`.
+    #[inline]
     pub fn pdf(&self, wo: Vec3, wi: Vec3) -> f32 {
         if wo.z <= 0.0 || wi.z <= 0.0 {
             return 0.0;
@@ -321,6 +328,7 @@ pub struct SurfaceAttributes {
 }
 
 /// Base colour with alpha: `baseColorFactor × baseColorTexture × COLOR_0` (glTF 2.0 §3.9.2).
+#[inline]
 pub fn base_color(material: &Material, textures: &[Texture], attr: &SurfaceAttributes) -> Vec4 {
     let mut c = material.base_color_factor * attr.color;
     if let Some(r) = &material.base_color_texture {
@@ -330,6 +338,7 @@ pub fn base_color(material: &Material, textures: &[Texture], attr: &SurfaceAttri
 }
 
 /// Emitted radiance: `emissive (× strength) × emissiveTexture`.
+#[inline]
 pub fn emission(material: &Material, textures: &[Texture], attr: &SurfaceAttributes) -> Vec3 {
     if !material.is_emissive() {
         return Vec3::ZERO;
@@ -343,6 +352,7 @@ pub fn emission(material: &Material, textures: &[Texture], attr: &SurfaceAttribu
 
 /// Metallic and perceptual roughness at a point: `metallicFactor × texture.B`,
 /// `roughnessFactor × texture.G` (glTF 2.0 §3.9.2), clamped to [0, 1].
+#[inline]
 pub fn metallic_roughness(material: &Material, textures: &[Texture], attr: &SurfaceAttributes) -> (f32, f32) {
     let (mut m, mut r) = (material.metallic_factor, material.roughness_factor);
     if let Some(t) = &material.metallic_roughness_texture {
@@ -358,6 +368,7 @@ pub fn metallic_roughness(material: &Material, textures: &[Texture], attr: &Surf
 /// [`Bsdf::MetallicRoughness`] with base colour, metallic, roughness (factors × textures) and
 /// `specular_factor`, or [`Bsdf::Diffuse`] with the base colour when metallic and specular
 /// are both 0 (where the two are identical).
+#[inline]
 pub fn resolve(material: &Material, textures: &[Texture], attr: &SurfaceAttributes) -> SurfaceMaterial {
     let albedo = base_color(material, textures, attr).truncate().clamp(Vec3::ZERO, Vec3::ONE);
     let albedo = if albedo.is_finite() { albedo } else { Vec3::ZERO };
@@ -435,6 +446,7 @@ pub fn scene_is_view_dependent(scene: &Scene) -> bool {
 /// The shading frame for a hit seen from direction `-ray_dir`: the geometric normal and the
 /// shading normal are both flipped to face the incoming ray (the shading normal is also
 /// made to agree in side with the geometric one).
+#[inline]
 pub fn facing_frame(ng: Vec3, ns: Vec3, ray_dir: Vec3) -> (Vec3, Frame) {
     let ng = if ng.dot(ray_dir) > 0.0 { -ng } else { ng };
     let mut ns = if ns.is_finite() && ns.length_squared() > 0.0 { ns.normalize() } else { ng };
@@ -495,6 +507,7 @@ pub fn normal_mapped(material: &Material, textures: &[Texture], attr: &SurfaceAt
 /// normal maps and interpolated normals at silhouettes produce), bent towards `wo` to
 /// `n' = normalize(n + (MIN_SHADING_COS − wo·n) wo)`, so that `wo` is always in the upper
 /// hemisphere and every value stays finite.
+#[inline]
 pub fn shading_frame(ns: Vec3, flipped: bool, wo: Vec3) -> Frame {
     let mut n = if flipped { -ns } else { ns };
     let c = n.dot(wo);
