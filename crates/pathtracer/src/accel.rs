@@ -265,14 +265,16 @@ impl Accel {
             let p = self.tris[id];
             // Accept ties (t == best_t) so the lowest index can win them.
             let f = self.flags[id];
-            // Culling first: it is cheaper than the intersection test and rejects the same.
-            let n = (p[1] - p[0]).cross(p[2] - p[0]);
-            let front = n.dot(ray.direction) < 0.0;
-            if f & CULL_BACK != 0 && !front {
+            // Culling first (cheaper than the intersection test, rejects the same); the face
+            // of a double-sided triangle is computed only once it is hit.
+            let is_front = || (p[1] - p[0]).cross(p[2] - p[0]).dot(ray.direction) < 0.0;
+            let cull = f & CULL_BACK != 0;
+            if cull && !is_front() {
                 return f32::INFINITY;
             }
             let limit = if best.is_some() { crate::geometry::next_float_up(best_t) } else { best_t };
             let Some(h) = intersect_triangle(&wr, p, limit) else { return f32::INFINITY };
+            let front = cull || is_front();
             let prim = self.prim[id];
             if f & ALPHA_TEST != 0 && !alpha_test(prim, &h) {
                 return f32::INFINITY;
