@@ -4,10 +4,11 @@
 //! skips empty space while marching with a constant step, and early ray termination at
 //! inference (transmittance < 1e-4, [`volrend::CompositeOptions::INFERENCE`]).
 //!
-//! CPU-sized defaults (instant-ngp's in brackets): 16 levels × 2 features, 2^18 entries per
-//! level [2^19] so that one level's table (2 MiB) stays near the core's cache, finest resolution
-//! 1024 over the bounding cube [2048 · scale] (enough for the 64–400 pixel images trained on a
-//! CPU; issue #6 will derive it from the image resolution), 64-wide networks, a 64³ occupancy
+//! CPU-sized defaults (instant-ngp's in brackets): 16 levels × 2 features, 2^17 entries per
+//! level [2^19] so that one level's table (1 MiB) stays in the core's cache, finest resolution
+//! 512 over the bounding cube [2048 · scale] (enough for the 64–400 pixel images trained on a
+//! CPU, and finer levels overfit the few views; issue #6 will derive it from the image
+//! resolution), 64-wide networks, a 64³ occupancy
 //! grid over the scene box [128³] and a marching step of the cube's diagonal / 512 [/ 1024].
 //! Training rays are compacted as in instant-ngp: a density-only pass finds where each ray
 //! becomes opaque, and only the samples before it are trained on.
@@ -39,14 +40,15 @@ pub struct FastConfig {
     #[config(default = 2)]
     pub features_per_level: usize,
     /// log2 of the entries per level T.
-    #[config(default = 18)]
+    #[config(default = 17)]
     pub log2_table_size: u32,
     /// Coarsest grid resolution over the bounding cube.
     #[config(default = 16)]
     pub base_resolution: u32,
     /// Finest grid resolution over the bounding cube (instant-ngp: 2048 × the scene's extent in
-    /// units of its unit cube; 1024 suits the 64–400 pixel images used on the CPU).
-    #[config(default = 1024)]
+    /// units of its unit cube; 512 suits the 64–400 pixel images used on the CPU: finer levels
+    /// only memorise the few training views).
+    #[config(default = 512)]
     pub finest_resolution: u32,
     /// Spherical-harmonics degree of the direction encoding (4 → 16 coefficients).
     #[config(default = 4)]
