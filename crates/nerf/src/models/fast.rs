@@ -249,7 +249,7 @@ impl FastModel {
 
     fn maybe_update_occupancy(&mut self, step: u64) {
         let interval = self.config.grid_update_interval.max(1);
-        if step == 0 || step % interval != 0 {
+        if step == 0 || !step.is_multiple_of(interval) {
             return;
         }
         let dt = self.step_size();
@@ -398,9 +398,8 @@ impl FastModel {
                 evaluated[s] = true;
             }
             for (r, e) in live {
-                for s in next[r]..e {
-                    tau[r] += sigma[s] * (samples.t_end[s] - samples.t_start[s]);
-                }
+                let (sg, t0, t1) = (&sigma[next[r]..e], &samples.t_start[next[r]..e], &samples.t_end[next[r]..e]);
+                tau[r] = sg.iter().zip(t0.iter().zip(t1)).fold(tau[r], |acc, (s, (a, b))| acc + s * (b - a));
                 next[r] = e;
             }
         }
