@@ -52,6 +52,26 @@ pub struct DemoArgs {
     pub model: String,
 }
 
+/// Whether the demo's run folder holds a run to continue: its checkpoint loads and it was
+/// started with the same model and time budget. A stale run folder (another model or budget, or
+/// written by an older version whose checkpoint no longer loads) belongs to the demo and is
+/// removed so the demo starts afresh instead of failing.
+fn demo_run_resumable(run_dir: &std::path::Path, args: &DemoArgs) -> anyhow::Result<bool> {
+    if !run_dir.exists() {
+        return Ok(false);
+    }
+    let budget = crate::train::parse_duration(&args.time)?;
+    let same = match nerf::render::RunModel::load(run_dir) {
+        Ok(m) => m.config.model.name() == args.model && m.config.time_budget_s == Some(budget),
+        Err(_) => false,
+    };
+    if !same {
+        eprintln!("{} holds a different or unreadable run; starting afresh", run_dir.display());
+        std::fs::remove_dir_all(run_dir).with_context(|| format!("removing {}", run_dir.display()))?;
+    }
+    Ok(same)
+}
+
 fn parse_split(s: &str) -> anyhow::Result<SplitKind> {
     SplitKind::ALL
         .into_iter()
@@ -127,7 +147,7 @@ pub fn run_demo(args: DemoArgs) -> anyhow::Result<()> {
     eprintln!("== 1/3 render {} ({} preset) into {}", args.scene, args.preset.name(), dataset_dir.display());
     crate::render::run(crate::render::RenderArgs::for_demo(&args.scene, &dataset_dir, args.preset))?;
     eprintln!("== 2/3 train {} for {} into {}", args.model, args.time, run_dir.display());
-    let resume = nerf::checkpoint::latest(&run_dir).is_some();
+    let resume = demo_run_resumable(&run_dir, &args)?;
     crate::train::run(crate::train::TrainArgs::for_demo(&dataset_dir, &run_dir, &args.model, &args.time, resume))?;
     eprintln!("== 3/3 evaluate on the test views");
     run(EvalArgs { run: run_dir, split: "test".into(), grids: 3, max_views: None })

@@ -84,7 +84,8 @@ impl TrainArgs {
     }
 }
 
-fn parse_duration(s: &str) -> anyhow::Result<f64> {
+/// Parses a duration such as `90s`, `5m` or `1h` into seconds.
+pub fn parse_duration(s: &str) -> anyhow::Result<f64> {
     let (num, unit) = s.split_at(s.find(|c: char| c.is_alphabetic()).unwrap_or(s.len()));
     let v: f64 = num.trim().parse().with_context(|| format!("bad duration '{s}' (e.g. 90s, 5m, 1h)"))?;
     let scale = match unit {
