@@ -141,6 +141,9 @@ pub struct Hit {
     pub front: bool,
 }
 
+/// Largest supported |coordinate| of a vertex relative to the scene's centre, in metres.
+pub const MAX_LOCAL_COORDINATE: f32 = 1e15;
+
 /// A triangle's bounding box, padded (see the module docs): the primitive the BVH is built over.
 struct PaddedBox(obvhs::aabb::Aabb);
 
@@ -212,6 +215,16 @@ impl Accel {
             return Ok(Accel { bvh: None, tris, prim: Vec::new(), flags: Vec::new(), build_time: Duration::ZERO });
         }
         let max_abs = tris.iter().flatten().fold(0.0f32, |m, v| m.max(v.abs().max_element()));
+        // Box areas (the SAH cost) must stay finite in f32: beyond ~1e19 they overflow to
+        // infinity and the BVH builder's decisions become meaningless (found by the import
+        // fuzzer). Coordinates are relative to the scene's centre, so this bounds the scene's
+        // size, not its position.
+        if max_abs > MAX_LOCAL_COORDINATE {
+            return Err(PathTracerError::Config(format!(
+                "scene '{}' spans {max_abs:e} m from its centre; at most {MAX_LOCAL_COORDINATE:e} m is supported in f32 geometry",
+                scene.name
+            )));
+        }
         let pad = Vec3A::splat(2e-6 * max_abs.max(f32::MIN_POSITIVE));
         let boxes: Vec<PaddedBox> = tris
             .iter()
