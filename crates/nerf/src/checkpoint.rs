@@ -128,6 +128,30 @@ fn list(run_dir: &Path) -> Vec<(u64, PathBuf)> {
         .collect()
 }
 
+/// The file a temporary name (`.<file>.<pid>.tmp`, see [`dataset::io::temp_path_for`]) stands
+/// for, if `name` is one.
+fn temporary_of(name: &str) -> Option<&str> {
+    let (file, pid) = name.strip_prefix('.')?.strip_suffix(".tmp")?.rsplit_once('.')?;
+    (!pid.is_empty() && pid.chars().all(|c| c.is_ascii_digit())).then_some(file)
+}
+
+/// Removes the temporaries that a killed run left behind: of checkpoints, and of the files
+/// named in `run_files` at the top of the run folder.
+pub fn remove_stale_temporaries(run_dir: &Path, run_files: &[&str]) -> Result<(), CheckpointError> {
+    let is_ckpt = |f: &str| f.strip_prefix("step-").and_then(|r| r.strip_suffix(".ckpt")).is_some();
+    for (dir, ours) in [(run_dir.to_path_buf(), false), (checkpoint_dir(run_dir), true)] {
+        let Ok(entries) = std::fs::read_dir(&dir) else { continue };
+        for e in entries.flatten() {
+            let name = e.file_name().to_string_lossy().into_owned();
+            if temporary_of(&name).is_some_and(|f| if ours { is_ckpt(f) } else { run_files.contains(&f) }) {
+                let p = e.path();
+                std::fs::remove_file(&p).map_err(|e| dataset::DatasetError::Io { path: p.clone(), source: e })?;
+            }
+        }
+    }
+    Ok(())
+}
+
 /// The newest checkpoint of a run, if any.
 pub fn latest(run_dir: &Path) -> Option<PathBuf> {
     list(run_dir).into_iter().max_by_key(|(s, _)| *s).map(|(_, p)| p)
@@ -158,5 +182,20 @@ mod tests {
         let b = s.to_bytes();
         assert_eq!(StateDict::from_bytes(Path::new("x"), &b).unwrap(), s);
         assert!(StateDict::from_bytes(Path::new("x"), &b[..b.len() - 1]).is_err());
+    }
+
+    #[test]
+    fn stale_temporaries_are_removed_and_nothing_else() {
+        let dir = tempfile::tempdir().unwrap();
+        let run = dir.path();
+        let ckpts = checkpoint_dir(run);
+        std::fs::create_dir_all(&ckpts).unwrap();
+        let keep = [run.join("notes.txt"), run.join(".notes.txt.12.tmp"), ckpts.join("step-00000010.ckpt"), ckpts.join(".step-00000010.ckpt.tmp")];
+        let gone = [run.join(".config.json.4242.tmp"), run.join(".metrics.jsonl.7.tmp"), ckpts.join(".step-00000020.ckpt.99.tmp")];
+        for p in keep.iter().chain(&gone) {
+            std::fs::write(p, b"x").unwrap();
+        }
+        remove_stale_temporaries(run, &["config.json", "metrics.jsonl"]).unwrap();
+        assert!(keep.iter().all(|p| p.exists()) && gone.iter().all(|p| !p.exists()));
     }
 }

@@ -335,6 +335,7 @@ impl Trainer {
         let val = ValSet::load(val_frames, &config)?;
         let model = config.model.init(&bounds, config.seed).map_err(TrainError::Invalid)?;
         std::fs::create_dir_all(run_dir).map_err(|e| TrainError::File { path: run_dir.into(), source: e })?;
+        checkpoint::remove_stale_temporaries(run_dir, &[CONFIG_FILE, METRICS_FILE])?;
         let mut t = Self {
             next_val_at: config.val_interval(),
             config,
@@ -439,21 +440,23 @@ impl Trainer {
             .append(true)
             .open(&path)
             .map_err(|e| TrainError::File { path: path.clone(), source: e })?;
-        writeln!(f, "{line}").map_err(|e| TrainError::File { path: path.clone(), source: e })?;
+        // One write call per line: a process killed mid-line would otherwise leave a torn line.
+        f.write_all(format!("{line}\n").as_bytes()).map_err(|e| TrainError::File { path: path.clone(), source: e })?;
         Ok(())
     }
 
-    /// Drops metric lines past the checkpoint's step (written after it by a killed run).
+    /// Drops metric lines written after the checkpoint by a killed run: training lines past its
+    /// step, and validation lines at or past it (a step's validation follows its checkpoint, and
+    /// the resumed run validates again).
     fn truncate_metrics(&self) -> Result<(), TrainError> {
         let path = self.run_dir.join(METRICS_FILE);
         let text = std::fs::read_to_string(&path).unwrap_or_default();
         let kept: String = text
             .lines()
             .filter(|l| {
-                serde_json::from_str::<serde_json::Value>(l)
-                    .ok()
-                    .and_then(|v| v.get("step").and_then(|s| s.as_u64()))
-                    .is_some_and(|s| s <= self.step)
+                let Ok(v) = serde_json::from_str::<serde_json::Value>(l) else { return false };
+                let is_val = v.get("val_psnr").is_some();
+                v.get("step").and_then(|s| s.as_u64()).is_some_and(|s| s < self.step || (s == self.step && !is_val))
             })
             .map(|l| format!("{l}\n"))
             .collect();
