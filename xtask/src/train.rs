@@ -22,7 +22,7 @@ pub struct TrainArgs {
     #[arg(long)]
     pub steps: Option<u64>,
     /// Stop after this much training time: 90s, 5m, 1h.
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true)]
     pub time: Option<String>,
     /// Continue the run in --out from its latest checkpoint, with its recorded config.
     #[arg(long)]
@@ -94,6 +94,7 @@ pub fn parse_duration(s: &str) -> anyhow::Result<f64> {
         "h" => 3600.0,
         _ => anyhow::bail!("bad duration unit in '{s}' (s, m or h)"),
     };
+    anyhow::ensure!(v.is_finite() && v > 0.0, "bad duration '{s}': a time budget must be positive");
     Ok(v * scale)
 }
 

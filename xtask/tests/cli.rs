@@ -62,3 +62,163 @@ fn training_on_a_missing_dataset_exits_1() {
     assert!(stderr.contains("/nonexistent/dataset"), "{stderr}");
     assert!(!stderr.contains("panicked"));
 }
+
+fn dataset_corpus() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/corpus/transforms")
+}
+
+/// Each malformed dataset in `tests/corpus/transforms` (see its README): the file the message
+/// must name (relative to the dataset folder) and what it must say is wrong.
+const MALFORMED_DATASETS: [(&str, &str, &str); 20] = [
+    ("invalid_json", "transforms_train.json", "EOF while parsing"),
+    ("missing_camera_angle_x", "transforms_train.json", "missing field `camera_angle_x`"),
+    ("missing_transform_matrix", "transforms_train.json", "missing field `transform_matrix`"),
+    ("missing_file_path", "transforms_train.json", "missing field `file_path`"),
+    ("empty_frames", "transforms_train.json", "no frames"),
+    ("pose_3_rows", "transforms_train.json", "expected an array of length 4"),
+    ("singular_pose", "transforms_train.json", "frame 1 (./train/r_1): pose is not invertible"),
+    ("scaled_pose", "transforms_train.json", "frame 1 (./train/r_1): pose's rotation is not a proper rotation"),
+    ("nan_pose", "transforms_train.json", "non-finite number (NaN or Infinity is not valid JSON)"),
+    ("overflowing_pose", "transforms_train.json", "number out of range"),
+    ("missing_image", "transforms_train.json", "train/r_7.png does not exist"),
+    ("undecodable_image", "train/r_1.png", "image error"),
+    ("mixed_image_sizes", "train/r_1.png", "image is 24x16 but"),
+    ("w_h_disagree_with_image", "train/r_0.png", "image is 16x16 but"),
+    ("fl_x_disagrees_with_camera_angle_x", "transforms_train.json", "inconsistent intrinsics"),
+    ("zero_camera_angle_x", "transforms_train.json", "camera_angle_x = 0 is not a field of view"),
+    ("negative_focal_length", "transforms_train.json", "focal length fl_x = -22.3 must be finite and positive"),
+    ("missing_ground_truth_file", "transforms_train.json", "train/r_0_gt.exr does not exist"),
+    ("val_frames_not_a_list", "transforms_val.json", "expected a sequence"),
+    ("no_train_split", "transforms_train.json", "missing: a dataset needs transforms_train.json"),
+];
+
+/// The corpus folders, checked against [`MALFORMED_DATASETS`] both ways.
+fn malformed_dataset_dirs() -> Vec<(PathBuf, &'static str, &'static str)> {
+    let mut on_disk: Vec<String> = std::fs::read_dir(dataset_corpus())
+        .unwrap()
+        .flatten()
+        .filter(|e| e.path().is_dir())
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|n| !n.starts_with("valid_"))
+        .collect();
+    on_disk.sort();
+    let mut listed: Vec<String> = MALFORMED_DATASETS.iter().map(|c| c.0.to_string()).collect();
+    listed.sort();
+    assert_eq!(on_disk, listed, "corpus folders and the expectations in this test differ");
+    MALFORMED_DATASETS.iter().map(|&(n, f, w)| (dataset_corpus().join(n), f, w)).collect()
+}
+
+/// The one message of a failed command, checked: exit code 1, a single line, no panic, naming
+/// `file` and saying `what`. Returns it with the dataset folder's path cut out.
+fn check_failure(name: &str, code: i32, stderr: &str, dir: &Path, file: &str, what: &str) -> String {
+    assert_eq!(code, 1, "{name}: exit code {code}, stderr:\n{stderr}");
+    assert!(!stderr.contains("panicked"), "{name}: panic:\n{stderr}");
+    let lines: Vec<&str> = stderr.lines().filter(|l| !l.trim().is_empty()).collect();
+    assert_eq!(lines.len(), 1, "{name}: not one message:\n{stderr}");
+    let named = format!("{}/{file}", dir.file_name().unwrap().to_string_lossy());
+    assert!(lines[0].contains(&named), "{name}: message does not name {named}:\n{stderr}");
+    assert!(lines[0].contains(what), "{name}: message does not say '{what}':\n{stderr}");
+    lines[0].replace(dir.to_str().unwrap(), "<dataset>")
+}
+
+/// A small `fast` model, so that a run folder is cheap to write.
+fn small_config(dir: &Path, dataset: &Path) -> PathBuf {
+    use nerf::models::{ModelConfig, fast::FastConfig};
+    let fast = FastConfig::new().with_levels(2).with_log2_table_size(10).with_finest_resolution(32).with_grid_resolution(8);
+    let cfg = nerf::train::TrainConfig::new(dataset.to_path_buf(), ModelConfig::Fast(fast), 64, 1e-2, 1e-3, 10).with_steps(Some(2));
+    let path = dir.join("small.json");
+    std::fs::write(&path, serde_json::to_string(&cfg).unwrap()).unwrap();
+    path
+}
+
+fn listing(dir: &Path) -> Vec<PathBuf> {
+    let mut out = Vec::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for e in std::fs::read_dir(&d).unwrap().flatten() {
+            if e.path().is_dir() { stack.push(e.path()) } else { out.push(e.path()) }
+        }
+    }
+    out.sort();
+    out
+}
+
+#[test]
+fn malformed_datasets_fail_training_with_one_message_and_no_run_folder() {
+    let tmp = tempfile::tempdir().unwrap();
+    let mut messages = std::collections::BTreeMap::new();
+    for (dir, file, what) in malformed_dataset_dirs() {
+        let name = dir.file_name().unwrap().to_string_lossy().into_owned();
+        let run = tmp.path().join(&name);
+        let (code, stderr) = xtask(&["train", dir.to_str().unwrap(), "--out", run.to_str().unwrap(), "--steps", "1"]);
+        let msg = check_failure(&name, code, &stderr, &dir, file, what);
+        assert!(!run.exists(), "{name}: run folder {} left behind", run.display());
+        if let Some(other) = messages.insert(msg.clone(), name.clone()) {
+            panic!("{name} fails exactly as {other}: {msg}");
+        }
+    }
+    // The dataset all of them break trains.
+    let valid = dataset_corpus().join("valid_blender");
+    let run = tmp.path().join("valid");
+    let config = small_config(tmp.path(), &valid);
+    let (code, stderr) = xtask(&["train", "--config", config.to_str().unwrap(), "--out", run.to_str().unwrap()]);
+    assert_eq!(code, 0, "valid_blender: {stderr}");
+    assert!(run.join("checkpoints/step-00000002.ckpt").is_file());
+}
+
+#[test]
+fn malformed_datasets_fail_evaluation_with_one_message_and_write_nothing() {
+    let tmp = tempfile::tempdir().unwrap();
+    let valid = dataset_corpus().join("valid_blender");
+    let run = tmp.path().join("run");
+    let config = small_config(tmp.path(), &valid);
+    let (code, stderr) = xtask(&["train", "--config", config.to_str().unwrap(), "--out", run.to_str().unwrap()]);
+    assert_eq!(code, 0, "training on valid_blender: {stderr}");
+    let recorded = std::fs::read_to_string(run.join("config.json")).unwrap();
+    let before = listing(&run);
+    // The run's recorded dataset replaced by each malformed one in turn.
+    for (dir, file, what) in malformed_dataset_dirs() {
+        let name = dir.file_name().unwrap().to_string_lossy().into_owned();
+        let mut cfg: serde_json::Value = serde_json::from_str(&recorded).unwrap();
+        cfg["dataset"] = serde_json::json!(dir);
+        std::fs::write(run.join("config.json"), cfg.to_string()).unwrap();
+        let (code, stderr) = xtask(&["eval", run.to_str().unwrap(), "--split", "train"]);
+        check_failure(&name, code, &stderr, &dir, file, what);
+        assert_eq!(listing(&run), before, "{name}: eval wrote into the run folder");
+    }
+    std::fs::write(run.join("config.json"), &recorded).unwrap();
+    let (code, stderr) = xtask(&["eval", run.to_str().unwrap(), "--split", "train", "--grids", "0"]);
+    assert_eq!(code, 0, "evaluating on valid_blender: {stderr}");
+    assert!(listing(&run).len() > before.len(), "eval of the valid run wrote nothing");
+}
+
+#[test]
+fn impossible_training_options_exit_1_and_write_nothing() {
+    let tmp = tempfile::tempdir().unwrap();
+    let valid = dataset_corpus().join("valid_blender");
+    let run = tmp.path().join("run");
+    let cases: [(&[&str], &str); 12] = [
+        (&["--time", "-5s"], "time budget must be positive"),
+        (&["--time=-5s"], "time budget must be positive"),
+        (&["--time", "0s"], "time budget must be positive"),
+        (&["--time", "5parsecs"], "bad duration unit"),
+        (&["--steps", "0"], "steps must be positive"),
+        (&["--steps", "1", "--batch-rays", "0"], "batch_rays must be positive"),
+        (&["--steps", "1", "--batch-samples", "0"], "batch_samples must be positive"),
+        (&["--steps", "1", "--downscale", "0"], "downscale must be a positive integer"),
+        (&["--steps", "1", "--downscale", "17"], "downscale 17 leaves no pixel of the 16x16 image"),
+        (&["--steps", "1", "--model", "nope"], "unknown model 'nope'"),
+        (&["--steps", "1", "--config", "/nonexistent/train.json"], "/nonexistent/train.json"),
+        (&["--steps", "1", "--resume"], "config.json"),
+    ];
+    for (opts, what) in cases {
+        let mut args = vec!["train", valid.to_str().unwrap(), "--out", run.to_str().unwrap()];
+        args.extend_from_slice(opts);
+        let (code, stderr) = xtask(&args);
+        assert_eq!(code, 1, "{opts:?}: exit code {code}, stderr:\n{stderr}");
+        assert!(!stderr.contains("panicked"), "{opts:?}: panic:\n{stderr}");
+        assert!(stderr.starts_with("error: ") && stderr.trim_end().lines().count() == 1, "{opts:?}: not one message:\n{stderr}");
+        assert!(stderr.contains(what), "{opts:?}: message does not say '{what}':\n{stderr}");
+        assert!(!run.exists(), "{opts:?}: wrote {}", run.display());
+    }
+}

@@ -129,8 +129,7 @@ impl TransformsFile {
     /// Reads and parses a transforms file.
     pub fn read(path: &Path) -> Result<Self, DatasetError> {
         let bytes = read(path)?;
-        serde_json::from_slice(&bytes)
-            .map_err(|e| DatasetError::Json { path: path.into(), message: e.to_string() })
+        serde_json::from_slice(&bytes).map_err(|e| DatasetError::Json { path: path.into(), message: json_message(&bytes, &e) })
     }
 
     /// Writes the file atomically.
@@ -141,6 +140,12 @@ impl TransformsFile {
     /// The intrinsics, taking `w h fl_x fl_y cx cy` where present and `camera_angle_x` with
     /// the image size `image_size` otherwise; checks the two agree.
     pub fn intrinsics(&self, path: &Path, image_size: (u32, u32)) -> Result<Intrinsics, DatasetError> {
+        if !(self.camera_angle_x.is_finite() && self.camera_angle_x > 0.0 && self.camera_angle_x < std::f64::consts::PI) {
+            return Err(DatasetError::invalid(
+                path,
+                format!("camera_angle_x = {} is not a field of view in (0, pi)", self.camera_angle_x),
+            ));
+        }
         let (w, h) = (self.w.unwrap_or(image_size.0), self.h.unwrap_or(image_size.1));
         let from_angle = Intrinsics::from_fov_x(w, h, self.camera_angle_x);
         let fl_x = self.fl_x.unwrap_or(from_angle.fl_x);
@@ -153,12 +158,6 @@ impl TransformsFile {
             cy: self.cy.unwrap_or(0.5 * h as f64),
         };
         intr.validate().map_err(|m| DatasetError::invalid(path, m))?;
-        if !(self.camera_angle_x.is_finite() && self.camera_angle_x > 0.0 && self.camera_angle_x < std::f64::consts::PI) {
-            return Err(DatasetError::invalid(
-                path,
-                format!("camera_angle_x = {} is not a field of view in (0, pi)", self.camera_angle_x),
-            ));
-        }
         let angle = intr.camera_angle_x();
         if (angle - self.camera_angle_x).abs() > 1e-3 * self.camera_angle_x.max(1e-3) {
             return Err(DatasetError::invalid(
@@ -170,6 +169,19 @@ impl TransformsFile {
             ));
         }
         Ok(intr)
+    }
+}
+
+/// serde's message, plus a word on the commonest cause of "expected value": `NaN` or
+/// `Infinity` written by Python's `json`, which are not JSON numbers.
+fn json_message(bytes: &[u8], e: &serde_json::Error) -> String {
+    let line = bytes.split(|b| *b == b'\n').nth(e.line().saturating_sub(1)).unwrap_or_default();
+    let rest = &line[e.column().saturating_sub(1).min(line.len())..];
+    let rest = rest.strip_prefix(b"-").unwrap_or(rest);
+    if e.is_syntax() && (rest.starts_with(b"NaN") || rest.starts_with(b"Infinity")) {
+        format!("{e}: a non-finite number (NaN or Infinity is not valid JSON)")
+    } else {
+        e.to_string()
     }
 }
 
@@ -217,7 +229,10 @@ impl Dataset {
         let mut facts = None;
         for (k, split) in SplitKind::ALL.into_iter().enumerate() {
             let path = root.join(split.file_name());
-            if !path.exists() && split != SplitKind::Train {
+            if !path.exists() {
+                if split == SplitKind::Train {
+                    return Err(DatasetError::invalid(&path, "missing: a dataset needs transforms_train.json"));
+                }
                 continue;
             }
             let file = TransformsFile::read(&path)?;

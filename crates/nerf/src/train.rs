@@ -162,6 +162,51 @@ impl TrainConfig {
         self.val_interval_s.unwrap_or_else(|| self.time_budget_s.map_or(30.0, |t| t / 10.0)).max(1e-3)
     }
 
+    /// Refuses settings no run can use (before anything is written): no budget, a zero or
+    /// negative budget, empty batches, a zero downscale factor, logging or checkpoint interval.
+    pub fn check(&self) -> Result<(), String> {
+        if self.steps.is_none() && self.time_budget_s.is_none() {
+            return Err("give a step count or a time budget".into());
+        }
+        if self.steps == Some(0) {
+            return Err("steps must be positive (0 steps train nothing)".into());
+        }
+        if let Some(t) = self.time_budget_s
+            && !(t.is_finite() && t > 0.0)
+        {
+            return Err(format!("the time budget must be a positive number of seconds, not {t}"));
+        }
+        for (name, v) in [("batch_rays", self.batch_rays), ("batch_samples", self.batch_samples.unwrap_or(1))] {
+            if v == 0 {
+                return Err(format!("{name} must be positive"));
+            }
+        }
+        if self.downscale == 0 {
+            return Err("downscale must be a positive integer factor".into());
+        }
+        if self.log_interval_steps == 0 || self.checkpoint_interval_steps == 0 {
+            return Err("log_interval_steps and checkpoint_interval_steps must be positive".into());
+        }
+        Ok(())
+    }
+
+    /// Refuses a downscale factor that leaves a view of `ds` without a pixel.
+    pub fn check_image_sizes(&self, ds: &dataset::Dataset) -> Result<(), String> {
+        for f in ds.train.iter().chain(&ds.val).chain(&ds.test) {
+            let i = f.camera.intrinsics;
+            if i.width / self.downscale.max(1) == 0 || i.height / self.downscale.max(1) == 0 {
+                return Err(format!(
+                    "downscale {} leaves no pixel of the {}x{} image {}",
+                    self.downscale,
+                    i.width,
+                    i.height,
+                    f.image_path.display()
+                ));
+            }
+        }
+        Ok(())
+    }
+
     /// Reads a config written by a run.
     pub fn read(path: &Path) -> Result<Self, TrainError> {
         let bytes = dataset::io::read(path)?;
@@ -313,13 +358,9 @@ impl Trainer {
     /// Prepares a run: loads the data, resolves the bounds and writes `config.json` (fresh
     /// runs), or reads the latest checkpoint (`resume`).
     pub fn new(mut config: TrainConfig, run_dir: &Path, resume: bool) -> Result<Self, TrainError> {
-        if config.steps.is_none() && config.time_budget_s.is_none() {
-            return Err(TrainError::Invalid("give a step count or a time budget".into()));
-        }
-        if config.batch_rays == 0 {
-            return Err(TrainError::Invalid("batch_rays must be positive".into()));
-        }
+        config.check().map_err(TrainError::Invalid)?;
         let ds = crate::data::load_dataset(&config.dataset)?;
+        config.check_image_sizes(&ds).map_err(TrainError::Invalid)?;
         let data = TrainData::load(&ds.train, config.downscale, config.background, false)?;
         if config.bounds.is_none() {
             let cams: Vec<_> = ds.train.iter().map(|f| f.camera).collect();
