@@ -14,7 +14,9 @@ Mapping (ours -> Mitsuba):
 - emissive material -> `area` emitter, radiance = emissive (x emissive texture);
 - point -> `point` (intensity W/sr = candela); directional -> `directional` (irradiance = lux);
   spot -> `gltf_spot` (glTF's smooth falloff, `gltf_lights.py`);
-- environment -> `constant`;
+- environment -> `constant`; environment map -> `gltf_envmap` (`gltf_lights.py`: our
+  nearest-texel map and its importance sampling; Mitsuba's `envmap` has our orientation, which
+  `envmap_agreement` checks, but interpolates bilinearly);
 - camera -> `perspective`, to_world = M @ diag(-1, 1, -1, 1) (Mitsuba: x left, y up, z forward),
   fov_axis y from fl_y and height, box pixel filter (colour = average over the pixel area);
 - integrator -> `path`, max_depth = max_bounces + 1 (Mitsuba counts path segments: 1 shows
@@ -46,6 +48,10 @@ def load_export(folder):
     for name in ["positions", "normals", "tangents", "uv0", "uv1", "colors", "indices", "material"]:
         arrays[name] = np.load(os.path.join(folder, name + ".npy"))
     arrays["textures"] = [np.load(os.path.join(folder, t["file"])) for t in man["textures"]]
+    corner = os.path.join(folder, "corner_tangents.npy")
+    arrays["corner_tangents"] = np.load(corner) if os.path.exists(corner) else None
+    env = man.get("environment_map")
+    arrays["environment_map"] = np.load(os.path.join(folder, env["file"])) if env else None
     return man, arrays
 
 
@@ -152,7 +158,58 @@ def build_meshes(mi, man, arrays, glossy_plugin=None):
     return meshes
 
 
-def build_lights(man, spot_plugin=None):
+ENVMAP_MIN_WIDTH = 1024
+ENVMAP_MAX_WIDTH = 8192
+
+
+def envmap_bitmap(texels):
+    """Texels (H, W, 3) for Mitsuba's `envmap` that reproduce our nearest-texel lookup.
+
+    Both use u = atan2(x, -z) / 2pi, v = acos(y) / pi, image row 0 at +Y (checked by
+    `envmap_agreement`). Ours: texel (floor(u W), floor(v H)). Mitsuba: bilinear, column centres
+    at u = (i + 1/2) / W' (wrapping), row centres at v = j / (H' - 1) (rows 0 and H'-1 on the
+    poles). So we sample ours at Mitsuba's texel centres on a k-times finer grid; the two then
+    differ only in bands 1/W', 1/H' wide around our texel edges, where Mitsuba blends the two
+    neighbours."""
+    h, w = texels.shape[:2]
+    k = max(2, int(math.ceil(ENVMAP_MIN_WIDTH / w)))
+    k = max(1, min(k, ENVMAP_MAX_WIDTH // w))
+    w2, h2 = w * k, h * k
+    u = (np.arange(w2) + 0.5) / w2
+    v = np.arange(h2) / (h2 - 1)
+    cols = np.minimum((u * w).astype(np.int64), w - 1)
+    rows = np.minimum((v * h).astype(np.int64), h - 1)
+    return np.ascontiguousarray(texels[rows][:, cols, :3], dtype=np.float32)
+
+
+def direction(u, v):
+    """Our `EnvironmentMap::direction` (image coordinates -> unit direction)."""
+    phi, theta = 2.0 * math.pi * u, math.pi * v
+    return np.array([math.sin(phi) * math.sin(theta), math.cos(theta), -math.cos(phi) * math.sin(theta)])
+
+
+def envmap_agreement(mi, texels, scale, emitter=None, n=64, seed=0):
+    """Largest relative difference between an environment emitter (default: Mitsuba's own
+    `envmap` of `envmap_bitmap(texels)`) and our lookup at n random directions away from our
+    texel edges (a check of the orientation convention)."""
+    if emitter is None:
+        emitter = mi.load_dict({"type": "envmap", "bitmap": mi.Bitmap(envmap_bitmap(texels * np.asarray(scale[:3], np.float32)))})
+    rng = np.random.default_rng(seed)
+    h, w = texels.shape[:2]
+    worst = 0.0
+    for _ in range(n):
+        i, j = int(rng.integers(w)), int(rng.integers(h))
+        fu, fv = rng.uniform(0.25, 0.75, 2)
+        d = direction((i + fu) / w, (j + fv) / h)
+        si = mi.SurfaceInteraction3f()
+        si.wi = mi.Vector3f(*[float(-x) for x in d])
+        got = np.array([float(x) for x in emitter.eval(si)])
+        want = texels[j, i, :3] * np.asarray(scale[:3])
+        worst = max(worst, float(np.max(np.abs(got - want) / np.maximum(np.abs(want), 1e-6))))
+    return worst
+
+
+def build_lights(man, spot_plugin=None, arrays=None, envmap_plugin=None):
     origin = np.asarray(man["origin"], np.float64)
     out = {}
     for k, light in enumerate(man["lights"]):
@@ -171,7 +228,17 @@ def build_lights(man, spot_plugin=None):
         else:
             raise Unsupported(f"light {k}: type {kind}")
     env = man["environment"]
-    if max(env) > 0.0:
+    texels = arrays.get("environment_map") if arrays is not None else None
+    if man.get("environment_map") and texels is None:
+        raise Unsupported("environment map named in scene.json but not loaded")
+    if texels is not None:
+        if envmap_plugin is None:
+            raise Unsupported("environment map without the gltf_envmap plugin")
+        if max(env) > 0.0:
+            origin = np.asarray(man["origin"], np.float64)
+            radius = float(np.max(np.linalg.norm(arrays["positions"] - origin[None, :], axis=1))) + 1.0
+            out["environment"] = envmap_plugin(texels, env, radius)
+    elif max(env) > 0.0:
         out["environment"] = {"type": "constant", "radiance": rgb(env)}
     return out
 
@@ -211,7 +278,7 @@ def sensor(mi, cam, origin, spp):
     }
 
 
-def build_scene(mi, man, arrays, view, spp, glossy_plugin=None, spot_plugin=None):
+def build_scene(mi, man, arrays, view, spp, glossy_plugin=None, spot_plugin=None, envmap_plugin=None):
     origin = np.asarray(man["origin"], np.float64)
     d = {"type": "scene"}
     d["integrator"] = {
@@ -222,7 +289,7 @@ def build_scene(mi, man, arrays, view, spp, glossy_plugin=None, spot_plugin=None
     if man["settings"]["transparent_background"]:
         raise Unsupported("transparent background (render with the environment as background)")
     d.update(build_meshes(mi, man, arrays, glossy_plugin))
-    d.update(build_lights(man, spot_plugin))
+    d.update(build_lights(man, spot_plugin, arrays, envmap_plugin))
     d["sensor"] = sensor(mi, man["cameras"][view], origin, spp)
     return mi.load_dict(d)
 

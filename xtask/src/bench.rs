@@ -117,6 +117,7 @@ fn bench_render() -> anyhow::Result<()> {
             seed: 0,
             environment: quick.environment,
             transparent_background: true,
+            environment_map: None,
         };
         let standard = DatasetRenderConfig::preset(Preset::Standard);
         let std_settings = RenderSettings { spp: standard.spp, max_bounces: standard.max_bounces, ..quick_settings.clone() };

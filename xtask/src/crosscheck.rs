@@ -40,9 +40,14 @@ pub struct CrosscheckArgs {
     /// Maximum number of bounces (ours; Mitsuba's max_depth is one more).
     #[arg(long, default_value_t = 4)]
     pub max_bounces: u32,
-    /// Constant environment radiance, linear R,G,B (shown by camera misses and lighting the scene).
-    #[arg(long, default_value = "0.1,0.1,0.1")]
-    pub environment: String,
+    /// Constant environment radiance, linear R,G,B (shown by camera misses and lighting the
+    /// scene); default 0.1,0.1,0.1, or 1,1,1 as the scale of --environment-map.
+    #[arg(long)]
+    pub environment: Option<String>,
+    /// Equirectangular environment map (.exr or .hdr) lighting the scene on both sides
+    /// (Mitsuba: `envmap`).
+    #[arg(long, value_name = "FILE")]
+    pub environment_map: Option<PathBuf>,
     /// Seed of our renderer (group g uses seed + g).
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
@@ -83,8 +88,12 @@ pub fn run(args: CrosscheckArgs) -> anyhow::Result<()> {
     cfg.spp = args.spp;
     cfg.max_bounces = args.max_bounces;
     cfg.seed = args.seed;
-    cfg.environment = pathtracer::dataset_render::parse_rgb(&args.environment)
-        .map_err(|m| anyhow::anyhow!("--environment {}: {m}", args.environment))?;
+    let default_env = if args.environment_map.is_some() { "1,1,1" } else { "0.1,0.1,0.1" };
+    let env = args.environment.as_deref().unwrap_or(default_env);
+    cfg.environment = pathtracer::dataset_render::parse_rgb(env).map_err(|m| anyhow::anyhow!("--environment {env}: {m}"))?;
+    if let Some(map) = &args.environment_map {
+        pathtracer::render::check_environment_map_path(map).with_context(|| format!("--environment-map {}", map.display()))?;
+    }
     cfg.validate()?;
 
     let scene = load_gltf(&scene_path, &ImportOptions::default()).with_context(|| format!("loading {}", scene_path.display()))?;
@@ -96,6 +105,7 @@ pub fn run(args: CrosscheckArgs) -> anyhow::Result<()> {
         seed: cfg.seed,
         environment: cfg.environment,
         transparent_background: false,
+        environment_map: args.environment_map.clone(),
     };
     settings.validate()?;
     let groups = reference_groups(settings.spp, args.max_groups.max(2));
@@ -108,7 +118,8 @@ pub fn run(args: CrosscheckArgs) -> anyhow::Result<()> {
     export_scene(&scene, &cameras, &settings, &export_dir).with_context(|| format!("exporting to {}", export_dir.display()))?;
     println!("exported {} ({} triangles, {} views, rig {}) to {}", name, scene.mesh.indices.len(), cameras.len(), rig.kind.name(), export_dir.display());
 
-    let renderer = Renderer::new(scene, &AccelParams::medium_build())?;
+    let mut renderer = Renderer::new(scene, &AccelParams::medium_build())?;
+    renderer.load_environment_map(&settings)?;
     let start = std::time::Instant::now();
     for (k, cam) in cameras.iter().enumerate() {
         let v = render_reference(&renderer, cam, k as u32, &settings, groups)?;

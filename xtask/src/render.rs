@@ -54,9 +54,14 @@ pub struct RenderArgs {
     /// What missed rays show: transparent, environment, or a linear colour R,G,B.
     #[arg(long)]
     pub background: Option<Background>,
-    /// Constant environment radiance lighting the scene, linear R,G,B.
+    /// Constant environment radiance lighting the scene, linear R,G,B; with --environment-map,
+    /// the map's scale (default 1,1,1 then).
     #[arg(long)]
     pub environment: Option<String>,
+    /// Equirectangular environment map lighting the scene (OpenEXR .exr or Radiance .hdr,
+    /// linear; image top = +Y, image centre = -Z). Part of the dataset's identity on resume.
+    #[arg(long, value_name = "FILE")]
+    pub environment_map: Option<PathBuf>,
     /// Worker threads (default: all cores). Does not change the output.
     #[arg(long)]
     pub threads: Option<usize>,
@@ -84,6 +89,7 @@ impl RenderArgs {
             fov_x: None,
             background: None,
             environment: None,
+            environment_map: None,
             threads: None,
             force: false,
         }
@@ -159,8 +165,14 @@ pub fn build_config(args: &RenderArgs) -> anyhow::Result<DatasetRenderConfig> {
     cfg.rig = args.rig.unwrap_or(cfg.rig);
     cfg.fov_x = args.fov_x.unwrap_or(cfg.fov_x);
     cfg.background = args.background.unwrap_or(cfg.background);
-    if let Some(env) = &args.environment {
-        cfg.environment = parse_rgb(env).map_err(|m| anyhow::anyhow!("--environment {env}: {m}"))?;
+    cfg.environment_map = args.environment_map.clone();
+    match &args.environment {
+        Some(env) => cfg.environment = parse_rgb(env).map_err(|m| anyhow::anyhow!("--environment {env}: {m}"))?,
+        None if cfg.environment_map.is_some() => cfg.environment = [1.0; 3],
+        None => {}
+    }
+    if let Some(map) = &cfg.environment_map {
+        pathtracer::render::check_environment_map_path(map).with_context(|| format!("--environment-map {}", map.display()))?;
     }
     cfg.validate()?;
     Ok(cfg)
@@ -261,6 +273,27 @@ mod tests {
             assert!(build_config(&parse(&cmd)).is_err(), "{bad:?} accepted");
         }
         assert!(Cli::try_parse_from(["render", "x", "--out", "o", "--rig", "cube"]).is_err());
+    }
+
+    #[test]
+    fn environment_map_option_is_checked_and_defaults_the_scale_to_one() {
+        let dir = std::env::temp_dir().join(format!("xtask_envmap_option_{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let missing = dir.join("missing.hdr");
+        let e = format!("{:#}", build_config(&parse(&["x", "--out", "o", "--environment-map", missing.to_str().unwrap()])).unwrap_err());
+        assert!(e.contains("--environment-map") && e.contains("missing.hdr") && e.contains("does not exist"), "{e}");
+        let txt = dir.join("sky.txt");
+        std::fs::write(&txt, "not a map").unwrap();
+        let e = format!("{:#}", build_config(&parse(&["x", "--out", "o", "--environment-map", txt.to_str().unwrap()])).unwrap_err());
+        assert!(e.contains("sky.txt") && e.contains(".hdr"), "{e}");
+        let sky = dir.join("sky.hdr");
+        std::fs::write(&sky, b"#?RADIANCE\n").unwrap();
+        let c = build_config(&parse(&["x", "--out", "o", "--environment-map", sky.to_str().unwrap()])).unwrap();
+        assert_eq!((c.environment, c.environment_map.as_deref()), ([1.0; 3], Some(sky.as_path())));
+        let c = build_config(&parse(&["x", "--out", "o", "--environment-map", sky.to_str().unwrap(), "--environment", "2,2,2"])).unwrap();
+        assert_eq!(c.environment, [2.0; 3]);
+        assert_eq!(build_config(&parse(&["x", "--out", "o"])).unwrap().environment_map, None);
+        std::fs::remove_dir_all(&dir).ok();
     }
 
     #[test]

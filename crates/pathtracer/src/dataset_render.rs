@@ -12,7 +12,8 @@
 //! Resume: a view whose four files exist is kept, the others are rendered. Every view's
 //! randomness is keyed by (seed, split, view index) only ([`view_key`]), so a resumed dataset is
 //! byte-identical to an uninterrupted one, whatever the thread count. A folder holding a dataset
-//! rendered with different settings is refused unless [`RunOptions::force`] is set.
+//! rendered with different settings (or another environment map: its bytes are hashed into
+//! `render_config.json`) is refused unless [`RunOptions::force`] is set.
 //!
 //! The renderer enters through the [`ViewRenderer`] trait: [`render_dataset`] loads the glTF and
 //! uses the path tracer; [`render_dataset_with`] takes any implementation (tests use an
@@ -129,8 +130,14 @@ pub struct DatasetRenderConfig {
     pub fov_x: f64,
     /// What missed rays show.
     pub background: Background,
-    /// Constant environment radiance lighting the scene (linear RGB).
+    /// Constant environment radiance lighting the scene (linear RGB), or the scale of the
+    /// environment map when there is one.
     pub environment: [f32; 3],
+    /// Equirectangular environment map (`.exr` or `.hdr`) lighting the scene, scaled by
+    /// `environment` (see [`crate::render::RenderSettings::environment_map`]). Its content is
+    /// part of the dataset's identity ([`RenderRecord::environment_map`]).
+    #[serde(default)]
+    pub environment_map: Option<PathBuf>,
 }
 
 impl DatasetRenderConfig {
@@ -154,6 +161,7 @@ impl DatasetRenderConfig {
             fov_x: DEFAULT_FOV_X,
             background: Background::Transparent,
             environment: [0.1; 3],
+            environment_map: None,
         }
     }
 
@@ -194,6 +202,9 @@ impl DatasetRenderConfig {
         if colours.iter().flatten().flatten().any(|v| !v.is_finite() || *v < 0.0) {
             return bad("colours must be finite and non-negative".into());
         }
+        if let Some(path) = &self.environment_map {
+            crate::render::check_environment_map_path(path)?;
+        }
         Ok(())
     }
 
@@ -207,6 +218,12 @@ impl DatasetRenderConfig {
             counts: [self.train, self.val, self.test],
             seed: self.seed,
         }
+    }
+
+    /// These settings with the environment map's path blanked (kept as `Some("")` when there
+    /// is a map): what must match on resume besides the map's content.
+    fn without_environment_map_path(&self) -> DatasetRenderConfig {
+        DatasetRenderConfig { environment_map: self.environment_map.as_ref().map(|_| PathBuf::new()), ..self.clone() }
     }
 
     /// Number of views in all splits.
@@ -326,16 +343,22 @@ pub struct RenderRecord {
     pub rig_resolved: RigKind,
     /// The settings.
     pub config: DatasetRenderConfig,
+    /// The environment map file (path as given, hash of its bytes), if any: a resumed run must
+    /// use a map with the same content (its path may differ).
+    #[serde(default)]
+    pub environment_map: Option<SceneSource>,
 }
 
 impl RenderRecord {
     /// Whether a dataset rendered under `self` can be resumed under `other` (same scene content,
     /// renderer and settings; the scene's path may differ).
     pub fn same_output(&self, other: &RenderRecord) -> bool {
+        let hash = |r: &RenderRecord| r.environment_map.as_ref().map(|m| m.hash.clone());
         self.scene.hash == other.scene.hash
             && self.renderer == other.renderer
             && self.rig_resolved == other.rig_resolved
-            && self.config == other.config
+            && self.config.without_environment_map_path() == other.config.without_environment_map_path()
+            && hash(self) == hash(other)
     }
 }
 
@@ -363,7 +386,7 @@ pub fn render_dataset(
     cfg.validate()?;
     let source = SceneSource::from_file(scene_path)?;
     let scene = crate::import::load_gltf(scene_path, &crate::import::ImportOptions::default())?;
-    let renderer = crate::render::Renderer::new(scene, &crate::accel::AccelParams::medium_build())?;
+    let mut renderer = crate::render::Renderer::new(scene, &crate::accel::AccelParams::medium_build())?;
     for w in &renderer.scene().warnings {
         tracing::warn!("{}: {w}", scene_path.display());
     }
@@ -373,8 +396,10 @@ pub fn render_dataset(
         seed: cfg.seed,
         environment: cfg.environment,
         transparent_background: cfg.background != Background::Environment,
+        environment_map: cfg.environment_map.clone(),
     };
     settings.validate()?;
+    renderer.load_environment_map(&settings)?;
     let adapter = PathTracer { renderer: &renderer, settings };
     render_dataset_with(renderer.scene(), &source, &adapter, out, cfg, opts, progress, cancel)
 }
@@ -416,11 +441,13 @@ pub fn render_dataset_with(
         return Err(PathTracerError::Config("--threads 0: at least one thread is needed".into()));
     }
     let rig = build_rig(scene, &cfg.rig_config())?;
+    let environment_map = cfg.environment_map.as_deref().map(SceneSource::from_file).transpose()?;
     let record = RenderRecord {
         scene: source.clone(),
         renderer: crate::RENDERER_VERSION.to_string(),
         rig_resolved: rig.kind,
         config: cfg.clone(),
+        environment_map,
     };
     let pool = match opts.threads {
         Some(n) => Some(
@@ -517,6 +544,11 @@ fn describe_difference(old: &RenderRecord, new: &RenderRecord) -> String {
     }
     if old.renderer != new.renderer {
         return format!("renderer {} (now {})", old.renderer, new.renderer);
+    }
+    let map_hash = |r: &RenderRecord| r.environment_map.as_ref().map(|m| m.hash.clone());
+    if map_hash(old) != map_hash(new) {
+        let name = |r: &RenderRecord| r.environment_map.as_ref().map_or("none".to_string(), |m| m.path.clone());
+        return format!("environment map {} (now {}) differs", name(old), name(new));
     }
     let a = serde_json::to_value(&old.config).unwrap_or_default();
     let b = serde_json::to_value(&new.config).unwrap_or_default();
@@ -932,6 +964,43 @@ mod tests {
         for d in [&a, &b] {
             std::fs::remove_dir_all(d).unwrap();
         }
+    }
+
+    #[test]
+    fn the_environment_map_content_is_part_of_the_identity() {
+        let out = tmp("envmap");
+        let maps = tmp("envmap-files");
+        std::fs::create_dir_all(&maps).unwrap();
+        let (a, a_copy, b) = (maps.join("a.hdr"), maps.join("a_copy.hdr"), maps.join("b.hdr"));
+        std::fs::write(&a, "sky a").unwrap();
+        std::fs::write(&a_copy, "sky a").unwrap();
+        std::fs::write(&b, "sky b").unwrap();
+        let with = |p: &Path| DatasetRenderConfig { environment_map: Some(p.to_path_buf()), ..tiny() };
+        let missing = with(&maps.join("none.exr"));
+        let e = run(&out, &missing, 1, false).unwrap_err().to_string();
+        assert!(e.contains("none.exr") && e.contains("does not exist"), "{e}");
+        assert!(!out.exists());
+        run(&out, &with(&a), 1, false).unwrap();
+        let rec: RenderRecord = serde_json::from_slice(&std::fs::read(out.join(RENDER_CONFIG_FILE)).unwrap()).unwrap();
+        assert_eq!(rec.environment_map.as_ref().map(|m| m.hash.clone()), Some(format!("{:016x}", fnv1a(b"sky a"))));
+        // The same content under another path resumes (nothing to render).
+        assert_eq!(run(&out, &with(&a_copy), 1, false).unwrap().views_rendered, 0);
+        // Another map, or none, is refused.
+        let e = run(&out, &with(&b), 1, false).unwrap_err().to_string();
+        assert!(e.contains("environment map") && e.contains("b.hdr"), "{e}");
+        let e = run(&out, &tiny(), 1, false).unwrap_err().to_string();
+        assert!(e.contains("environment map"), "{e}");
+        // Editing the file in place is noticed too.
+        std::fs::write(&a, "sky a, edited").unwrap();
+        assert!(run(&out, &with(&a), 1, false).is_err());
+        // Records written before the field existed read as "no map".
+        let old = r#"{"scene":{"path":"s","hash":"1"},"renderer":"r","rig_resolved":"sphere","config":"#.to_string()
+            + &serde_json::to_string(&tiny()).unwrap().replace(",\"environment_map\":null", "")
+            + "}";
+        let rec: RenderRecord = serde_json::from_str(&old).unwrap();
+        assert_eq!((rec.environment_map, rec.config.environment_map), (None, None));
+        std::fs::remove_dir_all(&out).unwrap();
+        std::fs::remove_dir_all(&maps).unwrap();
     }
 
     #[test]

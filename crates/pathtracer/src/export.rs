@@ -12,7 +12,14 @@
 //!   `colors.npy` `<f4 (V, 4)` (COLOR_0, linear); `indices.npy` `<u4 (T, 3)` (counter-clockwise
 //!   front faces); `material.npy` `<u4 (T,)`; `texture_<k>.npy` `<f4 (H, W, 4)` texels as the
 //!   renderer samples them (colour textures already linear, row 0 the top row, so glTF UV
-//!   (0, 0) is texel (0, 0)).
+//!   (0, 0) is texel (0, 0)); `corner_tangents.npy` `<f4 (T, 3, 4)`: per triangle corner, the
+//!   normal-mapping tangent (xyz, handedness w) the renderer uses there
+//!   ([`crate::integrator::tangent_at`]: the asset's TANGENT, or the per-triangle tangent from
+//!   the UVs; linear over the triangle, so interpolating the corners reproduces it), zero for
+//!   triangles whose material has no normal map;
+//!   `environment_map.npy` `<f4 (H, W, 3)` (only with an environment map): the equirectangular
+//!   map's linear texels as the renderer loaded them (row 0 the top row = +Y; see
+//!   [`crate::light::EnvironmentMap::direction`]), sampled nearest, scaled by `environment`.
 //!
 //! Missing per-vertex attributes are written with the renderer's defaults (normal: the face
 //! normal is used by the renderer when the interpolated normal vanishes; UV 0; colour white).
@@ -32,7 +39,7 @@ use serde::{Deserialize, Serialize};
 use std::path::Path;
 
 /// Version of the export folder layout, written into `scene.json`.
-pub const EXPORT_FORMAT_VERSION: u32 = 1;
+pub const EXPORT_FORMAT_VERSION: u32 = 2;
 
 /// The manifest file's name inside an export folder.
 pub const MANIFEST_FILE: &str = "scene.json";
@@ -213,9 +220,12 @@ pub struct ExportManifest {
     pub textures: Vec<ExportTexture>,
     /// Punctual lights.
     pub lights: Vec<ExportLight>,
-    /// Constant environment radiance (linear RGB); lights the scene, and is what camera
-    /// misses show unless `settings.transparent_background`.
+    /// Constant environment radiance (linear RGB), or the scale of `environment_map`; lights
+    /// the scene, and is what camera misses show unless `settings.transparent_background`.
     pub environment: [f32; 3],
+    /// The equirectangular environment map (`environment_map.npy`), if any.
+    #[serde(default)]
+    pub environment_map: Option<ExportTexture>,
     /// The views to render.
     pub cameras: Vec<ExportCamera>,
     /// The render settings (spp, max_bounces: 0 emitters only, 1 direct light, …).
@@ -341,6 +351,7 @@ pub fn manifest(scene: &Scene, cameras: &[Camera], settings: &RenderSettings) ->
         textures,
         lights,
         environment: settings.environment,
+        environment_map: None,
         cameras: cameras.iter().map(Into::into).collect(),
         settings: settings.clone(),
     }
@@ -378,7 +389,29 @@ pub fn export_scene(scene: &Scene, cameras: &[Camera], settings: &RenderSettings
         let texels: Vec<f32> = t.texels.iter().flat_map(|v| v.to_array()).collect();
         write_npy_f32(&dir.join(format!("texture_{k}.npy")), &[t.height as usize, t.width as usize, 4], &texels)?;
     }
-    let man = manifest(scene, cameras, settings);
+    let mut corners = vec![0.0f32; nt * 12];
+    for (k, tri) in m.indices.iter().enumerate() {
+        let mat = m.material.get(k).and_then(|&i| scene.materials.get(i as usize));
+        let Some((r, _)) = mat.and_then(|mat| mat.normal_texture.as_ref()) else { continue };
+        let p = tri.map(|i| m.positions[i as usize]);
+        let ng_front = (p[1] - p[0]).cross(p[2] - p[0]).normalize_or_zero();
+        for c in 0..3 {
+            let mut b = [0.0f32; 3];
+            b[c] = 1.0;
+            let t = crate::integrator::tangent_at(scene, k as u32, b, r.tex_coord, ng_front);
+            corners[k * 12 + c * 4..k * 12 + c * 4 + 4].copy_from_slice(&t.to_array());
+        }
+    }
+    write_npy_f32(&dir.join("corner_tangents.npy"), &[nt, 3, 4], &corners)?;
+    let mut man = manifest(scene, cameras, settings);
+    if let Some(path) = &settings.environment_map {
+        let map = crate::render::load_environment_map(path)?;
+        let (w, h) = map.size();
+        let texels: Vec<f32> = map.texels().iter().flat_map(|v| v.to_array()).collect();
+        let file = "environment_map.npy".to_string();
+        write_npy_f32(&dir.join(&file), &[h as usize, w as usize, 3], &texels)?;
+        man.environment_map = Some(ExportTexture { file, width: w, height: h });
+    }
     dataset::io::atomic_write_json(&dir.join(MANIFEST_FILE), &man)?;
     Ok(man)
 }
@@ -558,7 +591,7 @@ mod tests {
         let scene = one_triangle_scene();
         let r = Renderer::new(scene, &crate::accel::AccelParams::fast_build()).unwrap();
         let cam = Camera::new(Intrinsics::from_fov_y(2, 2, 0.05), Camera::look_at(DVec3::new(100.3, 0.3, 0.0), DVec3::new(100.3, 0.3, -3.0), DVec3::Y)).unwrap();
-        let settings = RenderSettings { spp: 8, max_bounces: 2, seed: 1, environment: [0.5; 3], transparent_background: false };
+        let settings = RenderSettings { spp: 8, max_bounces: 2, seed: 1, environment: [0.5; 3], transparent_background: false, environment_map: None };
         let v = render_reference(&r, &cam, 0, &settings, 8).unwrap();
         assert_eq!((v.groups, v.spp_per_group), (8, 1));
         assert!(v.ground_truth.alpha.iter().all(|a| *a == 1.0));

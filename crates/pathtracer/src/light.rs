@@ -439,6 +439,14 @@ impl EmissiveTriangles {
     }
 }
 
+impl EnvironmentMap {
+    /// The linear RGB texels, row-major from the top row (`width × height`), as loaded (for
+    /// exporting the map to another renderer).
+    pub fn texels(&self) -> &[Vec3] {
+        &self.texels
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

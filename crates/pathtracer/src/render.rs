@@ -22,6 +22,7 @@ use crate::accel::{Accel, AccelParams, Hit};
 use crate::geometry::{Ray, ray_triangle_plane_distance_f64};
 use crate::integrator::{IntegratorSettings, PathIntegrator, interaction};
 use crate::light::{EmissiveTriangles, Environment, EnvironmentMap};
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use crate::sampler::Sampler;
 use crate::scene::{Light, Scene};
@@ -47,19 +48,29 @@ pub struct RenderSettings {
     /// Whether camera rays that miss are transparent (alpha 0, RGB 0) instead of showing the
     /// environment.
     pub transparent_background: bool,
+    /// Equirectangular environment map file (OpenEXR `.exr` or Radiance `.hdr`, linear
+    /// radiance, scaled by `environment`), loaded by [`Renderer::load_environment_map`];
+    /// `None`: the constant environment. Its orientation is [`EnvironmentMap::direction`]'s
+    /// (Mitsuba's `envmap` convention: image top = +Y, image centre = −Z).
+    #[serde(default)]
+    pub environment_map: Option<PathBuf>,
 }
 
 impl RenderSettings {
     /// A quick look: 16 spp, 4 bounces, transparent background, environment radiance 1.
     pub fn preview(seed: u64) -> Self {
-        Self { spp: 16, max_bounces: 4, seed, environment: [1.0; 3], transparent_background: true }
+        Self { spp: 16, max_bounces: 4, seed, environment: [1.0; 3], transparent_background: true, environment_map: None }
     }
     /// Dataset quality: 256 spp, 8 bounces, transparent background, environment radiance 1.
     pub fn dataset(seed: u64) -> Self {
-        Self { spp: 256, max_bounces: 8, seed, environment: [1.0; 3], transparent_background: true }
+        Self { spp: 256, max_bounces: 8, seed, environment: [1.0; 3], transparent_background: true, environment_map: None }
     }
-    /// Checks the ranges: `spp ≥ 1`, `max_bounces ≤ 1024`, finite non-negative environment.
+    /// Checks the ranges: `spp ≥ 1`, `max_bounces ≤ 1024`, finite non-negative environment,
+    /// and that the environment map (if any) is an existing `.exr` or `.hdr` file.
     pub fn validate(&self) -> Result<(), PathTracerError> {
+        if let Some(path) = &self.environment_map {
+            check_environment_map_path(path)?;
+        }
         if self.spp == 0 {
             return Err(PathTracerError::Config("spp must be at least 1".into()));
         }
@@ -141,6 +152,26 @@ impl std::fmt::Debug for Renderer {
             .field("accel", &self.accel)
             .finish()
     }
+}
+
+/// Checks that `path` names an existing environment map file with a supported extension
+/// (`.exr` or `.hdr`, any case); the error names the file.
+pub fn check_environment_map_path(path: &Path) -> Result<(), PathTracerError> {
+    let ext = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).unwrap_or_default();
+    if ext != "exr" && ext != "hdr" {
+        return Err(PathTracerError::import(path, "environment map must be an OpenEXR (.exr) or Radiance (.hdr) file"));
+    }
+    if !path.is_file() {
+        return Err(PathTracerError::import(path, "environment map file does not exist"));
+    }
+    Ok(())
+}
+
+/// Reads an equirectangular environment map ([`EnvironmentMap::load`]: `.exr` or `.hdr`);
+/// a missing, unreadable or malformed file is an error naming it.
+pub fn load_environment_map(path: &Path) -> Result<EnvironmentMap, PathTracerError> {
+    check_environment_map_path(path)?;
+    EnvironmentMap::load(path)
 }
 
 /// Checks the scene's internal consistency (the importer's output, or a hand-made scene).
@@ -236,6 +267,18 @@ impl Renderer {
     /// The environment map, if any.
     pub fn environment_map(&self) -> Option<&Arc<EnvironmentMap>> {
         self.environment_map.as_ref()
+    }
+
+    /// Loads `settings.environment_map` ([`load_environment_map`]) and lights the scene with
+    /// it, or restores the constant environment when the settings name none. Call it before
+    /// rendering with settings that name a map: [`Renderer::render_view`] uses the map loaded
+    /// here, not the path.
+    pub fn load_environment_map(&mut self, settings: &RenderSettings) -> Result<(), PathTracerError> {
+        self.environment_map = match &settings.environment_map {
+            Some(path) => Some(Arc::new(load_environment_map(path)?)),
+            None => None,
+        };
+        Ok(())
     }
 
     /// The path integrator for `settings`.
@@ -458,7 +501,7 @@ mod tests {
     }
 
     fn settings(spp: u32, max_bounces: u32, environment: f32, transparent: bool) -> RenderSettings {
-        RenderSettings { spp, max_bounces, seed: 1, environment: [environment; 3], transparent_background: transparent }
+        RenderSettings { spp, max_bounces, seed: 1, environment: [environment; 3], transparent_background: transparent, environment_map: None }
     }
 
     /// Mean and standard error of `n` radiance samples (red channel) along `ray`.

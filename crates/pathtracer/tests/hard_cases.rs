@@ -33,7 +33,7 @@ fn renderer(scene: Scene) -> Renderer {
 
 /// Direct + one indirect bounce, black environment (only the scene's lights), opaque.
 fn settings(spp: u32) -> RenderSettings {
-    RenderSettings { spp, max_bounces: 2, seed: 7, environment: [0.0; 3], transparent_background: false }
+    RenderSettings { spp, max_bounces: 2, seed: 7, environment: [0.0; 3], transparent_background: false, environment_map: None }
 }
 
 fn camera(eye: DVec3, target: DVec3, res: u32) -> Camera {
