@@ -332,7 +332,8 @@ pub struct Trainer {
     pub run_dir: PathBuf,
     /// The model.
     pub model: Model,
-    data: TrainData,
+    /// The training views (public so that tests can plant faults, e.g. a NaN target pixel).
+    pub data: TrainData,
     val: ValSet,
     /// Steps done.
     pub step: u64,
@@ -437,7 +438,9 @@ impl Trainer {
             self.samples_per_ray = if self.samples_per_ray > 0.0 { 0.8 * self.samples_per_ray + 0.2 * spr } else { spr };
         }
         self.step += 1;
-        if stats.skipped_nonfinite {
+        // A non-finite loss is never applied (the models check it before updating), and is
+        // counted even where a model had nothing to update (no samples).
+        if stats.skipped_nonfinite || !stats.loss.is_finite() {
             self.skipped_nonfinite += 1;
         }
         let dt = t0.elapsed().as_secs_f64();
