@@ -13,6 +13,19 @@ Naming: Mitsuba's `si.wi` (towards the viewer) is glTF's V (our `wo`); the `wo` 
     f      = (1 - m) ((1 - F_d) rho / pi + F_d D Vis) + m F_m D Vis
     eval   = f N.L  (0 unless N.V > 0 and N.L > 0)
 
+Shading frame (integrator.rs / material.rs `normal_mapped`, `shading_frame`), in world space:
+ns = the interpolated normal (Mitsuba's sh_frame.n), normal-mapped when the material has a
+normal texture: c = normalize((2 tex - 1) (scale, scale, 1)), T = the interpolated corner
+tangent (mesh attribute `vertex_tangent`, orthogonalised to ns), B = (ns x T) w,
+ns' = normalize(T c.x + B c.y + ns c.z); flipped when the viewer is on the other side of the
+geometric normal than ns; bent towards V when N.V < 1e-3: N = normalize(N + (1e-3 - N.V) V).
+Directions L below the geometric surface on the viewer's side get f = 0 (ours skips them), so
+both sides of a surface shade alike (no `twosided` wrapper; ours never hits a single-sided
+back face, so the difference cannot show).
+
+Textures: base colour = clamp(factor x texture x COLOR_0, 0, 1); metallic = factor x
+texture B, roughness = factor x texture G (`metallic_roughness` bitmap, raw, same filter).
+
 Sampling: specular lobe (GGX visible normals, Heitz 2018) with probability P_s, cosine lobe
 otherwise; pdf = P_s D / (2 sd(N.V)) + (1 - P_s) N.L / pi, with P_s as in the Rust docs
 (clamp(E_s / (E_s + E_d), 0.1, 0.9), 1 without a diffuse lobe, 0 without a specular one).
@@ -34,6 +47,9 @@ def luminance(c):
     return 0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2]
 
 
+MIN_SHADING_COS = 1e-3
+
+
 class GltfBSDF(mi.BSDF):
     def __init__(self, props):
         mi.BSDF.__init__(self, props)
@@ -41,63 +57,110 @@ class GltfBSDF(mi.BSDF):
         # An `rgb` value arrives as a colour, a texture (bitmap, mesh_attribute) as an object.
         self.base_color = bc if isinstance(bc, mi.Texture) else None
         self.base_color_const = None if self.base_color is not None else mi.Color3f(bc[0], bc[1], bc[2])
-        self.metallic = float(props["metallic"])
-        r = min(max(float(props["roughness"]), 0.0), 1.0)
-        self.alpha = max(r * r, MIN_ALPHA)
+        self.metallic = min(max(float(props["metallic"]), 0.0), 1.0)
+        self.roughness = min(max(float(props["roughness"]), 0.0), 1.0)
         self.specular = min(max(float(props["specular"]), 0.0), 1.0)
-        self.metallic = min(max(self.metallic, 0.0), 1.0)
-        front = mi.BSDFFlags.FrontSide
-        self.m_components = [mi.BSDFFlags.DiffuseReflection | front, mi.BSDFFlags.GlossyReflection | front]
+        self.mr_texture = props["metallic_roughness"] if props.has_property("metallic_roughness") else None
+        self.normal_texture = props["normal_texture"] if props.has_property("normal_texture") else None
+        self.normal_scale = float(props["normal_scale"]) if props.has_property("normal_scale") else 1.0
+        self.metallic_factor = float(props["metallic"])
+        self.roughness_factor = float(props["roughness"])
+        flags = mi.BSDFFlags.FrontSide | mi.BSDFFlags.BackSide
+        self.m_components = [mi.BSDFFlags.DiffuseReflection | flags, mi.BSDFFlags.GlossyReflection | flags]
         self.m_flags = self.m_components[0] | self.m_components[1]
 
-    # --- the model -----------------------------------------------------------------------
-    def rho(self, si, active):
+    # --- parameters at a hit -------------------------------------------------------------
+    def params(self, si, active):
+        """(rho, metallic, alpha) at the hit."""
         if self.base_color is None:
-            return dr.clip(self.base_color_const, 0.0, 1.0)
-        return dr.clip(self.base_color.eval(si, active), 0.0, 1.0)
+            rho = dr.clip(self.base_color_const, 0.0, 1.0)
+        else:
+            rho = dr.clip(self.base_color.eval(si, active), 0.0, 1.0)
+        if self.mr_texture is None:
+            m = self.metallic
+            r = self.roughness
+        else:
+            t = self.mr_texture.eval(si, active)
+            m = dr.clip(self.metallic_factor * t[2], 0.0, 1.0)
+            r = dr.clip(self.roughness_factor * t[1], 0.0, 1.0)
+        a = dr.maximum(r * r, MIN_ALPHA)
+        return rho, m, a
 
-    def d(self, h):
-        a2 = self.alpha * self.alpha
+    def frame(self, si, active):
+        """(our shading frame, the geometric normal on the viewer's side, V) in world space."""
+        v = si.to_world(si.wi)
+        ng = mi.Vector3f(si.n)
+        ng_f = dr.select(dr.dot(ng, v) < 0, -ng, ng)
+        ns_front = mi.Vector3f(si.sh_frame.n)
+        flipped = dr.dot(ns_front, ng_f) < 0
+        ns = ns_front
+        if self.normal_texture is not None:
+            t = si.shape.eval_attribute_3("vertex_tangent", si, active)
+            w = si.shape.eval_attribute_1("vertex_tangent_w", si, active)
+            t = t - ns * dr.dot(ns, t)
+            tl = dr.norm(t)
+            t_ok = (tl > 0) & dr.isfinite(tl)
+            t = t / dr.select(t_ok, tl, 1.0)
+            b = dr.cross(ns, t) * dr.select(w < 0, -1.0, 1.0)
+            c = mi.Vector3f(self.normal_texture.eval(si, active)) * 2.0 - 1.0
+            c = mi.Vector3f(c.x * self.normal_scale, c.y * self.normal_scale, c.z)
+            cl = dr.norm(c)
+            c = c / dr.select(cl > 0, cl, 1.0)
+            m = t * c.x + b * c.y + ns * c.z
+            ml = dr.norm(m)
+            ok = t_ok & (cl > 0) & (ml > 0) & dr.isfinite(ml)
+            ns = dr.select(ok, m / dr.select(ml > 0, ml, 1.0), ns)
+        n = dr.select(flipped, -ns, ns)
+        cv = dr.dot(n, v)
+        bent = n + (MIN_SHADING_COS - cv) * v
+        bl = dr.norm(bent)
+        bent = dr.select(bl > 0, bent / dr.select(bl > 0, bl, 1.0), v)
+        n = dr.select(cv >= MIN_SHADING_COS, n, bent)
+        return mi.Frame3f(n), ng_f, v
+
+    # --- the model -----------------------------------------------------------------------
+    @staticmethod
+    def d(a, h):
+        a2 = a * a
         den = h.x * h.x + h.y * h.y + h.z * h.z * a2
         return dr.select(h.z > 0, a2 / (math.pi * den * den), 0.0)
 
-    def sd(self, c):
-        a2 = self.alpha * self.alpha
+    @staticmethod
+    def sd(a, c):
+        a2 = a * a
         return c + dr.sqrt(a2 + (1.0 - a2) * c * c)
 
-    def f(self, rho, v, l):
+    def f(self, rho, m, a, v, l):
         h = dr.normalize(v + l)
         vh = dr.clip(dr.dot(v, h), 0.0, 1.0)
         w5 = dr.power(1.0 - vh, 5.0)
-        spec = self.d(h) / (self.sd(l.z) * self.sd(v.z))
+        spec = self.d(a, h) / (self.sd(a, l.z) * self.sd(a, v.z))
         fd = self.specular * (F0 + (1.0 - F0) * w5)
         dielectric = rho * ((1.0 - fd) * INV_PI) + fd * spec
         metal = (rho + (1.0 - rho) * w5) * spec
-        val = dielectric * (1.0 - self.metallic) + metal * self.metallic
+        val = dielectric * (1.0 - m) + metal * m
         return dr.select((v.z > 0) & (l.z > 0), val, 0.0)
 
-    def p_spec(self, rho, v):
-        m, s = self.metallic, self.specular
-        has_diffuse = (m < 1.0) & (dr.max(rho) > 0.0)
-        has_specular = (m > 0.0) or (s > 0.0)
+    def p_spec(self, rho, m, v):
+        s = self.specular
         w5 = dr.power(1.0 - dr.clip(v.z, 0.0, 1.0), 5.0)
         fd = s * (F0 + (1.0 - F0) * w5)
         es = (1.0 - m) * fd + m * luminance(rho + (1.0 - rho) * w5)
         ed = (1.0 - m) * (1.0 - fd) * luminance(rho)
         p = dr.clip(es / (es + ed), 0.1, 0.9)
         p = dr.select(dr.isfinite(p), p, 0.5)
-        if not has_specular:
-            return dr.zeros(mi.Float) if isinstance(v.z, mi.Float) else 0.0
-        return dr.select(has_diffuse, p, 1.0)
+        has_diffuse = (m < 1.0) & (dr.max(rho) > 0.0)
+        has_specular = (m > 0.0) | (s > 0.0)
+        return dr.select(has_specular, dr.select(has_diffuse, p, 1.0), 0.0)
 
-    def pdf_l(self, rho, v, l):
-        ps = self.p_spec(rho, v)
+    def pdf_l(self, rho, m, a, v, l):
+        ps = self.p_spec(rho, m, v)
         h = dr.normalize(v + l)
-        pdf = ps * self.d(h) / (2.0 * self.sd(v.z)) + (1.0 - ps) * l.z * INV_PI
+        pdf = ps * self.d(a, h) / (2.0 * self.sd(a, v.z)) + (1.0 - ps) * l.z * INV_PI
         return dr.select((v.z > 0) & (l.z > 0), pdf, 0.0)
 
-    def sample_visible_normal(self, v, u):
-        a = self.alpha
+    @staticmethod
+    def sample_visible_normal(a, v, u):
         vh = dr.normalize(mi.Vector3f(a * v.x, a * v.y, v.z))
         lensq = vh.x * vh.x + vh.y * vh.y
         t1 = dr.select(lensq > 0, mi.Vector3f(-vh.y, vh.x, 0.0) * dr.rsqrt(dr.maximum(lensq, 1e-30)), mi.Vector3f(1.0, 0.0, 0.0))
@@ -112,19 +175,21 @@ class GltfBSDF(mi.BSDF):
 
     # --- Mitsuba's interface -----------------------------------------------------------
     def sample(self, ctx, si, sample1, sample2, active=True):
-        v = si.wi
-        rho = self.rho(si, active)
-        ps = self.p_spec(rho, v)
+        rho, m, a = self.params(si, active)
+        fr, ng_f, v_w = self.frame(si, active)
+        v = fr.to_local(v_w)
+        ps = self.p_spec(rho, m, v)
         spec = sample1 < ps
-        h = self.sample_visible_normal(v, sample2)
+        h = self.sample_visible_normal(a, v, sample2)
         l_spec = dr.normalize(2.0 * dr.dot(v, h) * h - v)
         l_diff = mi.warp.square_to_cosine_hemisphere(sample2)
         l = dr.select(spec, l_spec, l_diff)
-        pdf = self.pdf_l(rho, v, l)
-        val = self.f(rho, v, l) * l.z
-        ok = active & (v.z > 0) & (l.z > 0) & (pdf > 0)
+        l_w = fr.to_world(l)
+        pdf = self.pdf_l(rho, m, a, v, l)
+        val = self.f(rho, m, a, v, l) * l.z
+        ok = active & (v.z > 0) & (l.z > 0) & (pdf > 0) & (dr.dot(l_w, ng_f) > 0)
         bs = dr.zeros(mi.BSDFSample3f)
-        bs.wo = l
+        bs.wo = si.to_local(l_w)
         bs.pdf = dr.select(ok, pdf, 0.0)
         bs.eta = 1.0
         bs.sampled_type = dr.select(spec, mi.UInt32(+mi.BSDFFlags.GlossyReflection), mi.UInt32(+mi.BSDFFlags.DiffuseReflection))
@@ -132,22 +197,27 @@ class GltfBSDF(mi.BSDF):
         weight = dr.select(ok, val / dr.select(ok, pdf, 1.0), 0.0)
         return bs, mi.Color3f(weight)
 
+    def eval_pdf(self, ctx, si, wo, active=True):
+        rho, m, a = self.params(si, active)
+        fr, ng_f, v_w = self.frame(si, active)
+        l_w = si.to_world(wo)
+        v, l = fr.to_local(v_w), fr.to_local(l_w)
+        ok = active & (dr.dot(l_w, ng_f) > 0)
+        val = dr.select(ok, self.f(rho, m, a, v, l) * l.z, 0.0)
+        pdf = dr.select(ok, self.pdf_l(rho, m, a, v, l), 0.0)
+        return mi.Color3f(val), pdf
+
     def eval(self, ctx, si, wo, active=True):
-        rho = self.rho(si, active)
-        return mi.Color3f(dr.select(active, self.f(rho, si.wi, wo) * wo.z, 0.0))
+        return self.eval_pdf(ctx, si, wo, active)[0]
 
     def pdf(self, ctx, si, wo, active=True):
-        rho = self.rho(si, active)
-        return dr.select(active, self.pdf_l(rho, si.wi, wo), 0.0)
-
-    def eval_pdf(self, ctx, si, wo, active=True):
-        return self.eval(ctx, si, wo, active), self.pdf(ctx, si, wo, active)
+        return self.eval_pdf(ctx, si, wo, active)[1]
 
     def traverse(self, callback):
         pass
 
     def to_string(self):
-        return f"GltfBSDF[metallic={self.metallic}, alpha={self.alpha}, specular={self.specular}]"
+        return f"GltfBSDF[metallic={self.metallic}, roughness={self.roughness}, specular={self.specular}, normal map={self.normal_texture is not None}]"
 
 
 _registered = False
@@ -165,14 +235,18 @@ def bsdf_dict(mi_module, mat, textures, has_vertex_colors):
     import scene_loader
 
     register()
-    if mat["metallic_roughness_texture"] is not None:
-        raise scene_loader.Unsupported(f"material {mat['name']}: metallic-roughness texture")
-    if mat["normal_texture"] is not None:
-        raise scene_loader.Unsupported(f"material {mat['name']}: normal map")
-    return {
+    d = {
         "type": "gltf",
         "base_color": scene_loader.lambert_reflectance(mi_module, mat, textures, has_vertex_colors),
         "metallic": float(mat["metallic"]),
         "roughness": float(mat["roughness"]),
         "specular": float(mat.get("specular", 1.0)),
     }
+    mr = mat["metallic_roughness_texture"]
+    if mr is not None:
+        d["metallic_roughness"] = scene_loader.bitmap_texture(mi_module, textures[mr["texture"]], mr, [1.0, 1.0, 1.0])
+    nt = mat["normal_texture"]
+    if nt is not None:
+        d["normal_texture"] = scene_loader.bitmap_texture(mi_module, textures[nt["texture"]], nt, [1.0, 1.0, 1.0])
+        d["normal_scale"] = float(mat["normal_scale"])
+    return d

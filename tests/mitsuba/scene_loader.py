@@ -10,7 +10,9 @@ Mapping (ours -> Mitsuba):
   clamp(base_color_factor x base_color_texture x COLOR_0, 0, 1) (texture: `bitmap`, raw linear
   texels, glTF filter and wrap; vertex colours: `mesh_attribute`); double-sided -> `twosided`;
 - every other material -> the `gltf` BSDF plugin of `gltf_bsdf.py` (our glTF BRDF, written
-  from the Rust doc comments), with the same base colour texture;
+  from the Rust doc comments, evaluated in our shading frame: normal map with the exported
+  per-corner tangents, back-facing shading normals bent, directions below the geometric
+  surface rejected), with the same base colour and metallic-roughness textures;
 - emissive material -> `area` emitter, radiance = emissive (x emissive texture);
 - point -> `point` (intensity W/sr = candela); directional -> `directional` (irradiance = lux);
   spot -> `gltf_spot` (glTF's smooth falloff, `gltf_lights.py`);
@@ -98,7 +100,8 @@ def material_bsdf(mi, mat, textures, has_vertex_colors, glossy_plugin):
     if not lambertian:
         if glossy_plugin is None:
             raise Unsupported(f"material {mat['name']}: glTF BRDF without the gltf BSDF plugin")
-        inner = glossy_plugin(mi, mat, textures, has_vertex_colors)
+        # The plugin handles both sides itself (our shading frame, see gltf_bsdf.py).
+        return glossy_plugin(mi, mat, textures, has_vertex_colors)
     else:
         inner = {"type": "diffuse", "reflectance": lambert_reflectance(mi, mat, textures, has_vertex_colors)}
     if mat["double_sided"]:
@@ -130,11 +133,23 @@ def build_meshes(mi, man, arrays, glossy_plugin=None):
     mat_of = arrays["material"].astype(np.int64)
     meshes = {}
     for k, mat in enumerate(man["materials"]):
-        tris = idx[mat_of == k]
+        sel = mat_of == k
+        tris = idx[sel]
         if len(tris) == 0:
             continue
-        used, inverse = np.unique(tris.ravel(), return_inverse=True)
-        faces = inverse.reshape(-1, 3).astype(np.uint32)
+        normal_mapped = mat["normal_texture"] is not None
+        if normal_mapped:
+            # One vertex per triangle corner, carrying the tangent ours uses there
+            # (corner_tangents.npy; linear over the triangle, so Mitsuba's interpolation of the
+            # corners reproduces ours exactly, including per-triangle generated tangents).
+            if arrays.get("corner_tangents") is None:
+                raise Unsupported(f"material {mat['name']}: normal map without corner_tangents.npy (export format < 2)")
+            used = tris.ravel()
+            faces = np.arange(3 * len(tris), dtype=np.uint32).reshape(-1, 3)
+            corner_t = arrays["corner_tangents"][sel].reshape(-1, 4).astype(np.float32)
+        else:
+            used, inverse = np.unique(tris.ravel(), return_inverse=True)
+            faces = inverse.reshape(-1, 3).astype(np.uint32)
         vcol = col[used, :3] * np.asarray(mat["base_color_factor"][:3], np.float32)[None, :]
         has_vc = bool(np.any(np.abs(col[used, :3] - 1.0) > 0.0))
         props = mi.Properties()
@@ -154,6 +169,9 @@ def build_meshes(mi, man, arrays, glossy_plugin=None):
         params.update()
         if has_vc:
             mesh.add_attribute("vertex_color", 3, floats(np.clip(vcol, 0.0, 1.0).ravel()))
+        if normal_mapped:
+            mesh.add_attribute("vertex_tangent", 3, floats(np.ascontiguousarray(corner_t[:, :3]).ravel()))
+            mesh.add_attribute("vertex_tangent_w", 1, floats(np.where(corner_t[:, 3] < 0, -1.0, 1.0).astype(np.float32)))
         meshes[f"material_{k}"] = mesh
     return meshes
 
@@ -278,15 +296,19 @@ def sensor(mi, cam, origin, spp):
     }
 
 
-def build_scene(mi, man, arrays, view, spp, glossy_plugin=None, spot_plugin=None, envmap_plugin=None):
+def build_scene(mi, man, arrays, view, spp, glossy_plugin=None, spot_plugin=None, envmap_plugin=None, transparent_ok=False):
+    """The Mitsuba scene of view `view`. A transparent background is unsupported (the
+    comparison needs the environment behind the scene) unless `transparent_ok` (timing only:
+    camera misses then show black, `hide_emitters`, where ours shows alpha 0)."""
     origin = np.asarray(man["origin"], np.float64)
+    transparent = bool(man["settings"]["transparent_background"])
     d = {"type": "scene"}
     d["integrator"] = {
         "type": "path",
         "max_depth": int(man["settings"]["max_bounces"]) + 1,
-        "hide_emitters": False,
+        "hide_emitters": transparent,
     }
-    if man["settings"]["transparent_background"]:
+    if transparent and not transparent_ok:
         raise Unsupported("transparent background (render with the environment as background)")
     d.update(build_meshes(mi, man, arrays, glossy_plugin))
     d.update(build_lights(man, spot_plugin, arrays, envmap_plugin))
