@@ -153,18 +153,29 @@ impl Boundable for PaddedBox {
     }
 }
 
-const CULL_BACK: u8 = 1;
-const ALPHA_TEST: u8 = 2;
+const CULL_BACK: u32 = 1;
+const ALPHA_TEST: u32 = 2;
+
+/// One BVH primitive, everything the hit test reads in one 48-byte record (BVH order, so
+/// the triangles of a leaf are adjacent in memory).
+#[derive(Clone, Copy, Debug)]
+struct PackedTriangle {
+    /// Vertices.
+    p: [Vec3; 3],
+    /// Unnormalised face normal `(p₁−p₀)×(p₂−p₀)` (the same `f32` expression the face
+    /// test would evaluate per ray), for back-face culling and the hit face.
+    n: Vec3,
+    /// Scene triangle index.
+    prim: u32,
+    /// `CULL_BACK | ALPHA_TEST`.
+    flags: u32,
+}
 
 /// The scene's BVH and the triangle data its leaves reference.
 pub struct Accel {
     bvh: Option<CwBvh>,
-    /// Triangle vertices in BVH primitive order.
-    tris: Vec<[Vec3; 3]>,
-    /// Scene triangle index per BVH primitive.
-    prim: Vec<u32>,
-    /// Flags per BVH primitive.
-    flags: Vec<u8>,
+    /// Triangles in BVH primitive order.
+    tris: Vec<PackedTriangle>,
     build_time: Duration,
 }
 
@@ -193,7 +204,7 @@ impl Accel {
             }
             tris.push(p);
         }
-        let tri_flags: Vec<u8> = (0..mesh.indices.len())
+        let tri_flags: Vec<u32> = (0..mesh.indices.len())
             .map(|k| {
                 let m = mesh.material.get(k).and_then(|&m| scene.materials.get(m as usize));
                 match m {
@@ -212,7 +223,7 @@ impl Accel {
             })
             .collect();
         if tris.is_empty() {
-            return Ok(Accel { bvh: None, tris, prim: Vec::new(), flags: Vec::new(), build_time: Duration::ZERO });
+            return Ok(Accel { bvh: None, tris: Vec::new(), build_time: Duration::ZERO });
         }
         let max_abs = tris.iter().flatten().fold(0.0f32, |m, v| m.max(v.abs().max_element()));
         // Box areas (the SAH cost) must stay finite in f32: beyond ~1e19 they overflow to
@@ -238,10 +249,15 @@ impl Accel {
         let mut core = Duration::ZERO;
         let bvh = build_cwbvh(&boxes, obvhs_params, &mut core);
         let build_time = start.elapsed();
-        let prim: Vec<u32> = bvh.primitive_indices.clone();
-        let bvh_tris = prim.iter().map(|&i| tris[i as usize]).collect();
-        let flags = prim.iter().map(|&i| tri_flags[i as usize]).collect();
-        Ok(Accel { bvh: Some(bvh), tris: bvh_tris, prim, flags, build_time })
+        let bvh_tris = bvh
+            .primitive_indices
+            .iter()
+            .map(|&i| {
+                let p = tris[i as usize];
+                PackedTriangle { p, n: (p[1] - p[0]).cross(p[2] - p[0]), prim: i, flags: tri_flags[i as usize] }
+            })
+            .collect();
+        Ok(Accel { bvh: Some(bvh), tris: bvh_tris, build_time })
     }
 
     /// Wall time of the BVH build.
@@ -274,21 +290,19 @@ impl Accel {
         let mut best: Option<Hit> = None;
         let mut best_t = t_max;
         let mut rh = RayHit::none();
+        let dir = ray.direction;
         bvh.ray_traverse(oray, &mut rh, |_r, id| {
-            let p = self.tris[id];
+            let tri = &self.tris[id];
             // Accept ties (t == best_t) so the lowest index can win them.
-            let f = self.flags[id];
-            // Culling first (cheaper than the intersection test, rejects the same); the face
-            // of a double-sided triangle is computed only once it is hit.
-            let is_front = || (p[1] - p[0]).cross(p[2] - p[0]).dot(ray.direction) < 0.0;
-            let cull = f & CULL_BACK != 0;
-            if cull && !is_front() {
+            let f = tri.flags;
+            // Culling first (cheaper than the intersection test, rejects the same).
+            let front = tri.n.dot(dir) < 0.0;
+            if f & CULL_BACK != 0 && !front {
                 return f32::INFINITY;
             }
             let limit = if best.is_some() { crate::geometry::next_float_up(best_t) } else { best_t };
-            let Some(h) = intersect_triangle(&wr, p, limit) else { return f32::INFINITY };
-            let front = cull || is_front();
-            let prim = self.prim[id];
+            let Some(h) = intersect_triangle(&wr, tri.p, limit) else { return f32::INFINITY };
+            let prim = tri.prim;
             if f & ALPHA_TEST != 0 && !alpha_test(prim, &h) {
                 return f32::INFINITY;
             }
@@ -310,14 +324,15 @@ impl Accel {
         let Some(bvh) = self.bvh.as_ref() else { return false };
         let Some(oray) = Self::obvhs_ray(ray, t_max) else { return false };
         let Some(wr) = WatertightRay::new(ray) else { return false };
+        let dir = ray.direction;
         !bvh.ray_traverse_miss(oray, |_r, id| {
-            let p = self.tris[id];
-            let f = self.flags[id];
-            if f & CULL_BACK != 0 && (p[1] - p[0]).cross(p[2] - p[0]).dot(ray.direction) >= 0.0 {
+            let tri = &self.tris[id];
+            let f = tri.flags;
+            if f & CULL_BACK != 0 && tri.n.dot(dir) >= 0.0 {
                 return f32::INFINITY;
             }
-            let Some(h) = intersect_triangle(&wr, p, t_max) else { return f32::INFINITY };
-            if f & ALPHA_TEST != 0 && !alpha_test(self.prim[id], &h) {
+            let Some(h) = intersect_triangle(&wr, tri.p, t_max) else { return f32::INFINITY };
+            if f & ALPHA_TEST != 0 && !alpha_test(tri.prim, &h) {
                 return f32::INFINITY;
             }
             h.t

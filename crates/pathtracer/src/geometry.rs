@@ -114,7 +114,7 @@ pub struct TriangleHit {
 /// Watertight ray/triangle intersection (Woop, Benthin & Wald 2013; see the module docs).
 /// Returns the hit if `0 < t < t_max` (with `t` above its own rounding-error bound).
 /// Both faces are reported; culling is the caller's decision.
-#[inline]
+#[inline(always)]
 pub fn intersect_triangle(ray: &WatertightRay, p: [Vec3; 3], t_max: f32) -> Option<TriangleHit> {
     // Translate, permute, shear (x and y only; z is sheared after the edge test).
     let [q0, q1, q2] = ray.permuted(p);

@@ -1,0 +1,127 @@
+//! Path-tracer throughput without the rest of the workspace: the figures of
+//! `cargo xtask bench render` (primary rays at 256 px wide, path samples at the quick preset:
+//! 64×64, 16 spp, 4 bounces) for every scene in `scenes/`, so that an old commit can be
+//! measured side by side from a worktree that builds only this crate.
+//!
+//! ```text
+//! cargo bench -p pathtracer --bench render [-- SCENE…] [--runs N] [--seconds S]
+//! ```
+//! `--seconds S` renders the first scene's quick view repeatedly for `S` seconds (a steady
+//! load for `perf record`) instead of printing the table.
+
+use pathtracer::accel::AccelParams;
+use pathtracer::dataset_render::{DatasetRenderConfig, Preset};
+use pathtracer::render::{RenderSettings, Renderer};
+use std::path::PathBuf;
+
+/// CPU time of this process (all threads, user + system) in seconds, from `/proc/self/stat`
+/// (clock ticks of 1/100 s); 0 where unavailable.
+fn cpu_seconds() -> f64 {
+    let Ok(stat) = std::fs::read_to_string("/proc/self/stat") else { return 0.0 };
+    let Some(rest) = stat.rsplit(')').next() else { return 0.0 };
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let tick = |k: usize| f.get(k).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
+    (tick(11) + tick(12)) / 100.0
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+fn main() -> Result<(), Box<dyn std::error::Error>> {
+    let mut names = Vec::new();
+    let mut runs = 5usize;
+    let mut seconds: Option<f64> = None;
+    let mut primary_only = false;
+    let mut args = std::env::args().skip(1);
+    while let Some(a) = args.next() {
+        match a.as_str() {
+            "--bench" => {}
+            "--runs" => runs = args.next().ok_or("--runs N")?.parse()?,
+            "--seconds" => seconds = Some(args.next().ok_or("--seconds S")?.parse()?),
+            "--primary" => primary_only = true,
+            _ => names.push(a),
+        }
+    }
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../scenes");
+    let mut scenes: Vec<PathBuf> = std::fs::read_dir(&dir)?
+        .flatten()
+        .map(|e| e.path())
+        .filter(|p| p.extension().is_some_and(|e| e == "gltf"))
+        .filter(|p| names.is_empty() || names.iter().any(|n| p.file_stem().is_some_and(|s| s == n.as_str())))
+        .collect();
+    scenes.sort();
+    println!(
+        "{:<12} {:>15} {:>16} {:>20}   ({} threads, medians of {runs}; per CPU-s: quick samples over the process's CPU time for 1.5 s of renders)",
+        "scene",
+        "primary Mray/s",
+        "quick Msample/s",
+        "quick Msample/CPU-s",
+        rayon::current_num_threads()
+    );
+    for path in scenes {
+        let name = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+        let scene = pathtracer::import::load_gltf(&path, &pathtracer::import::ImportOptions::default())?;
+        let renderer = Renderer::new(scene, &AccelParams::medium_build())?;
+        let quick = DatasetRenderConfig::preset(Preset::Quick);
+        let rig = pathtracer::rig::build_rig(renderer.scene(), &quick.rig_config())?;
+        let cam = rig.split(dataset::SplitKind::Train)[0];
+        let mut settings = RenderSettings::preview(0);
+        settings.spp = quick.spp;
+        settings.max_bounces = quick.max_bounces;
+        settings.environment = quick.environment;
+        let scale = 256.0 / cam.intrinsics.width as f64;
+        let big = dataset::Camera {
+            intrinsics: dataset::Intrinsics {
+                width: 256,
+                height: (cam.intrinsics.height as f64 * scale).round() as u32,
+                fl_x: cam.intrinsics.fl_x * scale,
+                fl_y: cam.intrinsics.fl_y * scale,
+                cx: cam.intrinsics.cx * scale,
+                cy: cam.intrinsics.cy * scale,
+            },
+            c2w: cam.c2w,
+        };
+        if let (Some(s), true) = (seconds, primary_only) {
+            let t = std::time::Instant::now();
+            let mut rays = 0u64;
+            while t.elapsed().as_secs_f64() < s {
+                rays += renderer.primary_ray_throughput(&big).rays;
+            }
+            println!("{name}: {:.3} Mray/s over {:.1} s", rays as f64 * 1e-6 / t.elapsed().as_secs_f64(), t.elapsed().as_secs_f64());
+            return Ok(());
+        }
+        if let Some(s) = seconds {
+            let t = std::time::Instant::now();
+            let mut samples = 0u64;
+            let mut k = 0;
+            while t.elapsed().as_secs_f64() < s {
+                samples += renderer.render_view(&cam, k, &settings).samples;
+                k += 1;
+            }
+            println!("{name}: {:.3} Msample/s over {:.1} s", samples as f64 * 1e-6 / t.elapsed().as_secs_f64(), t.elapsed().as_secs_f64());
+            return Ok(());
+        }
+        let primary = median((0..runs).map(|_| renderer.primary_ray_throughput(&big).rays_per_second).collect());
+        let quick_rate = median(
+            (0..runs)
+                .map(|k| {
+                    let t = std::time::Instant::now();
+                    let out = renderer.render_view(&cam, k as u32, &settings);
+                    out.samples as f64 / t.elapsed().as_secs_f64().max(1e-9)
+                })
+                .collect(),
+        );
+        let (t, c) = (std::time::Instant::now(), cpu_seconds());
+        let mut samples = 0u64;
+        let mut k = 0;
+        while t.elapsed().as_secs_f64() < 1.5 {
+            samples += renderer.render_view(&cam, k, &settings).samples;
+            k += 1;
+        }
+        let per_cpu = samples as f64 / (cpu_seconds() - c).max(1e-9);
+        println!("{:<12} {:>15.2} {:>16.3} {:>20.3}", name, primary * 1e-6, quick_rate * 1e-6, per_cpu * 1e-6);
+    }
+    Ok(())
+}
