@@ -15,6 +15,8 @@ pub enum BenchWhat {
     Render,
     /// NeRF training throughput for both models.
     Nerf,
+    /// `--model auto` against fixed fast sizes and paper on every scene (train, eval, compare).
+    Auto,
 }
 
 /// Runs a benchmark.
@@ -45,7 +47,10 @@ fn median(mut v: Vec<f64>) -> f64 {
 /// preset), primary-ray throughput (pixel-centre closest hits, 256×256 from the quick rig's
 /// first train camera) and path-tracing throughput at the quick preset (64×64, 16 spp, 4
 /// bounces) and at the standard preset's 128 spp and 8 bounces at 32×32; medians over
-/// [`RENDER_RUNS`] runs, all cores.
+/// [`RENDER_RUNS`] runs, all cores. Then the same quick renders with Mitsuba 3
+/// (`tests/mitsuba/bench.py`, from an export of each scene with that camera and settings;
+/// `llvm_ad_rgb` where LLVM works, else `scalar_rgb`) and our samples/s divided by Mitsuba's;
+/// without the Python environment a note says how to create it.
 fn bench_render() -> anyhow::Result<()> {
     use anyhow::Context;
     use pathtracer::accel::{Accel, AccelParams};
@@ -72,9 +77,12 @@ fn bench_render() -> anyhow::Result<()> {
         "{:<12} {:>9} {:>10} {:>9} {:>15} {:>16} {:>18}",
         "scene", "triangles", "rig", "BVH ms", "primary Mray/s", "quick Msample/s", "std-spp Msample/s"
     );
+    let export_root = crate::render::repo_root().join("out/bench/mitsuba");
+    let mut ours_quick: Vec<(String, f64, std::path::PathBuf)> = Vec::new();
     for path in scenes {
         let name = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
         let scene = pathtracer::import::load_gltf(&path, &pathtracer::import::ImportOptions::default())?;
+        let scene_for_export = scene.clone();
         let params = AccelParams::medium_build();
         let build_ms = median(
             (0..RENDER_RUNS)
@@ -122,6 +130,10 @@ fn bench_render() -> anyhow::Result<()> {
         let standard = DatasetRenderConfig::preset(Preset::Standard);
         let std_settings = RenderSettings { spp: standard.spp, max_bounces: standard.max_bounces, ..quick_settings.clone() };
         let quick_rate = path_rate(&quick_settings, &cam);
+        let export_dir = export_root.join(&name);
+        pathtracer::export::export_scene(&scene_for_export, &[cam], &quick_settings, &export_dir)
+            .with_context(|| format!("exporting {name} for Mitsuba to {}", export_dir.display()))?;
+        ours_quick.push((name.clone(), quick_rate, export_dir));
         let small = cam.downscaled(2);
         let std_rate = path_rate(&std_settings, &small);
         println!(
@@ -134,6 +146,74 @@ fn bench_render() -> anyhow::Result<()> {
             quick_rate * 1e-6,
             std_rate * 1e-6
         );
+    }
+    bench_render_mitsuba(&ours_quick)
+}
+
+/// Runs `tests/mitsuba/bench.py` on the exports in `ours` (scene, our quick samples/s, export
+/// folder) and prints the side-by-side table.
+fn bench_render_mitsuba(ours: &[(String, f64, std::path::PathBuf)]) -> anyhow::Result<()> {
+    use anyhow::Context;
+    let root = crate::render::repo_root();
+    let python = root.join(".venv/bin/python");
+    let quick = pathtracer::dataset_render::DatasetRenderConfig::preset(pathtracer::dataset_render::Preset::Quick);
+    println!();
+    if !python.is_file() {
+        println!(
+            "Mitsuba comparison skipped: {} not found (python3 -m venv .venv && .venv/bin/pip install -r tests/mitsuba/requirements.txt)",
+            python.display()
+        );
+        return Ok(());
+    }
+    let mut cmd = std::process::Command::new(&python);
+    cmd.arg(root.join("tests/mitsuba/bench.py"));
+    for (_, _, dir) in ours {
+        cmd.arg("--export").arg(dir);
+    }
+    let out = cmd.stderr(std::process::Stdio::inherit()).output().with_context(|| format!("running {}", python.display()))?;
+    if !out.status.success() {
+        println!("Mitsuba comparison failed ({}); our figures above stand", out.status);
+        return Ok(());
+    }
+    let lines: Vec<serde_json::Value> = String::from_utf8_lossy(&out.stdout)
+        .lines()
+        .filter(|l| l.trim_start().starts_with('{'))
+        .map(serde_json::from_str)
+        .collect::<Result<_, _>>()
+        .context("reading bench.py's output")?;
+    println!(
+        "vs Mitsuba 3: same camera, {}x{}, {} spp, our max_bounces {} = Mitsuba max_depth {}, environment {:?}, transparent \
+         background = hide_emitters; Mitsuba: median of 3 renders after a first one (JIT compilation)",
+        quick.width,
+        quick.height,
+        quick.spp,
+        quick.max_bounces,
+        quick.max_bounces + 1,
+        quick.environment
+    );
+    println!(
+        "{:<12} {:>14} {:<12} {:<8} {:>17} {:>11} {:>12}  Mitsuba BSDF",
+        "scene", "ours Msample/s", "variant", "mode", "Mitsuba Msample/s", "first run s", "ours/Mitsuba"
+    );
+    for (name, rate, dir) in ours {
+        let dir = dir.display().to_string();
+        for t in lines.iter().filter(|t| t["export"].as_str() == Some(dir.as_str())) {
+            let text = |k: &str| t[k].as_str().unwrap_or("").to_string();
+            match t["samples_per_second"].as_f64() {
+                Some(mr) => println!(
+                    "{:<12} {:>14.3} {:<12} {:<8} {:>17.3} {:>11.2} {:>11.2}x  {}",
+                    name,
+                    rate * 1e-6,
+                    text("variant"),
+                    text("mode"),
+                    mr * 1e-6,
+                    t["first_seconds"].as_f64().unwrap_or(f64::NAN),
+                    rate / mr,
+                    text("bsdf")
+                ),
+                None => println!("{:<12} {:>14.3} {:<12} {:<8} {}", name, rate * 1e-6, text("variant"), text("mode"), text("error")),
+            }
+        }
     }
     Ok(())
 }

@@ -1,0 +1,111 @@
+"""Mitsuba 3 timings for `cargo xtask bench render`: renders exported scenes
+(`pathtracer::export::export_scene`, one folder per scene, one camera each) at the export's
+resolution, spp and max depth (Mitsuba max_depth = our max_bounces + 1), and prints one JSON
+object per scene and BSDF mode on stdout.
+
+Variant: `llvm_ad_rgb` when Dr.Jit finds a working LLVM (DRJIT_LIBLLVM_PATH, set here to
+/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1 when that exists and the variable is unset), else
+`scalar_rgb`; `--variant` forces one.
+
+BSDF modes:
+- `gltf`: the same model as ours: exactly Lambertian materials (metallic 0, specular 0) as
+  Mitsuba's native `diffuse`, every other one as the `gltf` Python plugin (gltf_bsdf.py; in
+  llvm variants it is traced into the JIT kernel once, in scalar variants it is a Python call
+  per interaction, so scalar timings with it measure Python, not Mitsuba);
+- `diffuse`: every material as Mitsuba's native `diffuse` with its base colour (a cheaper
+  model than ours for non-Lambertian materials: a lower bound on Mitsuba's time).
+
+Timing: `mi.render` plus evaluation of the image (dr.eval + sync); the first render of each
+scene and mode (scene upload, JIT compilation, kernel caching) is reported separately as
+`first_seconds`; `seconds` is the median of `--runs` further renders with new seeds.
+Scene building is not timed. Samples are camera samples: width x height x spp.
+"""
+
+import argparse
+import json
+import os
+import sys
+import time
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, HERE)
+LLVM19 = "/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1"
+
+
+def parse_args():
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--export", action="append", required=True, help="export folder (repeatable)")
+    p.add_argument("--variant", default="auto", help="auto (llvm_ad_rgb if it works, else scalar_rgb), or a variant")
+    p.add_argument("--runs", type=int, default=3, help="timed renders after the first (median)")
+    p.add_argument("--modes", default="gltf,diffuse", help="BSDF modes, comma-separated: gltf, diffuse")
+    return p.parse_args()
+
+
+def choose_variant(mi, wanted):
+    if wanted != "auto":
+        mi.set_variant(wanted)
+        return wanted
+    try:
+        mi.set_variant("llvm_ad_rgb")
+        import drjit as dr
+
+        x = dr.llvm.Float([1.0, 2.0]) * 2.0  # forces the LLVM backend to start
+        dr.eval(x)
+        return "llvm_ad_rgb"
+    except Exception as e:  # no LLVM: fall back
+        print(f"bench.py: llvm_ad_rgb unavailable ({e}); using scalar_rgb", file=sys.stderr)
+        mi.set_variant("scalar_rgb")
+        return "scalar_rgb"
+
+
+def timed_render(mi, dr, scene, spp, seed):
+    t = time.perf_counter()
+    img = mi.render(scene, spp=spp, seed=seed)
+    dr.eval(img)
+    dr.sync_thread()
+    return time.perf_counter() - t
+
+
+def main():
+    args = parse_args()
+    if "DRJIT_LIBLLVM_PATH" not in os.environ and os.path.exists(LLVM19):
+        os.environ["DRJIT_LIBLLVM_PATH"] = LLVM19
+    import drjit as dr
+    import mitsuba as mi
+
+    variant = choose_variant(mi, args.variant)
+    import gltf_bsdf
+    import gltf_lights
+    import scene_loader
+
+    def diffuse_plugin(mi_module, mat, textures, has_vertex_colors):
+        return {"type": "diffuse", "reflectance": scene_loader.lambert_reflectance(mi_module, mat, textures, has_vertex_colors)}
+
+    plugins = {"gltf": gltf_bsdf.bsdf_dict, "diffuse": diffuse_plugin}
+    for folder in args.export:
+        man, arrays = scene_loader.load_export(folder)
+        spp = int(man["settings"]["spp"])
+        cam = man["cameras"][0]
+        samples = cam["width"] * cam["height"] * spp
+        for mode in args.modes.split(","):
+            rec = {"export": folder, "scene": man["scene"], "variant": variant, "mode": mode, "width": cam["width"], "height": cam["height"],
+                   "spp": spp, "max_depth": int(man["settings"]["max_bounces"]) + 1, "samples": samples}
+            try:
+                scene = scene_loader.build_scene(mi, man, arrays, 0, spp, plugins[mode], gltf_lights.spot_dict,
+                                                 gltf_lights.envmap_dict, transparent_ok=True)
+                lambert = sum(1 for m in man["materials"] if m["metallic"] <= 0 and m.get("specular", 1.0) <= 0
+                              and m["metallic_roughness_texture"] is None)
+                rec["bsdf"] = ("native diffuse" if mode == "diffuse" else
+                               f"gltf Python plugin ({len(man['materials']) - lambert} materials), native diffuse ({lambert})")
+                rec["first_seconds"] = timed_render(mi, dr, scene, spp, 0)
+                times = sorted(timed_render(mi, dr, scene, spp, 1 + k) for k in range(max(1, args.runs)))
+                rec["seconds"] = times[len(times) // 2]
+                rec["samples_per_second"] = samples / rec["seconds"]
+            except scene_loader.Unsupported as e:
+                rec["error"] = f"unsupported: {e}"
+            print(json.dumps(rec), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
