@@ -15,8 +15,6 @@ pub enum BenchWhat {
     Render,
     /// NeRF training throughput for both models.
     Nerf,
-    /// `--model auto` against fixed fast sizes and paper on every scene (train, eval, compare).
-    Auto,
 }
 
 /// Runs a benchmark.
