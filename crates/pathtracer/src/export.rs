@@ -577,6 +577,45 @@ mod tests {
     }
 
     #[test]
+    fn export_writes_corner_tangents_and_the_environment_map() {
+        let mut scene = one_triangle_scene();
+        // Normal map, no TANGENT attribute: every corner gets the per-triangle tangent.
+        scene.materials[0].normal_texture = Some((TextureRef { texture: 0, tex_coord: 0, wrap_s: Wrap::Repeat, wrap_t: Wrap::Repeat, filter: Filter::Nearest }, 1.0));
+        let dir = std::env::temp_dir().join(format!("pathtracer_export_env_test_{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let map = dir.join("sky.exr");
+        exr::prelude::write_rgb_file(&map, 4, 2, |x, y| (x as f32, y as f32, 0.5)).unwrap();
+        let settings = RenderSettings { environment_map: Some(map), ..RenderSettings::preview(7) };
+        let cam = Camera::new(Intrinsics::from_fov_y(4, 3, 0.8), DMat4::from_translation(DVec3::new(100.0, 0.0, 5.0))).unwrap();
+        let man = export_scene(&scene, &[cam], &settings, &dir.join("export")).unwrap();
+        let env = man.environment_map.clone().unwrap();
+        assert_eq!((env.width, env.height, env.file.as_str()), (4, 2, "environment_map.npy"));
+        let f32s = |name: &str| -> (String, Vec<f32>) {
+            let bytes = std::fs::read(dir.join("export").join(name)).unwrap();
+            let (h, data) = npy_payload(&bytes);
+            (h, data.chunks(4).map(|c| f32::from_le_bytes(c.try_into().unwrap())).collect())
+        };
+        let (h, texels) = f32s("environment_map.npy");
+        assert!(h.contains("(2, 4, 3)"), "{h}");
+        // Texel (x, y) = (x, y, 0.5), row-major from the top row.
+        assert_eq!(&texels[3 * 5..3 * 6], &[1.0, 1.0, 0.5]);
+        let (h, t) = f32s("corner_tangents.npy");
+        assert!(h.contains("(1, 3, 4)"), "{h}");
+        // UV = (x, y) on the triangle (0,0,0), (1,0,0), (0,1,0): T = +X, B = ∂p/∂(−v) = −Y.
+        let expect = crate::material::triangle_tangent([Vec3::ZERO, Vec3::X, Vec3::Y], [Vec2::ZERO, Vec2::X, Vec2::Y], Vec3::Z).unwrap();
+        for c in 0..3 {
+            assert_eq!(&t[4 * c..4 * c + 4], &expect.to_array());
+        }
+        assert!((expect.truncate() - Vec3::X).length() < 1e-6);
+        // Without a normal map the tangents are zero, and without a map there is no map file.
+        let man = export_scene(&one_triangle_scene(), &[cam], &RenderSettings::preview(7), &dir.join("plain")).unwrap();
+        assert!(man.environment_map.is_none() && !dir.join("plain/environment_map.npy").exists());
+        let bytes = std::fs::read(dir.join("plain/corner_tangents.npy")).unwrap();
+        assert!(npy_payload(&bytes).1.iter().all(|b| *b == 0));
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    #[test]
     fn reference_groups_divide_spp() {
         assert_eq!(reference_groups(64, 64), 64);
         assert_eq!(reference_groups(256, 64), 64);
