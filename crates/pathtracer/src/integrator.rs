@@ -253,6 +253,10 @@ impl PathIntegrator<'_> {
             let si = Interaction { frame, ..si };
             let wo_l = si.frame.to_local(wo);
             let bsdf = surf.bsdf;
+            // Every ray leaving this vertex is checked to leave on the `ng` side first, and
+            // `offset_ray_origin` depends on the direction only through that side: one origin
+            // serves them all (bit-identical to offsetting per ray).
+            let origin = offset_ray_origin(si.p, si.p_err, si.ng, si.ng);
 
             // Punctual lights: deterministic, all of them.
             for light in &scene.lights {
@@ -264,7 +268,7 @@ impl PathIntegrator<'_> {
                 if f.max_element() <= 0.0 {
                     continue;
                 }
-                let o = offset_ray_origin(si.p, si.p_err, si.ng, inc.wi);
+                let o = origin;
                 let t_max = if inc.distance.is_finite() {
                     match *light {
                         crate::scene::Light::Point { position, .. } | crate::scene::Light::Spot { position, .. } => {
@@ -282,7 +286,7 @@ impl PathIntegrator<'_> {
 
             // Emissive triangles: one sample, MIS with BSDF sampling.
             if let Some(es) = self.emitters.sample(u_sel, u_emit) {
-                l += beta * self.emitter_nee(&si, wo_l, &bsdf, es);
+                l += beta * self.emitter_nee(&si, origin, wo_l, &bsdf, es);
             }
 
             // Environment: one sample, MIS with BSDF sampling.
@@ -291,12 +295,11 @@ impl PathIntegrator<'_> {
                 && wi.dot(si.ng) > 0.0
             {
                 let wi_l = si.frame.to_local(wi);
-                let f = bsdf.evaluate(wo_l, wi_l);
+                let (f, bsdf_pdf) = bsdf.evaluate_pdf(wo_l, wi_l);
                 let le = env.eval(wi);
                 if f.max_element() > 0.0 && le.max_element() > 0.0 {
-                    let o = offset_ray_origin(si.p, si.p_err, si.ng, wi);
-                    if !self.occluded(&Ray::new(o, wi), f32::INFINITY) {
-                        let w = power_heuristic(pdf, bsdf.pdf(wo_l, wi_l));
+                    if !self.occluded(&Ray::new(origin, wi), f32::INFINITY) {
+                        let w = power_heuristic(pdf, bsdf_pdf);
                         l += beta * f * le * (w / pdf);
                     }
                 }
@@ -317,8 +320,7 @@ impl PathIntegrator<'_> {
                 }
                 beta /= survive;
             }
-            let o = offset_ray_origin(si.p, si.p_err, si.ng, wi);
-            ray = Ray::new(o, wi);
+            ray = Ray::new(origin, wi);
             match self.intersect(&ray) {
                 Some(h) => {
                     hit = h;
@@ -336,8 +338,9 @@ impl PathIntegrator<'_> {
     }
 
     /// One light-sampling estimate of the emissive triangles' direct light at `si`,
-    /// MIS-weighted: `f · Le · w_light / pdf_light`.
-    fn emitter_nee(&self, si: &Interaction, wo_l: Vec3, bsdf: &crate::material::Bsdf, es: crate::light::EmitterSample) -> Vec3 {
+    /// MIS-weighted: `f · Le · w_light / pdf_light`. `origin` is the shadow ray's start,
+    /// `offset_ray_origin(si.p, si.p_err, si.ng, si.ng)`.
+    fn emitter_nee(&self, si: &Interaction, origin: Vec3, wo_l: Vec3, bsdf: &crate::material::Bsdf, es: crate::light::EmitterSample) -> Vec3 {
         let scene = self.scene;
         let m = &scene.mesh;
         let idx = m.indices[es.prim as usize];
@@ -375,11 +378,11 @@ impl PathIntegrator<'_> {
             return Vec3::ZERO;
         }
         let wi_l = si.frame.to_local(wi);
-        let f = bsdf.evaluate(wo_l, wi_l);
+        let (f, bsdf_pdf) = bsdf.evaluate_pdf(wo_l, wi_l);
         if f.max_element() <= 0.0 {
             return Vec3::ZERO;
         }
-        let o = offset_ray_origin(si.p, si.p_err, si.ng, wi);
+        let o = origin;
         let target = offset_ray_origin(q, q_err, n_l, -wi);
         let seg = target - o;
         let len = seg.length();
@@ -389,7 +392,7 @@ impl PathIntegrator<'_> {
         if self.occluded(&Ray::new(o, seg / len), len * (1.0 - SHADOW_EPSILON)) {
             return Vec3::ZERO;
         }
-        let w = power_heuristic(light_pdf, bsdf.pdf(wo_l, wi_l));
+        let w = power_heuristic(light_pdf, bsdf_pdf);
         f * le * (w / light_pdf)
     }
 }

@@ -157,6 +157,28 @@ impl MetallicRoughness {
         dielectric * (1.0 - self.metallic) + metal * self.metallic
     }
 
+    /// `(f(wo, wi) · N·L, pdf(wo, wi))` in one pass: the values of [`Bsdf::evaluate`] and
+    /// [`Bsdf::pdf`] bit for bit, sharing the half vector and `D(H)`.
+    #[inline]
+    pub fn evaluate_pdf(&self, wo: Vec3, wi: Vec3) -> (Vec3, f32) {
+        if wo.z <= 0.0 || wi.z <= 0.0 {
+            return (Vec3::ZERO, 0.0);
+        }
+        let h = (wo + wi).normalize();
+        let vh = wo.dot(h).clamp(0.0, 1.0);
+        let w5 = (1.0 - vh).powi(5);
+        let d = self.d(h);
+        let spec = d * self.vis(wi.z, wo.z);
+        let rho = self.base_color;
+        let fd = self.specular * (DIELECTRIC_F0 + (1.0 - DIELECTRIC_F0) * w5);
+        let dielectric = rho * ((1.0 - fd) * FRAC_1_PI) + Vec3::splat(fd * spec);
+        let metal = (rho + (Vec3::ONE - rho) * w5) * spec;
+        let f = (dielectric * (1.0 - self.metallic) + metal * self.metallic) * wi.z;
+        let ps = self.specular_probability(wo);
+        let pdf = ps * (d / (2.0 * self.smith_den(wo.z))) + (1.0 - ps) * wi.z * FRAC_1_PI;
+        (f, pdf)
+    }
+
     /// Probability `P_s` of sampling the specular lobe at `wo` (see the type docs).
     #[inline]
     pub fn specular_probability(&self, wo: Vec3) -> f32 {
@@ -280,6 +302,18 @@ impl Bsdf {
                 }
                 Some(BsdfSample { wi, weight: f / pdf, pdf })
             }
+        }
+    }
+
+    /// `(self.evaluate(wo, wi), self.pdf(wo, wi))`, computed together (bit-identical).
+    #[inline]
+    pub fn evaluate_pdf(&self, wo: Vec3, wi: Vec3) -> (Vec3, f32) {
+        if wo.z <= 0.0 || wi.z <= 0.0 {
+            return (Vec3::ZERO, 0.0);
+        }
+        match self {
+            Bsdf::Diffuse { albedo } => (*albedo * (FRAC_1_PI * wi.z), wi.z * FRAC_1_PI),
+            Bsdf::MetallicRoughness(mr) => mr.evaluate_pdf(wo, wi),
         }
     }
 
@@ -773,6 +807,22 @@ mod tests {
                 assert!((pdf - s.pdf).abs() <= 1e-4 * s.pdf, "pdf {pdf} vs {}", s.pdf);
                 assert!(((s.weight * s.pdf) - f).abs().max_element() <= 1e-4 * f.max_element() + 1e-12);
                 assert!(s.weight.is_finite() && s.weight.min_element() >= 0.0);
+            }
+        }
+    }
+
+    #[test]
+    fn evaluate_pdf_is_evaluate_and_pdf_bit_for_bit() {
+        let mut rng = crate::sampler::Sampler::new(7, 0, 0, 0);
+        for (rho, m, r) in [(0.8, 0.0, 0.5), (0.5, 1.0, 0.05), (0.3, 0.4, 1.0), (0.9, 0.0, 0.0)] {
+            for b in [mr(rho, m, r), Bsdf::Diffuse { albedo: Vec3::splat(rho) }] {
+                for _ in 0..200 {
+                    let wo = crate::sampler::sample_uniform_sphere(rng.next_2d());
+                    let wi = crate::sampler::sample_uniform_sphere(rng.next_2d());
+                    let (f, pdf) = b.evaluate_pdf(wo, wi);
+                    assert_eq!(f, b.evaluate(wo, wi));
+                    assert_eq!(pdf.to_bits(), b.pdf(wo, wi).to_bits());
+                }
             }
         }
     }
