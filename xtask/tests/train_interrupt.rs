@@ -163,16 +163,17 @@ fn splitmix(state: &mut u64) -> u64 {
 enum KillPoint {
     /// As soon as a checkpoint newer than those present at the start appears.
     NewCheckpoint,
-    /// This many milliseconds after a new checkpoint appears (between checkpoints: the metric
-    /// lines written after the checkpoint must be dropped on resume).
-    AfterNewCheckpoint(u64),
+    /// This fraction of the time between two checkpoints after a new checkpoint appears
+    /// (between checkpoints: the metric lines written after it must be dropped on resume).
+    AfterNewCheckpoint(f64),
     /// Once this many metric lines were added past what the folder had at the start.
     MetricLines(usize),
 }
 
 /// Runs `cmd` until `point` is reached, then SIGKILLs it; returns whether it was killed
 /// (false: it completed first).
-fn run_and_kill(mut cmd: Command, run: &Path, point: KillPoint) -> bool {
+/// `between` is the time between two checkpoints.
+fn run_and_kill(mut cmd: Command, run: &Path, point: KillPoint, between: Duration) -> bool {
     let start_ckpt = checkpoints(run).last().copied();
     let start_lines = metric_lines(run);
     let mut child = cmd.spawn().unwrap();
@@ -190,7 +191,7 @@ fn run_and_kill(mut cmd: Command, run: &Path, point: KillPoint) -> bool {
         }
         let reached = match point {
             KillPoint::NewCheckpoint => new_ckpt,
-            KillPoint::AfterNewCheckpoint(ms) => seen_ckpt.is_some_and(|t| t.elapsed() >= Duration::from_millis(ms)),
+            KillPoint::AfterNewCheckpoint(f) => seen_ckpt.is_some_and(|t| t.elapsed() >= between.mul_f64(f)),
             KillPoint::MetricLines(n) => metric_lines(run) >= start_lines + n,
         };
         if reached {
@@ -210,18 +211,22 @@ fn train_killed_at_seeded_points_resumes_to_the_uninterrupted_result() {
 
     let t0 = Instant::now();
     assert!(fresh(&config, &a).status().unwrap().success(), "uninterrupted run failed");
-    eprintln!("uninterrupted run: {:.1}s", t0.elapsed().as_secs_f64());
+    let full = t0.elapsed();
+    // Checkpoint to checkpoint, startup included (so a little less in fact).
+    let between = full.mul_f64(CHECKPOINT_EVERY as f64 / STEPS as f64);
+    eprintln!("uninterrupted run: {:.1}s", full.as_secs_f64());
     assert_eq!(check_final_files(&a, "uninterrupted"), 4, "config, metrics and the 2 kept checkpoints");
     assert!(files(&a).iter().all(|p| !is_temporary(p)), "temporary files left by the uninterrupted run");
 
     // Kill points: the first run when metric lines appear (before any checkpoint: resuming then
-    // starts again from step 0), then seeded choices of the three kinds.
+    // starts again from step 0), then seeded choices of the three kinds, then at every further
+    // checkpoint.
     let mut state = 0x7EA1_u64;
     let mut points = vec![KillPoint::MetricLines(2)];
     for _ in 0..4 {
         points.push(match splitmix(&mut state) % 3 {
             0 => KillPoint::NewCheckpoint,
-            1 => KillPoint::AfterNewCheckpoint(splitmix(&mut state) % 300),
+            1 => KillPoint::AfterNewCheckpoint((splitmix(&mut state) % 900) as f64 / 1000.0),
             _ => KillPoint::MetricLines(1 + (splitmix(&mut state) % 5) as usize),
         });
     }
@@ -230,13 +235,25 @@ fn train_killed_at_seeded_points_resumes_to_the_uninterrupted_result() {
     for (round, &point) in points.iter().enumerate() {
         let cmd = if round == 0 { fresh(&config, &b) } else { resume(&b) };
         resumed_from.push(checkpoints(&b).last().copied().unwrap_or(0));
-        if run_and_kill(cmd, &b, point) {
+        if run_and_kill(cmd, &b, point, between) {
             kills += 1;
         }
         check_final_files(&b, &format!("round {round}, killed at {point:?}"));
         if checkpoints(&b).last() == Some(&STEPS) {
             break;
         }
+    }
+    // Then killed as soon as each further checkpoint appears, the final one included (its
+    // validation line may or may not be written yet), and resumed until it completes.
+    let mut rounds = 0;
+    while checkpoints(&b).last() != Some(&STEPS) {
+        rounds += 1;
+        assert!(rounds <= STEPS / CHECKPOINT_EVERY, "no progress from checkpoint to checkpoint");
+        resumed_from.push(checkpoints(&b).last().copied().unwrap_or(0));
+        if run_and_kill(resume(&b), &b, KillPoint::NewCheckpoint, between) {
+            kills += 1;
+        }
+        check_final_files(&b, &format!("killed at a new checkpoint after {resumed_from:?}"));
     }
     let mut runs = 0;
     while checkpoints(&b).last() != Some(&STEPS) || metrics(&b).len() != metrics(&a).len() {
