@@ -74,6 +74,12 @@ def render_mitsuba(mi, scene, spp_total, groups, seed):
     return mean, var
 
 
+def scalar(x):
+    """A Python float/bool from a scalar or width-1 vectorised Dr.Jit value."""
+    a = np.asarray(x).ravel()
+    return a[0].item() if a.size else x
+
+
 def pixel_center_hits(mi, scene, cam, origin):
     """Mitsuba's hit distance along our pixel-centre rays (0 where nothing is hit)."""
     o, dirs, dz = scene_loader.pixel_center_rays(cam, origin)
@@ -84,8 +90,8 @@ def pixel_center_hits(mi, scene, cam, origin):
         for i in range(w):
             d = dirs[j, i]
             si = scene.ray_intersect(mi.Ray3f(oo, mi.Vector3f(float(d[0]), float(d[1]), float(d[2]))))
-            if si.is_valid():
-                dist[j, i] = float(si.t)
+            if scalar(si.is_valid()):
+                dist[j, i] = float(scalar(si.t))
     return dist, -dz
 
 
@@ -98,7 +104,7 @@ def camera_agreement(mi, scene, cam, origin):
     for j in range(h):
         for i in range(w):
             ray, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f((i + 0.5) / w, (j + 0.5) / h), mi.Point2f(0.5, 0.5))
-            d = np.array([ray.d[0], ray.d[1], ray.d[2]], np.float64)
+            d = np.array([scalar(ray.d[0]), scalar(ray.d[1]), scalar(ray.d[2])], np.float64)
             c = float(np.clip(np.dot(d / np.linalg.norm(d), dirs[j, i]), -1.0, 1.0))
             worst = max(worst, math.acos(c))
     return worst

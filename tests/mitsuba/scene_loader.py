@@ -221,7 +221,7 @@ def envmap_agreement(mi, texels, scale, emitter=None, n=64, seed=0):
         d = direction((i + fu) / w, (j + fv) / h)
         si = mi.SurfaceInteraction3f()
         si.wi = mi.Vector3f(*[float(-x) for x in d])
-        got = np.array([float(x) for x in emitter.eval(si)])
+        got = np.asarray(emitter.eval(si), np.float64).ravel()[:3]
         want = texels[j, i, :3] * np.asarray(scale[:3])
         worst = max(worst, float(np.max(np.abs(got - want) / np.maximum(np.abs(want), 1e-6))))
     return worst
