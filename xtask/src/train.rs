@@ -197,6 +197,7 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
 
 /// Renders views from a run.
 pub fn run_render(args: RenderNerfArgs) -> anyhow::Result<()> {
+    anyhow::ensure!(args.orbit != Some(0), "--orbit 0: at least one view is needed");
     let model = RunModel::load(&args.run).with_context(|| format!("loading {}", args.run.display()))?;
     let (label, cameras): (String, Vec<(String, dataset::Camera)>) = if let Some(n) = args.orbit {
         let ds = dataset::Dataset::load(model.dataset_dir())?;
@@ -220,6 +221,7 @@ pub fn run_render(args: RenderNerfArgs) -> anyhow::Result<()> {
         let cams = ds.split(kind).iter().map(|f| (f.name.clone(), f.camera.downscaled(model.config.downscale))).collect();
         (split, cams)
     };
+    anyhow::ensure!(!cameras.is_empty(), "dataset {} has no {label} views", model.dataset_dir().display());
     let out = args.out.clone().unwrap_or_else(|| args.run.join("renders").join(&label));
     let bg = model.eval_background();
     let bar = indicatif::ProgressBar::new(cameras.len() as u64);

@@ -222,3 +222,56 @@ fn impossible_training_options_exit_1_and_write_nothing() {
         assert!(!run.exists(), "{opts:?}: wrote {}", run.display());
     }
 }
+
+#[test]
+fn impossible_render_options_exit_1_and_write_nothing() {
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = corpus().join("valid_triangle.gltf");
+    let out = tmp.path().join("out");
+    let cases: [(&[&str], &str); 8] = [
+        (&["--res", "0x8"], "at least 1x1"),
+        (&["--res", "8x0"], "at least 1x1"),
+        (&["--res", "8", "--val", "0"], "val and test need at least one view each"),
+        (&["--res", "8", "--test", "0"], "val and test need at least one view each"),
+        (&["--res", "8", "--fov-x", "0"], "field of view 0 rad is not in (0, pi)"),
+        (&["--res", "8", "--max-bounces", "5000"], "at most 1024"),
+        (&["--res", "8", "--environment=-1,0,0"], "must be finite and non-negative"),
+        (&["--res", "8", "--threads", "0"], "at least one thread"),
+    ];
+    for (opts, what) in cases {
+        let mut args = vec!["render", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--spp", "1"];
+        args.extend_from_slice(opts);
+        let (code, stderr) = xtask(&args);
+        assert_eq!(code, 1, "{opts:?}: exit code {code}, stderr:\n{stderr}");
+        assert!(!stderr.contains("panicked"), "{opts:?}: panic:\n{stderr}");
+        assert!(stderr.contains(what), "{opts:?}: message does not say '{what}':\n{stderr}");
+        assert!(!out.exists(), "{opts:?}: wrote {}", out.display());
+    }
+}
+
+#[test]
+fn render_nerf_with_no_views_exits_1_and_writes_nothing() {
+    let tmp = tempfile::tempdir().unwrap();
+    let valid = dataset_corpus().join("valid_blender");
+    let run = tmp.path().join("run");
+    let config = small_config(tmp.path(), &valid);
+    let (code, stderr) = xtask(&["train", "--config", config.to_str().unwrap(), "--out", run.to_str().unwrap()]);
+    assert_eq!(code, 0, "training on valid_blender: {stderr}");
+    let out = tmp.path().join("renders");
+    // valid_blender has train views only.
+    for (opts, what) in [
+        (&["--orbit", "0"][..], "--orbit 0: at least one view is needed"),
+        (&["--split", "test"], "has no test views"),
+        (&["--split", "nope"], "unknown split 'nope'"),
+    ] {
+        let mut args = vec!["render-nerf", run.to_str().unwrap(), "--out", out.to_str().unwrap()];
+        args.extend_from_slice(opts);
+        let (code, stderr) = xtask(&args);
+        assert_eq!(code, 1, "{opts:?}: exit code {code}, stderr:\n{stderr}");
+        assert!(stderr.contains(what), "{opts:?}: message does not say '{what}':\n{stderr}");
+        assert!(!out.exists(), "{opts:?}: wrote {}", out.display());
+    }
+    let (code, stderr) = xtask(&["render-nerf", run.to_str().unwrap(), "--out", out.to_str().unwrap(), "--split", "train"]);
+    assert_eq!(code, 0, "{stderr}");
+    assert!(out.join("r_0.png").is_file() && out.join("r_1_depth.npy").is_file());
+}
