@@ -8,7 +8,7 @@ Variant: `llvm_ad_rgb` when Dr.Jit finds a working LLVM (DRJIT_LIBLLVM_PATH, set
 `scalar_rgb`; `--variant` forces one.
 
 BSDF modes:
-- `gltf`: the same model as ours: exactly Lambertian materials (metallic 0, specular 0) as
+- `gltf` (default): the same model as ours: exactly Lambertian materials (metallic 0, specular 0) as
   Mitsuba's native `diffuse`, every other one as the `gltf` Python plugin (gltf_bsdf.py; in
   llvm variants it is traced into the JIT kernel once, in scalar variants it is a Python call
   per interaction, so scalar timings with it measure Python, not Mitsuba);
@@ -37,7 +37,7 @@ def parse_args():
     p.add_argument("--export", action="append", required=True, help="export folder (repeatable)")
     p.add_argument("--variant", default="auto", help="auto (llvm_ad_rgb if it works, else scalar_rgb), or a variant")
     p.add_argument("--runs", type=int, default=3, help="timed renders after the first (median)")
-    p.add_argument("--modes", default="gltf,diffuse", help="BSDF modes, comma-separated: gltf, diffuse")
+    p.add_argument("--modes", default="gltf", help="BSDF modes, comma-separated: gltf, diffuse")
     return p.parse_args()
 
 
@@ -95,8 +95,10 @@ def main():
                                                  gltf_lights.envmap_dict, transparent_ok=True)
                 lambert = sum(1 for m in man["materials"] if m["metallic"] <= 0 and m.get("specular", 1.0) <= 0
                               and m["metallic_roughness_texture"] is None)
-                rec["bsdf"] = ("native diffuse" if mode == "diffuse" else
-                               f"gltf Python plugin ({len(man['materials']) - lambert} materials), native diffuse ({lambert})")
+                glossy = len(man["materials"]) - lambert
+                rec["bsdf"] = ("native diffuse (every material)" if mode == "diffuse" else
+                               "native diffuse" if glossy == 0 else
+                               f"gltf Python plugin ({glossy} materials)" + (f", native diffuse ({lambert})" if lambert else ""))
                 rec["first_seconds"] = timed_render(mi, dr, scene, spp, 0)
                 times = sorted(timed_render(mi, dr, scene, spp, 1 + k) for k in range(max(1, args.runs)))
                 rec["seconds"] = times[len(times) // 2]

@@ -47,7 +47,9 @@ fn median(mut v: Vec<f64>) -> f64 {
 /// bounces) and at the standard preset's 128 spp and 8 bounces at 32×32; medians over
 /// [`RENDER_RUNS`] runs, all cores. Then the same quick renders with Mitsuba 3
 /// (`tests/mitsuba/bench.py`, from an export of each scene with that camera and settings;
-/// `llvm_ad_rgb` where LLVM works, else `scalar_rgb`) and our samples/s divided by Mitsuba's;
+/// `llvm_ad_rgb` where LLVM works, else `scalar_rgb`) and our samples/s divided by Mitsuba's,
+/// for each scene twice: as authored (Mitsuba runs our glTF BRDF as its Python BSDF plugin) and
+/// with every material made exactly Lambertian (ours `Diffuse`, Mitsuba's native `diffuse`);
 /// without the Python environment a note says how to create it.
 fn bench_render() -> anyhow::Result<()> {
     use anyhow::Context;
@@ -76,7 +78,7 @@ fn bench_render() -> anyhow::Result<()> {
         "scene", "triangles", "rig", "BVH ms", "primary Mray/s", "quick Msample/s", "std-spp Msample/s"
     );
     let export_root = crate::render::repo_root().join("out/bench/mitsuba");
-    let mut ours_quick: Vec<(String, f64, std::path::PathBuf)> = Vec::new();
+    let mut ours_quick: Vec<OursQuick> = Vec::new();
     for path in scenes {
         let name = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
         let scene = pathtracer::import::load_gltf(&path, &pathtracer::import::ImportOptions::default())?;
@@ -106,7 +108,7 @@ fn bench_render() -> anyhow::Result<()> {
             c2w: cam.c2w,
         };
         let primary = median((0..RENDER_RUNS).map(|_| renderer.primary_ray_throughput(&big).rays_per_second).collect());
-        let path_rate = |settings: &RenderSettings, camera: &dataset::Camera| {
+        let path_rate_of = |renderer: &Renderer, settings: &RenderSettings, camera: &dataset::Camera| {
             median(
                 (0..RENDER_RUNS)
                     .map(|k| {
@@ -117,6 +119,7 @@ fn bench_render() -> anyhow::Result<()> {
                     .collect(),
             )
         };
+        let path_rate = |settings: &RenderSettings, camera: &dataset::Camera| path_rate_of(&renderer, settings, camera);
         let quick_settings = RenderSettings {
             spp: quick.spp,
             max_bounces: quick.max_bounces,
@@ -128,10 +131,19 @@ fn bench_render() -> anyhow::Result<()> {
         let standard = DatasetRenderConfig::preset(Preset::Standard);
         let std_settings = RenderSettings { spp: standard.spp, max_bounces: standard.max_bounces, ..quick_settings.clone() };
         let quick_rate = path_rate(&quick_settings, &cam);
-        let export_dir = export_root.join(&name);
-        pathtracer::export::export_scene(&scene_for_export, &[cam], &quick_settings, &export_dir)
-            .with_context(|| format!("exporting {name} for Mitsuba to {}", export_dir.display()))?;
-        ours_quick.push((name.clone(), quick_rate, export_dir));
+        // The same scene with every material exactly Lambertian (metallic 0, specular 0), for a
+        // comparison with Mitsuba's native `diffuse`.
+        let mut lambert_scene = scene_for_export.clone();
+        for m in &mut lambert_scene.materials {
+            (m.metallic_factor, m.specular_factor, m.metallic_roughness_texture) = (0.0, 0.0, None);
+        }
+        let lambert_rate = path_rate_of(&Renderer::new(lambert_scene.clone(), &params)?, &quick_settings, &cam);
+        for (model, scene, rate, dir) in [("glTF BRDF", &scene_for_export, quick_rate, name.clone()), ("Lambert", &lambert_scene, lambert_rate, format!("{name}-lambert"))] {
+            let export_dir = export_root.join(dir);
+            pathtracer::export::export_scene(scene, &[cam], &quick_settings, &export_dir)
+                .with_context(|| format!("exporting {name} for Mitsuba to {}", export_dir.display()))?;
+            ours_quick.push(OursQuick { scene: name.clone(), model, rate, export: export_dir });
+        }
         let small = cam.downscaled(2);
         let std_rate = path_rate(&std_settings, &small);
         println!(
@@ -148,9 +160,18 @@ fn bench_render() -> anyhow::Result<()> {
     bench_render_mitsuba(&ours_quick)
 }
 
-/// Runs `tests/mitsuba/bench.py` on the exports in `ours` (scene, our quick samples/s, export
-/// folder) and prints the side-by-side table.
-fn bench_render_mitsuba(ours: &[(String, f64, std::path::PathBuf)]) -> anyhow::Result<()> {
+/// Our quick-preset figure for one scene and material model, with its export for Mitsuba.
+struct OursQuick {
+    scene: String,
+    /// `glTF BRDF` (as authored) or `Lambert` (every material made exactly Lambertian).
+    model: &'static str,
+    /// Camera samples per second.
+    rate: f64,
+    export: std::path::PathBuf,
+}
+
+/// Runs `tests/mitsuba/bench.py` on the exports in `ours` and prints the side-by-side table.
+fn bench_render_mitsuba(ours: &[OursQuick]) -> anyhow::Result<()> {
     use anyhow::Context;
     let root = crate::render::repo_root();
     let python = root.join(".venv/bin/python");
@@ -165,8 +186,8 @@ fn bench_render_mitsuba(ours: &[(String, f64, std::path::PathBuf)]) -> anyhow::R
     }
     let mut cmd = std::process::Command::new(&python);
     cmd.arg(root.join("tests/mitsuba/bench.py"));
-    for (_, _, dir) in ours {
-        cmd.arg("--export").arg(dir);
+    for o in ours {
+        cmd.arg("--export").arg(&o.export);
     }
     let out = cmd.stderr(std::process::Stdio::inherit()).output().with_context(|| format!("running {}", python.display()))?;
     if !out.status.success() {
@@ -190,26 +211,26 @@ fn bench_render_mitsuba(ours: &[(String, f64, std::path::PathBuf)]) -> anyhow::R
         quick.environment
     );
     println!(
-        "{:<12} {:>14} {:<12} {:<8} {:>17} {:>11} {:>12}  Mitsuba BSDF",
-        "scene", "ours Msample/s", "variant", "mode", "Mitsuba Msample/s", "first run s", "ours/Mitsuba"
+        "{:<12} {:<10} {:>14} {:<12} {:>17} {:>11} {:>12}  Mitsuba BSDF",
+        "scene", "model", "ours Msample/s", "variant", "Mitsuba Msample/s", "first run s", "ours/Mitsuba"
     );
-    for (name, rate, dir) in ours {
-        let dir = dir.display().to_string();
+    for o in ours {
+        let dir = o.export.display().to_string();
         for t in lines.iter().filter(|t| t["export"].as_str() == Some(dir.as_str())) {
             let text = |k: &str| t[k].as_str().unwrap_or("").to_string();
             match t["samples_per_second"].as_f64() {
                 Some(mr) => println!(
-                    "{:<12} {:>14.3} {:<12} {:<8} {:>17.3} {:>11.2} {:>11.2}x  {}",
-                    name,
-                    rate * 1e-6,
+                    "{:<12} {:<10} {:>14.3} {:<12} {:>17.3} {:>11.2} {:>11.2}x  {}",
+                    o.scene,
+                    o.model,
+                    o.rate * 1e-6,
                     text("variant"),
-                    text("mode"),
                     mr * 1e-6,
                     t["first_seconds"].as_f64().unwrap_or(f64::NAN),
-                    rate / mr,
+                    o.rate / mr,
                     text("bsdf")
                 ),
-                None => println!("{:<12} {:>14.3} {:<12} {:<8} {}", name, rate * 1e-6, text("variant"), text("mode"), text("error")),
+                None => println!("{:<12} {:<10} {:>14.3} {:<12} {}", o.scene, o.model, o.rate * 1e-6, text("variant"), text("error")),
             }
         }
     }
