@@ -6,6 +6,9 @@ pub struct BenchArgs {
     /// What to measure.
     #[arg(value_enum)]
     pub what: BenchWhat,
+    /// Options of `bench auto`.
+    #[command(flatten)]
+    pub auto: crate::bench_auto::AutoBenchArgs,
 }
 
 /// Benchmarks.
@@ -15,6 +18,8 @@ pub enum BenchWhat {
     Render,
     /// NeRF training throughput for both models.
     Nerf,
+    /// `--model auto` against fixed fast sizes and paper on every scene (train, eval, compare).
+    Auto,
 }
 
 /// Runs a benchmark.
@@ -22,6 +27,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     match args.what {
         BenchWhat::Render => bench_render(),
         BenchWhat::Nerf => crate::bench_nerf::run(),
+        BenchWhat::Auto => crate::bench_auto::run(args.auto),
     }
 }
 

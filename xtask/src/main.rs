@@ -6,6 +6,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, OnceLock};
 
 mod bench;
+mod bench_auto;
 mod bench_nerf;
 mod crosscheck;
 mod evaluate;
@@ -37,7 +38,7 @@ enum Command {
     Compare(evaluate::CompareArgs),
     /// The main job on the built-in default scene: render, train, evaluate, report.
     Demo(evaluate::DemoArgs),
-    /// Performance figures (render, nerf).
+    /// Performance figures (render, nerf, auto).
     Bench(bench::BenchArgs),
     /// Render a scene with Mitsuba 3 and compare with our renderer.
     Crosscheck(crosscheck::CrosscheckArgs),

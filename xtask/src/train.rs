@@ -15,7 +15,8 @@ pub struct TrainArgs {
     /// Run folder (config.json, metrics.jsonl, checkpoints/).
     #[arg(long)]
     pub out: PathBuf,
-    /// Model: paper or fast.
+    /// Model: paper, fast, or auto (fast sized from the scene and its cameras; the reasons go
+    /// into config.json).
     #[arg(long, default_value = "fast")]
     pub model: String,
     /// Stop after this many steps.
@@ -109,6 +110,8 @@ fn build_config(args: &TrainArgs) -> anyhow::Result<TrainConfig> {
     if let Some(d) = &args.dataset {
         if args.config.is_some() && *d != cfg.dataset {
             cfg.bounds = None;
+            // An auto config sized for another dataset is sized again.
+            cfg.auto_reasons = None;
         }
         cfg.dataset = d.clone();
     }
@@ -148,9 +151,12 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     } else {
         Trainer::new(build_config(&args)?, &args.out, false)?
     };
+    for reason in trainer.config.auto_reasons.iter().flatten() {
+        eprintln!("auto: {reason}");
+    }
     eprintln!(
         "training {} ({} parameters, backend {}) on {} from step {}; run folder {}",
-        trainer.config.model.name(),
+        trainer.config.model_label(),
         trainer.model.parameters(),
         nerf::backend::backend_name(),
         trainer.config.dataset.display(),
@@ -181,7 +187,13 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     });
     eprintln!(
         "{} at step {} after {:.1}s of training: {val}; {} non-finite steps skipped",
-        if summary.interrupted { "interrupted (checkpoint written; --resume continues)" } else { "done" },
+        if summary.interrupted {
+            "interrupted (checkpoint written; --resume continues)"
+        } else if summary.plateaued {
+            "stopped early (val PSNR plateaued)"
+        } else {
+            "done"
+        },
         summary.steps,
         summary.wall_s,
         summary.skipped_nonfinite

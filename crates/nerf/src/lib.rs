@@ -4,8 +4,10 @@
 //!
 //! Layers (nerfstudio's order): data ([`data`]) → encodings ([`encoding`]) → fields
 //! ([`field`]) → samplers ([`sampling`], [`occupancy`]) and renderers ([`volrend`]) → models
-//! ([`models`]) → trainer ([`train`]); [`backend`] chooses the burn device in one place.
+//! ([`models`]) → trainer ([`train`]); [`backend`] chooses the burn device in one place;
+//! [`auto`] sizes the fast model from the scene and its cameras (`--model auto`).
 
+pub mod auto;
 pub mod backend;
 pub mod checkpoint;
 pub mod data;

@@ -18,6 +18,7 @@
 //! on what ran before, and a checkpoint holds the whole optimiser and grid state, so a resumed
 //! run reproduces an uninterrupted one exactly (when both stop on a step count).
 
+use crate::auto::{AutoConfig, PlateauStop};
 use crate::checkpoint::{self, CheckpointError, StateDict};
 use crate::data::{Background, DataError, SceneBounds, TrainData, ViewPixels, pixel_ray};
 use crate::models::ops::{stream, uniform};
@@ -121,6 +122,17 @@ pub struct TrainConfig {
     /// Most val pixels used for validation during training.
     #[config(default = 4096)]
     pub val_max_pixels: usize,
+    /// Stop early when the val PSNR plateaus (see [`crate::auto::plateau_reached`]).
+    #[config(default = "None")]
+    pub plateau_stop: Option<PlateauStop>,
+    /// `--model auto`: the sizing rules' settings; the model, bounds and stopping rule are
+    /// resolved from the dataset before step 0 ([`crate::auto::resolve`]).
+    #[config(default = "None")]
+    pub auto: Option<AutoConfig>,
+    /// One line per decision `auto` made, with its reason (`None` until resolved; a resolved
+    /// config is used as recorded, so a resumed run rebuilds the same model).
+    #[config(default = "None")]
+    pub auto_reasons: Option<Vec<String>>,
 }
 
 impl TrainConfig {
@@ -131,14 +143,23 @@ impl TrainConfig {
     /// 1e-2 → 1e-3 over 5k steps (CPU runs are short), β = (0.9, 0.99), ε = 1e-15, and a random
     /// background behind transparent pixels (instant-ngp; without it the few-view CPU runs
     /// learn translucent objects: +4 dB test PSNR on the quick tabletop after 60 s).
+    ///
+    /// `"auto"` is the `fast` preset whose model is sized from the dataset when the trainer
+    /// starts ([`crate::auto`]).
     pub fn preset(kind: &str, dataset: PathBuf) -> Result<Self, String> {
         match kind {
+            "auto" => Ok(Self::preset("fast", dataset)?.with_auto(Some(AutoConfig::new()))),
             "paper" => Ok(TrainConfig::new(dataset, ModelConfig::Paper(PaperConfig::new()), 1024, 5e-4, 5e-5, 200_000)),
             "fast" => Ok(TrainConfig::new(dataset, ModelConfig::Fast(FastConfig::new()), 256, 1e-2, 1e-3, 5_000)
                 .with_batch_samples(Some(1 << 15))
                 .with_background(Background::Random)),
-            other => Err(format!("unknown model '{other}' (paper or fast)")),
+            other => Err(format!("unknown model '{other}' (paper, fast or auto)")),
         }
+    }
+
+    /// The model's name as chosen: `"auto"` for an auto-sized run, else the model kind.
+    pub fn model_label(&self) -> &'static str {
+        if self.auto.is_some() { "auto" } else { self.model.name() }
     }
 
     /// Rays of the next step given the running mean of samples per ray (0 before any step).
@@ -311,6 +332,8 @@ pub struct Summary {
     pub val: Option<ValMetrics>,
     /// Steps skipped for non-finite values.
     pub skipped_nonfinite: u64,
+    /// Stopped by the plateau rule ([`TrainConfig::plateau_stop`]) before the budget.
+    pub plateaued: bool,
 }
 
 #[derive(Clone, Debug, Default)]
@@ -346,6 +369,8 @@ pub struct Trainer {
     next_val_at: f64,
     window: Window,
     last_val: Option<f64>,
+    /// (training seconds, val PSNR) of every validation so far (the plateau rule's input).
+    val_history: Vec<(f64, f64)>,
     /// Accumulated time split over all steps of this process.
     pub timings: StepTimings,
 }
@@ -363,6 +388,7 @@ impl Trainer {
         let ds = crate::data::load_dataset(&config.dataset)?;
         config.check_image_sizes(&ds).map_err(TrainError::Invalid)?;
         let data = TrainData::load(&ds.train, config.downscale, config.background, false)?;
+        crate::auto::resolve(&mut config, &ds, &data).map_err(TrainError::Invalid)?;
         if config.bounds.is_none() {
             let cams: Vec<_> = ds.train.iter().map(|f| f.camera).collect();
             config.bounds = Some(SceneBounds::for_dataset(
@@ -391,6 +417,7 @@ impl Trainer {
             samples_per_ray: 0.0,
             window: Window::default(),
             last_val: None,
+            val_history: Vec::new(),
             timings: StepTimings::default(),
         };
         let have_ckpt = checkpoint::latest(run_dir).is_some();
@@ -398,6 +425,7 @@ impl Trainer {
             let s = checkpoint::load_latest(run_dir)?;
             t.load_state(&s)?;
             t.truncate_metrics()?;
+            t.reload_val_history();
         } else {
             dataset::io::atomic_write_json(&run_dir.join(CONFIG_FILE), &t.config)?;
             dataset::io::atomic_write(&run_dir.join(METRICS_FILE), b"")?;
@@ -411,9 +439,32 @@ impl Trainer {
         Self::new(config, run_dir, true)
     }
 
-    /// Whether the budget (steps or time) is used up.
+    /// Whether the budget (steps or time) is used up, or the val PSNR has plateaued.
     pub fn finished(&self) -> bool {
+        self.budget_used() || self.plateaued()
+    }
+
+    fn budget_used(&self) -> bool {
         self.config.steps.is_some_and(|s| self.step >= s) || self.config.time_budget_s.is_some_and(|t| self.wall_s >= t)
+    }
+
+    /// Whether the plateau rule, if any, says stop.
+    pub fn plateaued(&self) -> bool {
+        self.config.plateau_stop.as_ref().is_some_and(|p| crate::auto::plateau_reached(&self.val_history, p))
+    }
+
+    /// Rebuilds the validation history (and the latest val PSNR) from `metrics.jsonl`, for a
+    /// resumed run's plateau rule.
+    fn reload_val_history(&mut self) {
+        let text = std::fs::read_to_string(self.run_dir.join(METRICS_FILE)).unwrap_or_default();
+        self.val_history = text
+            .lines()
+            .filter_map(|l| {
+                let v = serde_json::from_str::<serde_json::Value>(l).ok()?;
+                Some((v.get("wall_s")?.as_f64()?, v.get("val_psnr")?.as_f64()?))
+            })
+            .collect();
+        self.last_val = self.val_history.last().map(|p| p.1);
     }
 
     fn fraction(&self) -> f64 {
@@ -550,6 +601,7 @@ impl Trainer {
             }
             self.append_metrics(&line)?;
             self.last_val = Some(m.val_psnr);
+            self.val_history.push((self.wall_s, m.val_psnr));
         }
         Ok(v)
     }
@@ -637,7 +689,14 @@ impl Trainer {
     }
 
     fn summary(&self, interrupted: bool, val: Option<ValMetrics>) -> Summary {
-        Summary { steps: self.step, wall_s: self.wall_s, interrupted, val, skipped_nonfinite: self.skipped_nonfinite }
+        Summary {
+            steps: self.step,
+            wall_s: self.wall_s,
+            interrupted,
+            val,
+            skipped_nonfinite: self.skipped_nonfinite,
+            plateaued: self.plateaued() && !self.budget_used(),
+        }
     }
 }
 

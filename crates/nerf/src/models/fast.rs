@@ -7,9 +7,10 @@
 //! CPU-sized defaults (instant-ngp's in brackets): 16 levels × 2 features, 2^17 entries per
 //! level [2^19] so that one level's table (1 MiB) stays in the core's cache, finest resolution
 //! 512 over the bounding cube [2048 · scale] (enough for the 64–400 pixel images trained on a
-//! CPU, and finer levels overfit the few views; issue #6 will derive it from the image
-//! resolution), 64-wide networks, a 64³ occupancy
+//! CPU, and finer levels overfit the few views; `--model auto`, [`crate::auto`], derives it
+//! from the cameras), 64-wide networks, a 64³ occupancy
 //! grid over the scene box [128³] and a marching step of the cube's diagonal / 512 [/ 1024].
+//! With `view_dependent` false the colour network gets no direction input (Lambertian scenes).
 //! Training rays are compacted as in instant-ngp: a density-only pass finds where each ray
 //! becomes opaque, and only the samples before it are trained on.
 
@@ -53,6 +54,12 @@ pub struct FastConfig {
     /// Spherical-harmonics degree of the direction encoding (4 → 16 coefficients).
     #[config(default = 4)]
     pub sh_degree: usize,
+    /// Whether the colour network sees the view direction (SH of it); without, colour is a
+    /// function of position only (Lambertian scenes; `--model auto` decides). `None` (and
+    /// configs written before this option) means yes: burn's config files need every
+    /// non-`Option` field, so an `Option` keeps older `config.json` files readable.
+    #[config(default = "None")]
+    pub view_dependent: Option<bool>,
     /// Hidden width of the density network.
     #[config(default = 64)]
     pub density_width: usize,
@@ -116,8 +123,17 @@ impl FastConfig {
             finest_resolution: self.finest_resolution,
         }
     }
+    /// Width of the colour network's direction input: the SH coefficients, or 0 without view
+    /// dependence.
+    pub fn dir_dims(&self) -> usize {
+        if self.is_view_dependent() { sh_output_dim(self.sh_degree) } else { 0 }
+    }
+    /// Whether the colour network sees the view direction ([`Self::view_dependent`]).
+    pub fn is_view_dependent(&self) -> bool {
+        self.view_dependent.unwrap_or(true)
+    }
     fn field_config(&self) -> HashFieldConfig {
-        HashFieldConfig::new(self.levels * self.features_per_level, sh_output_dim(self.sh_degree))
+        HashFieldConfig::new(self.levels * self.features_per_level, self.dir_dims())
             .with_density_width(self.density_width)
             .with_geo_features(self.geo_features)
             .with_color_width(self.color_width)
@@ -227,7 +243,10 @@ impl FastModel {
     /// SH `[n][deg²]` of each sample's ray direction (`ray_of[k]` is sample `k`'s ray), computed
     /// once per ray.
     fn sh_of(&self, ray_of: impl Iterator<Item = usize>, n: usize, dirs: &[[f32; 3]]) -> Vec<f32> {
-        let shd = sh_output_dim(self.config.sh_degree);
+        let shd = self.config.dir_dims();
+        if shd == 0 {
+            return Vec::new();
+        }
         let per_ray: Vec<[f32; 16]> = dirs.iter().map(|d| sh_encode(*d)).collect();
         let mut sh = vec![0.0; n * shd];
         for (o, r) in sh.chunks_exact_mut(shd).zip(ray_of) {
@@ -310,10 +329,10 @@ impl FastModel {
         }
 
         let t0 = Instant::now();
-        let shd = sh_output_dim(self.config.sh_degree);
+        let shd = self.config.dir_dims();
         let enc_t = tensor2(enc, n, dims, &self.device).require_grad();
-        let sh_t = tensor2(sh, n, shd, &self.device);
-        let (raw_t, rgb_t) = self.field.forward(enc_t.clone(), sh_t);
+        let sh_t = (shd > 0).then(|| tensor2(sh, n, shd, &self.device));
+        let (raw_t, rgb_t) = field_forward(&self.field, enc_t.clone(), sh_t);
         let raw = to_vec(raw_t.clone());
         let rgb_flat = to_vec(rgb_t.clone());
         tm.mlp += t0.elapsed().as_secs_f64();
@@ -367,7 +386,7 @@ impl FastModel {
         let dev = backend::inference_device();
         let rays = origins.len();
         let n = samples.len();
-        let (dims, shd) = (self.grid.output_dim(), sh_output_dim(self.config.sh_degree));
+        let (dims, shd) = (self.grid.output_dim(), self.config.dir_dims());
         let mut sigma = vec![0.0f32; n];
         let mut rgb = vec![[0.0f32; 3]; n];
         let mut evaluated = vec![false; n];
@@ -390,7 +409,8 @@ impl FastModel {
             }
             let (_, enc, sh) = self.encode(&samples, Some(&idx), origins, dirs);
             let m = idx.len();
-            let (raw_t, rgb_t) = net.forward(tensor2(enc, m, dims, &dev), tensor2(sh, m, shd, &dev));
+            let sh_t = (shd > 0).then(|| tensor2(sh, m, shd, &dev));
+            let (raw_t, rgb_t) = field_forward(&net, tensor2(enc, m, dims, &dev), sh_t);
             let (raw, rgb_flat) = (to_vec(raw_t), to_vec(rgb_t));
             for (k, &s) in idx.iter().enumerate() {
                 sigma[s] = ACT.forward(raw[k]);
@@ -439,7 +459,7 @@ impl FastModel {
         let c = &self.config;
         let enc = (c.levels * c.features_per_level) as f64;
         let dens = enc * c.density_width as f64 + c.density_width as f64 * c.geo_features as f64;
-        let cin = (c.geo_features + sh_output_dim(c.sh_degree)) as f64;
+        let cin = (c.geo_features + c.dir_dims()) as f64;
         let col = cin * c.color_width as f64
             + (c.color_depth.saturating_sub(1)) as f64 * (c.color_width * c.color_width) as f64
             + c.color_width as f64 * 3.0;
@@ -488,6 +508,23 @@ impl FastModel {
             }
         }
         Ok(())
+    }
+}
+
+/// The field's forward pass; without a direction input (`sh` `None`) the colour network sees
+/// the geometry features only.
+///
+/// # Shapes
+/// `enc`: [N, L·F], `sh`: [N, dir_dims] → (raw density [N, 1], rgb [N, 3]).
+fn field_forward(net: &HashField, enc: burn::tensor::Tensor<2>, sh: Option<burn::tensor::Tensor<2>>) -> (burn::tensor::Tensor<2>, burn::tensor::Tensor<2>) {
+    match sh {
+        Some(sh) => net.forward(enc, sh),
+        None => {
+            let geo = net.density.forward(enc);
+            let [n, _] = geo.dims();
+            let raw = geo.clone().slice([0..n, 0..1]);
+            (raw, burn::tensor::activation::sigmoid(net.color.forward(geo)))
+        }
     }
 }
 

@@ -1,0 +1,981 @@
+//! `--model auto`: sizes the fast (hash-grid) model from the scene and its cameras instead of
+//! fixed numbers, and states a reason for every decision (written into `config.json` as
+//! `auto_reasons`).
+//!
+//! The rules are pure functions over constructed inputs (cameras, a box, masks, colours), so
+//! each is tested on its own; [`resolve`] applies them to a loaded dataset once, before step 0,
+//! and records the result in the [`TrainConfig`], so a resumed run reads the same sizes back.
+//!
+//! | decision | rule |
+//! |---|---|
+//! | bounds | scene facts' box, padded ([`SceneBounds::for_dataset`]); without facts the visual hull of the train views' alpha masks on a coarse grid ([`visual_hull`]), in two passes |
+//! | finest resolution | the bounding cube's side / the smallest pixel footprint over the box ([`smallest_footprint`]: nearest distance from a train camera to the box, at least `near`, × the pixel angle) |
+//! | coarsest resolution | instant-ngp's 16, raised until the box's smallest side spans 4 coarsest cells |
+//! | levels, table size | levels from the two resolutions at instant-ngp's growth factor (≤ 16); table big enough for a dense finest level, at most 2^17 entries per level (one level's table in a core's cache) and within a memory budget ([`hash_sizes`]) |
+//! | view dependence | scene facts' `view_dependent`; without facts the spread of a surface point's colour across the train views that see it, with ground-truth depth ([`colour_spread`]); without depth it stays on |
+//! | samples | occupancy cell = 4 finest hash cells (16³…64³); marching step = one finest cell ≈ the smallest footprint, at most `max_samples_per_ray` per cube diagonal ([`sampling`]) |
+//! | stopping | stop when the best val PSNR gained < 0.1 dB over the last fifth of the time budget ([`plateau_reached`]), validating every twentieth |
+
+use crate::data::{SceneBounds, TrainData};
+use crate::models::ModelConfig;
+use crate::models::ops::{stream, uniform};
+use crate::train::TrainConfig;
+use burn::config::Config;
+use dataset::{Camera, Dataset, SceneFacts};
+use glam::DVec3;
+use serde::{Deserialize, Serialize};
+
+/// Settings of the `auto` rules (recorded in `config.json`).
+#[derive(Config, Debug)]
+pub struct AutoConfig {
+    /// Cells per axis of each visual-hull pass (two passes: the cameras' region, then the
+    /// first hull's box).
+    #[config(default = 48)]
+    pub hull_grid: usize,
+    /// A mask pixel is foreground when its alpha is at least this.
+    #[config(default = 0.5)]
+    pub mask_threshold: f32,
+    /// Least coarsest resolution (instant-ngp: 16).
+    #[config(default = 16)]
+    pub min_base_resolution: u32,
+    /// Coarsest cells across the box's smallest side.
+    #[config(default = 4.0)]
+    pub base_cells_per_min_side: f64,
+    /// Growth factor between levels (instant-ngp: 16 levels from 16 to 2048, b ≈ 1.38).
+    #[config(default = 1.38)]
+    pub growth: f64,
+    /// Most levels (the encoding's and the density network's cost per sample grow with them).
+    #[config(default = 16)]
+    pub max_levels: usize,
+    /// Features per level.
+    #[config(default = 2)]
+    pub features_per_level: usize,
+    /// Most log2 entries per level: 2^17 entries × 2 features × 4 bytes = 1 MiB, one level's
+    /// table in a CPU core's cache.
+    #[config(default = 17)]
+    pub max_log2_table_size: u32,
+    /// Least log2 entries per level.
+    #[config(default = 10)]
+    pub min_log2_table_size: u32,
+    /// Memory budget of the hash tables with their Adam moments (12 bytes per parameter), MiB.
+    #[config(default = 48.0)]
+    pub hash_memory_mib: f64,
+    /// Finest hash cells per occupancy-grid cell.
+    #[config(default = 4)]
+    pub hash_cells_per_grid_cell: u32,
+    /// Least occupancy-grid cells per axis.
+    #[config(default = 16)]
+    pub min_grid_resolution: usize,
+    /// Most occupancy-grid cells per axis (a full refresh of 64³ cells costs several CPU steps).
+    #[config(default = 64)]
+    pub max_grid_resolution: usize,
+    /// View dependence is on when the median colour spread (RMS over channels, display
+    /// values) of surface points across views exceeds this.
+    #[config(default = 0.04)]
+    pub view_spread_threshold: f64,
+    /// Surface points drawn for the colour-spread test.
+    #[config(default = 512)]
+    pub spread_points: usize,
+    /// Stop when the val PSNR gained less than this over the window.
+    #[config(default = 0.1)]
+    pub plateau_min_gain_db: f64,
+    /// Window of the stopping rule, as a fraction of the time budget.
+    #[config(default = 0.2)]
+    pub plateau_window_fraction: f64,
+    /// Validation interval, as a fraction of the time budget.
+    #[config(default = 0.05)]
+    pub val_interval_fraction: f64,
+}
+
+/// Stop training when the best validation PSNR has gained less than `min_gain_db` over the
+/// last `window_s` seconds of training time.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PlateauStop {
+    /// Window, training seconds.
+    pub window_s: f64,
+    /// Least gain over the window, dB.
+    pub min_gain_db: f64,
+}
+
+/// Whether training has plateaued: with `history` the (training seconds, val PSNR) points so
+/// far, the best PSNR now exceeds the best PSNR at or before `now − window_s` by less than
+/// `min_gain_db`. False until a point at least `window_s` old exists.
+///
+/// Example: points (0 s, 20 dB), (10 s, 25), (20 s, 25.05), window 10 s, gain 0.1 dB: at
+/// 20 s the best before 10 s is 25, the best now 25.05: gained 0.05 < 0.1 → plateaued.
+pub fn plateau_reached(history: &[(f64, f64)], rule: &PlateauStop) -> bool {
+    let Some(&(now, _)) = history.last() else { return false };
+    let cutoff = now - rule.window_s;
+    if cutoff < 0.0 {
+        return false;
+    }
+    let best = |pts: &mut dyn Iterator<Item = &(f64, f64)>| pts.map(|p| p.1).filter(|v| v.is_finite()).fold(f64::NEG_INFINITY, f64::max);
+    let before = best(&mut history.iter().filter(|p| p.0 <= cutoff + 1e-9));
+    let all = best(&mut history.iter());
+    before.is_finite() && all - before < rule.min_gain_db
+}
+
+/// A length for a reason line: mm below 1 cm, cm below 1 m, m above.
+pub fn fmt_len(x: f64) -> String {
+    if x < 0.01 {
+        format!("{:.2} mm", x * 1e3)
+    } else if x < 1.0 {
+        format!("{:.1} cm", x * 1e2)
+    } else {
+        format!("{x:.2} m")
+    }
+}
+
+fn v3(a: [f32; 3]) -> DVec3 {
+    DVec3::new(a[0] as f64, a[1] as f64, a[2] as f64)
+}
+
+/// The smallest pixel footprint over a box: where a train camera sees the box closest.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Footprint {
+    /// Footprint, scene units: `distance × pixel_angle`.
+    pub size: f64,
+    /// Distance from the camera to the box (at least the near distance).
+    pub distance: f64,
+    /// Pixel angle (radians) of that camera: 1 / its largest focal length in pixels.
+    pub pixel_angle: f64,
+    /// Index of that camera.
+    pub view: usize,
+}
+
+/// The smallest pixel footprint over the box `[lo, hi]`: for each camera the distance from
+/// its centre to the box (0 inside it), raised to `near` (nothing closer than the nearest
+/// surface is seen, which matters for cameras inside the box), times its pixel angle
+/// `1 / max(fl_x, fl_y)` (the angle of a pixel at the image centre); the smallest over
+/// cameras. `None` without cameras.
+///
+/// Example: a 100-pixel-focal camera 2 m from the box: footprint 2 × 0.01 = 2 cm.
+pub fn smallest_footprint(cameras: &[Camera], lo: [f32; 3], hi: [f32; 3], near: f64) -> Option<Footprint> {
+    let (lo, hi) = (v3(lo), v3(hi));
+    cameras
+        .iter()
+        .enumerate()
+        .map(|(k, c)| {
+            let o = c.origin();
+            let distance = (o.clamp(lo, hi) - o).length().max(near);
+            let pixel_angle = 1.0 / c.intrinsics.fl_x.max(c.intrinsics.fl_y);
+            Footprint { size: distance * pixel_angle, distance, pixel_angle, view: k }
+        })
+        .min_by(|a, b| a.size.total_cmp(&b.size))
+}
+
+/// The hash grid's sizes.
+#[derive(Clone, Debug, PartialEq)]
+pub struct HashSizes {
+    /// Coarsest resolution over the bounding cube.
+    pub base_resolution: u32,
+    /// Finest resolution over the bounding cube.
+    pub finest_resolution: u32,
+    /// Levels.
+    pub levels: usize,
+    /// log2 of the entries per level.
+    pub log2_table_size: u32,
+    /// Features per level.
+    pub features_per_level: usize,
+}
+
+/// Hash-grid sizes for a bounding cube of side `cube_side` around a box whose smallest side is
+/// `min_side`, seen with smallest pixel footprint `footprint`:
+/// - finest = ⌈cube_side / footprint⌉ (one finest cell per smallest pixel footprint: no level
+///   finer than what a train camera can see), clamped to `[base, 2^20]`;
+/// - base = max(`min_base_resolution`, ⌈`base_cells_per_min_side` · cube_side / min_side⌉),
+///   at most finest;
+/// - levels = 1 + ⌈ln(finest / base) / ln(`growth`)⌉, at most `max_levels`;
+/// - log2 T = the least of: ⌈log2 (finest + 1)³⌉ (a dense finest level needs no more),
+///   `max_log2_table_size`, and the largest T with levels · T · F · 12 bytes ≤ the budget;
+///   at least `min_log2_table_size`.
+///
+/// Returns the sizes and a reason line per decision.
+pub fn hash_sizes(cube_side: f64, min_side: f64, footprint: &Footprint, cfg: &AutoConfig) -> (HashSizes, Vec<String>) {
+    let min_side = min_side.max(1e-9 * cube_side.max(1e-9));
+    let want_base = (cfg.base_cells_per_min_side * cube_side / min_side).ceil().min(1e6) as u32;
+    let base0 = cfg.min_base_resolution.max(want_base).max(1);
+    let finest_raw = (cube_side / footprint.size.max(1e-12)).ceil().min((1u64 << 20) as f64) as u32;
+    let finest = finest_raw.clamp(base0.min(1 << 20), 1 << 20);
+    let base = base0.min(finest);
+    let mut reasons = Vec::new();
+    reasons.push(format!(
+        "finest_resolution = {finest}: smallest pixel footprint {} over a {} cube (train view {} at {}){}",
+        fmt_len(footprint.size),
+        fmt_len(cube_side),
+        footprint.view,
+        fmt_len(footprint.distance),
+        if finest != finest_raw { format!(", raised from {finest_raw} to the coarsest resolution") } else { String::new() }
+    ));
+    reasons.push(if want_base > cfg.min_base_resolution {
+        format!(
+            "base_resolution = {base}: coarsest cell {}, so the box's smallest side {} spans {} coarsest cells",
+            fmt_len(cube_side / base as f64),
+            fmt_len(min_side),
+            cfg.base_cells_per_min_side
+        )
+    } else {
+        format!(
+            "base_resolution = {base}: coarsest cell {} (instant-ngp's {} over the cube; the box's smallest side {} already spans ≥ {} cells)",
+            fmt_len(cube_side / base as f64),
+            cfg.min_base_resolution,
+            fmt_len(min_side),
+            cfg.base_cells_per_min_side
+        )
+    });
+    let ratio = finest as f64 / base as f64;
+    let levels_raw = if ratio <= 1.0 + 1e-9 { 1 } else { 1 + (ratio.ln() / cfg.growth.max(1.0001).ln()).ceil() as usize };
+    let levels = levels_raw.clamp(1, cfg.max_levels.max(1));
+    let b = if levels > 1 { ratio.powf(1.0 / (levels - 1) as f64) } else { 1.0 };
+    reasons.push(format!(
+        "levels = {levels}: {base} → {finest} at growth {b:.3} per level (target {}{})",
+        cfg.growth,
+        if levels < levels_raw { format!(", capped at {} levels", cfg.max_levels) } else { String::new() }
+    ));
+    let f = cfg.features_per_level.max(1);
+    let dense = ((finest as f64 + 1.0).powi(3)).log2().ceil() as u32;
+    let budget_bytes = cfg.hash_memory_mib * 1024.0 * 1024.0;
+    let budget = (budget_bytes / (12.0 * levels as f64 * f as f64)).max(1.0).log2().floor() as u32;
+    let log2 = dense.min(cfg.max_log2_table_size).min(budget).max(cfg.min_log2_table_size);
+    let why = if log2 == dense {
+        format!("2^{dense} holds the finest level ({}³ vertices) densely", finest + 1)
+    } else if log2 == budget && budget < cfg.max_log2_table_size {
+        format!(
+            "{levels} levels × {f} features × 12 bytes within the {} MiB budget (a dense finest level needs 2^{dense})",
+            cfg.hash_memory_mib
+        )
+    } else if log2 == cfg.max_log2_table_size {
+        format!(
+            "one level's table ({} KiB) stays in a core's cache (a dense finest level needs 2^{dense})",
+            (1u64 << log2) * f as u64 * 4 / 1024
+        )
+    } else {
+        format!("the least table size (a dense finest level needs 2^{dense})")
+    };
+    reasons.push(format!("log2_table_size = {log2}: {why}; {} hash parameters", levels * (1usize << log2) * f));
+    (HashSizes { base_resolution: base, finest_resolution: finest, levels, log2_table_size: log2, features_per_level: f }, reasons)
+}
+
+/// Occupancy grid and marching step for a hash grid of finest resolution `finest` over a cube
+/// of side `cube_side`:
+/// - grid cells per axis = the power of two nearest `finest / hash_cells_per_grid_cell`,
+///   clamped to `[min_grid_resolution, max_grid_resolution]` (empty space is skipped at a
+///   quarter of the finest detail; finer grids cost more to refresh on a CPU);
+/// - steps per diagonal = ⌈√3 · finest⌉, so the step is one finest cell ≈ the smallest pixel
+///   footprint (finer steps see nothing more), at most `max_samples_per_ray` so a ray through
+///   the whole cube is never cut short.
+pub fn sampling(finest: u32, cube_side: f64, cfg: &AutoConfig, max_samples_per_ray: usize) -> (usize, usize, Vec<String>) {
+    let want = (finest as f64 / cfg.hash_cells_per_grid_cell.max(1) as f64).max(1.0);
+    let pow2 = 2f64.powf(want.log2().round()) as usize;
+    let grid = pow2.clamp(cfg.min_grid_resolution.max(1), cfg.max_grid_resolution.max(cfg.min_grid_resolution).max(1));
+    let spd_raw = (3f64.sqrt() * finest as f64).ceil() as usize;
+    let spd = spd_raw.min(max_samples_per_ray.max(1)).max(1);
+    let reasons = vec![
+        format!(
+            "grid_resolution = {grid}: occupancy cell {} ≈ {} finest hash cells (clamped to {}..={})",
+            fmt_len(cube_side / grid as f64),
+            cfg.hash_cells_per_grid_cell,
+            cfg.min_grid_resolution,
+            cfg.max_grid_resolution
+        ),
+        format!(
+            "steps_per_diagonal = {spd}: marching step {} = one finest cell ≈ the smallest pixel footprint{}",
+            fmt_len(cube_side * 3f64.sqrt() / spd as f64),
+            if spd < spd_raw { format!(", coarsened so a cube diagonal takes at most {max_samples_per_ray} samples") } else { String::new() }
+        ),
+    ];
+    (grid, spd, reasons)
+}
+
+/// View dependence from scene facts: on exactly when a visible material is view-dependent.
+pub fn view_dependence_from_facts(facts: &SceneFacts) -> (bool, String) {
+    if facts.view_dependent {
+        (true, format!("view_dependent = true: scene facts of '{}' list a view-dependent (non-Lambertian) material", facts.scene))
+    } else {
+        (false, format!("view_dependent = false: every material of '{}' is Lambertian (scene facts); the colour head takes no direction", facts.scene))
+    }
+}
+
+/// One train view for [`colour_spread`].
+#[derive(Clone, Copy, Debug)]
+pub struct SpreadView<'a> {
+    /// The camera.
+    pub camera: &'a Camera,
+    /// Straight-alpha display RGBA per pixel, row-major from the top.
+    pub rgba: &'a [[f32; 4]],
+    /// Ground-truth z-depth per pixel (0: no hit).
+    pub depth: &'a [f32],
+}
+
+/// How much a surface point's colour changes between the views that see it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SpreadStats {
+    /// Points seen by at least 3 views.
+    pub points: usize,
+    /// Median over points of the RMS (over channels) standard deviation of the colour.
+    pub median_spread: f64,
+    /// Mean views per point.
+    pub views_per_point: f64,
+}
+
+/// The colour spread of surface points across views: up to `max_points` pixels with alpha 1
+/// and depth, drawn from the views round-robin (keyed by `seed`), are lifted to 3D with their
+/// depth; each point is projected into every other view, which sees it when it lands inside
+/// the image on an opaque pixel whose depth agrees within 1 % (not occluded); points seen by
+/// ≥ 3 views give the standard deviation of their colour. `None` when no point qualifies.
+pub fn colour_spread(views: &[SpreadView<'_>], max_points: usize, seed: u64) -> Option<SpreadStats> {
+    let w2c: Vec<glam::DMat4> = views.iter().map(|v| v.camera.c2w.inverse()).collect();
+    let mut spreads = Vec::new();
+    let mut seen_total = 0usize;
+    let tries = max_points * 4;
+    for k in 0..tries {
+        if spreads.len() >= max_points || views.is_empty() {
+            break;
+        }
+        let vi = k % views.len();
+        let v = &views[vi];
+        let n = v.rgba.len().min(v.depth.len());
+        if n == 0 {
+            continue;
+        }
+        let p = ((uniform(seed, stream::VAL, 1 << 40 | k as u64, 0) as f64 * n as f64) as usize).min(n - 1);
+        let w = v.camera.intrinsics.width as usize;
+        if v.rgba[p][3] < 0.999 || v.depth[p] <= 0.0 {
+            continue;
+        }
+        let (px, py) = ((p % w) as f64 + 0.5, (p / w) as f64 + 0.5);
+        let ray = v.camera.pixel_ray(px, py);
+        let x = ray.origin + ray.direction * v.camera.distance_from_z_depth(px, py, v.depth[p] as f64);
+        let mut cols = vec![[v.rgba[p][0] as f64, v.rgba[p][1] as f64, v.rgba[p][2] as f64]];
+        for (ui, u) in views.iter().enumerate() {
+            if ui == vi {
+                continue;
+            }
+            let c = w2c[ui].transform_point3(x);
+            let z = -c.z;
+            if z <= 1e-9 {
+                continue;
+            }
+            let k = &u.camera.intrinsics;
+            let (qx, qy) = (k.cx + k.fl_x * c.x / z, k.cy - k.fl_y * c.y / z);
+            if qx < 0.0 || qy < 0.0 || qx >= k.width as f64 || qy >= k.height as f64 {
+                continue;
+            }
+            let q = qy as usize * k.width as usize + qx as usize;
+            if q >= u.rgba.len() || q >= u.depth.len() || u.rgba[q][3] < 0.999 {
+                continue;
+            }
+            if (u.depth[q] as f64 - z).abs() > 0.01 * z {
+                continue;
+            }
+            cols.push([u.rgba[q][0] as f64, u.rgba[q][1] as f64, u.rgba[q][2] as f64]);
+        }
+        if cols.len() < 3 {
+            continue;
+        }
+        let m = cols.len() as f64;
+        let var: f64 = (0..3)
+            .map(|ch| {
+                let mean = cols.iter().map(|c| c[ch]).sum::<f64>() / m;
+                cols.iter().map(|c| (c[ch] - mean).powi(2)).sum::<f64>() / m
+            })
+            .sum::<f64>()
+            / 3.0;
+        seen_total += cols.len();
+        spreads.push(var.sqrt());
+    }
+    if spreads.is_empty() {
+        return None;
+    }
+    spreads.sort_by(f64::total_cmp);
+    let points = spreads.len();
+    Some(SpreadStats { points, median_spread: spreads[points / 2], views_per_point: seen_total as f64 / points as f64 })
+}
+
+/// View dependence from a colour-spread measurement: on when the median spread exceeds
+/// `threshold`; on (the safe side) when nothing could be measured.
+pub fn view_dependence_from_spread(stats: Option<&SpreadStats>, threshold: f64) -> (bool, String) {
+    match stats {
+        Some(s) if s.median_spread > threshold => (
+            true,
+            format!(
+                "view_dependent = true: a surface point's colour varies by {:.3} (median RMS over {} points, {:.1} views each) across views, above {threshold}",
+                s.median_spread, s.points, s.views_per_point
+            ),
+        ),
+        Some(s) => (
+            false,
+            format!(
+                "view_dependent = false: a surface point's colour varies by only {:.3} (median RMS over {} points, {:.1} views each) across views, at most {threshold}; the colour head takes no direction",
+                s.median_spread, s.points, s.views_per_point
+            ),
+        ),
+        None => (
+            true,
+            "view_dependent = true: no scene facts and no ground-truth depth to test colour constancy with; kept on (the safe choice)".into(),
+        ),
+    }
+}
+
+/// A visual hull's bounding box.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Hull {
+    /// Box minimum.
+    pub min: [f64; 3],
+    /// Box maximum.
+    pub max: [f64; 3],
+    /// Cell size of the last pass.
+    pub cell: f64,
+    /// Occupied cells of the last pass.
+    pub occupied: usize,
+    /// Whether no mask had a background pixel (then the hull is the region the cameras see).
+    pub all_opaque: bool,
+}
+
+/// A mask with a summed-area table of its foreground pixels.
+struct MaskSat {
+    width: usize,
+    height: usize,
+    /// (width + 1) × (height + 1) prefix counts.
+    sat: Vec<u32>,
+}
+
+impl MaskSat {
+    fn new(width: usize, height: usize, alpha: &[f32], threshold: f32) -> Self {
+        let mut sat = vec![0u32; (width + 1) * (height + 1)];
+        for y in 0..height {
+            let mut row = 0u32;
+            for x in 0..width {
+                row += u32::from(alpha.get(y * width + x).is_some_and(|a| *a >= threshold));
+                sat[(y + 1) * (width + 1) + x + 1] = sat[y * (width + 1) + x + 1] + row;
+            }
+        }
+        Self { width, height, sat }
+    }
+    /// Foreground pixels in columns x0..=x1, rows y0..=y1 (inside the image).
+    fn count(&self, x0: usize, y0: usize, x1: usize, y1: usize) -> u32 {
+        let w = self.width + 1;
+        self.sat[(y1 + 1) * w + x1 + 1] + self.sat[y0 * w + x0] - self.sat[y0 * w + x1 + 1] - self.sat[(y1 + 1) * w + x0]
+    }
+}
+
+/// What one view says about a ball: `None` when the ball is not wholly in front of the camera
+/// and inside its image; else whether a foreground pixel lies under it.
+fn carve_test(w2c: &glam::DMat4, cam: &Camera, mask: &MaskSat, centre: DVec3, radius: f64) -> Option<bool> {
+    let c = w2c.transform_point3(centre);
+    let z = -c.z;
+    if z <= radius {
+        return None;
+    }
+    let k = &cam.intrinsics;
+    let (px, py) = (k.cx + k.fl_x * c.x / z, k.cy - k.fl_y * c.y / z);
+    // The ball's image lies within a disc of radius f·r / sqrt(z² − r²) around the projected centre.
+    let rp = k.fl_x.max(k.fl_y) * radius / (z * z - radius * radius).sqrt();
+    let (x0, x1, y0, y1) = ((px - rp).floor(), (px + rp).floor(), (py - rp).floor(), (py + rp).floor());
+    let (w, h) = (mask.width as f64, mask.height as f64);
+    if x0 < 0.0 || y0 < 0.0 || x1 >= w || y1 >= h {
+        return None;
+    }
+    Some(mask.count(x0 as usize, y0 as usize, x1 as usize, y1 as usize) > 0)
+}
+
+/// The fraction of the views that must see a hull cell whole (and never as background). An
+/// object-centric capture frames its object in every view; a region that fewer views see
+/// whole lies where a narrow field of view leaves it unconstrained (between a camera and the
+/// object, or behind the object, outside the other views' frames), which no mask can carve.
+const HULL_MIN_VIEW_FRACTION: f64 = 0.5;
+
+/// Views that must see a hull cell whole at least (one view gives no depth).
+const MIN_HULL_VIEWS: usize = 2;
+
+/// One carving pass over the cells of side `cell` of the box `[lo, hi]` whose centres lie in
+/// `ball` (centre, radius): a cell is kept when at least [`HULL_MIN_VIEW_FRACTION`] of the
+/// views (and [`MIN_HULL_VIEWS`]) see all of its bounding ball and none of the views that do
+/// shows only background there. Returns the kept cells' box and count.
+fn carve(cams: &[Camera], w2c: &[glam::DMat4], masks: &[MaskSat], lo: DVec3, hi: DVec3, cell: f64, ball: (DVec3, f64)) -> Option<(DVec3, DVec3, usize)> {
+    let n = ((hi - lo) / cell).ceil().max(DVec3::ONE);
+    let (nx, ny, nz) = (n.x as usize, n.y as usize, n.z as usize);
+    let radius = 0.5 * cell * 3f64.sqrt();
+    let min_views = MIN_HULL_VIEWS.max((HULL_MIN_VIEW_FRACTION * cams.len() as f64).ceil() as usize).min(cams.len());
+    let (mut bmin, mut bmax, mut count) = (DVec3::INFINITY, DVec3::NEG_INFINITY, 0usize);
+    for iz in 0..nz {
+        for iy in 0..ny {
+            for ix in 0..nx {
+                let c = lo + (DVec3::new(ix as f64, iy as f64, iz as f64) + 0.5) * cell;
+                if (c - ball.0).length() > ball.1 {
+                    continue;
+                }
+                let mut seen = 0usize;
+                let mut carved = false;
+                for (k, cam) in cams.iter().enumerate() {
+                    match carve_test(&w2c[k], cam, &masks[k], c, radius) {
+                        None => {}
+                        Some(true) => seen += 1,
+                        Some(false) => {
+                            carved = true;
+                            break;
+                        }
+                    }
+                }
+                if seen >= min_views && !carved {
+                    bmin = bmin.min(c - 0.5 * cell);
+                    bmax = bmax.max(c + 0.5 * cell);
+                    count += 1;
+                }
+            }
+        }
+    }
+    (count > 0).then_some((bmin, bmax, count))
+}
+
+/// The least-squares point closest to every camera's optical axis (their common look-at point),
+/// or the mean of the points one unit in front of them when the axes are parallel.
+pub fn look_at_point(cameras: &[Camera]) -> DVec3 {
+    let mut a = glam::DMat3::ZERO;
+    let mut b = DVec3::ZERO;
+    for c in cameras {
+        let d = -c.c2w.z_axis.truncate().normalize();
+        let m = glam::DMat3::IDENTITY - glam::DMat3::from_cols(d * d.x, d * d.y, d * d.z);
+        a += m;
+        b += m * c.origin();
+    }
+    if a.determinant().abs() > 1e-9 {
+        a.inverse() * b
+    } else {
+        cameras.iter().map(|c| c.origin() - c.c2w.z_axis.truncate()).sum::<DVec3>() / cameras.len().max(1) as f64
+    }
+}
+
+/// The bounding box of the visual hull of the masks (`alphas[k]` belongs to `cameras[k]`,
+/// row-major, the camera's size), for object-centric captures: the scene is taken to lie
+/// within the ball around the cameras' common look-at point ([`look_at_point`]) that reaches
+/// the nearest camera, and to be framed by most views. A first pass carves that
+/// ball in `grid`³ cells; a second pass carves the first hull's box
+/// grown by one coarse cell, again in about `grid` cells along its longest side. A cell
+/// survives when half the views see all of it and every such view has a foreground pixel
+/// (alpha ≥ `threshold`) under it, so the box holds every foreground point seen by all views,
+/// inflated by at most about a cell and a pixel. Errors on mismatched inputs or when every
+/// cell is carved.
+pub fn visual_hull(cameras: &[Camera], alphas: &[&[f32]], grid: usize, threshold: f32) -> Result<Hull, String> {
+    if cameras.is_empty() || cameras.len() != alphas.len() {
+        return Err(format!("visual hull: {} cameras and {} masks", cameras.len(), alphas.len()));
+    }
+    let grid = grid.max(2);
+    let mut masks = Vec::with_capacity(cameras.len());
+    let mut all_opaque = true;
+    for (c, a) in cameras.iter().zip(alphas) {
+        let (w, h) = (c.intrinsics.width as usize, c.intrinsics.height as usize);
+        if a.len() != w * h {
+            return Err(format!("visual hull: a mask has {} pixels, its camera {w}×{h}", a.len()));
+        }
+        all_opaque &= a.iter().all(|v| *v >= threshold);
+        masks.push(MaskSat::new(w, h, a, threshold));
+    }
+    let w2c: Vec<glam::DMat4> = cameras.iter().map(|c| c.c2w.inverse()).collect();
+    let centre = look_at_point(cameras);
+    let nearest = cameras.iter().map(|c| (c.origin() - centre).length()).fold(f64::INFINITY, f64::min).max(1e-6);
+    let reach = nearest;
+    let ball = (centre, reach);
+    let (lo, hi) = (centre - DVec3::splat(reach), centre + DVec3::splat(reach));
+    let cell1 = 2.0 * reach / grid as f64;
+    let empty = || "visual hull: every cell was carved (do the masks and cameras match?)".to_string();
+    let (b1, b2, _) = carve(cameras, &w2c, &masks, lo, hi, cell1, ball).ok_or_else(empty)?;
+    let (lo2, hi2) = ((b1 - cell1).max(lo), (b2 + cell1).min(hi));
+    let cell2 = (hi2 - lo2).max_element() / grid as f64;
+    let (m1, m2, occupied) = carve(cameras, &w2c, &masks, lo2, hi2, cell2, ball).ok_or_else(empty)?;
+    Ok(Hull { min: m1.to_array(), max: m2.to_array(), cell: cell2, occupied, all_opaque })
+}
+
+/// Scene bounds from a visual hull: its box padded by `padding` of its largest side; near =
+/// 0.9 × the nearest camera's distance to the box (at least 1e-3 of the box's diagonal), far =
+/// 1.01 × the farthest camera's distance to a corner.
+pub fn bounds_from_hull(hull: &Hull, cameras: &[Camera], padding: f32) -> SceneBounds {
+    let (lo, hi) = (DVec3::from(hull.min), DVec3::from(hull.max));
+    let pad = (hi - lo).max_element() * padding as f64;
+    let (lo, hi) = (lo - pad, hi + pad);
+    let diag = (hi - lo).length();
+    let near = cameras.iter().map(|c| (c.origin().clamp(lo, hi) - c.origin()).length()).fold(f64::INFINITY, f64::min);
+    let far = cameras.iter().map(|c| ((c.origin() - lo).abs().max((c.origin() - hi).abs())).length()).fold(0.0, f64::max);
+    SceneBounds {
+        aabb_min: lo.as_vec3().to_array(),
+        aabb_max: hi.as_vec3().to_array(),
+        near: (0.9 * near).max(1e-3 * diag) as f32,
+        far: (1.01 * far) as f32,
+        source: format!(
+            "visual hull of the train views' alpha masks ({} cells of {}; box padded by {padding} of its largest side)",
+            hull.occupied,
+            fmt_len(hull.cell)
+        ),
+    }
+}
+
+fn fmt_box(lo: [f32; 3], hi: [f32; 3]) -> String {
+    format!("[{:.3}, {:.3}, {:.3}]–[{:.3}, {:.3}, {:.3}]", lo[0], lo[1], lo[2], hi[0], hi[1], hi[2])
+}
+
+/// Resolves `auto` for `config` (whose model must be `fast`): bounds, hash sizes, view
+/// dependence, sampling and the stopping rule, from the dataset `ds` and its loaded train
+/// views `train`; records a reason per decision in `config.auto_reasons`. Does nothing when
+/// `config.auto` is `None` or already resolved (`auto_reasons` set).
+pub fn resolve(config: &mut TrainConfig, ds: &Dataset, train: &TrainData) -> Result<(), String> {
+    let Some(auto) = config.auto.clone() else { return Ok(()) };
+    if config.auto_reasons.is_some() {
+        return Ok(());
+    }
+    let ModelConfig::Fast(mut fast) = config.model.clone() else {
+        return Err("auto sizes the fast model; the config's model is not fast".into());
+    };
+    let cameras: Vec<Camera> = train.views.iter().map(|v| v.camera).collect();
+    let mut reasons = Vec::new();
+
+    // Bounds.
+    let bounds = match (&config.bounds, &ds.facts) {
+        (Some(b), _) => {
+            reasons.push(format!("bounds = {}: given in the config ({})", fmt_box(b.aabb_min, b.aabb_max), b.source));
+            b.clone()
+        }
+        (None, Some(f)) => {
+            let b = SceneBounds::for_dataset(Some(f), &cameras, config.bounds_padding, config.assumed_scene_radius);
+            reasons.push(format!(
+                "bounds = {}: scene facts' box [{:.3}, {:.3}, {:.3}]–[{:.3}, {:.3}, {:.3}] padded by {} of its largest side; near {:.3}, far {:.3}",
+                fmt_box(b.aabb_min, b.aabb_max),
+                f.aabb_min[0], f.aabb_min[1], f.aabb_min[2], f.aabb_max[0], f.aabb_max[1], f.aabb_max[2],
+                config.bounds_padding, b.near, b.far
+            ));
+            b
+        }
+        (None, None) => {
+            let alphas: Vec<Vec<f32>> = train.views.iter().map(|v| v.rgba.iter().map(|p| p[3]).collect()).collect();
+            let refs: Vec<&[f32]> = alphas.iter().map(Vec::as_slice).collect();
+            let hull = visual_hull(&cameras, &refs, auto.hull_grid, auto.mask_threshold)?;
+            let b = bounds_from_hull(&hull, &cameras, config.bounds_padding);
+            reasons.push(format!(
+                "bounds = {}: no scene facts; visual hull of {} train masks ({} of {} cells{}), padded by {} of its largest side; near {:.3}, far {:.3}",
+                fmt_box(b.aabb_min, b.aabb_max),
+                cameras.len(),
+                hull.occupied,
+                fmt_len(hull.cell),
+                if hull.all_opaque { "; every mask is opaque, so this is the region the cameras see" } else { "" },
+                config.bounds_padding,
+                b.near,
+                b.far
+            ));
+            b
+        }
+    };
+
+    // Hash sizes.
+    let cube_side = 2.0 * bounds.half_extent() as f64;
+    let min_side = (0..3).map(|k| (bounds.aabb_max[k] - bounds.aabb_min[k]) as f64).fold(f64::INFINITY, f64::min);
+    let fp = smallest_footprint(&cameras, bounds.aabb_min, bounds.aabb_max, bounds.near as f64)
+        .ok_or_else(|| "auto: the dataset has no train views".to_string())?;
+    let (hs, r) = hash_sizes(cube_side, min_side, &fp, &auto);
+    reasons.extend(r);
+    fast.levels = hs.levels;
+    fast.features_per_level = hs.features_per_level;
+    fast.log2_table_size = hs.log2_table_size;
+    fast.base_resolution = hs.base_resolution;
+    fast.finest_resolution = hs.finest_resolution;
+
+    // View dependence.
+    let (vd, r) = match &ds.facts {
+        Some(f) => view_dependence_from_facts(f),
+        None => {
+            let gts = train_depths(ds, config.downscale)?;
+            let stats = gts.as_ref().and_then(|depths| {
+                let views: Vec<SpreadView<'_>> = train
+                    .views
+                    .iter()
+                    .zip(depths)
+                    .map(|(v, d)| SpreadView { camera: &v.camera, rgba: &v.rgba, depth: d })
+                    .collect();
+                colour_spread(&views, auto.spread_points, config.seed)
+            });
+            view_dependence_from_spread(stats.as_ref(), auto.view_spread_threshold)
+        }
+    };
+    fast.view_dependent = Some(vd);
+    reasons.push(r);
+
+    // Samples.
+    let (grid, spd, r) = sampling(hs.finest_resolution, cube_side, &auto, fast.max_samples_per_ray);
+    fast.grid_resolution = grid;
+    fast.steps_per_diagonal = spd;
+    reasons.extend(r);
+
+    // Stopping.
+    let interval = config.time_budget_s.map_or(30.0, |t| t * auto.val_interval_fraction);
+    let window = config.time_budget_s.map_or(4.0 * interval, |t| t * auto.plateau_window_fraction);
+    if config.val_interval_s.is_none() {
+        config.val_interval_s = Some(interval);
+    }
+    let rule = PlateauStop { window_s: window, min_gain_db: auto.plateau_min_gain_db };
+    reasons.push(format!(
+        "stop when the best val PSNR gains < {} dB over {:.1} s of training (validating every {:.1} s), else at the budget",
+        rule.min_gain_db,
+        rule.window_s,
+        config.val_interval()
+    ));
+    config.plateau_stop = Some(rule);
+
+    config.model = ModelConfig::Fast(fast);
+    config.bounds = Some(bounds);
+    config.auto_reasons = Some(reasons);
+    Ok(())
+}
+
+/// Ground-truth z-depth of every train view at `downscale` (nearest pixel), when every view has
+/// it.
+fn train_depths(ds: &Dataset, downscale: u32) -> Result<Option<Vec<Vec<f32>>>, String> {
+    if ds.train.is_empty() || ds.train.iter().any(|f| f.gt_path.is_none()) {
+        return Ok(None);
+    }
+    let mut out = Vec::with_capacity(ds.train.len());
+    for f in &ds.train {
+        let v = crate::data::ViewPixels::load(f, downscale, true).map_err(|e| e.to_string())?;
+        match v.gt {
+            Some((depth, _)) => out.push(depth),
+            None => return Ok(None),
+        }
+    }
+    Ok(Some(out))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use dataset::Intrinsics;
+
+    fn cam(eye: DVec3, target: DVec3, size: u32, fov: f64) -> Camera {
+        Camera::new(Intrinsics::from_fov_x(size, size, fov), Camera::look_at(eye, target, DVec3::Y)).unwrap()
+    }
+
+    /// Cameras on a Fibonacci sphere of radius `r` around `c`, looking at it.
+    fn ring(c: DVec3, r: f64, n: usize, size: u32) -> Vec<Camera> {
+        let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+        (0..n)
+            .map(|k| {
+                let y = 0.9 - 1.8 * (k as f64 + 0.5) / n as f64;
+                let s = (1.0 - y * y).sqrt();
+                let a = golden * k as f64;
+                cam(c + DVec3::new(s * a.cos(), y, s * a.sin()) * r, c, size, 0.6911)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn plateau_rule_on_a_synthetic_psnr_curve() {
+        // 30 · (1 − e^(−t/20)), validated every 5 s.
+        let curve: Vec<(f64, f64)> = (0..=30).map(|k| 5.0 * k as f64).map(|t| (t, 30.0 * (1.0 - (-t / 20.0).exp()))).collect();
+        let rule = PlateauStop { window_s: 10.0, min_gain_db: 0.1 };
+        let first = (1..=curve.len()).find(|&n| plateau_reached(&curve[..n], &rule)).map(|n| curve[n - 1].0);
+        // Gain over [t − 10, t] is 30 e^(−t/20) (e^½ − 1) < 0.1 ⇔ t > 20 ln(300 (e^½ − 1)) ≈ 105.4 s.
+        assert_eq!(first, Some(110.0));
+        // Before a full window has passed there is no decision, however flat.
+        let flat = [(0.0, 20.0), (5.0, 20.0)];
+        assert!(!plateau_reached(&flat, &rule));
+        assert!(plateau_reached(&[(0.0, 20.0), (5.0, 20.0), (10.0, 20.05)], &rule));
+        // A dip after a peak is not a gain: still plateaued.
+        assert!(plateau_reached(&[(0.0, 25.0), (10.0, 24.0)], &rule));
+        assert!(!plateau_reached(&[], &rule));
+    }
+
+    #[test]
+    fn footprint_for_a_known_camera_and_distance() {
+        // 100 px wide, focal 100 px: pixel angle 0.01 rad; the camera is 3 m from the box's face.
+        let c = Camera::new(
+            Intrinsics { width: 100, height: 100, fl_x: 100.0, fl_y: 100.0, cx: 50.0, cy: 50.0 },
+            Camera::look_at(DVec3::new(0.0, 0.0, 4.0), DVec3::ZERO, DVec3::Y),
+        )
+        .unwrap();
+        let far = cam(DVec3::new(0.0, 0.0, -9.0), DVec3::ZERO, 100, 0.6911);
+        let fp = smallest_footprint(&[far, c], [-1.0; 3], [1.0; 3], 0.1).unwrap();
+        assert_eq!(fp.view, 1);
+        assert!((fp.distance - 3.0).abs() < 1e-9 && (fp.size - 0.03).abs() < 1e-9, "{fp:?}");
+        // Inside the box the near distance is the floor.
+        let inside = cam(DVec3::new(0.5, 0.0, 0.0), DVec3::new(0.5, 0.0, -1.0), 100, 0.6911);
+        let fp = smallest_footprint(&[inside], [-1.0; 3], [1.0; 3], 0.25).unwrap();
+        assert!((fp.distance - 0.25).abs() < 1e-9, "{fp:?}");
+        // A 2 m cube at 3 cm footprint: finest ⌈2 / 0.03⌉ = 67.
+        let fp = Footprint { size: 0.03, distance: 3.0, pixel_angle: 0.01, view: 1 };
+        let (hs, reasons) = hash_sizes(2.0, 2.0, &fp, &AutoConfig::new());
+        assert_eq!(hs.finest_resolution, 67);
+        assert_eq!(hs.base_resolution, 16);
+        // 16 → 67 at b = 1.38: 1 + ⌈ln(4.19) / ln(1.38)⌉ = 1 + 5 = 6 levels.
+        assert_eq!(hs.levels, 6);
+        // A dense 68³ finest level needs 2^19 entries; the cache cap of 2^17 binds.
+        assert_eq!(hs.log2_table_size, 17);
+        assert!(reasons[0].starts_with("finest_resolution = 67: smallest pixel footprint 3.0 cm over a 2.00 m cube (train view 1 at 3.00 m)"), "{reasons:?}");
+        assert_eq!(reasons.len(), 4);
+    }
+
+    #[test]
+    fn hash_sizes_follow_the_box_and_the_budget() {
+        let cfg = AutoConfig::new();
+        // A flat box (0.1 m thick in a 2 m cube) raises the coarsest level: 4 · 2 / 0.1 = 80.
+        let fp = Footprint { size: 0.002, distance: 1.0, pixel_angle: 0.002, view: 0 };
+        let (hs, _) = hash_sizes(2.0, 0.1, &fp, &cfg);
+        assert_eq!((hs.base_resolution, hs.finest_resolution), (80, 1000));
+        // A tiny budget binds: 16 levels... of 2 features × 12 bytes in 1 MiB → T ≤ 2^15 / levels.
+        let small = AutoConfig::new().with_hash_memory_mib(1.0);
+        let (hs, r) = hash_sizes(2.0, 2.0, &fp, &small);
+        let bytes = hs.levels * (1 << hs.log2_table_size) * 2 * 12;
+        assert!(bytes <= 1 << 20 && bytes * 2 > 1 << 20, "{hs:?}");
+        assert!(r[3].contains("budget"), "{r:?}");
+        // A coarse camera: finest level small enough to be dense.
+        let coarse = Footprint { size: 0.2, distance: 10.0, pixel_angle: 0.02, view: 0 };
+        let (hs, r) = hash_sizes(2.0, 2.0, &coarse, &cfg);
+        assert_eq!((hs.finest_resolution, hs.base_resolution, hs.levels), (16, 16, 1));
+        assert_eq!(hs.log2_table_size, 13); // 17³ = 4913 ≤ 2^13
+        assert!(r[3].contains("densely"), "{r:?}");
+    }
+
+    #[test]
+    fn sampling_follows_the_finest_resolution() {
+        let cfg = AutoConfig::new();
+        let (grid, spd, _) = sampling(100, 2.0, &cfg, 1024);
+        // 100 / 4 = 25 → nearest power of two 32; √3 · 100 = 173.2 → 174.
+        assert_eq!((grid, spd), (32, 174));
+        let (grid, spd, r) = sampling(4000, 2.0, &cfg, 1024);
+        assert_eq!((grid, spd), (64, 1024));
+        assert!(r[1].contains("at most 1024"), "{r:?}");
+        assert_eq!(sampling(20, 2.0, &cfg, 1024).0, 16);
+    }
+
+    fn facts(view_dependent: bool) -> SceneFacts {
+        SceneFacts {
+            scene: "s".into(),
+            aabb_min: [-1.0; 3],
+            aabb_max: [1.0; 3],
+            near: 1.0,
+            far: 5.0,
+            view_dependent,
+            render: serde_json::Value::Null,
+            renderer: "test".into(),
+        }
+    }
+
+    #[test]
+    fn view_dependence_from_scene_facts() {
+        let (off, why) = view_dependence_from_facts(&facts(false));
+        assert!(!off && why.contains("Lambertian"), "{why}");
+        let (on, why) = view_dependence_from_facts(&facts(true));
+        assert!(on && why.contains("view-dependent"), "{why}");
+    }
+
+    /// Renders a sphere (centre `c`, radius `r`) into `size`² views: alpha and z-depth at pixel
+    /// centres, colour `shade(normal, view direction)`.
+    fn render_sphere(cams: &[Camera], c: DVec3, r: f64, shade: &dyn Fn(DVec3, DVec3) -> [f32; 3]) -> Vec<(Vec<[f32; 4]>, Vec<f32>)> {
+        cams.iter()
+            .map(|cam| {
+                let (w, h) = (cam.intrinsics.width, cam.intrinsics.height);
+                let mut rgba = vec![[0.0; 4]; (w * h) as usize];
+                let mut depth = vec![0.0; (w * h) as usize];
+                for j in 0..h {
+                    for i in 0..w {
+                        let ray = cam.pixel_center_ray(i, j);
+                        let oc = ray.origin - c;
+                        let b = oc.dot(ray.direction);
+                        let disc = b * b - (oc.length_squared() - r * r);
+                        if disc < 0.0 {
+                            continue;
+                        }
+                        let t = -b - disc.sqrt();
+                        let n = (ray.origin + ray.direction * t - c) / r;
+                        let p = (j * w + i) as usize;
+                        let s = shade(n, ray.direction);
+                        rgba[p] = [s[0], s[1], s[2], 1.0];
+                        depth[p] = cam.z_depth_from_distance(i as f64 + 0.5, j as f64 + 0.5, t) as f32;
+                    }
+                }
+                (rgba, depth)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn view_dependence_from_the_data() {
+        let c = DVec3::new(0.1, 0.0, -0.2);
+        let cams = ring(c, 3.0, 12, 32);
+        let test = |shade: &dyn Fn(DVec3, DVec3) -> [f32; 3]| {
+            let imgs = render_sphere(&cams, c, 0.8, shade);
+            let views: Vec<SpreadView<'_>> =
+                cams.iter().zip(&imgs).map(|(cam, (rgba, depth))| SpreadView { camera: cam, rgba, depth }).collect();
+            let stats = colour_spread(&views, 200, 0).unwrap();
+            assert!(stats.points >= 100 && stats.views_per_point >= 3.0, "{stats:?}");
+            (stats.clone(), view_dependence_from_spread(Some(&stats), 0.04))
+        };
+        // Lambertian: colour depends on the normal only.
+        let (s, (on, why)) = test(&|n, _| [(0.5 + 0.4 * n.x) as f32, (0.5 + 0.4 * n.y) as f32, 0.3]);
+        // (Not 0: the other views' colour is read at the nearest pixel, whose normal differs.)
+        assert!(!on && s.median_spread < 0.01, "{s:?} {why}");
+        // Colour from the view direction (a mirror-like term): varies between views.
+        let (s, (on, why)) = test(&|n, d| {
+            let refl = d - 2.0 * d.dot(n) * n;
+            [(0.5 + 0.4 * refl.x) as f32, (0.5 + 0.4 * refl.z) as f32, 0.3]
+        });
+        assert!(on && s.median_spread > 0.1, "{s:?} {why}");
+        // Nothing to measure: stays on.
+        assert!(view_dependence_from_spread(None, 0.04).0);
+    }
+
+    #[test]
+    fn visual_hull_recovers_a_sphere_and_a_box() {
+        let c = DVec3::new(0.3, -0.2, 0.1);
+        let r = 0.5;
+        let cams = ring(c, 3.0, 24, 96);
+        let imgs = render_sphere(&cams, c, r, &|_, _| [1.0; 3]);
+        let alphas: Vec<Vec<f32>> = imgs.iter().map(|(rgba, _)| rgba.iter().map(|p| p[3]).collect()).collect();
+        let refs: Vec<&[f32]> = alphas.iter().map(Vec::as_slice).collect();
+        let hull = visual_hull(&cams, &refs, 48, 0.5).unwrap();
+        // Within a cell and a pixel footprint (96 px, fov 0.69: 3.7 mm per pixel per metre at 2.5 m) of the true box.
+        let tol = hull.cell + 2.5 * 0.6911 / 96.0;
+        for k in 0..3 {
+            assert!((hull.min[k] - (c[k] - r)).abs() <= tol, "axis {k}: {hull:?}, tol {tol}");
+            assert!((hull.max[k] - (c[k] + r)).abs() <= tol, "axis {k}: {hull:?}, tol {tol}");
+        }
+        assert!(!hull.all_opaque && hull.cell < 0.05, "{hull:?}");
+        let b = bounds_from_hull(&hull, &cams, 0.0);
+        // Cameras 3 m from the centre of a box of half-side ≈ 0.53: 0.9 × (3 − 0.53 · (1..√3))
+        // to its nearest point, 1.01 × (3 + 0.53 · (1..√3)) to its farthest corner.
+        assert!(b.near > 1.8 && b.near < 2.3 && b.far > 3.5 && b.far < 4.1, "{b:?}");
+
+        // An axis-aligned box [−0.6, 0.2]×[0, 0.3]×[−0.2, 0.4] seen by the same kind of rig.
+        let (lo, hi) = (DVec3::new(-0.6, 0.0, -0.2), DVec3::new(0.2, 0.3, 0.4));
+        let cams = ring(0.5 * (lo + hi), 3.0, 24, 96);
+        let alphas: Vec<Vec<f32>> = cams
+            .iter()
+            .map(|cam| {
+                let (w, h) = (cam.intrinsics.width, cam.intrinsics.height);
+                (0..h)
+                    .flat_map(|j| (0..w).map(move |i| (i, j)))
+                    .map(|(i, j)| {
+                        let ray = cam.pixel_center_ray(i, j);
+                        let inv = ray.direction.recip();
+                        let (t0, t1) = ((lo - ray.origin) * inv, (hi - ray.origin) * inv);
+                        let (tn, tf) = (t0.min(t1).max_element(), t0.max(t1).min_element());
+                        if tn <= tf && tf > 0.0 { 1.0 } else { 0.0 }
+                    })
+                    .collect()
+            })
+            .collect();
+        let refs: Vec<&[f32]> = alphas.iter().map(Vec::as_slice).collect();
+        let hull = visual_hull(&cams, &refs, 48, 0.5).unwrap();
+        let tol = hull.cell + 3.0 * 0.6911 / 96.0;
+        for k in 0..3 {
+            assert!((hull.min[k] - lo[k]).abs() <= tol && (hull.max[k] - hi[k]).abs() <= tol, "axis {k}: {hull:?}, tol {tol}");
+        }
+        // Mismatched inputs are an error, not a panic.
+        assert!(visual_hull(&cams, &refs[..3], 48, 0.5).is_err());
+        assert!(visual_hull(&cams[..1], &[&[1.0][..]], 48, 0.5).is_err());
+    }
+
+    #[test]
+    fn bounds_from_a_known_box_are_the_padded_facts() {
+        let f = facts(false);
+        let cams = ring(DVec3::ZERO, 4.0, 8, 16);
+        let b = SceneBounds::for_dataset(Some(&f), &cams, 0.05, 1.0);
+        assert_eq!((b.aabb_min, b.aabb_max), ([-1.1; 3], [1.1; 3]));
+        assert!((b.near - 0.9).abs() < 1e-6 && (b.far - 5.5).abs() < 1e-6, "{b:?}");
+    }
+}
