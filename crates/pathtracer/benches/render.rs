@@ -7,7 +7,9 @@
 //! cargo bench -p pathtracer --bench render [-- SCENE…] [--runs N] [--seconds S]
 //! ```
 //! `--seconds S` renders the first scene's quick view repeatedly for `S` seconds (a steady
-//! load for `perf record`) instead of printing the table.
+//! load for `perf record`) instead of printing the table; `--primary` does the same with
+//! primary rays; `--hash` prints a hash of each scene's quick view (colour, depth, normal
+//! bits) to check that a change leaves images bit-identical.
 
 use pathtracer::accel::AccelParams;
 use pathtracer::dataset_render::{DatasetRenderConfig, Preset};
@@ -34,6 +36,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut runs = 5usize;
     let mut seconds: Option<f64> = None;
     let mut primary_only = false;
+    let mut hash_only = false;
     let mut args = std::env::args().skip(1);
     while let Some(a) = args.next() {
         match a.as_str() {
@@ -41,6 +44,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             "--runs" => runs = args.next().ok_or("--runs N")?.parse()?,
             "--seconds" => seconds = Some(args.next().ok_or("--seconds S")?.parse()?),
             "--primary" => primary_only = true,
+            "--hash" => hash_only = true,
             _ => names.push(a),
         }
     }
@@ -83,6 +87,17 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             },
             c2w: cam.c2w,
         };
+        if hash_only {
+            // FNV-1a over the bits of the quick view's colour and ground truth: equal hashes
+            // mean bit-identical images.
+            let out = renderer.render_view(&cam, 0, &settings);
+            let mut h = 0xcbf2_9ce4_8422_2325u64;
+            for v in out.color.data.iter().chain(&out.ground_truth.depth).chain(&out.ground_truth.normal) {
+                h = (h ^ v.to_bits() as u64).wrapping_mul(0x100_0000_01b3);
+            }
+            println!("{name}: {h:016x}");
+            continue;
+        }
         if let (Some(s), true) = (seconds, primary_only) {
             let t = std::time::Instant::now();
             let mut rays = 0u64;

@@ -182,7 +182,7 @@ pub fn hit_point_error(p: [Vec3; 3], b: [f32; 3]) -> (Vec3, Vec3) {
 }
 
 /// Next representable `f32` towards +∞.
-#[inline]
+#[inline(always)]
 pub fn next_float_up(v: f32) -> f32 {
     if v.is_infinite() && v > 0.0 {
         return v;
@@ -194,7 +194,7 @@ pub fn next_float_up(v: f32) -> f32 {
 }
 
 /// Next representable `f32` towards −∞.
-#[inline]
+#[inline(always)]
 pub fn next_float_down(v: f32) -> f32 {
     if v.is_infinite() && v < 0.0 {
         return v;
@@ -216,15 +216,18 @@ pub fn offset_ray_origin(p: Vec3, p_err: Vec3, n: Vec3, w: Vec3) -> Vec3 {
     if w.dot(n) < 0.0 {
         offset = -offset;
     }
-    let mut po = p + offset;
-    for i in 0..3 {
-        if offset[i] > 0.0 {
-            po[i] = next_float_up(po[i]);
-        } else if offset[i] < 0.0 {
-            po[i] = next_float_down(po[i]);
+    let po = p + offset;
+    #[inline(always)]
+    fn away(v: f32, off: f32) -> f32 {
+        if off > 0.0 {
+            next_float_up(v)
+        } else if off < 0.0 {
+            next_float_down(v)
+        } else {
+            v
         }
     }
-    po
+    Vec3::new(away(po.x, offset.x), away(po.y, offset.y), away(po.z, offset.z))
 }
 
 /// Distance along the ray `o + t d` (`f64`, unit `d`) to the plane of triangle `p`

@@ -252,7 +252,7 @@ impl PathIntegrator<'_> {
             let frame = shading_frame(ns, si.frame.n.dot(si.ns_front) < 0.0, wo);
             let si = Interaction { frame, ..si };
             let wo_l = si.frame.to_local(wo);
-            let bsdf = surf.bsdf;
+            let bsdf = surf.bsdf.at(wo_l);
             // Every ray leaving this vertex is checked to leave on the `ng` side first, and
             // `offset_ray_origin` depends on the direction only through that side: one origin
             // serves them all (bit-identical to offsetting per ray).
@@ -264,7 +264,7 @@ impl PathIntegrator<'_> {
                 if inc.wi.dot(si.ng) <= 0.0 {
                     continue;
                 }
-                let f = bsdf.evaluate(wo_l, si.frame.to_local(inc.wi));
+                let (f, _) = bsdf.evaluate_pdf(si.frame.to_local(inc.wi));
                 if f.max_element() <= 0.0 {
                     continue;
                 }
@@ -286,7 +286,7 @@ impl PathIntegrator<'_> {
 
             // Emissive triangles: one sample, MIS with BSDF sampling.
             if let Some(es) = self.emitters.sample(u_sel, u_emit) {
-                l += beta * self.emitter_nee(&si, origin, wo_l, &bsdf, es);
+                l += beta * self.emitter_nee(&si, origin, &bsdf, es);
             }
 
             // Environment: one sample, MIS with BSDF sampling.
@@ -295,7 +295,7 @@ impl PathIntegrator<'_> {
                 && wi.dot(si.ng) > 0.0
             {
                 let wi_l = si.frame.to_local(wi);
-                let (f, bsdf_pdf) = bsdf.evaluate_pdf(wo_l, wi_l);
+                let (f, bsdf_pdf) = bsdf.evaluate_pdf(wi_l);
                 let le = env.eval(wi);
                 if f.max_element() > 0.0 && le.max_element() > 0.0 {
                     if !self.occluded(&Ray::new(origin, wi), f32::INFINITY) {
@@ -306,7 +306,7 @@ impl PathIntegrator<'_> {
             }
 
             // Continue the path by sampling the BSDF.
-            let Some(bs) = bsdf.sample(wo_l, u_bsdf) else { break };
+            let Some(bs) = bsdf.sample(u_bsdf) else { break };
             let wi = si.frame.to_world(bs.wi).normalize();
             if wi.dot(si.ng) <= 0.0 {
                 break;
@@ -340,7 +340,7 @@ impl PathIntegrator<'_> {
     /// One light-sampling estimate of the emissive triangles' direct light at `si`,
     /// MIS-weighted: `f · Le · w_light / pdf_light`. `origin` is the shadow ray's start,
     /// `offset_ray_origin(si.p, si.p_err, si.ng, si.ng)`.
-    fn emitter_nee(&self, si: &Interaction, origin: Vec3, wo_l: Vec3, bsdf: &crate::material::Bsdf, es: crate::light::EmitterSample) -> Vec3 {
+    fn emitter_nee(&self, si: &Interaction, origin: Vec3, bsdf: &crate::material::BsdfAt, es: crate::light::EmitterSample) -> Vec3 {
         let scene = self.scene;
         let m = &scene.mesh;
         let idx = m.indices[es.prim as usize];
@@ -378,7 +378,7 @@ impl PathIntegrator<'_> {
             return Vec3::ZERO;
         }
         let wi_l = si.frame.to_local(wi);
-        let (f, bsdf_pdf) = bsdf.evaluate_pdf(wo_l, wi_l);
+        let (f, bsdf_pdf) = bsdf.evaluate_pdf(wi_l);
         if f.max_element() <= 0.0 {
             return Vec3::ZERO;
         }

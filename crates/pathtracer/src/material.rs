@@ -157,26 +157,22 @@ impl MetallicRoughness {
         dielectric * (1.0 - self.metallic) + metal * self.metallic
     }
 
-    /// `(f(wo, wi) · N·L, pdf(wo, wi))` in one pass: the values of [`Bsdf::evaluate`] and
-    /// [`Bsdf::pdf`] bit for bit, sharing the half vector and `D(H)`.
+    /// `(f(wo, wi) · N·L, D(H))` for `wo.z > 0`, `wi.z > 0`, given `sd_wo =
+    /// smith_den(wo.z)`: the shared core of evaluation, pdf and sampling (the same
+    /// expressions as [`MetallicRoughness::f`] and [`MetallicRoughness::pdf_specular`], so
+    /// the values agree bit for bit).
     #[inline]
-    pub fn evaluate_pdf(&self, wo: Vec3, wi: Vec3) -> (Vec3, f32) {
-        if wo.z <= 0.0 || wi.z <= 0.0 {
-            return (Vec3::ZERO, 0.0);
-        }
+    fn f_cos_and_d(&self, wo: Vec3, wi: Vec3, sd_wo: f32) -> (Vec3, f32) {
         let h = (wo + wi).normalize();
         let vh = wo.dot(h).clamp(0.0, 1.0);
         let w5 = (1.0 - vh).powi(5);
         let d = self.d(h);
-        let spec = d * self.vis(wi.z, wo.z);
+        let spec = d * (1.0 / (self.smith_den(wi.z) * sd_wo));
         let rho = self.base_color;
         let fd = self.specular * (DIELECTRIC_F0 + (1.0 - DIELECTRIC_F0) * w5);
         let dielectric = rho * ((1.0 - fd) * FRAC_1_PI) + Vec3::splat(fd * spec);
         let metal = (rho + (Vec3::ONE - rho) * w5) * spec;
-        let f = (dielectric * (1.0 - self.metallic) + metal * self.metallic) * wi.z;
-        let ps = self.specular_probability(wo);
-        let pdf = ps * (d / (2.0 * self.smith_den(wo.z))) + (1.0 - ps) * wi.z * FRAC_1_PI;
-        (f, pdf)
+        ((dielectric * (1.0 - self.metallic) + metal * self.metallic) * wi.z, d)
     }
 
     /// Probability `P_s` of sampling the specular lobe at `wo` (see the type docs).
@@ -256,6 +252,80 @@ pub struct BsdfSample {
     pub pdf: f32,
 }
 
+/// A [`Bsdf`] seen from a fixed `wo` ([`Bsdf::at`]): the specular-lobe probability `P_s`
+/// and the Smith term of `wo` are computed once. Its verbs return exactly (bit for bit) what
+/// the [`Bsdf`] verbs return for the same `wo`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BsdfAt {
+    bsdf: Bsdf,
+    wo: Vec3,
+    /// `P_s(wo)` (metallic-roughness only).
+    ps: f32,
+    /// `N·V + √(α² + (1 − α²)(N·V)²)` (metallic-roughness only).
+    sd_wo: f32,
+}
+
+impl BsdfAt {
+    /// The outgoing direction this was prepared for.
+    pub fn wo(&self) -> Vec3 {
+        self.wo
+    }
+
+    /// [`Bsdf::evaluate`] and [`Bsdf::pdf`] at `wi`.
+    #[inline]
+    pub fn evaluate_pdf(&self, wi: Vec3) -> (Vec3, f32) {
+        let wo = self.wo;
+        if wo.z <= 0.0 || wi.z <= 0.0 {
+            return (Vec3::ZERO, 0.0);
+        }
+        match &self.bsdf {
+            Bsdf::Diffuse { albedo } => (*albedo * (FRAC_1_PI * wi.z), wi.z * FRAC_1_PI),
+            Bsdf::MetallicRoughness(mr) => {
+                let (f, d) = mr.f_cos_and_d(wo, wi, self.sd_wo);
+                let ps = self.ps;
+                (f, ps * (d / (2.0 * self.sd_wo)) + (1.0 - ps) * wi.z * FRAC_1_PI)
+            }
+        }
+    }
+
+    /// [`Bsdf::sample`] with two uniform numbers.
+    #[inline]
+    pub fn sample(&self, u: Vec2) -> Option<BsdfSample> {
+        let wo = self.wo;
+        if wo.z <= 0.0 {
+            return None;
+        }
+        match &self.bsdf {
+            Bsdf::Diffuse { albedo } => {
+                let wi = sample_cosine_hemisphere(u);
+                let pdf = wi.z * FRAC_1_PI;
+                if pdf <= 0.0 {
+                    return None;
+                }
+                Some(BsdfSample { wi, weight: *albedo, pdf })
+            }
+            Bsdf::MetallicRoughness(mr) => {
+                let ps = self.ps;
+                let wi = if u.x < ps {
+                    let h = mr.sample_visible_normal(wo, Vec2::new(u.x / ps, u.y))?;
+                    (2.0 * wo.dot(h) * h - wo).normalize()
+                } else {
+                    sample_cosine_hemisphere(Vec2::new(((u.x - ps) / (1.0 - ps)).min(1.0 - f32::EPSILON), u.y))
+                };
+                if !(wi.z > 0.0) {
+                    return None;
+                }
+                let (f, d) = mr.f_cos_and_d(wo, wi, self.sd_wo);
+                let pdf = ps * (d / (2.0 * self.sd_wo)) + (1.0 - ps) * wi.z * FRAC_1_PI;
+                if !(pdf > 0.0) || !pdf.is_finite() || !f.is_finite() {
+                    return None;
+                }
+                Some(BsdfSample { wi, weight: f / pdf, pdf })
+            }
+        }
+    }
+}
+
 impl Bsdf {
     /// `f(wo, wi) · |cos θᵢ|` in the local frame (see the variant docs for `f`).
     #[inline]
@@ -271,50 +341,26 @@ impl Bsdf {
 
     /// Draws `wi` given `wo` and two uniform numbers. `None` when no direction can be
     /// produced (e.g. `wo` below the surface, or a microfacet reflection below the horizon).
+    #[inline]
     pub fn sample(&self, wo: Vec3, u: Vec2) -> Option<BsdfSample> {
-        if wo.z <= 0.0 {
-            return None;
-        }
-        match self {
-            Bsdf::Diffuse { albedo } => {
-                let wi = sample_cosine_hemisphere(u);
-                let pdf = wi.z * FRAC_1_PI;
-                if pdf <= 0.0 {
-                    return None;
-                }
-                Some(BsdfSample { wi, weight: *albedo, pdf })
-            }
-            Bsdf::MetallicRoughness(mr) => {
-                let ps = mr.specular_probability(wo);
-                let wi = if u.x < ps {
-                    let h = mr.sample_visible_normal(wo, Vec2::new(u.x / ps, u.y))?;
-                    (2.0 * wo.dot(h) * h - wo).normalize()
-                } else {
-                    sample_cosine_hemisphere(Vec2::new(((u.x - ps) / (1.0 - ps)).min(1.0 - f32::EPSILON), u.y))
-                };
-                if !(wi.z > 0.0) {
-                    return None;
-                }
-                let pdf = ps * mr.pdf_specular(wo, wi) + (1.0 - ps) * wi.z * FRAC_1_PI;
-                let f = mr.f(wo, wi) * wi.z;
-                if !(pdf > 0.0) || !pdf.is_finite() || !f.is_finite() {
-                    return None;
-                }
-                Some(BsdfSample { wi, weight: f / pdf, pdf })
-            }
-        }
+        self.at(wo).sample(u)
     }
 
     /// `(self.evaluate(wo, wi), self.pdf(wo, wi))`, computed together (bit-identical).
     #[inline]
     pub fn evaluate_pdf(&self, wo: Vec3, wi: Vec3) -> (Vec3, f32) {
-        if wo.z <= 0.0 || wi.z <= 0.0 {
-            return (Vec3::ZERO, 0.0);
-        }
-        match self {
-            Bsdf::Diffuse { albedo } => (*albedo * (FRAC_1_PI * wi.z), wi.z * FRAC_1_PI),
-            Bsdf::MetallicRoughness(mr) => mr.evaluate_pdf(wo, wi),
-        }
+        self.at(wo).evaluate_pdf(wi)
+    }
+
+    /// The BSDF seen from `wo`, with what depends only on `wo` computed once (for the
+    /// several evaluations and the sample of one path vertex).
+    #[inline]
+    pub fn at(&self, wo: Vec3) -> BsdfAt {
+        let (ps, sd_wo) = match self {
+            Bsdf::MetallicRoughness(mr) if wo.z > 0.0 => (mr.specular_probability(wo), mr.smith_den(wo.z)),
+            _ => (0.0, 0.0),
+        };
+        BsdfAt { bsdf: *self, wo, ps, sd_wo }
     }
 
     /// Solid-angle density with which [`Bsdf::sample`] draws `wi`.
