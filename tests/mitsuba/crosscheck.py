@@ -74,6 +74,9 @@ def render_mitsuba(mi, scene, spp_total, groups, seed):
     return mean, var
 
 
+import drjit as dr  # noqa: E402  (after the variant is chosen it is the same module)
+
+
 def scalar(x):
     """A Python float/bool from a scalar or width-1 vectorised Dr.Jit value."""
     a = np.asarray(x).ravel()
@@ -85,6 +88,15 @@ def pixel_center_hits(mi, scene, cam, origin):
     o, dirs, dz = scene_loader.pixel_center_rays(cam, origin)
     h, w = dirs.shape[:2]
     dist = np.zeros((h, w), np.float64)
+    if dr.is_jit_v(mi.Float):  # one wavefront of all pixel-centre rays
+        d = dirs.reshape(-1, 3).astype(np.float32)
+        n = d.shape[0]
+        ray = mi.Ray3f(mi.Point3f(*[mi.Float(np.full(n, x, np.float32)) for x in o]), mi.Vector3f(mi.Float(d[:, 0]), mi.Float(d[:, 1]), mi.Float(d[:, 2])))
+        si = scene.ray_intersect(ray)
+        t = np.asarray(si.t, np.float64)
+        valid = np.asarray(si.is_valid(), bool)
+        dist = np.where(valid, t, 0.0).reshape(h, w)
+        return dist, -dz
     oo = mi.Point3f(*[float(x) for x in o])
     for j in range(h):
         for i in range(w):
@@ -101,6 +113,14 @@ def camera_agreement(mi, scene, cam, origin):
     _, dirs, _ = scene_loader.pixel_center_rays(cam, origin)
     h, w = dirs.shape[:2]
     worst = 0.0
+    if dr.is_jit_v(mi.Float):
+        jj, ii = np.meshgrid(np.arange(h), np.arange(w), indexing="ij")
+        px = mi.Point2f(mi.Float(((ii.ravel() + 0.5) / w).astype(np.float32)), mi.Float(((jj.ravel() + 0.5) / h).astype(np.float32)))
+        ray, _ = sensor.sample_ray(0.0, 0.5, px, mi.Point2f(0.5, 0.5))
+        d = np.stack([np.asarray(ray.d[k], np.float64) for k in range(3)], axis=-1)
+        d /= np.linalg.norm(d, axis=-1, keepdims=True)
+        c = np.clip(np.sum(d * dirs.reshape(-1, 3), axis=-1), -1.0, 1.0)
+        return float(np.max(np.arccos(c)))
     for j in range(h):
         for i in range(w):
             ray, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f((i + 0.5) / w, (j + 0.5) / h), mi.Point2f(0.5, 0.5))
