@@ -62,7 +62,7 @@ fn demo_run_resumable(run_dir: &std::path::Path, args: &DemoArgs) -> anyhow::Res
     }
     let budget = crate::train::parse_duration(&args.time)?;
     let same = match nerf::render::RunModel::load(run_dir) {
-        Ok(m) => m.config.model.name() == args.model && m.config.time_budget_s == Some(budget),
+        Ok(m) => m.config.model_label() == args.model && m.config.time_budget_s == Some(budget),
         Err(_) => false,
     };
     if !same {

@@ -109,3 +109,20 @@ fn configs_written_before_auto_still_read() {
     assert_eq!(TrainConfig::preset("auto", "data".into()).unwrap().model_label(), "auto");
     assert!(TrainConfig::preset("magic", "data".into()).unwrap_err().contains("auto"));
 }
+
+#[test]
+fn the_trainer_stops_when_the_val_psnr_plateaus() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    nerf::data::synthetic::write(&data, 16, [6, 1, 1], false).unwrap();
+    let mut cfg = TrainConfig::preset("fast", data).unwrap();
+    cfg.steps = Some(100_000);
+    cfg.val_max_pixels = 64;
+    cfg.val_interval_s = Some(0.05);
+    // No run gains 100 dB in 0.2 s: the rule must end it at the first validation past the window.
+    cfg.plateau_stop = Some(nerf::auto::PlateauStop { window_s: 0.2, min_gain_db: 100.0 });
+    let mut t = Trainer::new(cfg, &tmp.path().join("run"), false).unwrap();
+    let s = t.run(&AtomicBool::new(false), &mut |_| {}).unwrap();
+    assert!(s.plateaued && !s.interrupted, "{s:?}");
+    assert!(s.steps < 100_000 && s.wall_s >= 0.2 && s.wall_s < 5.0, "{s:?}");
+}
