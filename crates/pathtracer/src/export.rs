@@ -440,7 +440,7 @@ pub struct ReferenceView {
 /// The largest divisor of `spp` that is at most `max_groups` (at least 1): the number of
 /// independent groups [`render_reference`] splits `spp` into.
 pub fn reference_groups(spp: u32, max_groups: u32) -> u32 {
-    (1..=max_groups.clamp(1, spp.max(1))).rev().find(|g| spp % g == 0).unwrap_or(1)
+    (1..=max_groups.clamp(1, spp.max(1))).rev().find(|g| spp.is_multiple_of(*g)).unwrap_or(1)
 }
 
 /// Renders `camera` at `settings.spp` samples per pixel as `groups` independent renders of
@@ -449,7 +449,7 @@ pub fn reference_groups(spp: u32, max_groups: u32) -> u32 {
 /// `groups` must divide `settings.spp` and be at least 2.
 pub fn render_reference(renderer: &Renderer, camera: &Camera, view_index: u32, settings: &RenderSettings, groups: u32) -> Result<ReferenceView, PathTracerError> {
     settings.validate()?;
-    if groups < 2 || settings.spp % groups != 0 {
+    if groups < 2 || !settings.spp.is_multiple_of(groups) {
         return Err(PathTracerError::Config(format!("{groups} groups must be at least 2 and divide spp {}", settings.spp)));
     }
     let (w, h) = (camera.intrinsics.width, camera.intrinsics.height);
