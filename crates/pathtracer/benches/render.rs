@@ -4,7 +4,7 @@
 //! measured side by side from a worktree that builds only this crate.
 //!
 //! ```text
-//! cargo bench -p pathtracer --bench render [-- SCENE…] [--runs N] [--seconds S]
+//! cargo bench -p pathtracer --bench render [-- SCENE…] [--runs N] [--seconds S] [--accel PRESET]
 //! ```
 //! `--seconds S` renders the first scene's quick view repeatedly for `S` seconds (a steady
 //! load for `perf record`) instead of printing the table; `--primary` does the same with
@@ -37,6 +37,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut seconds: Option<f64> = None;
     let mut primary_only = false;
     let mut hash_only = false;
+    let mut accel = AccelParams::medium_build();
     let mut args = std::env::args().skip(1);
     while let Some(a) = args.next() {
         match a.as_str() {
@@ -45,6 +46,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             "--seconds" => seconds = Some(args.next().ok_or("--seconds S")?.parse()?),
             "--primary" => primary_only = true,
             "--hash" => hash_only = true,
+            "--accel" => {
+                accel = match args.next().as_deref() {
+                    Some("fastest") => AccelParams::fastest_build(),
+                    Some("fast") => AccelParams::fast_build(),
+                    Some("medium") => AccelParams::medium_build(),
+                    Some("slow") => AccelParams::slow_build(),
+                    _ => return Err("--accel fastest|fast|medium|slow".into()),
+                }
+            }
             _ => names.push(a),
         }
     }
@@ -67,7 +77,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     for path in scenes {
         let name = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
         let scene = pathtracer::import::load_gltf(&path, &pathtracer::import::ImportOptions::default())?;
-        let renderer = Renderer::new(scene, &AccelParams::medium_build())?;
+        let renderer = Renderer::new(scene, &accel)?;
         let quick = DatasetRenderConfig::preset(Preset::Quick);
         let rig = pathtracer::rig::build_rig(renderer.scene(), &quick.rig_config())?;
         let cam = rig.split(dataset::SplitKind::Train)[0];
@@ -109,13 +119,19 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         }
         if let Some(s) = seconds {
             let t = std::time::Instant::now();
+            let c = cpu_seconds();
             let mut samples = 0u64;
             let mut k = 0;
             while t.elapsed().as_secs_f64() < s {
                 samples += renderer.render_view(&cam, k, &settings).samples;
                 k += 1;
             }
-            println!("{name}: {:.3} Msample/s over {:.1} s", samples as f64 * 1e-6 / t.elapsed().as_secs_f64(), t.elapsed().as_secs_f64());
+            println!(
+                "{name}: {:.3} Msample/s, {:.3} Msample/CPU-s over {:.1} s",
+                samples as f64 * 1e-6 / t.elapsed().as_secs_f64(),
+                samples as f64 * 1e-6 / (cpu_seconds() - c).max(1e-9),
+                t.elapsed().as_secs_f64()
+            );
             return Ok(());
         }
         let primary = median((0..runs).map(|_| renderer.primary_ray_throughput(&big).rays_per_second).collect());
