@@ -15,6 +15,10 @@ BSDF modes:
 - `diffuse`: every material as Mitsuba's native `diffuse` with its base colour (a cheaper
   model than ours for non-Lambertian materials: a lower bound on Mitsuba's time).
 
+Russian roulette as ours: ours starts it at the third surface vertex (bounce depth >= 2),
+Mitsuba's `path` when its depth counter exceeds `rr_depth`, i.e. rr_depth 2 (Mitsuba's
+default 5 would never terminate a path early at max_depth 5 and make its samples costlier).
+
 Timing: `mi.render` plus evaluation of the image (dr.eval + sync); the first render of each
 scene and mode (scene upload, JIT compilation, kernel caching) is reported separately as
 `first_seconds`; `seconds` is the median of `--runs` further renders with new seeds.
@@ -37,6 +41,7 @@ def parse_args():
     p.add_argument("--export", action="append", required=True, help="export folder (repeatable)")
     p.add_argument("--variant", default="auto", help="auto (llvm_ad_rgb if it works, else scalar_rgb), or a variant")
     p.add_argument("--runs", type=int, default=3, help="timed renders after the first (median)")
+    p.add_argument("--rr-depth", type=int, default=2, help="Mitsuba's rr_depth (2 = ours; see above)")
     p.add_argument("--modes", default="gltf", help="BSDF modes, comma-separated: gltf, diffuse")
     return p.parse_args()
 
@@ -92,13 +97,14 @@ def main():
                    "spp": spp, "max_depth": int(man["settings"]["max_bounces"]) + 1, "samples": samples}
             try:
                 scene = scene_loader.build_scene(mi, man, arrays, 0, spp, plugins[mode], gltf_lights.spot_dict,
-                                                 gltf_lights.envmap_dict, transparent_ok=True)
+                                                 gltf_lights.envmap_dict, transparent_ok=True, rr_depth=args.rr_depth)
                 lambert = sum(1 for m in man["materials"] if m["metallic"] <= 0 and m.get("specular", 1.0) <= 0
                               and m["metallic_roughness_texture"] is None)
                 glossy = len(man["materials"]) - lambert
                 rec["bsdf"] = ("native diffuse (every material)" if mode == "diffuse" else
                                "native diffuse" if glossy == 0 else
                                f"gltf Python plugin ({glossy} materials)" + (f", native diffuse ({lambert})" if lambert else ""))
+                rec["rr_depth"] = args.rr_depth
                 rec["first_seconds"] = timed_render(mi, dr, scene, spp, 0)
                 times = sorted(timed_render(mi, dr, scene, spp, 1 + k) for k in range(max(1, args.runs)))
                 rec["seconds"] = times[len(times) // 2]

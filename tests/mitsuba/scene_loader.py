@@ -296,7 +296,8 @@ def sensor(mi, cam, origin, spp):
     }
 
 
-def build_scene(mi, man, arrays, view, spp, glossy_plugin=None, spot_plugin=None, envmap_plugin=None, transparent_ok=False):
+def build_scene(mi, man, arrays, view, spp, glossy_plugin=None, spot_plugin=None, envmap_plugin=None, transparent_ok=False,
+                rr_depth=None):
     """The Mitsuba scene of view `view`. A transparent background is unsupported (the
     comparison needs the environment behind the scene) unless `transparent_ok` (timing only:
     camera misses then show black, `hide_emitters`, where ours shows alpha 0)."""
@@ -308,6 +309,8 @@ def build_scene(mi, man, arrays, view, spp, glossy_plugin=None, spot_plugin=None
         "max_depth": int(man["settings"]["max_bounces"]) + 1,
         "hide_emitters": transparent,
     }
+    if rr_depth is not None:
+        d["integrator"]["rr_depth"] = int(rr_depth)
     if transparent and not transparent_ok:
         raise Unsupported("transparent background (render with the environment as background)")
     d.update(build_meshes(mi, man, arrays, glossy_plugin))
