@@ -207,8 +207,9 @@ fn bench_render_mitsuba(ours: &[OursQuick]) -> anyhow::Result<()> {
         .collect::<Result<_, _>>()
         .context("reading bench.py's output")?;
     println!(
-        "vs Mitsuba 3: same camera, {}x{}, {} spp, our max_bounces {} = Mitsuba max_depth {}, environment {:?}, transparent \
-         background = hide_emitters; Mitsuba: median of 3 renders after a first one (JIT compilation)",
+        "vs Mitsuba 3: same camera, {}x{}, {} spp, our max_bounces {} = Mitsuba max_depth {} (Russian roulette from the third \
+         vertex on both: rr_depth 2), environment {:?}, transparent background = hide_emitters; Mitsuba: median of 3 renders \
+         after a first one (JIT compilation)",
         quick.width,
         quick.height,
         quick.spp,
