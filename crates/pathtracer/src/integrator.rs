@@ -361,7 +361,13 @@ impl PathIntegrator<'_> {
         if !lmat.double_sided && cos_l <= 0.0 {
             return Vec3::ZERO;
         }
-        let lattr = surface_attributes(scene, es.prim, es.b);
+        // The light's attributes matter only to its textures and alpha; an opaque, untextured
+        // emitter (the common case) skips interpolating them.
+        let lattr = if lmat.emissive_texture.is_some() || !matches!(lmat.alpha_mode, AlphaMode::Opaque) {
+            surface_attributes(scene, es.prim, es.b)
+        } else {
+            SurfaceAttributes { uv: [Vec2::ZERO; 2], color: Vec4::ONE }
+        };
         let coverage = match lmat.alpha_mode {
             AlphaMode::Opaque => 1.0,
             AlphaMode::Mask { cutoff } => {
