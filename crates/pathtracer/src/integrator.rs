@@ -297,11 +297,9 @@ impl PathIntegrator<'_> {
                 let wi_l = si.frame.to_local(wi);
                 let (f, bsdf_pdf) = bsdf.evaluate_pdf(wi_l);
                 let le = env.eval(wi);
-                if f.max_element() > 0.0 && le.max_element() > 0.0 {
-                    if !self.occluded(&Ray::new(origin, wi), f32::INFINITY) {
-                        let w = power_heuristic(pdf, bsdf_pdf);
-                        l += beta * f * le * (w / pdf);
-                    }
+                if f.max_element() > 0.0 && le.max_element() > 0.0 && !self.occluded(&Ray::new(origin, wi), f32::INFINITY) {
+                    let w = power_heuristic(pdf, bsdf_pdf);
+                    l += beta * f * le * (w / pdf);
                 }
             }
 
