@@ -54,6 +54,10 @@ pub struct CrosscheckArgs {
     /// Most independent groups the spp are split into (the largest divisor of spp up to this).
     #[arg(long, default_value_t = 64)]
     pub max_groups: u32,
+    /// Drop the scene's punctual lights (point, spot, directional) on both sides, e.g. to check
+    /// an environment map alone.
+    #[arg(long)]
+    pub no_punctual_lights: bool,
     /// Mitsuba variant (scalar_rgb needs nothing else; llvm_ad_rgb needs a working libLLVM).
     #[arg(long, default_value = "scalar_rgb")]
     pub variant: String,
@@ -96,7 +100,10 @@ pub fn run(args: CrosscheckArgs) -> anyhow::Result<()> {
     }
     cfg.validate()?;
 
-    let scene = load_gltf(&scene_path, &ImportOptions::default()).with_context(|| format!("loading {}", scene_path.display()))?;
+    let mut scene = load_gltf(&scene_path, &ImportOptions::default()).with_context(|| format!("loading {}", scene_path.display()))?;
+    if args.no_punctual_lights {
+        scene.lights.clear();
+    }
     let rig = build_rig(&scene, &cfg.rig_config())?;
     let cameras: Vec<_> = rig.split(dataset::SplitKind::Train).to_vec();
     let settings = RenderSettings {
