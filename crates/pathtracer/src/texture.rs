@@ -14,6 +14,11 @@ use glam::{Vec2, Vec4};
 #[inline]
 pub fn wrap_index(i: i64, n: u32, wrap: Wrap) -> u32 {
     let n = n as i64;
+    // Every mode maps an index already in range to itself; skip the 64-bit division then
+    // (the common case: interior texels).
+    if 0 <= i && i < n {
+        return i as u32;
+    }
     let r = match wrap {
         Wrap::Repeat => i.rem_euclid(n),
         Wrap::ClampToEdge => i.clamp(0, n - 1),
