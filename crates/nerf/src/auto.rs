@@ -278,11 +278,18 @@ pub fn sampling(finest: u32, cube_side: f64, cfg: &AutoConfig, max_samples_per_r
             cfg.min_grid_resolution,
             cfg.max_grid_resolution
         ),
-        format!(
-            "steps_per_diagonal = {spd}: marching step {} = one finest cell ≈ the smallest pixel footprint{}",
-            fmt_len(cube_side * 3f64.sqrt() / spd as f64),
-            if spd < spd_raw { format!(", coarsened so a cube diagonal takes at most {max_samples_per_ray} samples") } else { String::new() }
-        ),
+        if spd < spd_raw {
+            format!(
+                "steps_per_diagonal = {spd}: marching step {}, coarser than one finest cell ({}, {spd_raw} steps per diagonal) so a cube diagonal takes at most {max_samples_per_ray} samples",
+                fmt_len(cube_side * 3f64.sqrt() / spd as f64),
+                fmt_len(cube_side / finest as f64)
+            )
+        } else {
+            format!(
+                "steps_per_diagonal = {spd}: marching step {} = one finest cell ≈ the smallest pixel footprint",
+                fmt_len(cube_side * 3f64.sqrt() / spd as f64)
+            )
+        },
     ];
     (grid, spd, reasons)
 }
