@@ -405,7 +405,7 @@ impl Accel {
         self.tris.len()
     }
 
-    #[inline]
+    #[inline(always)]
     fn obvhs_ray(ray: &Ray, t_max: f32) -> Option<obvhs::ray::Ray> {
         if !ray.origin.is_finite() || !ray.direction.is_finite() || ray.direction == Vec3::ZERO || !(t_max > 0.0) {
             return None;
@@ -413,7 +413,15 @@ impl Accel {
         // `+ 0.0` turns −0 into +0: obvhs derives slab order from `d < 0` but the inverse
         // from the sign bit, which disagree for −0.
         let d = ray.direction + Vec3::ZERO;
-        Some(obvhs::ray::Ray::new(Vec3A::from(ray.origin), Vec3A::from(d), 0.0, t_max))
+        // obvhs's `safe_inverse` per component, here so that it inlines (`Ray::new` does not).
+        let inv = |x: f32| if x.abs() <= f32::EPSILON { x.signum() / f32::EPSILON } else { 1.0 / x };
+        Some(obvhs::ray::Ray {
+            origin: Vec3A::from(ray.origin),
+            direction: Vec3A::from(d),
+            inv_direction: Vec3A::new(inv(d.x), inv(d.y), inv(d.z)),
+            tmin: 0.0,
+            tmax: t_max,
+        })
     }
 
     /// The closest accepted hit with `t < t_max`. `alpha_test(prim, hit)` is consulted only

@@ -209,7 +209,7 @@ pub fn next_float_down(v: f32) -> f32 {
 /// normal `n`) in direction `w`: `p ± (|n|·p_err) n`, rounded one ulp further away
 /// (pbrt-v4 `OffsetRayOrigin`). The sign is that of `w·n`, so the origin lies on the side
 /// the ray leaves towards.
-#[inline]
+#[inline(always)]
 pub fn offset_ray_origin(p: Vec3, p_err: Vec3, n: Vec3, w: Vec3) -> Vec3 {
     let d = n.abs().dot(p_err);
     let mut offset = d * n;

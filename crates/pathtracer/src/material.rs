@@ -161,7 +161,7 @@ impl MetallicRoughness {
     /// smith_den(wo.z)`: the shared core of evaluation, pdf and sampling (the same
     /// expressions as [`MetallicRoughness::f`] and [`MetallicRoughness::pdf_specular`], so
     /// the values agree bit for bit).
-    #[inline]
+    #[inline(always)]
     fn f_cos_and_d(&self, wo: Vec3, wi: Vec3, sd_wo: f32) -> (Vec3, f32) {
         let h = (wo + wi).normalize();
         let vh = wo.dot(h).clamp(0.0, 1.0);
