@@ -31,6 +31,14 @@ pub fn wrap_index(i: i64, n: u32, wrap: Wrap) -> u32 {
     r as u32
 }
 
+/// `x.floor()` as an integer for finite `|x| ≤ 2⁵³` (exactly; texture coordinates are
+/// clamped to ±10¹⁵), without the `floor` library call that baseline x86-64 makes.
+#[inline(always)]
+fn floor_i64(x: f64) -> i64 {
+    let i = x as i64;
+    i - ((i as f64) > x) as i64
+}
+
 impl Texture {
     /// The texel at integer coordinates (already wrapped into range).
     #[inline]
@@ -49,15 +57,14 @@ impl Texture {
         let y = (uv.y as f64 * self.height as f64).clamp(-1e15, 1e15);
         match filter {
             Filter::Nearest => {
-                let xi = wrap_index(x.floor() as i64, self.width, wrap_s);
-                let yi = wrap_index(y.floor() as i64, self.height, wrap_t);
+                let xi = wrap_index(floor_i64(x), self.width, wrap_s);
+                let yi = wrap_index(floor_i64(y), self.height, wrap_t);
                 self.texel(xi, yi)
             }
             Filter::Linear => {
                 let (x, y) = (x - 0.5, y - 0.5);
-                let (x0, y0) = (x.floor(), y.floor());
-                let (fx, fy) = ((x - x0) as f32, (y - y0) as f32);
-                let (x0, y0) = (x0 as i64, y0 as i64);
+                let (x0, y0) = (floor_i64(x), floor_i64(y));
+                let (fx, fy) = ((x - x0 as f64) as f32, (y - y0 as f64) as f32);
                 let xa = wrap_index(x0, self.width, wrap_s);
                 let xb = wrap_index(x0 + 1, self.width, wrap_s);
                 let ya = wrap_index(y0, self.height, wrap_t);
@@ -93,6 +100,13 @@ mod tests {
                 Vec4::new(0.0, 0.0, 1.0, 1.0),
                 Vec4::new(1.0, 1.0, 1.0, 1.0),
             ],
+        }
+    }
+
+    #[test]
+    fn floor_i64_is_floor() {
+        for x in [0.0, -0.0, 0.5, -0.5, 1.0, -1.0, 2.999_999, -2.000_001, 1e15, -1e15, 123_456.75, -7.0] {
+            assert_eq!(floor_i64(x), x.floor() as i64, "{x}");
         }
     }
 
