@@ -38,7 +38,7 @@ pub struct DemoArgs {
     /// Scene name in `scenes/` or a glTF path.
     #[arg(long, default_value = "tabletop")]
     pub scene: String,
-    /// Output folder: `<out>/dataset` and `<out>/run-fast`.
+    /// Output folder: `<out>/dataset` and `<out>/run-<model>`.
     #[arg(long, default_value = "out/demo")]
     pub out: PathBuf,
     /// Training time budget (e.g. 90s, 3m).
@@ -47,8 +47,8 @@ pub struct DemoArgs {
     /// Render preset of the dataset.
     #[arg(long, default_value = "quick")]
     pub preset: pathtracer::dataset_render::Preset,
-    /// Model to train.
-    #[arg(long, default_value = "fast")]
+    /// Model to train: `auto` (the hash-grid model sized from the scene), `fast` or `paper`.
+    #[arg(long, default_value = "auto")]
     pub model: String,
 }
 
