@@ -11,6 +11,17 @@ fn xtask(args: &[&str]) -> (i32, String) {
     (out.status.code().unwrap_or(-1), stderr)
 }
 
+/// Runs `xtask args` and checks that it was refused: exit code 1, no panic, a message saying
+/// `what`, and nothing at `out`. Returns stderr.
+fn assert_refused(args: &[&str], what: &str, out: &Path) -> String {
+    let (code, stderr) = xtask(args);
+    assert_eq!(code, 1, "{args:?}: exit code {code}, stderr:\n{stderr}");
+    assert!(!stderr.contains("panicked"), "{args:?}: panic:\n{stderr}");
+    assert!(stderr.contains(what), "{args:?}: message does not say '{what}':\n{stderr}");
+    assert!(!out.exists(), "{args:?}: wrote {}", out.display());
+    stderr
+}
+
 fn corpus() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../crates/pathtracer/tests/data/import")
 }
@@ -214,12 +225,8 @@ fn impossible_training_options_exit_1_and_write_nothing() {
     for (opts, what) in cases {
         let mut args = vec!["train", valid.to_str().unwrap(), "--out", run.to_str().unwrap()];
         args.extend_from_slice(opts);
-        let (code, stderr) = xtask(&args);
-        assert_eq!(code, 1, "{opts:?}: exit code {code}, stderr:\n{stderr}");
-        assert!(!stderr.contains("panicked"), "{opts:?}: panic:\n{stderr}");
+        let stderr = assert_refused(&args, what, &run);
         assert!(stderr.starts_with("error: ") && stderr.trim_end().lines().count() == 1, "{opts:?}: not one message:\n{stderr}");
-        assert!(stderr.contains(what), "{opts:?}: message does not say '{what}':\n{stderr}");
-        assert!(!run.exists(), "{opts:?}: wrote {}", run.display());
     }
 }
 
@@ -241,11 +248,7 @@ fn impossible_render_options_exit_1_and_write_nothing() {
     for (opts, what) in cases {
         let mut args = vec!["render", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--spp", "1"];
         args.extend_from_slice(opts);
-        let (code, stderr) = xtask(&args);
-        assert_eq!(code, 1, "{opts:?}: exit code {code}, stderr:\n{stderr}");
-        assert!(!stderr.contains("panicked"), "{opts:?}: panic:\n{stderr}");
-        assert!(stderr.contains(what), "{opts:?}: message does not say '{what}':\n{stderr}");
-        assert!(!out.exists(), "{opts:?}: wrote {}", out.display());
+        assert_refused(&args, what, &out);
     }
 }
 
@@ -266,10 +269,7 @@ fn render_nerf_with_no_views_exits_1_and_writes_nothing() {
     ] {
         let mut args = vec!["render-nerf", run.to_str().unwrap(), "--out", out.to_str().unwrap()];
         args.extend_from_slice(opts);
-        let (code, stderr) = xtask(&args);
-        assert_eq!(code, 1, "{opts:?}: exit code {code}, stderr:\n{stderr}");
-        assert!(stderr.contains(what), "{opts:?}: message does not say '{what}':\n{stderr}");
-        assert!(!out.exists(), "{opts:?}: wrote {}", out.display());
+        assert_refused(&args, what, &out);
     }
     let (code, stderr) = xtask(&["render-nerf", run.to_str().unwrap(), "--out", out.to_str().unwrap(), "--split", "train"]);
     assert_eq!(code, 0, "{stderr}");
