@@ -142,6 +142,15 @@ fn small_config(dir: &Path, dataset: &Path) -> PathBuf {
     path
 }
 
+/// Trains [`small_config`] on the corpus's valid dataset into `dir/name`; asserts it succeeds.
+fn train_valid_blender(dir: &Path, name: &str) -> PathBuf {
+    let run = dir.join(name);
+    let config = small_config(dir, &dataset_corpus().join("valid_blender"));
+    let (code, stderr) = xtask(&["train", "--config", config.to_str().unwrap(), "--out", run.to_str().unwrap()]);
+    assert_eq!(code, 0, "training on valid_blender: {stderr}");
+    run
+}
+
 fn listing(dir: &Path) -> Vec<PathBuf> {
     let mut out = Vec::new();
     let mut stack = vec![dir.to_path_buf()];
@@ -169,22 +178,14 @@ fn malformed_datasets_fail_training_with_one_message_and_no_run_folder() {
         }
     }
     // The dataset all of them break trains.
-    let valid = dataset_corpus().join("valid_blender");
-    let run = tmp.path().join("valid");
-    let config = small_config(tmp.path(), &valid);
-    let (code, stderr) = xtask(&["train", "--config", config.to_str().unwrap(), "--out", run.to_str().unwrap()]);
-    assert_eq!(code, 0, "valid_blender: {stderr}");
+    let run = train_valid_blender(tmp.path(), "valid");
     assert!(run.join("checkpoints/step-00000002.ckpt").is_file());
 }
 
 #[test]
 fn malformed_datasets_fail_evaluation_with_one_message_and_write_nothing() {
     let tmp = tempfile::tempdir().unwrap();
-    let valid = dataset_corpus().join("valid_blender");
-    let run = tmp.path().join("run");
-    let config = small_config(tmp.path(), &valid);
-    let (code, stderr) = xtask(&["train", "--config", config.to_str().unwrap(), "--out", run.to_str().unwrap()]);
-    assert_eq!(code, 0, "training on valid_blender: {stderr}");
+    let run = train_valid_blender(tmp.path(), "run");
     let recorded = std::fs::read_to_string(run.join("config.json")).unwrap();
     let before = listing(&run);
     // The run's recorded dataset replaced by each malformed one in turn.
@@ -255,11 +256,7 @@ fn impossible_render_options_exit_1_and_write_nothing() {
 #[test]
 fn render_nerf_with_no_views_exits_1_and_writes_nothing() {
     let tmp = tempfile::tempdir().unwrap();
-    let valid = dataset_corpus().join("valid_blender");
-    let run = tmp.path().join("run");
-    let config = small_config(tmp.path(), &valid);
-    let (code, stderr) = xtask(&["train", "--config", config.to_str().unwrap(), "--out", run.to_str().unwrap()]);
-    assert_eq!(code, 0, "training on valid_blender: {stderr}");
+    let run = train_valid_blender(tmp.path(), "run");
     let out = tmp.path().join("renders");
     // valid_blender has train views only.
     for (opts, what) in [
