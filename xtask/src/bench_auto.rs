@@ -30,6 +30,10 @@ pub struct AutoBenchArgs {
     /// Output folder: `<out>/<scene>/{dataset,<config>,compare.md}` and `<out>/bench-auto.md`.
     #[arg(long, default_value = "out/bench-auto", help_heading = "bench auto")]
     pub out: PathBuf,
+    /// Evaluate the first N test views of every run (default all). The paper
+    /// model needs minutes per standard-preset view on a CPU.
+    #[arg(long, help_heading = "bench auto")]
+    pub max_views: Option<usize>,
     /// Configurations, comma-separated (of auto, fast-small, fast-medium, fast-large, paper).
     #[arg(long, default_value = "auto,fast-small,fast-medium,fast-large,paper", help_heading = "bench auto")]
     pub configs: String,
@@ -103,7 +107,7 @@ fn evaluated(run: &Path, budget_s: f64) -> bool {
 }
 
 /// Trains (resuming a run with the same budget) and evaluates one configuration.
-fn train_and_eval(name: &str, dataset: &Path, run: &Path, budget: &str, budget_s: f64) -> anyhow::Result<()> {
+fn train_and_eval(name: &str, dataset: &Path, run: &Path, budget: &str, budget_s: f64, max_views: Option<usize>) -> anyhow::Result<()> {
     if evaluated(run, budget_s) {
         eprintln!("{} is evaluated already; kept", run.display());
         return Ok(());
@@ -124,7 +128,7 @@ fn train_and_eval(name: &str, dataset: &Path, run: &Path, budget: &str, budget_s
     if crate::stop_flag().load(std::sync::atomic::Ordering::SeqCst) {
         anyhow::bail!("interrupted; re-run the same command to resume");
     }
-    crate::evaluate::run(crate::evaluate::EvalArgs { run: run.to_path_buf(), split: "test".into(), grids: 1, max_views: None })
+    crate::evaluate::run(crate::evaluate::EvalArgs { run: run.to_path_buf(), split: "test".into(), grids: 1, max_views })
 }
 
 /// What the targets say about one scene's runs.
@@ -179,6 +183,7 @@ pub fn run(args: AutoBenchArgs) -> anyhow::Result<()> {
     for c in &configs {
         config_of(c, Path::new("."), budget_s)?;
     }
+    anyhow::ensure!(args.max_views != Some(0), "--max-views 0 evaluates nothing");
     let scenes = scene_names(&args)?;
     let mut md = format!(
         "# bench auto\n\npreset {}, budget {} per run, configurations: {}\n\nfixed sizes: {}\n\n",
@@ -187,6 +192,9 @@ pub fn run(args: AutoBenchArgs) -> anyhow::Result<()> {
         configs.join(", "),
         FIXED.iter().map(|(n, d)| format!("{n} = {d}")).collect::<Vec<_>>().join("; ")
     );
+    if let Some(m) = args.max_views {
+        md.push_str(&format!("evaluated on the first {m} test view(s) of each scene\n\n"));
+    }
     let mut checks = Vec::new();
     for scene in &scenes {
         let dir = args.out.join(scene);
@@ -196,7 +204,7 @@ pub fn run(args: AutoBenchArgs) -> anyhow::Result<()> {
         let mut runs = Vec::new();
         for c in &configs {
             let run = dir.join(c);
-            train_and_eval(c, &dataset, &run, &args.budget, budget_s)?;
+            train_and_eval(c, &dataset, &run, &args.budget, budget_s, args.max_views)?;
             runs.push((c.clone(), eval::summarise_run(&run)?));
         }
         let summaries: Vec<eval::RunSummary> = runs.iter().map(|(_, r)| r.clone()).collect();

@@ -85,6 +85,7 @@ fn fmt_opt(v: Option<f64>, digits: usize) -> String {
 
 /// Evaluates a run and prints its summary table.
 pub fn run(args: EvalArgs) -> anyhow::Result<()> {
+    anyhow::ensure!(args.max_views != Some(0), "--max-views 0 evaluates nothing (give at least 1, or leave it out for every view)");
     let opts = eval::EvalRunOptions {
         split: parse_split(&args.split)?,
         grid_views: args.grids,

@@ -254,7 +254,7 @@ fn impossible_render_options_exit_1_and_write_nothing() {
 }
 
 #[test]
-fn render_nerf_with_no_views_exits_1_and_writes_nothing() {
+fn render_nerf_and_eval_with_no_views_exit_1_and_write_nothing() {
     let tmp = tempfile::tempdir().unwrap();
     let run = train_valid_blender(tmp.path(), "run");
     let out = tmp.path().join("renders");
@@ -268,6 +268,9 @@ fn render_nerf_with_no_views_exits_1_and_writes_nothing() {
         args.extend_from_slice(opts);
         assert_refused(&args, what, &out);
     }
+    // It used to evaluate one view.
+    let eval_args = ["eval", run.to_str().unwrap(), "--split", "train", "--max-views", "0"];
+    assert_refused(&eval_args, "--max-views 0 evaluates nothing", &run.join("eval.json"));
     let (code, stderr) = xtask(&["render-nerf", run.to_str().unwrap(), "--out", out.to_str().unwrap(), "--split", "train"]);
     assert_eq!(code, 0, "{stderr}");
     assert!(out.join("r_0.png").is_file() && out.join("r_1_depth.npy").is_file());
