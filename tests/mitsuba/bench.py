@@ -23,6 +23,12 @@ Timing: `mi.render` plus evaluation of the image (dr.eval + sync); the first ren
 scene and mode (scene upload, JIT compilation, kernel caching) is reported separately as
 `first_seconds`; `seconds` is the median of `--runs` further renders with new seeds.
 Scene building is not timed. Samples are camera samples: width x height x spp.
+
+Error: when the export folder holds `reference.npy` (our high-spp RGB image of the same camera)
+and `reference_noise.json` (that image's own mean squared noise), `mse` is the mean squared RGB
+error of the timed renders against it, less the reference's noise, averaged over the renders,
+and `bias2` the part of it that does not fall with more samples (mean of the renders against the
+reference): near zero when both renderers converge to the same image.
 """
 
 import argparse
@@ -40,7 +46,7 @@ def parse_args():
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--export", action="append", required=True, help="export folder (repeatable)")
     p.add_argument("--variant", default="auto", help="auto (llvm_ad_rgb if it works, else scalar_rgb), or a variant")
-    p.add_argument("--runs", type=int, default=3, help="timed renders after the first (median)")
+    p.add_argument("--runs", type=int, default=5, help="timed renders after the first (median)")
     p.add_argument("--rr-depth", type=int, default=2, help="Mitsuba's rr_depth (2 = ours; see above)")
     p.add_argument("--modes", default="gltf", help="BSDF modes, comma-separated: gltf, diffuse")
     return p.parse_args()
@@ -68,7 +74,18 @@ def timed_render(mi, dr, scene, spp, seed):
     img = mi.render(scene, spp=spp, seed=seed)
     dr.eval(img)
     dr.sync_thread()
-    return time.perf_counter() - t
+    return time.perf_counter() - t, img
+
+
+def load_reference(folder):
+    path = os.path.join(folder, "reference.npy")
+    if not os.path.exists(path):
+        return None, 0.0
+    import numpy as np
+
+    with open(os.path.join(folder, "reference_noise.json")) as f:
+        noise = float(json.load(f)["mse"])
+    return np.load(path).astype(np.float64), noise
 
 
 def main():
@@ -105,10 +122,24 @@ def main():
                                "native diffuse" if glossy == 0 else
                                f"gltf Python plugin ({glossy} materials)" + (f", native diffuse ({lambert})" if lambert else ""))
                 rec["rr_depth"] = args.rr_depth
-                rec["first_seconds"] = timed_render(mi, dr, scene, spp, 0)
-                times = sorted(timed_render(mi, dr, scene, spp, 1 + k) for k in range(max(1, args.runs)))
+                rec["first_seconds"] = timed_render(mi, dr, scene, spp, 0)[0]
+                runs = [timed_render(mi, dr, scene, spp, 1 + k) for k in range(max(1, args.runs))]
+                times = sorted(t for t, _ in runs)
                 rec["seconds"] = times[len(times) // 2]
                 rec["samples_per_second"] = samples / rec["seconds"]
+                reference, noise = load_reference(folder)
+                if reference is not None:
+                    import numpy as np
+
+                    imgs = [np.array(img, dtype=np.float64)[..., :3] for _, img in runs]
+                    errs = [float(np.mean((i - reference) ** 2)) - noise for i in imgs]
+                    rec["mse"] = sum(errs) / len(errs)
+                    # Per render, error = variance V + squared bias B; the mean of n renders
+                    # has V / n + B: B estimates how far Mitsuba's expected image is from ours.
+                    n = len(imgs)
+                    if n > 1:
+                        mse_mean = float(np.mean((np.mean(imgs, axis=0) - reference) ** 2)) - noise
+                        rec["bias2"] = (mse_mean - rec["mse"] / n) / (1.0 - 1.0 / n)
             except scene_loader.Unsupported as e:
                 rec["error"] = f"unsupported: {e}"
             print(json.dumps(rec), flush=True)

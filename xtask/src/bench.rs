@@ -51,12 +51,14 @@ fn median(mut v: Vec<f64>) -> f64 {
 /// preset), primary-ray throughput (pixel-centre closest hits, 256×256 from the quick rig's
 /// first train camera) and path-tracing throughput at the quick preset (64×64, 16 spp, 4
 /// bounces) and at the standard preset's 128 spp and 8 bounces at 32×32; medians over
-/// [`RENDER_RUNS`] runs, all cores. Then the same quick renders with Mitsuba 3
-/// (`tests/mitsuba/bench.py`, from an export of each scene with that camera and settings;
-/// `llvm_ad_rgb` where LLVM works, else `scalar_rgb`) and our samples/s divided by Mitsuba's,
-/// for each scene twice: as authored (Mitsuba runs our glTF BRDF as its Python BSDF plugin) and
-/// with every material made exactly Lambertian (ours `Diffuse`, Mitsuba's native `diffuse`);
-/// without the Python environment a note says how to create it.
+/// [`RENDER_RUNS`] runs, all cores. Then both renderers on one image of each scene (the quick
+/// camera at [`CMP_WIDTH`] px, [`CMP_SPP`] spp, quick bounces; Mitsuba 3 through
+/// `tests/mitsuba/bench.py` from an export of the scene with that camera and settings,
+/// `llvm_ad_rgb` where LLVM works, else `scalar_rgb`): samples/s, the mean squared error against
+/// our [`CMP_REF_SPP`]-spp reference, our samples/s divided by Mitsuba's and the speed at equal
+/// error; for each scene twice: as authored (Mitsuba runs our glTF BRDF as its Python BSDF
+/// plugin) and with every material made exactly Lambertian (ours `Diffuse`, Mitsuba's native
+/// `diffuse`); without the Python environment a note says how to create it.
 fn bench_render() -> anyhow::Result<()> {
     use anyhow::Context;
     use pathtracer::accel::{Accel, AccelParams};
@@ -101,18 +103,7 @@ fn bench_render() -> anyhow::Result<()> {
         let rig = pathtracer::rig::build_rig(renderer.scene(), &quick.rig_config())?;
         let cameras = rig.split(dataset::SplitKind::Train);
         let cam = cameras[0];
-        let scale = 256.0 / cam.intrinsics.width as f64;
-        let big = dataset::Camera {
-            intrinsics: dataset::Intrinsics {
-                width: 256,
-                height: (cam.intrinsics.height as f64 * scale).round() as u32,
-                fl_x: cam.intrinsics.fl_x * scale,
-                fl_y: cam.intrinsics.fl_y * scale,
-                cx: cam.intrinsics.cx * scale,
-                cy: cam.intrinsics.cy * scale,
-            },
-            c2w: cam.c2w,
-        };
+        let big = scaled_camera(&cam, 256);
         let primary = median((0..RENDER_RUNS).map(|_| renderer.primary_ray_throughput(&big).rays_per_second).collect());
         let path_rate_of = |renderer: &Renderer, settings: &RenderSettings, camera: &dataset::Camera| {
             median(
@@ -143,12 +134,21 @@ fn bench_render() -> anyhow::Result<()> {
         for m in &mut lambert_scene.materials {
             (m.metallic_factor, m.specular_factor, m.metallic_roughness_texture) = (0.0, 0.0, None);
         }
-        let lambert_rate = path_rate_of(&Renderer::new(lambert_scene.clone(), &params)?, &quick_settings, &cam);
-        for (model, scene, rate, dir) in [("glTF BRDF", &scene_for_export, quick_rate, name.clone()), ("Lambert", &lambert_scene, lambert_rate, format!("{name}-lambert"))] {
+        let lambert_renderer = Renderer::new(lambert_scene.clone(), &params)?;
+        // The comparison with Mitsuba: its own camera size and spp (see [`CMP_WIDTH`]).
+        let cmp_cam = scaled_camera(&cam, CMP_WIDTH);
+        // Opaque background: Mitsuba's `hide_emitters` (its transparent background) would
+        // also hide emitters the camera sees directly.
+        let cmp_settings = RenderSettings { spp: CMP_SPP, transparent_background: false, ..quick_settings.clone() };
+        for (model, scene, renderer, dir) in [
+            ("glTF BRDF", &scene_for_export, &renderer, name.clone()),
+            ("Lambert", &lambert_scene, &lambert_renderer, format!("{name}-lambert")),
+        ] {
             let export_dir = export_root.join(dir);
-            pathtracer::export::export_scene(scene, &[cam], &quick_settings, &export_dir)
+            pathtracer::export::export_scene(scene, &[cmp_cam], &cmp_settings, &export_dir)
                 .with_context(|| format!("exporting {name} for Mitsuba to {}", export_dir.display()))?;
-            ours_quick.push(OursQuick { scene: name.clone(), model, rate, export: export_dir });
+            let cmp = compare_run(renderer, &cmp_cam, &cmp_settings, &export_dir)?;
+            ours_quick.push(OursQuick { scene: name.clone(), model, cmp, export: export_dir });
         }
         let small = cam.downscaled(2);
         let std_rate = path_rate(&std_settings, &small);
@@ -166,13 +166,94 @@ fn bench_render() -> anyhow::Result<()> {
     bench_render_mitsuba(&ours_quick)
 }
 
-/// Our quick-preset figure for one scene and material model, with its export for Mitsuba.
+/// Width of the image rendered by both renderers for the side-by-side comparison (the quick
+/// rig's first train camera scaled to it): large enough that Mitsuba's per-render overhead
+/// (Python, kernel launch) is a small part of its time.
+const CMP_WIDTH: u32 = 128;
+/// Samples per pixel of the compared renders.
+const CMP_SPP: u32 = 64;
+/// Samples per pixel of our reference image (two independent halves), against which both
+/// renderers' errors are measured.
+const CMP_REF_SPP: u32 = 1024;
+
+/// `cam` with the same field of view at `width` pixels.
+fn scaled_camera(cam: &dataset::Camera, width: u32) -> dataset::Camera {
+    let scale = width as f64 / cam.intrinsics.width as f64;
+    dataset::Camera {
+        intrinsics: dataset::Intrinsics {
+            width,
+            height: (cam.intrinsics.height as f64 * scale).round().max(1.0) as u32,
+            fl_x: cam.intrinsics.fl_x * scale,
+            fl_y: cam.intrinsics.fl_y * scale,
+            cx: cam.intrinsics.cx * scale,
+            cy: cam.intrinsics.cy * scale,
+        },
+        c2w: cam.c2w,
+    }
+}
+
+/// RGB of an RGBA image, as `f64`.
+fn rgb_of(img: &dataset::RgbaImage) -> Vec<f64> {
+    img.data.chunks_exact(4).flat_map(|p| [p[0] as f64, p[1] as f64, p[2] as f64]).collect()
+}
+
+/// Mean squared difference.
+fn mse(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum::<f64>() / a.len().max(1) as f64
+}
+
+/// Our side of the comparison for one scene and material model.
+struct CmpRun {
+    /// Median seconds of one render of the compared image.
+    seconds: f64,
+    /// Camera samples of that render.
+    samples: u64,
+    /// Mean over the timed renders of the mean squared RGB error against the reference, less
+    /// the reference's own noise.
+    mse: f64,
+}
+
+/// Renders our reference (`reference.npy`, RGB, two independent halves of [`CMP_REF_SPP`]; its
+/// noise, the mean squared half-difference / 4, goes to `reference_noise.json`) into the
+/// export folder and times [`RENDER_RUNS`] renders of `settings` against it.
+fn compare_run(
+    renderer: &pathtracer::render::Renderer,
+    cam: &dataset::Camera,
+    settings: &pathtracer::render::RenderSettings,
+    export_dir: &std::path::Path,
+) -> anyhow::Result<CmpRun> {
+    let half = pathtracer::render::RenderSettings { spp: CMP_REF_SPP / 2, seed: 1_000_003, ..settings.clone() };
+    let r1 = rgb_of(&renderer.render_view(cam, 0, &half).color);
+    let r2 = rgb_of(&renderer.render_view(cam, 1, &half).color);
+    let reference: Vec<f64> = r1.iter().zip(&r2).map(|(a, b)| 0.5 * (a + b)).collect();
+    let ref_noise = mse(&r1, &r2) / 4.0;
+    let (w, h) = (cam.intrinsics.width as usize, cam.intrinsics.height as usize);
+    let ref32: Vec<f32> = reference.iter().map(|&v| v as f32).collect();
+    pathtracer::export::write_npy_f32(&export_dir.join("reference.npy"), &[h, w, 3], &ref32)?;
+    dataset::io::atomic_write_json(
+        &export_dir.join("reference_noise.json"),
+        &serde_json::json!({ "spp": CMP_REF_SPP, "mse": ref_noise }),
+    )?;
+    let mut times = Vec::new();
+    let mut errors = Vec::new();
+    let mut samples = 0;
+    for k in 0..RENDER_RUNS {
+        let t = std::time::Instant::now();
+        let out = renderer.render_view(cam, 10 + k as u32, settings);
+        times.push(t.elapsed().as_secs_f64());
+        samples = out.samples;
+        errors.push(mse(&rgb_of(&out.color), &reference) - ref_noise);
+    }
+    Ok(CmpRun { seconds: median(times), samples, mse: errors.iter().sum::<f64>() / errors.len() as f64 })
+}
+
+/// Our figures for one scene and material model, with its export for Mitsuba.
 struct OursQuick {
     scene: String,
     /// `glTF BRDF` (as authored) or `Lambert` (every material made exactly Lambertian).
     model: &'static str,
-    /// Camera samples per second.
-    rate: f64,
+    /// The compared render.
+    cmp: CmpRun,
     export: std::path::PathBuf,
 }
 
@@ -207,37 +288,53 @@ fn bench_render_mitsuba(ours: &[OursQuick]) -> anyhow::Result<()> {
         .collect::<Result<_, _>>()
         .context("reading bench.py's output")?;
     println!(
-        "vs Mitsuba 3: same camera, {}x{}, {} spp, our max_bounces {} = Mitsuba max_depth {} (Russian roulette from the third \
-         vertex on both: rr_depth 2), environment {:?}, transparent background = hide_emitters; Mitsuba: median of 3 renders \
-         after a first one (JIT compilation)",
-        quick.width,
-        quick.height,
-        quick.spp,
+        "vs Mitsuba 3: same camera (the quick rig's first train view) at {CMP_WIDTH} px wide, {CMP_SPP} spp, our max_bounces {} = \
+         Mitsuba max_depth {} (Russian roulette from the third vertex on both: rr_depth 2), environment {:?} as an opaque \
+         background (both show it and the emitters the camera sees); medians of {RENDER_RUNS} timed renders (Mitsuba's after a first one for \
+         JIT compilation). MSE = mean squared RGB error of one render against our {CMP_REF_SPP}-spp reference, less that \
+         reference's own noise; Mi bias² = the part of Mitsuba's MSE that more samples would not remove (≈ 0: both \
+         converge to the same image). Equal-error speed = (MSE x seconds of Mitsuba) / (MSE x seconds of ours): how much less time we need \
+         for the same error (Monte Carlo error falls as 1/time).",
         quick.max_bounces,
         quick.max_bounces + 1,
         quick.environment
     );
     println!(
-        "{:<12} {:<10} {:>14} {:<12} {:>17} {:>11} {:>12}  Mitsuba BSDF",
-        "scene", "model", "ours Msample/s", "variant", "Mitsuba Msample/s", "first run s", "ours/Mitsuba"
+        "{:<10} {:<9} {:>8} {:>10} {:<11} {:>8} {:>10} {:>10} {:>8} {:>8}  Mitsuba BSDF",
+        "scene", "model", "ours Ms/s", "ours MSE", "variant", "Mi Ms/s", "Mi MSE", "Mi bias²", "speed", "eq-err"
     );
     for o in ours {
         let dir = o.export.display().to_string();
+        let ours_rate = o.cmp.samples as f64 / o.cmp.seconds.max(1e-9);
         for t in lines.iter().filter(|t| t["export"].as_str() == Some(dir.as_str())) {
             let text = |k: &str| t[k].as_str().unwrap_or("").to_string();
-            match t["samples_per_second"].as_f64() {
-                Some(mr) => println!(
-                    "{:<12} {:<10} {:>14.3} {:<12} {:>17.3} {:>11.2} {:>11.2}x  {}",
+            match (t["samples_per_second"].as_f64(), t["seconds"].as_f64()) {
+                (Some(mr), Some(ms)) => {
+                    let mi_mse = t["mse"].as_f64().unwrap_or(f64::NAN);
+                    println!(
+                        "{:<10} {:<9} {:>8.3} {:>10.3e} {:<11} {:>8.3} {:>10.3e} {:>10.1e} {:>7.2}x {:>7.2}x  {}",
+                        o.scene,
+                        o.model,
+                        ours_rate * 1e-6,
+                        o.cmp.mse,
+                        text("variant"),
+                        mr * 1e-6,
+                        mi_mse,
+                        t["bias2"].as_f64().unwrap_or(f64::NAN),
+                        ours_rate / mr,
+                        (mi_mse * ms) / (o.cmp.mse * o.cmp.seconds),
+                        text("bsdf")
+                    )
+                }
+                _ => println!(
+                    "{:<10} {:<9} {:>8.3} {:>10.3e} {:<11} {}",
                     o.scene,
                     o.model,
-                    o.rate * 1e-6,
+                    ours_rate * 1e-6,
+                    o.cmp.mse,
                     text("variant"),
-                    mr * 1e-6,
-                    t["first_seconds"].as_f64().unwrap_or(f64::NAN),
-                    o.rate / mr,
-                    text("bsdf")
+                    text("error")
                 ),
-                None => println!("{:<12} {:<10} {:>14.3} {:<12} {}", o.scene, o.model, o.rate * 1e-6, text("variant"), text("error")),
             }
         }
     }
