@@ -282,13 +282,24 @@ pub fn sampling(finest: u32, cube_side: f64, cfg: &AutoConfig, max_samples_per_r
     let spd_raw = (3f64.sqrt() * footprint_res).ceil() as usize;
     let spd = spd_raw.min(max_samples_per_ray.max(1)).max(1);
     let reasons = vec![
-        format!(
-            "grid_resolution = {grid}: occupancy cell {} ≈ {} smallest pixel footprints (clamped to {}..={})",
-            fmt_len(cube_side / grid as f64),
-            cfg.hash_cells_per_grid_cell,
-            cfg.min_grid_resolution,
-            cfg.max_grid_resolution
-        ),
+        if grid == pow2 {
+            format!(
+                "grid_resolution = {grid}: occupancy cell {} ≈ {} smallest pixel footprints (within {}..={})",
+                fmt_len(cube_side / grid as f64),
+                cfg.hash_cells_per_grid_cell,
+                cfg.min_grid_resolution,
+                cfg.max_grid_resolution
+            )
+        } else {
+            format!(
+                "grid_resolution = {grid}: occupancy cell {} ≈ {:.1} smallest pixel footprints ({} footprints per cell would need {pow2}, clamped to {}..={})",
+                fmt_len(cube_side / grid as f64),
+                footprint_res / grid as f64,
+                cfg.hash_cells_per_grid_cell,
+                cfg.min_grid_resolution,
+                cfg.max_grid_resolution
+            )
+        },
         if spd < spd_raw {
             format!(
                 "steps_per_diagonal = {spd}: marching step {}, coarser than the smallest pixel footprint ({}, {spd_raw} steps per diagonal) so a cube diagonal takes at most {max_samples_per_ray} samples",
