@@ -626,11 +626,22 @@ mod tests {
 
     #[test]
     fn reference_variance_matches_the_spread_of_groups() {
-        // A lit triangle filling the view: constant emission 2 (no noise) plus noisy direct light.
-        let scene = one_triangle_scene();
-        let r = Renderer::new(scene, &crate::accel::AccelParams::fast_build()).unwrap();
+        // A lit triangle filling the view: constant emission 2 (no noise) plus light from the
+        // constant environment (the point light lies in the triangle's plane).
         let cam = Camera::new(Intrinsics::from_fov_y(2, 2, 0.05), Camera::look_at(DVec3::new(100.3, 0.3, 0.0), DVec3::new(100.3, 0.3, -3.0), DVec3::Y)).unwrap();
         let settings = RenderSettings { spp: 8, max_bounces: 2, seed: 1, environment: [0.5; 3], transparent_background: false, environment_map: None };
+        // Lambertian: cosine-sampled rays to a constant environment carry exactly albedo × L
+        // (green 0.25 × 0.5), so every group agrees and the variance is 0 up to rounding.
+        let r = Renderer::new(one_triangle_scene(), &crate::accel::AccelParams::fast_build()).unwrap();
+        let v = render_reference(&r, &cam, 0, &settings, 8).unwrap();
+        for px in 0..4 {
+            assert_eq!(v.mean[4 * px + 1], 0.125, "{:?}", &v.mean);
+            assert!(v.variance[4 * px + 1] < 1e-12, "{:?}", &v.variance);
+        }
+        // Half metallic: GGX sampling does not follow f·cos exactly, so the groups spread.
+        let mut scene = one_triangle_scene();
+        scene.materials[0].metallic_factor = 0.5;
+        let r = Renderer::new(scene, &crate::accel::AccelParams::fast_build()).unwrap();
         let v = render_reference(&r, &cam, 0, &settings, 8).unwrap();
         assert_eq!((v.groups, v.spp_per_group), (8, 1));
         assert!(v.ground_truth.alpha.iter().all(|a| *a == 1.0));

@@ -3,18 +3,22 @@
 //!
 //! [`PathIntegrator::radiance`] is a unidirectional path tracer:
 //! - Next-event estimation at every vertex: every punctual light deterministically (they are
-//!   delta lights, so no MIS), one sample of the emissive triangles and one of the
-//!   environment, each combined with BSDF sampling by multiple importance sampling with the
-//!   power heuristic (Veach 1997). A BSDF-sampled ray that hits an emitter or escapes to the
-//!   environment adds the complementary MIS-weighted term.
+//!   delta lights, so no MIS), one sample of the emissive triangles and, for an environment
+//!   map, one of the environment, each combined with BSDF sampling by multiple importance
+//!   sampling with the power heuristic (Veach 1997). A BSDF-sampled ray that hits an emitter or
+//!   escapes to the environment adds the complementary MIS-weighted term. A constant
+//!   environment is reached by BSDF sampling alone (weight 1): its light sampling (uniform
+//!   over the sphere) is nearly always the worse strategy against the BSDF's (for a Lambertian
+//!   surface, cosine sampling of a constant environment has no variance but visibility) and
+//!   would cost a shadow ray per vertex, usually occluded in closed scenes.
 //! - `max_bounces` counts scattering events: 0 shows emitters and the environment only,
 //!   1 is direct lighting, `n` adds paths with up to `n` surface reflections.
 //! - Russian roulette from the third vertex on, with survival probability
 //!   `min(1, max throughput component)`.
 //! - Camera rays that miss return the environment radiance, or zero with `primary_hit =
 //!   false` when the background is transparent (the environment still lights the scene).
-//!   The environment (constant or an equirectangular map) is sampled with its own density
-//!   ([`Environment::sample`] / [`Environment::pdf`]) and MIS-combined like the emitters.
+//!   An environment map is sampled with its own density ([`Environment::sample`] /
+//!   [`Environment::pdf`]) and MIS-combined like the emitters.
 //! - Shading: BSDFs are evaluated in [`shading_frame`] around the interpolated normal,
 //!   perturbed by the material's normal map ([`normal_mapped`], with the asset's TANGENT or a
 //!   per-triangle tangent from the normal map's UV set, [`triangle_tangent`]) and bent
@@ -211,6 +215,7 @@ impl PathIntegrator<'_> {
             return RadianceSample { radiance, primary_hit: false };
         };
         let scene = self.scene;
+        let env_nee = !env.is_black() && env.map.is_some();
         let mut l = Vec3::ZERO;
         let mut beta = Vec3::ONE;
         let mut ray = *ray;
@@ -289,8 +294,9 @@ impl PathIntegrator<'_> {
                 l += beta * self.emitter_nee(&si, origin, &bsdf, es);
             }
 
-            // Environment: one sample, MIS with BSDF sampling.
-            if !env.is_black()
+            // Environment map: one sample, MIS with BSDF sampling. A constant environment is
+            // left to BSDF sampling alone (see the module docs).
+            if env_nee
                 && let Some((wi, pdf)) = env.sample(u_env)
                 && wi.dot(si.ng) > 0.0
             {
@@ -325,8 +331,10 @@ impl PathIntegrator<'_> {
                     depth += 1;
                 }
                 None => {
-                    if !env.is_black() {
+                    if env_nee {
                         l += beta * env.eval(ray.direction) * power_heuristic(prev_bsdf_pdf, env.pdf(ray.direction));
+                    } else if !env.is_black() {
+                        l += beta * env.eval(ray.direction);
                     }
                     break;
                 }
