@@ -49,6 +49,9 @@ def parse_args():
     p.add_argument("--runs", type=int, default=5, help="timed renders after the first (median)")
     p.add_argument("--rr-depth", type=int, default=2, help="Mitsuba's rr_depth (2 = ours; see above)")
     p.add_argument("--modes", default="gltf", help="BSDF modes, comma-separated: gltf, diffuse")
+    p.add_argument("--samplers", default="independent,ldsampler,multijitter",
+                   help="Mitsuba samplers, comma-separated (independent: Mitsuba's default; ldsampler: its padded, "
+                        "scrambled (0,2)-sequence, the counterpart of ours; multijitter: correlated multi-jittered)")
     return p.parse_args()
 
 
@@ -109,12 +112,13 @@ def main():
         spp = int(man["settings"]["spp"])
         cam = man["cameras"][0]
         samples = cam["width"] * cam["height"] * spp
-        for mode in args.modes.split(","):
-            rec = {"export": folder, "scene": man["scene"], "variant": variant, "mode": mode, "width": cam["width"], "height": cam["height"],
-                   "spp": spp, "max_depth": int(man["settings"]["max_bounces"]) + 1, "samples": samples}
+        for mode, sampler in [(m, s) for m in args.modes.split(",") for s in args.samplers.split(",")]:
+            rec = {"export": folder, "scene": man["scene"], "variant": variant, "mode": mode, "sampler": sampler, "width": cam["width"],
+                   "height": cam["height"], "spp": spp, "max_depth": int(man["settings"]["max_bounces"]) + 1, "samples": samples}
             try:
                 scene = scene_loader.build_scene(mi, man, arrays, 0, spp, plugins[mode], gltf_lights.spot_dict,
-                                                 gltf_lights.envmap_dict, transparent_ok=True, rr_depth=args.rr_depth)
+                                                 gltf_lights.envmap_dict, transparent_ok=True, rr_depth=args.rr_depth,
+                                                 sampler=sampler)
                 lambert = sum(1 for m in man["materials"] if m["metallic"] <= 0 and m.get("specular", 1.0) <= 0
                               and m["metallic_roughness_texture"] is None)
                 glossy = len(man["materials"]) - lambert

@@ -267,7 +267,7 @@ def local_c2w(cam, origin):
     return m
 
 
-def sensor(mi, cam, origin, spp):
+def sensor(mi, cam, origin, spp, sampler="independent"):
     """Mitsuba `perspective` sensor reproducing the dataset camera (see the module docs)."""
     w, h = cam["width"], cam["height"]
     if abs(cam["fl_x"] - cam["fl_y"]) > 1e-9 * cam["fl_y"]:
@@ -292,12 +292,12 @@ def sensor(mi, cam, origin, spp):
             "pixel_format": "rgba",
             "component_format": "float32",
         },
-        "sampler": {"type": "independent", "sample_count": spp},
+        "sampler": {"type": sampler, "sample_count": spp},
     }
 
 
 def build_scene(mi, man, arrays, view, spp, glossy_plugin=None, spot_plugin=None, envmap_plugin=None, transparent_ok=False,
-                rr_depth=None):
+                rr_depth=None, sampler="independent"):
     """The Mitsuba scene of view `view`. A transparent background is unsupported (the
     comparison needs the environment behind the scene) unless `transparent_ok` (timing only:
     camera misses then show black, `hide_emitters`, where ours shows alpha 0)."""
@@ -315,7 +315,7 @@ def build_scene(mi, man, arrays, view, spp, glossy_plugin=None, spot_plugin=None
         raise Unsupported("transparent background (render with the environment as background)")
     d.update(build_meshes(mi, man, arrays, glossy_plugin))
     d.update(build_lights(man, spot_plugin, arrays, envmap_plugin))
-    d["sensor"] = sensor(mi, man["cameras"][view], origin, spp)
+    d["sensor"] = sensor(mi, man["cameras"][view], origin, spp, sampler)
     return mi.load_dict(d)
 
 

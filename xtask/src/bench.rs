@@ -25,7 +25,7 @@ pub enum BenchWhat {
 /// Runs a benchmark.
 pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     match args.what {
-        BenchWhat::Render => bench_render(),
+        BenchWhat::Render => bench_render(args.auto.scenes.as_deref()),
         BenchWhat::Nerf => crate::bench_nerf::run(),
         BenchWhat::Auto => crate::bench_auto::run(args.auto),
     }
@@ -59,7 +59,7 @@ fn median(mut v: Vec<f64>) -> f64 {
 /// error; for each scene twice: as authored (Mitsuba runs our glTF BRDF as its Python BSDF
 /// plugin) and with every material made exactly Lambertian (ours `Diffuse`, Mitsuba's native
 /// `diffuse`); without the Python environment a note says how to create it.
-fn bench_render() -> anyhow::Result<()> {
+fn bench_render(only: Option<&str>) -> anyhow::Result<()> {
     use anyhow::Context;
     use pathtracer::accel::{Accel, AccelParams};
     use pathtracer::dataset_render::{DatasetRenderConfig, Preset};
@@ -73,6 +73,17 @@ fn bench_render() -> anyhow::Result<()> {
         .filter(|p| p.extension().is_some_and(|e| e == "gltf" || e == "glb"))
         .collect();
     scenes.sort();
+    if let Some(only) = only {
+        let names: Vec<&str> = only.split(',').map(str::trim).filter(|n| !n.is_empty()).collect();
+        for n in &names {
+            anyhow::ensure!(
+                scenes.iter().any(|p| p.file_stem().is_some_and(|s| s == *n)),
+                "--scenes: no scene '{n}' in {}",
+                dir.display()
+            );
+        }
+        scenes.retain(|p| p.file_stem().is_some_and(|s| names.iter().any(|n| s == *n)));
+    }
     if scenes.is_empty() {
         anyhow::bail!("no scenes in {} (`cargo xtask gen-scenes` writes them)", dir.display());
     }
@@ -291,7 +302,8 @@ fn bench_render_mitsuba(ours: &[OursQuick]) -> anyhow::Result<()> {
         "vs Mitsuba 3: same camera (the quick rig's first train view) at {CMP_WIDTH} px wide, {CMP_SPP} spp, our max_bounces {} = \
          Mitsuba max_depth {} (Russian roulette from the third vertex on both: rr_depth 2), environment {:?} as an opaque \
          background (both show it and the emitters the camera sees); medians of {RENDER_RUNS} timed renders (Mitsuba's after a first one for \
-         JIT compilation). MSE = mean squared RGB error of one render against our {CMP_REF_SPP}-spp reference, less that \
+         JIT compilation; Mitsuba with its default `independent` sampler, with `ldsampler`, its counterpart of our padded \
+         Owen-scrambled Sobol' sampler, and with `multijitter`). MSE = mean squared RGB error of one render against our {CMP_REF_SPP}-spp reference, less that \
          reference's own noise; Mi bias² = the part of Mitsuba's MSE that more samples would not remove (≈ 0: both \
          converge to the same image). Equal-error speed = (MSE x seconds of Mitsuba) / (MSE x seconds of ours): how much less time we need \
          for the same error (Monte Carlo error falls as 1/time).",
@@ -300,8 +312,8 @@ fn bench_render_mitsuba(ours: &[OursQuick]) -> anyhow::Result<()> {
         quick.environment
     );
     println!(
-        "{:<10} {:<9} {:>8} {:>10} {:<11} {:>8} {:>10} {:>10} {:>8} {:>8}  Mitsuba BSDF",
-        "scene", "model", "ours Ms/s", "ours MSE", "variant", "Mi Ms/s", "Mi MSE", "Mi bias²", "speed", "eq-err"
+        "{:<10} {:<9} {:>8} {:>10} {:<11} {:<11} {:>8} {:>10} {:>10} {:>8} {:>8}  Mitsuba BSDF",
+        "scene", "model", "ours Ms/s", "ours MSE", "variant", "Mi sampler", "Mi Ms/s", "Mi MSE", "Mi bias²", "speed", "eq-err"
     );
     for o in ours {
         let dir = o.export.display().to_string();
@@ -312,12 +324,13 @@ fn bench_render_mitsuba(ours: &[OursQuick]) -> anyhow::Result<()> {
                 (Some(mr), Some(ms)) => {
                     let mi_mse = t["mse"].as_f64().unwrap_or(f64::NAN);
                     println!(
-                        "{:<10} {:<9} {:>8.3} {:>10.3e} {:<11} {:>8.3} {:>10.3e} {:>10.1e} {:>7.2}x {:>7.2}x  {}",
+                        "{:<10} {:<9} {:>8.3} {:>10.3e} {:<11} {:<11} {:>8.3} {:>10.3e} {:>10.1e} {:>7.2}x {:>7.2}x  {}",
                         o.scene,
                         o.model,
                         ours_rate * 1e-6,
                         o.cmp.mse,
                         text("variant"),
+                        text("sampler"),
                         mr * 1e-6,
                         mi_mse,
                         t["bias2"].as_f64().unwrap_or(f64::NAN),

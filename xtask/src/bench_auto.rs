@@ -18,7 +18,7 @@ use std::path::{Path, PathBuf};
 /// Options of `bench auto`.
 #[derive(clap::Args, Clone, Debug)]
 pub struct AutoBenchArgs {
-    /// Scenes (names in `scenes/`), comma-separated; default every scene.
+    /// Scenes (names in `scenes/`), comma-separated; default every scene (also for `bench render`).
     #[arg(long, help_heading = "bench auto")]
     pub scenes: Option<String>,
     /// Render preset of the datasets.
