@@ -53,7 +53,7 @@ pub fn owen_scramble(x: u32, seed: u32) -> u32 {
 
 /// Generator matrix columns of the second Sobol' dimension (the first is the bit-reversed
 /// index, van der Corput): `v₀ = 2³¹`, `vₖ = vₖ₋₁ ⊕ (vₖ₋₁ ≫ 1)` (Pascal's triangle mod 2).
-const SOBOL_DIM1: [u32; 32] = {
+const fn sobol_dim1_columns() -> [u32; 32] {
     let mut v = [0u32; 32];
     v[0] = 1 << 31;
     let mut k = 1;
@@ -62,21 +62,40 @@ const SOBOL_DIM1: [u32; 32] = {
         k += 1;
     }
     v
+}
+
+/// The second Sobol' dimension, bit-reversed, by bytes of the index: entry `[b][x]` is the
+/// XOR of the reversed columns `8b + i` for the set bits `i` of `x` (the matrix is linear over
+/// GF(2), so four lookups give any index).
+static SOBOL_DIM1_REVERSED: [[u32; 256]; 4] = {
+    let v = sobol_dim1_columns();
+    let mut t = [[0u32; 256]; 4];
+    let mut b = 0;
+    while b < 4 {
+        let mut x = 0;
+        while x < 256 {
+            let mut acc = 0u32;
+            let mut i = 0;
+            while i < 8 {
+                if (x >> i) & 1 != 0 {
+                    acc ^= v[8 * b + i].reverse_bits();
+                }
+                i += 1;
+            }
+            t[b][x] = acc;
+            x += 1;
+        }
+        b += 1;
+    }
+    t
 };
 
-/// The second Sobol' dimension of point `index`, as 32-bit fixed point.
+/// The second Sobol' dimension of point `index`, bit-reversed (32-bit fixed point after
+/// reversal).
 #[inline]
-fn sobol_dim1(mut index: u32) -> u32 {
-    let mut x = 0;
-    let mut k = 0;
-    while index != 0 {
-        if index & 1 != 0 {
-            x ^= SOBOL_DIM1[k];
-        }
-        index >>= 1;
-        k += 1;
-    }
-    x
+fn sobol_dim1_reversed(index: u32) -> u32 {
+    let t = &SOBOL_DIM1_REVERSED;
+    t[0][(index & 0xff) as usize] ^ t[1][((index >> 8) & 0xff) as usize] ^ t[2][((index >> 16) & 0xff) as usize] ^ t[3][(index >> 24) as usize]
 }
 
 /// 32-bit fixed point `x / 2³²` to an `f32` in `[0, 1)` on the grid `m / 2²⁴`.
@@ -92,8 +111,8 @@ fn to_unit(x: u32) -> f32 {
 pub struct Sampler {
     /// Key of `(seed, view, pixel)`.
     key: u64,
-    /// Sample index within the pixel.
-    sample: u32,
+    /// Sample index within the pixel, bit-reversed.
+    sample_reversed: u32,
     dimension: u32,
 }
 
@@ -105,25 +124,27 @@ impl Sampler {
         let mut h = splitmix64(seed);
         h = splitmix64(h ^ (view as u64).wrapping_mul(0xA24B_AED4_963E_E407));
         h = splitmix64(h ^ pixel.wrapping_mul(0x9FB2_1C65_1E98_DF25));
-        Self { key: h, sample, dimension: 0 }
+        Self { key: h, sample_reversed: sample.reverse_bits(), dimension: 0 }
     }
 
-    /// Three independent 32-bit scramble keys for dimension `k`: index shuffle, x, y.
+    /// Dimension `k`'s scramble keys (index shuffle, x, y) and its shuffled Sobol' index
+    /// `owen_scramble(sample, key)`; advances by `n` dimensions.
     #[inline]
-    fn keys(&self, k: u32) -> (u32, u32, u32) {
-        let h = splitmix64(self.key ^ (k as u64).wrapping_mul(0xD1B5_4A32_D192_ED03));
-        let h2 = splitmix64(h);
-        (h as u32, (h >> 32) as u32, h2 as u32)
+    fn start(&mut self, n: u32) -> (u32, u32, u32) {
+        let h = splitmix64(self.key ^ (self.dimension as u64).wrapping_mul(0xD1B5_4A32_D192_ED03));
+        self.dimension = self.dimension.wrapping_add(n);
+        let ky = ((h ^ (h >> 31)).wrapping_mul(0xD6E8_FEB8_6659_FD93) >> 32) as u32;
+        let index = laine_karras(self.sample_reversed, h as u32).reverse_bits();
+        (index, (h >> 32) as u32, ky)
     }
 
     /// The next dimension as 32-bit fixed point (one coordinate of its own shuffled,
-    /// scrambled sequence).
+    /// scrambled sequence: the van der Corput point of the shuffled index, Owen-scrambled).
     #[inline]
     pub fn next_u32(&mut self) -> u32 {
-        let (ks, kx, _) = self.keys(self.dimension);
-        self.dimension = self.dimension.wrapping_add(1);
-        let index = owen_scramble(self.sample, ks);
-        owen_scramble(index.reverse_bits(), kx)
+        let (index, kx, _) = self.start(1);
+        // owen_scramble(index.reverse_bits(), kx), without the double reversal.
+        laine_karras(index, kx).reverse_bits()
     }
 
     /// The next dimension as an `f32` in `[0, 1)` (multiples of 2⁻²⁴).
@@ -136,10 +157,10 @@ impl Sampler {
     /// (0,2)-sequence.
     #[inline]
     pub fn next_2d(&mut self) -> Vec2 {
-        let (ks, kx, ky) = self.keys(self.dimension);
-        self.dimension = self.dimension.wrapping_add(2);
-        let index = owen_scramble(self.sample, ks);
-        Vec2::new(to_unit(owen_scramble(index.reverse_bits(), kx)), to_unit(owen_scramble(sobol_dim1(index), ky)))
+        let (index, kx, ky) = self.start(2);
+        let x = laine_karras(index, kx).reverse_bits();
+        let y = laine_karras(sobol_dim1_reversed(index), ky).reverse_bits();
+        Vec2::new(to_unit(x), to_unit(y))
     }
 
     /// How many dimensions have been drawn.
@@ -252,6 +273,18 @@ mod tests {
             }
             count.iter().all(|&c| c == 1)
         })
+    }
+
+    #[test]
+    fn sobol_table_matches_the_generator_matrix() {
+        let v = sobol_dim1_columns();
+        for index in [0u32, 1, 2, 3, 255, 256, 0x1234_5678, u32::MAX, 0x8000_0001] {
+            let direct = (0..32).filter(|k| (index >> k) & 1 != 0).fold(0u32, |acc, k| acc ^ v[k]);
+            assert_eq!(sobol_dim1_reversed(index), direct.reverse_bits(), "{index:#x}");
+        }
+        // The first points of the second dimension in natural (not Gray-code) index order.
+        let firsts: Vec<f64> = (0..8).map(|i| sobol_dim1_reversed(i).reverse_bits() as f64 / 2f64.powi(32)).collect();
+        assert_eq!(firsts, [0.0, 0.5, 0.75, 0.25, 0.625, 0.125, 0.375, 0.875]);
     }
 
     #[test]
