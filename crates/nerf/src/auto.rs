@@ -13,7 +13,7 @@
 //! | coarsest resolution | instant-ngp's 16, raised until the box's smallest side spans 4 coarsest cells |
 //! | levels, table size | levels from the two resolutions at instant-ngp's growth factor (≤ 16); table big enough for a dense finest level, at most 2^17 entries per level (one level's table in a core's cache) and within a memory budget ([`hash_sizes`]) |
 //! | view dependence | scene facts' `view_dependent`; without facts the spread of a surface point's colour across the train views that see it, with ground-truth depth ([`colour_spread`]); without depth it stays on |
-//! | samples | occupancy cell = 4 smallest footprints (16³…64³); marching step = the smallest footprint, at most `max_samples_per_ray` per cube diagonal ([`sampling`]) |
+//! | samples | occupancy cell = 4 smallest footprints (16³…64³); marching step = the smallest footprint, at most `max_samples_per_ray` per cube diagonal ([`sampling`]), growing with distance as the footprint does, up to one occupancy cell ([`cone`]) |
 //! | stopping | stop when the best val PSNR gained < 0.1 dB over the last fifth of the time budget ([`plateau_reached`]), validating every twentieth |
 
 use crate::data::{SceneBounds, TrainData};
@@ -91,6 +91,31 @@ pub struct AutoConfig {
     /// Validation interval, as a fraction of the time budget.
     #[config(default = 0.05)]
     pub val_interval_fraction: f64,
+    /// Cone marching: the step grows with distance as the pixel footprint does ([`cone`]).
+    /// `None` (and configs written before this option) means yes.
+    #[config(default = "None")]
+    pub cone_marching: Option<bool>,
+}
+
+/// Cone marching angle: the marching step at distance `t` is the pixel footprint there,
+/// `t × pixel angle / cells_per_footprint` (from the camera with the smallest footprint),
+/// between the constant step of [`sampling`] and one occupancy cell. Returns the angle and
+/// its reason line.
+pub fn cone(footprint: &Footprint, cfg: &AutoConfig, cube_side: f64, grid: usize, steps_per_diagonal: usize) -> (f32, String) {
+    let angle = footprint.pixel_angle / cfg.cells_per_footprint.max(1e-3);
+    let min_step = cube_side * 3f64.sqrt() / steps_per_diagonal.max(1) as f64;
+    let cell = cube_side / grid.max(1) as f64;
+    (
+        angle as f32,
+        format!(
+            "cone_angle = {angle:.3e}: the marching step follows the pixel footprint along the ray (distance × pixel angle of train view {}), {} at {} up to one occupancy cell {} at {} and beyond",
+            footprint.view,
+            fmt_len(min_step),
+            fmt_len(min_step / angle),
+            fmt_len(cell),
+            fmt_len(cell / angle)
+        ),
+    )
 }
 
 /// Stop training when the best validation PSNR has gained less than `min_gain_db` over the
@@ -731,6 +756,11 @@ pub fn resolve(config: &mut TrainConfig, ds: &Dataset, train: &TrainData) -> Res
     fast.grid_resolution = grid;
     fast.steps_per_diagonal = spd;
     reasons.extend(r);
+    if auto.cone_marching.unwrap_or(true) {
+        let (angle, r) = cone(&fp, &auto, cube_side, grid, spd);
+        fast.cone_angle = Some(angle);
+        reasons.push(r);
+    }
 
     // Stopping.
     let interval = config.time_budget_s.map_or(30.0, |t| t * auto.val_interval_fraction);
@@ -859,6 +889,19 @@ mod tests {
         assert_eq!((hs.finest_resolution, hs.base_resolution, hs.levels), (16, 16, 1));
         assert_eq!(hs.log2_table_size, 13); // 17³ = 4913 ≤ 2^13
         assert!(r[3].contains("densely"), "{r:?}");
+    }
+
+    #[test]
+    fn cone_angle_is_the_pixel_angle() {
+        // 2 mrad pixels: at 1 m the footprint is 2 mm; a 2 m cube with 1732 steps per diagonal
+        // (2 mm) and a 64³ grid (3.1 cm cells, reached at 15.6 m).
+        let fp = Footprint { size: 0.002, distance: 1.0, pixel_angle: 0.002, view: 3 };
+        let cfg = AutoConfig::new();
+        let (angle, why) = cone(&fp, &cfg, 2.0, 64, 1732);
+        assert!((angle - 0.002).abs() < 1e-9, "{angle}");
+        assert!(why.contains("train view 3") && why.contains("2.00 mm at 1.00 m"), "{why}");
+        let (half, _) = cone(&fp, &AutoConfig::new().with_cells_per_footprint(2.0), 2.0, 64, 1732);
+        assert!((half - 0.001).abs() < 1e-9);
     }
 
     #[test]

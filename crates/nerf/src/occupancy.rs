@@ -67,6 +67,10 @@ pub struct MarchOptions {
     pub max_samples_per_ray: usize,
     /// Jitter of the first sample.
     pub jitter: SampleMode,
+    /// Cone marching (instant-ngp's `cone_angle`): where > 0, the step at distance `t` along
+    /// the (unit-direction) ray is `t · cone_angle` (the pixel footprint there), at least
+    /// `step_size` and at most one occupancy cell. 0: the constant step `step_size`.
+    pub cone_angle: f32,
 }
 
 /// The grid: running densities and the occupancy bitfield.
@@ -281,6 +285,10 @@ impl OccupancyGrid {
         };
         let dt = opt.step_size;
         let size: [f32; 3] = [0, 1, 2].map(|a| (self.config.aabb.max[a] - self.config.aabb.min[a]) / self.config.resolution as f32);
+        if opt.cone_angle > 0.0 {
+            self.march_cone(o, d, lo, hi, u, opt, size, ts, te);
+            return;
+        }
         let mut k: u64 = 0;
         let mut emitted = 0;
         while emitted < opt.max_samples_per_ray {
@@ -320,6 +328,59 @@ impl OccupancyGrid {
             k = if k_next > k as f32 { (k_next as u64).max(k + 1) } else { k + 1 };
         }
     }
+
+    /// [`Self::march_ray`] with cone marching: contiguous intervals of length
+    /// `clamp(t · cone_angle, step_size, one cell)` from `lo + u · step(lo)`; an interval whose
+    /// midpoint lies in an empty cell is dropped and the walk resumes `u · step` past that
+    /// cell's exit (the same jitter `u` as the first interval).
+    #[allow(clippy::too_many_arguments)]
+    fn march_cone(
+        &self,
+        o: [f32; 3],
+        d: [f32; 3],
+        lo: f32,
+        hi: f32,
+        u: f32,
+        opt: &MarchOptions,
+        size: [f32; 3],
+        ts: &mut Vec<f32>,
+        te: &mut Vec<f32>,
+    ) {
+        let max_step = size[0].min(size[1]).min(size[2]).max(opt.step_size);
+        let step_at = |t: f32| (t * opt.cone_angle).clamp(opt.step_size, max_step);
+        let mut t = lo + u * step_at(lo);
+        let mut emitted = 0;
+        while emitted < opt.max_samples_per_ray && t < hi {
+            let t1 = (t + step_at(t)).min(hi);
+            let tm = 0.5 * (t + t1);
+            let p = [o[0] + tm * d[0], o[1] + tm * d[1], o[2] + tm * d[2]];
+            let c = self.cell_of(p).unwrap_or_else(|| {
+                let b = &self.config.aabb;
+                let q = [0, 1, 2].map(|a| p[a].clamp(b.min[a], b.max[a]));
+                self.cell_of(q).unwrap_or([0; 3])
+            });
+            if self.is_occupied(c) {
+                ts.push(t);
+                te.push(t1);
+                emitted += 1;
+                t = t1;
+                continue;
+            }
+            let mut t_exit = f32::INFINITY;
+            for a in 0..3 {
+                if d[a] != 0.0 {
+                    let lo_a = self.config.aabb.min[a] + c[a] as f32 * size[a];
+                    let plane = if d[a] > 0.0 { lo_a + size[a] } else { lo_a };
+                    t_exit = t_exit.min((plane - o[a]) / d[a]);
+                }
+            }
+            if !(t_exit < hi) {
+                break;
+            }
+            // Always advance (rounding can put the exit at or before t).
+            t = (t_exit + u * step_at(t_exit)).max(t1);
+        }
+    }
 }
 
 #[cfg(test)]
@@ -338,7 +399,7 @@ mod tests {
     }
 
     fn opts(step: f32, jitter: SampleMode) -> MarchOptions {
-        MarchOptions { step_size: step, max_samples_per_ray: 10_000, jitter }
+        MarchOptions { step_size: step, max_samples_per_ray: 10_000, jitter, cone_angle: 0.0 }
     }
 
     #[test]
@@ -394,6 +455,40 @@ mod tests {
     }
 
     #[test]
+    fn cone_marching_steps_grow_with_distance_and_skip_empty_cells() {
+        let g = OccupancyGrid::new(cfg(8));
+        let cone = |step: f32, jitter| MarchOptions { step_size: step, max_samples_per_ray: 10_000, jitter, cone_angle: 0.01 };
+        // Everything occupied, a ray along +z from z = -9 through the unit box (t 9..10):
+        // steps t · 0.01 ≈ 0.09..0.1 (above the 0.001 minimum, below the 0.125 cell),
+        // contiguous from near to far.
+        let s = g.march(&[[0.5, 0.5, -9.0]], &[[0.0, 0.0, 1.0]], &[0.0], &[100.0], &cone(0.001, SampleMode::Deterministic));
+        assert_eq!(s.t_start[0], 9.0);
+        assert_eq!(*s.t_end.last().unwrap(), 10.0);
+        assert!(s.t_start[1..].iter().zip(&s.t_end).all(|(a, b)| a == b));
+        for (a, b) in s.t_start.iter().zip(&s.t_end).take(s.len() - 1) {
+            assert!(((b - a) - 0.01 * a).abs() < 1e-5, "step {} at {a}", b - a);
+        }
+        // Close to the origin the minimum step rules; far away one cell.
+        let s = g.march(&[[0.5, 0.5, 0.0]], &[[0.0, 0.0, 1.0]], &[0.0], &[100.0], &cone(0.02, SampleMode::Deterministic));
+        assert!((s.t_end[0] - s.t_start[0] - 0.02).abs() < 1e-6);
+        let s = g.march(&[[0.5, 0.5, -99.0]], &[[0.0, 0.0, 1.0]], &[0.0], &[1000.0], &cone(0.001, SampleMode::Deterministic));
+        assert!((s.t_end[0] - s.t_start[0] - 0.125).abs() < 1e-4, "{}", s.t_end[0] - s.t_start[0]);
+        // One occupied cell: every sample's midpoint lies in it, jittered or not.
+        let mut g = OccupancyGrid::new(cfg(8));
+        g.mark_all(false);
+        g.set_occupied([3, 4, 5], true);
+        for mode in [SampleMode::Deterministic, SampleMode::Random { seed: 5, step: 2 }] {
+            let s = g.march(&[[-1.0, 0.55, 0.7]], &[[1.0, 0.0, 0.0]], &[0.0], &[10.0], &cone(0.001, mode));
+            // The chord 1.375..1.5 at steps ≈ 0.014: 8 or 9 samples.
+            assert!((8..=10).contains(&s.len()), "{} samples", s.len());
+            for (&t0, &t1) in s.t_start.iter().zip(&s.t_end) {
+                let tm = 0.5 * (t0 + t1);
+                assert_eq!(g.cell_of([-1.0 + tm, 0.55, 0.7]), Some([3, 4, 5]));
+            }
+        }
+    }
+
+    #[test]
     fn degenerate_rays_get_no_samples() {
         let g = OccupancyGrid::new(cfg(4));
         let s = g.march(
@@ -405,7 +500,7 @@ mod tests {
         );
         assert_eq!(s.offsets, vec![0, 0, 0, 0, 0]);
         // the cap
-        let s = g.march(&[[0.0, 0.5, 0.5]], &[[1.0, 0.0, 0.0]], &[0.0], &[1.0], &MarchOptions { step_size: 0.001, max_samples_per_ray: 17, jitter: SampleMode::Deterministic });
+        let s = g.march(&[[0.0, 0.5, 0.5]], &[[1.0, 0.0, 0.0]], &[0.0], &[1.0], &MarchOptions { step_size: 0.001, max_samples_per_ray: 17, jitter: SampleMode::Deterministic, cone_angle: 0.0 });
         assert_eq!(s.len(), 17);
     }
 

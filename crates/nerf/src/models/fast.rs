@@ -82,6 +82,11 @@ pub struct FastConfig {
     /// Most samples per ray.
     #[config(default = 1024)]
     pub max_samples_per_ray: usize,
+    /// Cone marching: the step at distance `t` from the camera is `t · cone_angle` (the pixel
+    /// footprint there), at least the constant step above and at most one occupancy cell.
+    /// `None` or 0 (and configs written before this option): the constant step everywhere.
+    #[config(default = "None")]
+    pub cone_angle: Option<f32>,
     /// Steps between occupancy-grid updates (instant-ngp: 16); the first update is at this step
     /// (before it every cell is occupied).
     #[config(default = 16)]
@@ -216,7 +221,12 @@ impl FastModel {
     fn march(&self, origins: &[[f32; 3]], dirs: &[[f32; 3]], jitter: SampleMode) -> RaySamples {
         let n = origins.len();
         let (near, far) = (vec![self.bounds.near; n], vec![self.bounds.far; n]);
-        let opt = MarchOptions { step_size: self.step_size(), max_samples_per_ray: self.config.max_samples_per_ray, jitter };
+        let opt = MarchOptions {
+            step_size: self.step_size(),
+            max_samples_per_ray: self.config.max_samples_per_ray,
+            jitter,
+            cone_angle: self.config.cone_angle.unwrap_or(0.0),
+        };
         self.occupancy.march(origins, dirs, &near, &far, &opt)
     }
 
