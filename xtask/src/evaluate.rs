@@ -145,6 +145,21 @@ pub fn run_compare(args: CompareArgs) -> anyhow::Result<()> {
 pub fn run_demo(args: DemoArgs) -> anyhow::Result<()> {
     let dataset_dir = args.out.join("dataset");
     let run_dir = args.out.join(format!("run-{}", args.model));
+    // A dataset of an older renderer (e.g. another sampler) is the demo's own: render it again
+    // and drop the run trained on it, instead of refusing to resume the render.
+    let old_renderer = std::fs::read(dataset_dir.join(pathtracer::dataset_render::RENDER_CONFIG_FILE))
+        .ok()
+        .and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok())
+        .and_then(|v| v["renderer"].as_str().map(str::to_string))
+        .filter(|r| r != pathtracer::RENDERER_VERSION);
+    if let Some(old) = old_renderer {
+        eprintln!("{} was rendered by {old}; rendering it again", dataset_dir.display());
+        for d in [&dataset_dir, &run_dir] {
+            if d.exists() {
+                std::fs::remove_dir_all(d).with_context(|| format!("removing {}", d.display()))?;
+            }
+        }
+    }
     eprintln!("== 1/3 render {} ({} preset) into {}", args.scene, args.preset.name(), dataset_dir.display());
     crate::render::run(crate::render::RenderArgs::for_demo(&args.scene, &dataset_dir, args.preset))?;
     eprintln!("== 2/3 train {} for {} into {}", args.model, args.time, run_dir.display());
