@@ -299,12 +299,7 @@ impl OccupancyGrid {
             let t1 = (t0 + dt).min(hi);
             let tm = 0.5 * (t0 + t1);
             let p = [o[0] + tm * d[0], o[1] + tm * d[1], o[2] + tm * d[2]];
-            // clipping to the box leaves the midpoint inside up to rounding
-            let c = self.cell_of(p).unwrap_or_else(|| {
-                let b = &self.config.aabb;
-                let q = [0, 1, 2].map(|a| p[a].clamp(b.min[a], b.max[a]));
-                self.cell_of(q).unwrap_or([0; 3])
-            });
+            let c = self.cell_clamped(p);
             if self.is_occupied(c) {
                 ts.push(t0);
                 te.push(t1);
@@ -313,20 +308,38 @@ impl OccupancyGrid {
                 continue;
             }
             // DDA skip: the first interval whose midpoint lies past this cell's exit
-            let mut t_exit = f32::INFINITY;
-            for a in 0..3 {
-                if d[a] != 0.0 {
-                    let lo_a = self.config.aabb.min[a] + c[a] as f32 * size[a];
-                    let plane = if d[a] > 0.0 { lo_a + size[a] } else { lo_a };
-                    t_exit = t_exit.min((plane - o[a]) / d[a]);
-                }
-            }
+            let t_exit = self.cell_exit(o, d, c, size);
             if !(t_exit < hi) {
                 break;
             }
             let k_next = ((t_exit - lo) / dt - u - 0.5).floor() + 1.0;
             k = if k_next > k as f32 { (k_next as u64).max(k + 1) } else { k + 1 };
         }
+    }
+
+    /// The cell holding `p`; a point just outside the box (a midpoint of an interval clipped
+    /// to it, off by rounding) counts in the nearest cell.
+    #[inline]
+    fn cell_clamped(&self, p: [f32; 3]) -> [u32; 3] {
+        self.cell_of(p).unwrap_or_else(|| {
+            let b = &self.config.aabb;
+            let q = [0, 1, 2].map(|a| p[a].clamp(b.min[a], b.max[a]));
+            self.cell_of(q).unwrap_or([0; 3])
+        })
+    }
+
+    /// Distance along the ray `o + t d` at which it leaves cell `c` (cells of `size`).
+    #[inline]
+    fn cell_exit(&self, o: [f32; 3], d: [f32; 3], c: [u32; 3], size: [f32; 3]) -> f32 {
+        let mut t_exit = f32::INFINITY;
+        for a in 0..3 {
+            if d[a] != 0.0 {
+                let lo_a = self.config.aabb.min[a] + c[a] as f32 * size[a];
+                let plane = if d[a] > 0.0 { lo_a + size[a] } else { lo_a };
+                t_exit = t_exit.min((plane - o[a]) / d[a]);
+            }
+        }
+        t_exit
     }
 
     /// [`Self::march_ray`] with cone marching: contiguous intervals of length
@@ -354,11 +367,7 @@ impl OccupancyGrid {
             let t1 = (t + step_at(t)).min(hi);
             let tm = 0.5 * (t + t1);
             let p = [o[0] + tm * d[0], o[1] + tm * d[1], o[2] + tm * d[2]];
-            let c = self.cell_of(p).unwrap_or_else(|| {
-                let b = &self.config.aabb;
-                let q = [0, 1, 2].map(|a| p[a].clamp(b.min[a], b.max[a]));
-                self.cell_of(q).unwrap_or([0; 3])
-            });
+            let c = self.cell_clamped(p);
             if self.is_occupied(c) {
                 ts.push(t);
                 te.push(t1);
@@ -366,14 +375,7 @@ impl OccupancyGrid {
                 t = t1;
                 continue;
             }
-            let mut t_exit = f32::INFINITY;
-            for a in 0..3 {
-                if d[a] != 0.0 {
-                    let lo_a = self.config.aabb.min[a] + c[a] as f32 * size[a];
-                    let plane = if d[a] > 0.0 { lo_a + size[a] } else { lo_a };
-                    t_exit = t_exit.min((plane - o[a]) / d[a]);
-                }
-            }
+            let t_exit = self.cell_exit(o, d, c, size);
             if !(t_exit < hi) {
                 break;
             }
