@@ -100,6 +100,14 @@ fn scene_names(args: &AutoBenchArgs) -> anyhow::Result<Vec<String>> {
     Ok(v)
 }
 
+/// The renderer of a finished dataset in `dir` when it is not this one (`None` when there is
+/// no finished dataset, or it is this renderer's: then `render` resumes or checks it).
+fn older_dataset(dir: &Path) -> Option<String> {
+    let bytes = std::fs::read(dir.join(pathtracer::dataset_render::RENDER_CONFIG_FILE)).ok()?;
+    let renderer = serde_json::from_slice::<serde_json::Value>(&bytes).ok()?["renderer"].as_str()?.to_string();
+    (renderer != pathtracer::RENDERER_VERSION && dataset::Dataset::load(dir).is_ok()).then_some(renderer)
+}
+
 /// Whether `run` holds a finished, evaluated run with this budget.
 fn evaluated(run: &Path, budget_s: f64) -> bool {
     run.join("report.json").is_file()
@@ -199,8 +207,18 @@ pub fn run(args: AutoBenchArgs) -> anyhow::Result<()> {
     for scene in &scenes {
         let dir = args.out.join(scene);
         let dataset = dir.join("dataset");
-        eprintln!("==== {scene}: render ({} preset) into {}", args.preset.name(), dataset.display());
-        crate::render::run(crate::render::RenderArgs::for_demo(scene, &dataset, args.preset))?;
+        // A finished dataset of an older renderer (e.g. another sampler: the same images up to
+        // Monte Carlo noise) is kept, with the runs trained on it; the report names its renderer.
+        match older_dataset(&dataset) {
+            Some(old) => {
+                eprintln!("==== {scene}: keeping {} (rendered by {old})", dataset.display());
+                md.push_str(&format!("{scene}: dataset rendered by {old} (kept with its runs)\n\n"));
+            }
+            None => {
+                eprintln!("==== {scene}: render ({} preset) into {}", args.preset.name(), dataset.display());
+                crate::render::run(crate::render::RenderArgs::for_demo(scene, &dataset, args.preset))?;
+            }
+        }
         let mut runs = Vec::new();
         for c in &configs {
             let run = dir.join(c);
