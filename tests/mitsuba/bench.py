@@ -28,7 +28,9 @@ Error: when the export folder holds `reference.npy` (our high-spp RGB image of t
 and `reference_noise.json` (that image's own mean squared noise), `mse` is the mean squared RGB
 error of the timed renders against it, less the reference's noise, averaged over the renders,
 and `bias2` the part of it that does not fall with more samples (mean of the renders against the
-reference): near zero when both renderers converge to the same image.
+reference): near zero when both renderers converge to the same image. With `reference_mask.npy`
+(1 = a pixel to measure), both are taken over those pixels only (our side leaves out the few
+pixels where the reference's own noise is largest, and measures its renders on the same set).
 """
 
 import argparse
@@ -81,14 +83,19 @@ def timed_render(mi, dr, scene, spp, seed):
 
 
 def load_reference(folder):
+    """Our reference image, its noise and the mask of the pixels to measure (all without
+    `reference_mask.npy`)."""
     path = os.path.join(folder, "reference.npy")
     if not os.path.exists(path):
-        return None, 0.0
+        return None, 0.0, None
     import numpy as np
 
     with open(os.path.join(folder, "reference_noise.json")) as f:
         noise = float(json.load(f)["mse"])
-    return np.load(path).astype(np.float64), noise
+    reference = np.load(path).astype(np.float64)
+    mask_path = os.path.join(folder, "reference_mask.npy")
+    mask = np.load(mask_path) > 0.5 if os.path.exists(mask_path) else np.ones(reference.shape[:2], dtype=bool)
+    return reference, noise, mask
 
 
 def main():
@@ -131,18 +138,18 @@ def main():
                 times = sorted(t for t, _ in runs)
                 rec["seconds"] = times[len(times) // 2]
                 rec["samples_per_second"] = samples / rec["seconds"]
-                reference, noise = load_reference(folder)
+                reference, noise, mask = load_reference(folder)
                 if reference is not None:
                     import numpy as np
 
                     imgs = [np.array(img, dtype=np.float64)[..., :3] for _, img in runs]
-                    errs = [float(np.mean((i - reference) ** 2)) - noise for i in imgs]
+                    errs = [float(np.mean(((i - reference) ** 2)[mask])) - noise for i in imgs]
                     rec["mse"] = sum(errs) / len(errs)
                     # Per render, error = variance V + squared bias B; the mean of n renders
                     # has V / n + B: B estimates how far Mitsuba's expected image is from ours.
                     n = len(imgs)
                     if n > 1:
-                        mse_mean = float(np.mean((np.mean(imgs, axis=0) - reference) ** 2)) - noise
+                        mse_mean = float(np.mean(((np.mean(imgs, axis=0) - reference) ** 2)[mask])) - noise
                         rec["bias2"] = (mse_mean - rec["mse"] / n) / (1.0 - 1.0 / n)
             except scene_loader.Unsupported as e:
                 rec["error"] = f"unsupported: {e}"

@@ -13,7 +13,7 @@
 //! | coarsest resolution | instant-ngp's 16, raised until the box's smallest side spans 4 coarsest cells |
 //! | levels, table size | levels from the two resolutions at instant-ngp's growth factor (≤ 16); table big enough for a dense finest level, at most 2^15 entries per level (one level's parameters, gradients and Adam moments in a core's 1 MiB L2 cache) and within a memory budget ([`hash_sizes`]) |
 //! | view dependence | scene facts' `view_dependent`; without facts the spread of a surface point's colour across the train views that see it, with ground-truth depth ([`colour_spread`]); without depth it stays on |
-//! | samples | occupancy cell = 4 smallest footprints (16³…64³); marching step = 2√3 ≈ 3.46 finest cells (instant-ngp's ratio), at most `max_samples_per_ray` per cube diagonal ([`sampling`]); optionally growing with distance as the footprint does, up to one occupancy cell ([`cone`], `cone_marching`, off by default) |
+//! | samples | occupancy cell = 4 smallest footprints (16³…64³); marching step = 2 finest cells (between one footprint and instant-ngp's 2√3), at most `max_samples_per_ray` per cube diagonal ([`sampling`]); optionally growing with distance as the footprint does, up to one occupancy cell ([`cone`], `cone_marching`, off by default) |
 //! | stopping | stop when the best val PSNR gained < 0.1 dB over the last fifth of the time budget ([`plateau_reached`]), validating every twentieth |
 
 use crate::data::{SceneBounds, TrainData};
@@ -53,9 +53,11 @@ pub struct AutoConfig {
     /// Most log2 entries per level: while training, a level's entries are read and written with
     /// their gradient and two Adam moments, 2^15 entries × 2 features × 16 bytes = 1 MiB, one
     /// core's L2 cache on current x86 CPUs (AMD Zen 4, Intel Sapphire Rapids: 1–2 MiB).
-    /// (2^17, the table alone in that cache, was the first default: on the standard materials
-    /// dataset it trained 337 steps in 40 s to 25.1 dB against 411 steps and 29.4 dB with
-    /// 2^15 and the step below.)
+    /// (2^17, the table alone in that cache, was the first default. The scenes disagree, in
+    /// single 3-minute runs on the standard datasets: 2^15 trained faster and better on
+    /// `materials` (in 40 s: 411 steps to 29.4 dB against 337 steps to 25.1 dB) and on `deep`
+    /// (34.23 against 33.14 dB), worse on `tabletop` and `thin` with a one-footprint step
+    /// (32.12 and 31.07 against 33.90 and 32.19 dB).)
     #[config(default = 15)]
     pub max_log2_table_size: u32,
     /// Least log2 entries per level.
@@ -74,13 +76,14 @@ pub struct AutoConfig {
     #[config(default = 4)]
     pub hash_cells_per_grid_cell: u32,
     /// Marching step in finest hash cells (`None`, as in configs written before this option:
-    /// `cells_per_footprint`, i.e. one smallest pixel footprint). Default 2√3 ≈ 3.46,
-    /// instant-ngp's ratio (step √3/1024 of the unit cube against a finest cell of 1/2048):
-    /// on the standard cornell and materials datasets (3 min) one footprint per step reached
-    /// 30 dB after 54 s and 69 s, 3.46 after 32 s and 60 s (final PSNR 31.98 → 33.71 and
-    /// 32.08 → 32.14 dB): a step takes a fixed number of samples, so a shorter step trains on
-    /// fewer rays.
-    #[config(default = "Some(2.0 * 1.7320508075688772)")]
+    /// `cells_per_footprint`, i.e. one smallest pixel footprint). A step takes a fixed number
+    /// of samples (`batch_samples`), so a shorter step trains on fewer rays: with one footprint
+    /// per step the standard cornell and materials datasets (3 min) reached 30 dB after 54 s
+    /// and 69 s, with instant-ngp's 2√3 ≈ 3.46 cells (step √3/1024 of the unit cube against a
+    /// finest cell of 1/2048) after 32 s and 60 s; but 3.46 lost thin structures (standard
+    /// `thin`: 30.97 dB against 32.39 with 2, `tabletop` 32.55 against 32.98; single runs,
+    /// 2^15 entries). Two cells per step, the default, was the best compromise measured.
+    #[config(default = "Some(2.0)")]
     pub finest_cells_per_step: Option<f64>,
     /// Least occupancy-grid cells per axis.
     #[config(default = 16)]
@@ -310,8 +313,8 @@ pub fn hash_sizes(cube_side: f64, min_side: f64, footprint: &Footprint, cfg: &Au
 ///   hash_cells_per_grid_cell)` (i.e. that many smallest footprints per cell),
 ///   clamped to `[min_grid_resolution, max_grid_resolution]` (empty space is skipped at a
 ///   quarter of the finest detail; finer grids cost more to refresh on a CPU);
-/// - steps per diagonal = ⌈√3 · finest / `finest_cells_per_step`⌉ (instant-ngp's 2√3 finest cells
-///   per step by default), at most `max_samples_per_ray` so a ray through the whole cube is never
+/// - steps per diagonal = ⌈√3 · finest / `finest_cells_per_step`⌉ (two finest cells per step by
+///   default), at most `max_samples_per_ray` so a ray through the whole cube is never
 ///   cut short.
 pub fn sampling(finest: u32, cube_side: f64, cfg: &AutoConfig, max_samples_per_ray: usize) -> (usize, usize, Vec<String>) {
     // The resolution of one cell per smallest footprint.
@@ -934,13 +937,15 @@ mod tests {
         // 100 / 4 = 25 → nearest power of two 32; √3 · 100 = 173.2 → 174.
         assert_eq!((grid, spd), (32, 174));
         assert!(r[1].contains("= 1.00 smallest pixel footprints"), "{r:?}");
-        // The default step, instant-ngp's 2√3 finest cells: √3 · 300 / 2√3 = 150 steps per
-        // diagonal, a step of 2 m · √3 / 150 = 2.31 cm = 3.46 finest cells of 6.67 mm.
+        // The default step, two finest cells: ⌈√3 · 300 / 2⌉ = 260 steps per diagonal, a step
+        // of 2 m · √3 / 260 = 1.33 cm ≈ 2 finest cells of 6.67 mm.
         let cfg = AutoConfig::new().with_cells_per_footprint(1.0);
         let (grid, spd, r) = sampling(300, 2.0, &cfg, 1024);
-        assert_eq!(grid, 64); // 300 / 4 = 75 → 64
-        assert!((150..=151).contains(&spd), "{spd}");
-        assert!(r[1].contains("= 3.46 finest cells = 3.46 smallest pixel footprints"), "{r:?}");
+        assert_eq!((grid, spd), (64, 260)); // 300 / 4 = 75 → 64
+        assert!(r[1].contains("= 2.00 finest cells = 2.00 smallest pixel footprints"), "{r:?}");
+        // instant-ngp's ratio, 2√3 cells: 150 steps.
+        let ngp = AutoConfig::new().with_cells_per_footprint(1.0).with_finest_cells_per_step(Some(2.0 * 3f64.sqrt()));
+        assert!((150..=151).contains(&sampling(300, 2.0, &ngp, 1024).1));
         let (grid, spd, r) = sampling(8000, 2.0, &cfg, 1024);
         assert_eq!((grid, spd), (64, 1024));
         assert!(r[1].contains("at most 1024"), "{r:?}");
