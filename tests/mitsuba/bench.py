@@ -26,7 +26,7 @@ Scene building is not timed. Samples are camera samples: width x height x spp.
 
 Error: when the export folder holds `reference.npy` (our high-spp RGB image of the same camera)
 and `reference_noise.json` (that image's own mean squared noise), `mse` is the mean squared RGB
-error of the timed renders against it, less the reference's noise, averaged over the renders,
+error of the timed renders against it, less the reference's noise, the median over the renders,
 and `bias2` the part of it that does not fall with more samples (mean of the renders against the
 reference): near zero when both renderers converge to the same image. With `reference_mask.npy`
 (1 = a pixel to measure), both are taken over those pixels only (our side leaves out the few
@@ -144,13 +144,15 @@ def main():
 
                     imgs = [np.array(img, dtype=np.float64)[..., :3] for _, img in runs]
                     errs = [float(np.mean(((i - reference) ** 2)[mask])) - noise for i in imgs]
-                    rec["mse"] = sum(errs) / len(errs)
+                    # The median, as on our side: a rare caustic firefly decides a mean of a few.
+                    rec["mse"] = float(np.median(errs))
+                    rec["mse_mean"] = sum(errs) / len(errs)
                     # Per render, error = variance V + squared bias B; the mean of n renders
                     # has V / n + B: B estimates how far Mitsuba's expected image is from ours.
                     n = len(imgs)
                     if n > 1:
                         mse_mean = float(np.mean(((np.mean(imgs, axis=0) - reference) ** 2)[mask])) - noise
-                        rec["bias2"] = (mse_mean - rec["mse"] / n) / (1.0 - 1.0 / n)
+                        rec["bias2"] = (mse_mean - rec["mse_mean"] / n) / (1.0 - 1.0 / n)
             except scene_loader.Unsupported as e:
                 rec["error"] = f"unsupported: {e}"
             print(json.dumps(rec), flush=True)
