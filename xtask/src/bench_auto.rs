@@ -103,9 +103,7 @@ fn scene_names(args: &AutoBenchArgs) -> anyhow::Result<Vec<String>> {
 /// The renderer of a finished dataset in `dir` when it is not this one (`None` when there is
 /// no finished dataset, or it is this renderer's: then `render` resumes or checks it).
 fn older_dataset(dir: &Path) -> Option<String> {
-    let bytes = std::fs::read(dir.join(pathtracer::dataset_render::RENDER_CONFIG_FILE)).ok()?;
-    let renderer = serde_json::from_slice::<serde_json::Value>(&bytes).ok()?["renderer"].as_str()?.to_string();
-    (renderer != pathtracer::RENDERER_VERSION && dataset::Dataset::load(dir).is_ok()).then_some(renderer)
+    crate::render::older_renderer(dir).filter(|_| dataset::Dataset::load(dir).is_ok())
 }
 
 /// Whether `run` holds a finished, evaluated run with this budget.

@@ -147,12 +147,7 @@ pub fn run_demo(args: DemoArgs) -> anyhow::Result<()> {
     let run_dir = args.out.join(format!("run-{}", args.model));
     // A dataset of an older renderer (e.g. another sampler) is the demo's own: render it again
     // and drop the run trained on it, instead of refusing to resume the render.
-    let old_renderer = std::fs::read(dataset_dir.join(pathtracer::dataset_render::RENDER_CONFIG_FILE))
-        .ok()
-        .and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok())
-        .and_then(|v| v["renderer"].as_str().map(str::to_string))
-        .filter(|r| r != pathtracer::RENDERER_VERSION);
-    if let Some(old) = old_renderer {
+    if let Some(old) = crate::render::older_renderer(&dataset_dir) {
         eprintln!("{} was rendered by {old}; rendering it again", dataset_dir.display());
         for d in [&dataset_dir, &run_dir] {
             if d.exists() {
