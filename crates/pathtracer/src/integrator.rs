@@ -209,6 +209,28 @@ impl PathIntegrator<'_> {
 
     /// The radiance arriving at `ray.origin` from direction `−ray.direction` (unit).
     pub fn radiance(&self, ray: &Ray, sampler: &mut Sampler) -> RadianceSample {
+        self.radiance_split(ray, sampler, true)
+    }
+
+    /// The emission of the surface a camera ray sees first (zero for a miss or a surface that
+    /// does not emit): exactly the term [`PathIntegrator::radiance`] adds at the camera
+    /// vertex, so that `radiance = primary_emission + radiance_split(…, false)` for every ray
+    /// and sampler.
+    pub fn primary_emission(&self, ray: &Ray) -> Vec3 {
+        let scene = self.scene;
+        let Some(hit) = self.intersect(ray) else { return Vec3::ZERO };
+        let Some(mat) = scene.mesh.material.get(hit.prim as usize).and_then(|&m| scene.materials.get(m as usize)) else { return Vec3::ZERO };
+        if !mat.is_emissive() {
+            return Vec3::ZERO;
+        }
+        emission(mat, &scene.textures, &surface_attributes(scene, hit.prim, hit.b))
+    }
+
+    /// [`PathIntegrator::radiance`], with the emission of the surface the camera ray hits first
+    /// left out when `primary_emission` is false (the caller then estimates that term
+    /// separately, [`PathIntegrator::primary_emission`]); the random numbers drawn are the
+    /// same either way.
+    pub fn radiance_split(&self, ray: &Ray, sampler: &mut Sampler, primary_emission: bool) -> RadianceSample {
         let env = &self.settings.environment;
         let Some(first) = self.intersect(ray) else {
             let radiance = if self.settings.transparent_background { Vec3::ZERO } else { env.eval(ray.direction) };
@@ -229,7 +251,9 @@ impl PathIntegrator<'_> {
             // Emission seen along the path.
             if surf.emission.max_element() > 0.0 {
                 if depth == 0 {
-                    l += beta * surf.emission;
+                    if primary_emission {
+                        l += beta * surf.emission;
+                    }
                 } else {
                     let cos_l = si.ng_front.dot(-ray.direction);
                     let light_pdf = self.emitters.pdf_solid_angle(si.prim, hit.t, cos_l);
