@@ -113,6 +113,75 @@ pub struct AutoConfig {
     /// 72 s), final PSNR +1.3 dB on cornell and −0.2 dB on materials, single runs.
     #[config(default = "None")]
     pub cone_marching: Option<bool>,
+    /// Weight of mip-NeRF 360's distortion loss ([`crate::volrend::distortion`]) when the train
+    /// views show only opaque surfaces ([`distortion_rule`]); mip-NeRF 360 uses 0.01. `None`
+    /// (and configs written before this option): never.
+    #[config(default = "Some(0.01)")]
+    pub distortion_weight: Option<f32>,
+    /// Largest share of translucent pixels ([`translucent_share`]) among the train views'
+    /// covered pixels for which the scene counts as opaque.
+    #[config(default = "Some(0.005)")]
+    pub max_translucent_share: Option<f64>,
+}
+
+/// Alpha below which a pixel is background and above which it is fully covered, for
+/// [`translucent_share`].
+const ALPHA_EDGE: f32 = 0.02;
+
+/// The share of translucent pixels among the covered ones (alpha > 0.02) of the train views
+/// (`(width, height, alpha)` each): a pixel with partial alpha (0.02 < α < 0.98) whose eight
+/// neighbours are all partial too. A pixel that a silhouette or a sub-pixel wire crosses has a
+/// background or a fully covered neighbour; a translucent surface (glTF `BLEND`, smoke) makes
+/// regions of partial pixels. Views without alpha (all 1) have no partial pixel.
+pub fn translucent_share(views: &[(usize, usize, &[f32])]) -> f64 {
+    let (mut covered, mut translucent) = (0usize, 0usize);
+    let partial = |a: f32| a > ALPHA_EDGE && a < 1.0 - ALPHA_EDGE;
+    for &(w, h, alpha) in views {
+        if alpha.len() != w * h {
+            continue;
+        }
+        for j in 0..h {
+            for i in 0..w {
+                let a = alpha[j * w + i];
+                if !(a > ALPHA_EDGE) {
+                    continue;
+                }
+                covered += 1;
+                if !partial(a) {
+                    continue;
+                }
+                let inner = (j.saturating_sub(1)..(j + 2).min(h)).all(|y| (i.saturating_sub(1)..(i + 2).min(w)).all(|x| partial(alpha[y * w + x])));
+                let whole = i > 0 && j > 0 && i + 1 < w && j + 1 < h;
+                if inner && whole {
+                    translucent += 1;
+                }
+            }
+        }
+    }
+    if covered == 0 { 0.0 } else { translucent as f64 / covered as f64 }
+}
+
+/// The distortion-loss weight for a scene with `share` translucent pixels
+/// ([`translucent_share`]): `weight` when the surfaces look opaque (share ≤ `max_share`; each
+/// ray's weight then belongs at one surface, and the loss pulls it there instead of leaving
+/// fog, mip-NeRF 360), else none (a translucent surface in front of another needs two
+/// separate stretches of weight, which the loss penalises).
+pub fn distortion_rule(share: f64, weight: Option<f32>, max_share: f64) -> (Option<f32>, String) {
+    let pct = 100.0 * share;
+    match weight.filter(|w| *w > 0.0) {
+        None => (None, "distortion_weight = 0: turned off in the auto settings".into()),
+        Some(w) if share <= max_share => (
+            Some(w),
+            format!(
+                "distortion_weight = {w}: the train views show opaque surfaces only ({pct:.2} % of covered pixels translucent, at most {:.2} %), so each ray's weight belongs in one short stretch (mip-NeRF 360's distortion loss, its weight)",
+                100.0 * max_share
+            ),
+        ),
+        Some(_) => (
+            None,
+            format!("distortion_weight = 0: {pct:.2} % of covered train pixels are translucent (more than {:.2} %): a ray may need weight at two surfaces", 100.0 * max_share),
+        ),
+    }
 }
 
 /// Cone marching angle: the marching step at distance `t` is the pixel footprint there,
@@ -782,6 +851,18 @@ pub fn resolve(config: &mut TrainConfig, ds: &Dataset, train: &TrainData) -> Res
         reasons.push(r);
     }
 
+    // Distortion loss.
+    let alphas: Vec<Vec<f32>> = train.views.iter().map(|v| v.rgba.iter().map(|p| p[3]).collect()).collect();
+    let views: Vec<(usize, usize, &[f32])> = train
+        .views
+        .iter()
+        .zip(&alphas)
+        .map(|(v, a)| (v.camera.intrinsics.width as usize, v.camera.intrinsics.height as usize, a.as_slice()))
+        .collect();
+    let (dw, r) = distortion_rule(translucent_share(&views), auto.distortion_weight, auto.max_translucent_share.unwrap_or(0.005));
+    fast.distortion_weight = dw;
+    reasons.push(r);
+
     // Stopping.
     let interval = config.time_budget_s.map_or(30.0, |t| t * auto.val_interval_fraction);
     let window = config.time_budget_s.map_or(4.0 * interval, |t| t * auto.plateau_window_fraction);
@@ -824,6 +905,42 @@ fn train_depths(ds: &Dataset, downscale: u32) -> Result<Option<Vec<Vec<f32>>>, S
 mod tests {
     use super::*;
     use dataset::Intrinsics;
+
+    #[test]
+    fn distortion_is_on_for_opaque_views_and_off_for_translucent_ones() {
+        // A 60×30 view: an opaque disc with an anti-aliased rim, and a one-pixel-wide
+        // half-covered wire: silhouettes only.
+        let (w, h) = (60usize, 30usize);
+        let mut opaque = vec![0.0f32; w * h];
+        for j in 0..h {
+            for i in 0..w {
+                let r = ((i as f32 - 15.0).powi(2) + (j as f32 - 15.0).powi(2)).sqrt();
+                opaque[j * w + i] = (10.5 - r).clamp(0.0, 1.0);
+            }
+            opaque[j * w + 34] = 0.5;
+        }
+        let share = translucent_share(&[(w, h, &opaque)]);
+        assert_eq!(share, 0.0, "rims and wires are not translucent");
+        let (on, reason) = distortion_rule(share, Some(0.01), 0.005);
+        assert_eq!(on, Some(0.01));
+        assert!(reason.contains("opaque surfaces only"), "{reason}");
+        // No alpha at all (every pixel 1): opaque.
+        assert_eq!(translucent_share(&[(w, h, &vec![1.0; w * h])]), 0.0);
+        // A 10×10 pane of alpha 0.4 on top: its 8×8 interior is translucent.
+        let mut glass = opaque.clone();
+        for j in 2..12 {
+            for i in 44..54 {
+                glass[j * w + i] = 0.4;
+            }
+        }
+        let share = translucent_share(&[(w, h, &glass)]);
+        let covered = glass.iter().filter(|a| **a > ALPHA_EDGE).count();
+        assert!((share - 64.0 / covered as f64).abs() < 1e-12, "{share}");
+        let (off, reason) = distortion_rule(share, Some(0.01), 0.005);
+        assert_eq!(off, None, "{reason}");
+        assert!(reason.contains("translucent"), "{reason}");
+        assert_eq!(distortion_rule(0.0, None, 0.005).0, None, "switched off in the settings");
+    }
 
     fn cam(eye: DVec3, target: DVec3, size: u32, fov: f64) -> Camera {
         Camera::new(Intrinsics::from_fov_x(size, size, fov), Camera::look_at(eye, target, DVec3::Y)).unwrap()

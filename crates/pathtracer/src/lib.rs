@@ -32,4 +32,4 @@ pub mod texture;
 pub use error::PathTracerError;
 
 /// Renderer name and version, recorded in every dataset's scene facts.
-pub const RENDERER_VERSION: &str = concat!("pathtracer ", env!("CARGO_PKG_VERSION"), " (padded Owen-scrambled Sobol' sampler, split emitter edges)");
+pub const RENDERER_VERSION: &str = concat!("pathtracer ", env!("CARGO_PKG_VERSION"), " (padded Owen-scrambled Sobol' sampler, split emitter edges, glTF rig baseline 0.1 x depth)");

@@ -6,7 +6,10 @@
 //! - [`RigKind::Hemisphere`]: the same on the upper half (elevations 5°–85° above the bounds'
 //!   centre), for objects standing on a ground, like the Blender synthetic scenes.
 //! - [`RigKind::Gltf`]: forward-facing views around the scene's own glTF cameras, for scenes
-//!   the cameras must stay inside (closed rooms, corridors).
+//!   the cameras must stay inside (closed rooms, corridors): positions on a disc in the
+//!   camera's image plane (radius [`GLTF_BASELINE`] × the median depth it sees, for parallax,
+//!   at most [`GLTF_FREE_SPACE`] × the distance to the nearest wall), each looking at the
+//!   point at that depth, turned by a small random yaw and pitch.
 //!
 //! [`RigKind::Auto`] resolves to `Gltf` when the scene has glTF cameras, else to `Hemisphere`
 //! when it has a ground (see [`has_ground`]), else to `Sphere`.
@@ -34,8 +37,17 @@ pub const FRAMING_MARGIN: f64 = 1.05;
 /// Lowest and highest camera elevation (radians) of the hemisphere rig.
 const HEMISPHERE_ELEVATION: (f64, f64) = (5.0 * std::f64::consts::PI / 180.0, 85.0 * std::f64::consts::PI / 180.0);
 
-/// Radius of the position jitter of the glTF rig, as a fraction of the bounds' diagonal.
-const GLTF_POSITION_JITTER: f64 = 0.015;
+/// Radius of the glTF rig's disc of camera positions around each glTF camera, as a fraction of
+/// the median depth it sees (see [`gltf_rig`]). The first rig used 1.5 % of the bounds'
+/// diagonal: on `cornell` every camera lay within 6 cm of the glTF camera, a 12 cm baseline
+/// for walls 2.8–3.7 m away, so the train views' parallax (about 10 px at 200 px) could not fix
+/// the depth of the textureless walls, and every NeRF left fog there (depth MAE 0.3–0.6 m).
+pub const GLTF_BASELINE: f64 = 0.1;
+
+/// The disc stays within this fraction of the free distance around the glTF camera (the
+/// nearest surface along 16 directions in its image plane), so no camera lands in or behind a
+/// wall of a room or corridor.
+pub const GLTF_FREE_SPACE: f64 = 0.5;
 
 /// Largest rotation jitter of the glTF rig, as a fraction of the camera's vertical field of view.
 const GLTF_ROTATION_JITTER: f64 = 0.04;
@@ -332,16 +344,22 @@ fn gltf_rig(scene: &Scene, cfg: &RigConfig) -> Result<(Intrinsics, [Vec<Camera>;
         return Err(PathTracerError::Config(format!("glTF camera yfov {} is not in (0, pi)", first.yfov)));
     }
     let intr = Intrinsics::from_fov_y(cfg.width, cfg.height, first.yfov);
-    let jitter_radius = GLTF_POSITION_JITTER * scene.bounds.diagonal() as f64;
     let max_angle = GLTF_ROTATION_JITTER * first.yfov;
-    let anchors: Vec<(glam::DMat4, f64)> =
-        scene.cameras.iter().map(|c| (orthonormalise(&c.c2w), median_depth(scene, &c.c2w, c.znear))).collect();
+    let anchors: Vec<(glam::DMat4, f64, f64)> = scene
+        .cameras
+        .iter()
+        .map(|c| {
+            let m = orthonormalise(&c.c2w);
+            let depth = median_depth(scene, &c.c2w, c.znear);
+            (m, depth, gltf_jitter_radius(scene, &m, depth))
+        })
+        .collect();
     let mut out: [Vec<Camera>; 3] = Default::default();
     for split in SplitKind::ALL {
         let s = split_index(split) as u64;
         for k in 0..cfg.counts[s as usize] {
             let key = k as u64;
-            let (c2w, depth) = anchors[k as usize % anchors.len()];
+            let (c2w, depth, jitter_radius) = anchors[k as usize % anchors.len()];
             let (right, up, back) = (c2w.x_axis.truncate(), c2w.y_axis.truncate(), c2w.z_axis.truncate());
             let eye0 = c2w.w_axis.truncate();
             let target = eye0 - back * depth;
@@ -366,6 +384,52 @@ fn gltf_rig(scene: &Scene, cfg: &RigConfig) -> Result<(Intrinsics, [Vec<Camera>;
         }
     }
     Ok((intr, out))
+}
+
+/// Radius of the disc of camera positions around the glTF camera `c2w` (orthonormal) that
+/// sees a median depth `depth`: [`GLTF_BASELINE`] × `depth`, at most [`GLTF_FREE_SPACE`] × the
+/// distance to the nearest surface along 16 directions in the camera's image plane.
+pub fn gltf_jitter_radius(scene: &Scene, c2w: &glam::DMat4, depth: f64) -> f64 {
+    let eye = c2w.w_axis.truncate() - scene.origin;
+    let (right, up) = (c2w.x_axis.truncate(), c2w.y_axis.truncate());
+    let free = (0..16)
+        .map(|k| {
+            let a = std::f64::consts::TAU * k as f64 / 16.0;
+            nearest_hit(scene, eye, a.cos() * right + a.sin() * up)
+        })
+        .fold(f64::INFINITY, f64::min);
+    (GLTF_BASELINE * depth).min(GLTF_FREE_SPACE * free).max(0.0)
+}
+
+/// Distance from `o` (scene-local) along the unit direction `d` to the nearest triangle, either
+/// side (Möller–Trumbore in `f64`, every triangle); infinity when none.
+fn nearest_hit(scene: &Scene, o: DVec3, d: DVec3) -> f64 {
+    let m = &scene.mesh;
+    let mut best = f64::INFINITY;
+    for idx in &m.indices {
+        let [p0, p1, p2] = idx.map(|i| m.positions.get(i as usize).map_or(DVec3::NAN, |p| p.as_dvec3()));
+        let (e1, e2) = (p1 - p0, p2 - p0);
+        let pv = d.cross(e2);
+        let det = e1.dot(pv);
+        if !(det.abs() > 1e-300) {
+            continue;
+        }
+        let tv = o - p0;
+        let u = tv.dot(pv) / det;
+        if !(0.0..=1.0).contains(&u) {
+            continue;
+        }
+        let qv = tv.cross(e1);
+        let v = d.dot(qv) / det;
+        if !(v >= 0.0 && u + v <= 1.0) {
+            continue;
+        }
+        let t = e2.dot(qv) / det;
+        if t > 0.0 && t < best {
+            best = t;
+        }
+    }
+    best
 }
 
 /// Re-orthonormalises the rotation part of a camera-to-world matrix (Gram-Schmidt on the
@@ -553,6 +617,36 @@ mod tests {
     }
 
     #[test]
+    fn gltf_rig_keeps_its_cameras_in_the_free_space_of_a_corridor() {
+        // A square corridor along −z, 0.3 wide and tall, 10 long, camera in its axis: the
+        // baseline rule (0.1 × median depth, several metres) would put cameras in the walls; the
+        // free-space bound keeps them within half the 0.15 to the walls.
+        let (h, len) = (0.15f32, 10.0f32);
+        let mut positions = Vec::new();
+        let mut indices = Vec::new();
+        let corners = [Vec3::new(-h, -h, 0.0), Vec3::new(h, -h, 0.0), Vec3::new(h, h, 0.0), Vec3::new(-h, h, 0.0)];
+        for k in 0..4 {
+            let (a, b) = (corners[k], corners[(k + 1) % 4]);
+            let base = positions.len() as u32;
+            positions.extend([a, b, b - Vec3::Z * len, a - Vec3::Z * len]);
+            indices.extend([[base, base + 1, base + 2], [base, base + 2, base + 3]]);
+        }
+        let mut s = scene(false, vec![]);
+        let n = positions.len();
+        s.mesh = Mesh { normals: vec![Vec3::Y; n], tangents: vec![glam::Vec4::ZERO; n], uv0: vec![glam::Vec2::ZERO; n], uv1: vec![glam::Vec2::ZERO; n], colors: vec![glam::Vec4::ONE; n], material: vec![0; indices.len()], positions, indices };
+        s.bounds = s.mesh.positions.iter().fold(Aabb::EMPTY, |a, p| a.union_point(*p));
+        let eye = DVec3::new(0.0, 0.0, -0.5) + s.origin;
+        s.cameras = vec![SceneCamera { name: None, c2w: Camera::look_at(eye, eye - DVec3::Z, DVec3::Y), yfov: 0.8, aspect_ratio: None, znear: 0.01, zfar: None }];
+        let radius = gltf_jitter_radius(&s, &orthonormalise(&s.cameras[0].c2w), median_depth(&s, &s.cameras[0].c2w, 0.01));
+        assert!((radius - GLTF_FREE_SPACE * h as f64).abs() < 1e-6, "{radius}");
+        let rig = build_rig(&s, &cfg(RigKind::Gltf)).unwrap();
+        for (_, _, cam) in rig.views() {
+            let p = cam.origin() - s.origin;
+            assert!(p.x.abs() < h as f64 && p.y.abs() < h as f64, "camera at {p} left the corridor");
+        }
+    }
+
+    #[test]
     fn gltf_rig_stays_near_its_camera_and_looks_along_it() {
         let eye = DVec3::new(2.0, 1.2, 0.0);
         let anchor = SceneCamera {
@@ -567,13 +661,18 @@ mod tests {
         let rig = build_rig(&s, &cfg(RigKind::Auto)).unwrap();
         assert_eq!(rig.kind, RigKind::Gltf);
         assert!((rig.intrinsics.camera_angle_y() - 0.8).abs() < 1e-12);
-        let diag = s.bounds.diagonal() as f64;
+        let depth = median_depth(&s, &anchor.c2w, anchor.znear);
+        let radius = gltf_jitter_radius(&s, &orthonormalise(&anchor.c2w), depth);
+        assert!((radius - GLTF_BASELINE * depth).abs() < 1e-12, "open space: the baseline rule, {radius}");
         let axis = -anchor.c2w.z_axis.truncate();
+        let mut widest = 0.0f64;
         for (_, _, cam) in rig.views() {
-            assert!((cam.origin() - eye).length() <= GLTF_POSITION_JITTER * diag + 1e-12);
+            widest = widest.max((cam.origin() - eye).length());
+            assert!((cam.origin() - eye).length() <= radius + 1e-12);
             let fwd = -cam.c2w.z_axis.truncate();
             assert!(fwd.angle_between(axis) < 0.15, "view turned {} rad", fwd.angle_between(axis));
         }
+        assert!(widest > 0.5 * radius, "the views spread over the disc: {widest} of {radius}");
         // Explicitly asking for the glTF rig without cameras is an error naming the scene.
         let e = build_rig(&scene(false, vec![]), &cfg(RigKind::Gltf)).unwrap_err().to_string();
         assert!(e.contains("'test'") && e.contains("no"), "{e}");
