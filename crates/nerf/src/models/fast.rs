@@ -110,8 +110,9 @@ pub struct FastConfig {
     /// Weight λ of mip-NeRF 360's distortion loss ([`volrend::distortion`], distances
     /// normalised by `far − near` as there), added to the colour MSE: it pulls each ray's weight
     /// into one short stretch, against fog and floaters. `None` or 0 (instant-ngp's recipe, and
-    /// configs written before this option): off. mip-NeRF 360 uses 0.01; `--model auto` turns
-    /// it on for scenes whose surfaces are all opaque.
+    /// configs written before this option): off. mip-NeRF 360 uses 0.01; `--model auto` can turn
+    /// it on for scenes whose surfaces are all opaque (off by default there, see
+    /// [`crate::auto::AutoConfig::distortion_weight`]).
     #[config(default = "None")]
     pub distortion_weight: Option<f32>,
     /// Adam β₁ (instant-ngp 0.9).
