@@ -8,7 +8,7 @@
 //! - Emitter edges: a pixel that straddles the edge of a directly seen emitter (the emission
 //!   seen through its four corners differs by more than [`EDGE_CONTRAST`]) is mostly noise
 //!   from how many of its few camera rays land on the emitter: on the `cornell` scene at
-//!   64 spp, about 100 such pixels around the ceiling light made 56 % of the image's squared
+//!   64 spp, about 50 such pixels around the ceiling light made 56 % of the image's squared
 //!   error. There the camera vertex's emission ([`PathIntegrator::primary_emission`]) is
 //!   estimated from `split · spp` camera rays of their own stratified set (keys
 //!   `(splitmix64(seed ⊕ EDGE_SEED_KEY), view, pixel, e)`), and each path sample adds the rest
