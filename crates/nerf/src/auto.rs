@@ -138,6 +138,7 @@ const ALPHA_EDGE: f32 = 0.02;
 /// neighbours are all partial too. A pixel that a silhouette or a sub-pixel wire crosses has a
 /// background or a fully covered neighbour; a translucent surface (glTF `BLEND`, smoke) makes
 /// regions of partial pixels. Views without alpha (all 1) have no partial pixel.
+#[allow(clippy::neg_cmp_op_on_partial_ord)] // `!(x > y)` also rejects NaN
 pub fn translucent_share(views: &[(usize, usize, &[f32])]) -> f64 {
     let (mut covered, mut translucent) = (0usize, 0usize);
     let partial = |a: f32| a > ALPHA_EDGE && a < 1.0 - ALPHA_EDGE;
@@ -856,15 +857,18 @@ pub fn resolve(config: &mut TrainConfig, ds: &Dataset, train: &TrainData) -> Res
         reasons.push(r);
     }
 
-    // Distortion loss.
-    let alphas: Vec<Vec<f32>> = train.views.iter().map(|v| v.rgba.iter().map(|p| p[3]).collect()).collect();
-    let views: Vec<(usize, usize, &[f32])> = train
-        .views
-        .iter()
-        .zip(&alphas)
-        .map(|(v, a)| (v.camera.intrinsics.width as usize, v.camera.intrinsics.height as usize, a.as_slice()))
-        .collect();
-    let (dw, r) = distortion_rule(translucent_share(&views), auto.distortion_weight, auto.max_translucent_share.unwrap_or(0.005));
+    // Distortion loss (the train views' alpha is read only when the settings allow it).
+    let share = auto.distortion_weight.filter(|w| *w > 0.0).map_or(0.0, |_| {
+        let alphas: Vec<Vec<f32>> = train.views.iter().map(|v| v.rgba.iter().map(|p| p[3]).collect()).collect();
+        let views: Vec<(usize, usize, &[f32])> = train
+            .views
+            .iter()
+            .zip(&alphas)
+            .map(|(v, a)| (v.camera.intrinsics.width as usize, v.camera.intrinsics.height as usize, a.as_slice()))
+            .collect();
+        translucent_share(&views)
+    });
+    let (dw, r) = distortion_rule(share, auto.distortion_weight, auto.max_translucent_share.unwrap_or(0.005));
     fast.distortion_weight = dw;
     reasons.push(r);
 

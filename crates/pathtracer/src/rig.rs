@@ -403,6 +403,7 @@ pub fn gltf_jitter_radius(scene: &Scene, c2w: &glam::DMat4, depth: f64) -> f64 {
 
 /// Distance from `o` (scene-local) along the unit direction `d` to the nearest triangle, either
 /// side (Möller–Trumbore in `f64`, every triangle); infinity when none.
+#[allow(clippy::neg_cmp_op_on_partial_ord)] // `!(x > y)` also rejects NaN
 fn nearest_hit(scene: &Scene, o: DVec3, d: DVec3) -> f64 {
     let m = &scene.mesh;
     let mut best = f64::INFINITY;
