@@ -794,7 +794,7 @@ pub fn resolve(config: &mut TrainConfig, ds: &Dataset, train: &TrainData) -> Res
             b
         }
         (None, None) => {
-            let alphas: Vec<Vec<f32>> = train.views.iter().map(|v| v.rgba.iter().map(|p| p[3]).collect()).collect();
+            let alphas = train_alphas(train);
             let refs: Vec<&[f32]> = alphas.iter().map(Vec::as_slice).collect();
             let hull = visual_hull(&cameras, &refs, auto.hull_grid, auto.mask_threshold)?;
             let b = bounds_from_hull(&hull, &cameras, config.bounds_padding);
@@ -859,7 +859,7 @@ pub fn resolve(config: &mut TrainConfig, ds: &Dataset, train: &TrainData) -> Res
 
     // Distortion loss (the train views' alpha is read only when the settings allow it).
     let share = auto.distortion_weight.filter(|w| *w > 0.0).map_or(0.0, |_| {
-        let alphas: Vec<Vec<f32>> = train.views.iter().map(|v| v.rgba.iter().map(|p| p[3]).collect()).collect();
+        let alphas = train_alphas(train);
         let views: Vec<(usize, usize, &[f32])> = train
             .views
             .iter()
@@ -891,6 +891,11 @@ pub fn resolve(config: &mut TrainConfig, ds: &Dataset, train: &TrainData) -> Res
     config.bounds = Some(bounds);
     config.auto_reasons = Some(reasons);
     Ok(())
+}
+
+/// Every train view's alpha channel (the visual hull's masks, the translucency test's input).
+fn train_alphas(train: &TrainData) -> Vec<Vec<f32>> {
+    train.views.iter().map(|v| v.rgba.iter().map(|p| p[3]).collect()).collect()
 }
 
 /// Ground-truth z-depth of every train view at `downscale` (nearest pixel), when every view has

@@ -22,6 +22,7 @@
 //! dimension): a rig depends only on the scene and the [`RigConfig`].
 
 use crate::PathTracerError;
+use crate::geometry::{Ray, WatertightRay, intersect_triangle};
 use crate::scene::Scene;
 use dataset::{Camera, Intrinsics, SplitKind};
 use glam::{DMat3, DVec3};
@@ -402,35 +403,19 @@ pub fn gltf_jitter_radius(scene: &Scene, c2w: &glam::DMat4, depth: f64) -> f64 {
 }
 
 /// Distance from `o` (scene-local) along the unit direction `d` to the nearest triangle, either
-/// side (Möller–Trumbore in `f64`, every triangle); infinity when none.
-#[allow(clippy::neg_cmp_op_on_partial_ord)] // `!(x > y)` also rejects NaN
+/// side (the renderer's watertight test, [`intersect_triangle`], over every triangle);
+/// infinity when none.
 fn nearest_hit(scene: &Scene, o: DVec3, d: DVec3) -> f64 {
+    let Some(ray) = WatertightRay::new(&Ray::new(o.as_vec3(), d.as_vec3())) else { return f64::INFINITY };
     let m = &scene.mesh;
-    let mut best = f64::INFINITY;
-    for idx in &m.indices {
-        let [p0, p1, p2] = idx.map(|i| m.positions.get(i as usize).map_or(DVec3::NAN, |p| p.as_dvec3()));
-        let (e1, e2) = (p1 - p0, p2 - p0);
-        let pv = d.cross(e2);
-        let det = e1.dot(pv);
-        if !(det.abs() > 1e-300) {
-            continue;
-        }
-        let tv = o - p0;
-        let u = tv.dot(pv) / det;
-        if !(0.0..=1.0).contains(&u) {
-            continue;
-        }
-        let qv = tv.cross(e1);
-        let v = d.dot(qv) / det;
-        if !(v >= 0.0 && u + v <= 1.0) {
-            continue;
-        }
-        let t = e2.dot(qv) / det;
-        if t > 0.0 && t < best {
-            best = t;
-        }
-    }
-    best
+    m.indices
+        .iter()
+        .filter_map(|idx| {
+            let [a, b, c] = idx.map(|i| m.positions.get(i as usize).copied());
+            intersect_triangle(&ray, [a?, b?, c?], f32::INFINITY)
+        })
+        .map(|h| h.t as f64)
+        .fold(f64::INFINITY, f64::min)
 }
 
 /// Re-orthonormalises the rotation part of a camera-to-world matrix (Gram-Schmidt on the
