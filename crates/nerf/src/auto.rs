@@ -9,7 +9,7 @@
 //! | decision | rule |
 //! |---|---|
 //! | bounds | scene facts' box, padded ([`SceneBounds::for_dataset`]); without facts the visual hull of the train views' alpha masks on a coarse grid ([`visual_hull`]), in two passes |
-//! | finest resolution | the bounding cube's side / the smallest pixel footprint over the box ([`smallest_footprint`]: nearest distance from a train camera to the box, at least `near`, × the pixel angle) |
+//! | finest resolution | the bounding cube's side / the smallest pixel footprint over the box ([`smallest_footprint`]: nearest distance from a train camera to the box, at least `near`, × the pixel angle); with ground-truth depth at most the resolution at which the visible surface fills the hash table at 4 cells per entry ([`surface_cells`], [`capacity_resolution`]) |
 //! | coarsest resolution | instant-ngp's 16, raised until the box's smallest side spans 4 coarsest cells |
 //! | levels, table size | levels from the two resolutions at instant-ngp's growth factor (≤ 16); table big enough for a dense finest level, at most 2^15 entries per level (one level's parameters, gradients and Adam moments in a core's 1 MiB L2 cache) and within a memory budget ([`hash_sizes`]) |
 //! | view dependence | scene facts' `view_dependent`; without facts the spread of a surface point's colour across the train views that see it, with ground-truth depth ([`colour_spread`]); without depth it stays on |
@@ -72,6 +72,12 @@ pub struct AutoConfig {
     /// 34.36 dB and 75 s with one; the extra levels cost more than they resolved.)
     #[config(default = 1.0)]
     pub cells_per_footprint: f64,
+    /// Table capacity ([`capacity_resolution`]): no level finer than the resolution at which
+    /// the surface the train views see (ground-truth depth) covers this many cells per table
+    /// entry, however small the pixel footprint. `None` (and configs written before this
+    /// option): the footprint alone sets the finest level.
+    #[config(default = "Some(4.0)")]
+    pub surface_cells_per_entry: Option<f64>,
     /// Footprint-sized cells (finest cells / `cells_per_footprint`) per occupancy-grid cell.
     #[config(default = 4)]
     pub hash_cells_per_grid_cell: u32,
@@ -288,6 +294,66 @@ pub fn smallest_footprint(cameras: &[Camera], lo: [f32; 3], hi: [f32; 3], near: 
         .min_by(|a, b| a.size.total_cmp(&b.size))
 }
 
+/// The surface the train views see, counted as cells of a grid over the bounding cube.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SurfaceCells {
+    /// Cells per axis of the counting grid.
+    pub resolution: u32,
+    /// Cells holding at least one lifted depth sample.
+    pub cells: usize,
+    /// Depth samples lifted (pixels with a hit inside the cube).
+    pub samples: usize,
+}
+
+/// Counts the cells of a `resolution`³ grid over the cube `[lo, lo + side]³` that hold a
+/// surface point a train view sees: every pixel with ground-truth z-depth > 0 is lifted to 3D
+/// through its pixel centre. `views` are (camera, z-depth per pixel, row-major from the top).
+pub fn surface_cells(views: &[(&Camera, &[f32])], lo: DVec3, side: f64, resolution: u32) -> SurfaceCells {
+    let r = resolution.max(1) as i64;
+    let scale = r as f64 / side.max(1e-12);
+    let mut cells = std::collections::HashSet::new();
+    let mut samples = 0usize;
+    for (cam, depth) in views {
+        let w = cam.intrinsics.width as usize;
+        for (p, &z) in depth.iter().enumerate() {
+            if !(z > 0.0) || !z.is_finite() || w == 0 {
+                continue;
+            }
+            let (px, py) = ((p % w) as f64 + 0.5, (p / w) as f64 + 0.5);
+            let ray = cam.pixel_ray(px, py);
+            let x = ray.origin + ray.direction * cam.distance_from_z_depth(px, py, z as f64);
+            let c = ((x - lo) * scale).floor();
+            let (i, j, k) = (c.x as i64, c.y as i64, c.z as i64);
+            if !(0..r).contains(&i) || !(0..r).contains(&j) || !(0..r).contains(&k) {
+                continue;
+            }
+            samples += 1;
+            cells.insert((i * r + j) * r + k);
+        }
+    }
+    SurfaceCells { resolution: resolution.max(1), cells: cells.len(), samples }
+}
+
+/// The finest resolution whose level still holds the visible surface in its hash table: a
+/// surface covering `N₀` cells at resolution `r₀` covers about `N₀ (r / r₀)²` at `r`, so with
+/// at most `cells_per_entry` surface cells per entry of a `2^log2_table_size` table,
+/// `r = r₀ √(cells_per_entry · T / N₀)`. (Finer levels average unrelated surface points in
+/// every entry; on 2 CPU cores and minutes of training they cost samples without resolving
+/// more.) `None` when no surface was counted.
+///
+/// Example: a 2 m × 2 m wall in a 4 m cube covers 16² = 256 cells at r₀ = 32 (cells of
+/// 12.5 cm); a 2^15 table at 4 cells per entry holds it up to 32 √(4 · 32768 / 256) = 724.
+pub fn capacity_resolution(surface: &SurfaceCells, cells_per_entry: f64, log2_table_size: u32) -> Option<f64> {
+    (surface.cells > 0).then(|| {
+        surface.resolution as f64 * (cells_per_entry.max(1e-9) * (1u64 << log2_table_size.min(40)) as f64 / surface.cells as f64).sqrt()
+    })
+}
+
+/// Resolution of the grid [`surface_cells`] counts on: coarse enough that the train views'
+/// pixels sample every cell a surface crosses, fine enough that surfaces (not the box) set the
+/// count.
+pub const SURFACE_COUNT_RESOLUTION: u32 = 64;
+
 /// The hash grid's sizes.
 #[derive(Clone, Debug, PartialEq)]
 pub struct HashSizes {
@@ -316,23 +382,52 @@ pub struct HashSizes {
 ///   at least `min_log2_table_size`.
 ///
 /// Returns the sizes and a reason line per decision.
-pub fn hash_sizes(cube_side: f64, min_side: f64, footprint: &Footprint, cfg: &AutoConfig) -> (HashSizes, Vec<String>) {
+///
+/// With `surface` (the visible surface counted by [`surface_cells`]) and
+/// `cfg.surface_cells_per_entry` set, the finest resolution is also at most
+/// [`capacity_resolution`] for a `max_log2_table_size` table.
+pub fn hash_sizes(cube_side: f64, min_side: f64, footprint: &Footprint, surface: Option<&SurfaceCells>, cfg: &AutoConfig) -> (HashSizes, Vec<String>) {
     let min_side = min_side.max(1e-9 * cube_side.max(1e-9));
     let want_base = (cfg.base_cells_per_min_side * cube_side / min_side).ceil().min(1e6) as u32;
     let base0 = cfg.min_base_resolution.max(want_base).max(1);
     let cells = cfg.cells_per_footprint.max(1e-3);
-    let finest_raw = (cells * cube_side / footprint.size.max(1e-12)).ceil().min((1u64 << 20) as f64) as u32;
+    let footprint_res = (cells * cube_side / footprint.size.max(1e-12)).ceil().min((1u64 << 20) as f64) as u32;
+    let capacity = match (surface, cfg.surface_cells_per_entry) {
+        (Some(s), Some(k)) if k > 0.0 => capacity_resolution(s, k, cfg.max_log2_table_size).map(|r| (s, k, r)),
+        _ => None,
+    };
+    let finest_raw = match capacity {
+        Some((_, _, r)) if r.ceil() < footprint_res as f64 => r.ceil().max(1.0) as u32,
+        _ => footprint_res,
+    };
     let finest = finest_raw.clamp(base0.min(1 << 20), 1 << 20);
     let base = base0.min(finest);
     let mut reasons = Vec::new();
-    reasons.push(format!(
-        "finest_resolution = {finest}: {cells} cell(s) per smallest pixel footprint {} over a {} cube (train view {} at {}){}",
-        fmt_len(footprint.size),
-        fmt_len(cube_side),
-        footprint.view,
-        fmt_len(footprint.distance),
-        if finest != finest_raw { format!(", raised from {finest_raw} to the coarsest resolution") } else { String::new() }
-    ));
+    let raised = if finest != finest_raw { format!(", raised from {finest_raw} to the coarsest resolution") } else { String::new() };
+    reasons.push(match capacity {
+        Some((s, k, r)) if finest_raw < footprint_res => format!(
+            "finest_resolution = {finest}: the visible surface ({} cells of a {}³ grid, from {} depth samples) fills a 2^{} table at {k} cells per entry at {r:.0}; the smallest pixel footprint {} over a {} cube (train view {} at {}) would allow {footprint_res}{raised}",
+            s.cells,
+            s.resolution,
+            s.samples,
+            cfg.max_log2_table_size,
+            fmt_len(footprint.size),
+            fmt_len(cube_side),
+            footprint.view,
+            fmt_len(footprint.distance),
+        ),
+        _ => format!(
+            "finest_resolution = {finest}: {cells} cell(s) per smallest pixel footprint {} over a {} cube (train view {} at {}){}{raised}",
+            fmt_len(footprint.size),
+            fmt_len(cube_side),
+            footprint.view,
+            fmt_len(footprint.distance),
+            match capacity {
+                Some((_, k, r)) => format!("; the visible surface fills a 2^{} table at {k} cells per entry only at {r:.0}", cfg.max_log2_table_size),
+                None => String::new(),
+            }
+        ),
+    });
     reasons.push(if want_base > cfg.min_base_resolution {
         format!(
             "base_resolution = {base}: coarsest cell {}, so the box's smallest side {} spans {} coarsest cells",
@@ -385,13 +480,16 @@ pub fn hash_sizes(cube_side: f64, min_side: f64, footprint: &Footprint, cfg: &Au
 /// Occupancy grid and marching step for a hash grid of finest resolution `finest` over a cube
 /// of side `cube_side`:
 /// - grid cells per axis = the power of two nearest `finest / (cells_per_footprint ·
-///   hash_cells_per_grid_cell)` (i.e. that many smallest footprints per cell),
+///   hash_cells_per_grid_cell)` (i.e. that many footprint-sized finest cells per cell),
 ///   clamped to `[min_grid_resolution, max_grid_resolution]` (empty space is skipped at a
 ///   quarter of the finest detail; finer grids cost more to refresh on a CPU);
 /// - steps per diagonal = ⌈√3 · finest / `finest_cells_per_step`⌉ (two finest cells per step by
 ///   default), at most `max_samples_per_ray` so a ray through the whole cube is never
 ///   cut short.
-pub fn sampling(finest: u32, cube_side: f64, cfg: &AutoConfig, max_samples_per_ray: usize) -> (usize, usize, Vec<String>) {
+///
+/// `footprint` (the smallest pixel footprint, scene units) only enters the reason lines.
+pub fn sampling(finest: u32, cube_side: f64, footprint: f64, cfg: &AutoConfig, max_samples_per_ray: usize) -> (usize, usize, Vec<String>) {
+    let footprints = |len: f64| len / footprint.max(1e-12);
     // The resolution of one cell per smallest footprint.
     let footprint_res = finest as f64 / cfg.cells_per_footprint.max(1e-3);
     let want = (footprint_res / cfg.hash_cells_per_grid_cell.max(1) as f64).max(1.0);
@@ -403,17 +501,17 @@ pub fn sampling(finest: u32, cube_side: f64, cfg: &AutoConfig, max_samples_per_r
     let reasons = vec![
         if grid == pow2 {
             format!(
-                "grid_resolution = {grid}: occupancy cell {} ≈ {} smallest pixel footprints (within {}..={})",
+                "grid_resolution = {grid}: occupancy cell {} ≈ {:.1} smallest pixel footprints (within {}..={})",
                 fmt_len(cube_side / grid as f64),
-                cfg.hash_cells_per_grid_cell,
+                footprints(cube_side / grid as f64),
                 cfg.min_grid_resolution,
                 cfg.max_grid_resolution
             )
         } else {
             format!(
-                "grid_resolution = {grid}: occupancy cell {} ≈ {:.1} smallest pixel footprints ({} footprints per cell would need {pow2}, clamped to {}..={})",
+                "grid_resolution = {grid}: occupancy cell {} ≈ {:.1} smallest pixel footprints ({} footprint cells per cell would need {pow2}, clamped to {}..={})",
                 fmt_len(cube_side / grid as f64),
-                footprint_res / grid as f64,
+                footprints(cube_side / grid as f64),
                 cfg.hash_cells_per_grid_cell,
                 cfg.min_grid_resolution,
                 cfg.max_grid_resolution
@@ -429,7 +527,7 @@ pub fn sampling(finest: u32, cube_side: f64, cfg: &AutoConfig, max_samples_per_r
             format!(
                 "steps_per_diagonal = {spd}: marching step {} = {cells_per_step:.2} finest cells = {:.2} smallest pixel footprints",
                 fmt_len(cube_side * 3f64.sqrt() / spd as f64),
-                cells_per_step / cfg.cells_per_footprint.max(1e-3)
+                footprints(cube_side * cells_per_step / finest.max(1) as f64)
             )
         },
     ];
@@ -818,7 +916,16 @@ pub fn resolve(config: &mut TrainConfig, ds: &Dataset, train: &TrainData) -> Res
     let min_side = (0..3).map(|k| (bounds.aabb_max[k] - bounds.aabb_min[k]) as f64).fold(f64::INFINITY, f64::min);
     let fp = smallest_footprint(&cameras, bounds.aabb_min, bounds.aabb_max, bounds.near as f64)
         .ok_or_else(|| "auto: the dataset has no train views".to_string())?;
-    let (hs, r) = hash_sizes(cube_side, min_side, &fp, &auto);
+    let surface = match auto.surface_cells_per_entry {
+        Some(k) if k > 0.0 => train_depths(ds, config.downscale)?.map(|depths| {
+            let views: Vec<(&Camera, &[f32])> = cameras.iter().zip(&depths).map(|(c, d)| (c, d.as_slice())).collect();
+            let centre = DVec3::from_array(bounds.center().map(f64::from));
+            let lo = centre - DVec3::splat(cube_side / 2.0);
+            surface_cells(&views, lo, cube_side, SURFACE_COUNT_RESOLUTION)
+        }),
+        _ => None,
+    };
+    let (hs, r) = hash_sizes(cube_side, min_side, &fp, surface.as_ref(), &auto);
     reasons.extend(r);
     fast.levels = hs.levels;
     fast.features_per_level = hs.features_per_level;
@@ -847,7 +954,7 @@ pub fn resolve(config: &mut TrainConfig, ds: &Dataset, train: &TrainData) -> Res
     reasons.push(r);
 
     // Samples.
-    let (grid, spd, r) = sampling(hs.finest_resolution, cube_side, &auto, fast.max_samples_per_ray);
+    let (grid, spd, r) = sampling(hs.finest_resolution, cube_side, fp.size, &auto, fast.max_samples_per_ray);
     fast.grid_resolution = grid;
     fast.steps_per_diagonal = spd;
     reasons.extend(r);
@@ -1008,9 +1115,9 @@ mod tests {
         assert!((fp.distance - 0.25).abs() < 1e-9, "{fp:?}");
         // A 2 m cube at 3 cm footprint, two cells per footprint: ⌈2 · 2 / 0.03⌉ = 134.
         let fp = Footprint { size: 0.03, distance: 3.0, pixel_angle: 0.01, view: 1 };
-        assert_eq!(hash_sizes(2.0, 2.0, &fp, &AutoConfig::new().with_cells_per_footprint(2.0)).0.finest_resolution, 134);
+        assert_eq!(hash_sizes(2.0, 2.0, &fp, None, &AutoConfig::new().with_cells_per_footprint(2.0)).0.finest_resolution, 134);
         // One cell per footprint (the default): finest ⌈2 / 0.03⌉ = 67.
-        let (hs, reasons) = hash_sizes(2.0, 2.0, &fp, &AutoConfig::new().with_cells_per_footprint(1.0));
+        let (hs, reasons) = hash_sizes(2.0, 2.0, &fp, None, &AutoConfig::new().with_cells_per_footprint(1.0));
         assert_eq!(hs.finest_resolution, 67);
         assert_eq!(hs.base_resolution, 16);
         // 16 → 67 at b = 1.38: 1 + ⌈ln(4.19) / ln(1.38)⌉ = 1 + 5 = 6 levels.
@@ -1023,21 +1130,54 @@ mod tests {
     }
 
     #[test]
+    fn table_capacity_from_a_seen_wall() {
+        // A 64 × 64 camera with a 64-pixel focal length 3 m in front of a wall at z = 1/16
+        // (mid-cell): it sees a 3 m × 3 m patch, which covers 24 × 24 cells of 12.5 cm in a 4 m
+        // cube at r₀ = 32.
+        let c = Camera::new(
+            Intrinsics { width: 64, height: 64, fl_x: 64.0, fl_y: 64.0, cx: 32.0, cy: 32.0 },
+            Camera::look_at(DVec3::new(0.0, 0.0, 3.0625), DVec3::new(0.0, 0.0, 0.0625), DVec3::Y),
+        )
+        .unwrap();
+        let mut depth = vec![3.0f32; 64 * 64];
+        depth[0] = 0.0; // a pixel without a hit is not lifted
+        let s = surface_cells(&[(&c, &depth)], DVec3::splat(-2.0), 4.0, 32);
+        assert_eq!((s.cells, s.samples, s.resolution), (576, 64 * 64 - 1, 32));
+        // 32 √(4 · 2^15 / 576) = 482.7.
+        let r = capacity_resolution(&s, 4.0, 15).unwrap();
+        assert!((r - 32.0 * (4.0 * 32768.0f64 / 576.0).sqrt()).abs() < 1e-9 && (r - 482.7).abs() < 0.1, "{r}");
+        assert_eq!(capacity_resolution(&SurfaceCells { resolution: 32, cells: 0, samples: 0 }, 4.0, 15), None);
+        // A 1 mm footprint would allow 4000: the table's capacity binds.
+        let cfg = AutoConfig::new().with_cells_per_footprint(1.0);
+        let fine = Footprint { size: 0.001, distance: 0.5, pixel_angle: 0.002, view: 0 };
+        let (hs, r) = hash_sizes(4.0, 4.0, &fine, Some(&s), &cfg);
+        assert_eq!(hs.finest_resolution, 483);
+        assert!(r[0].contains("visible surface (576 cells") && r[0].contains("would allow 4000"), "{r:?}");
+        // Off in the settings, or a coarse footprint: the footprint decides.
+        let (hs, _) = hash_sizes(4.0, 4.0, &fine, Some(&s), &cfg.clone().with_surface_cells_per_entry(None));
+        assert_eq!(hs.finest_resolution, 4000);
+        let coarse = Footprint { size: 0.05, distance: 5.0, pixel_angle: 0.01, view: 0 };
+        let (hs, r) = hash_sizes(4.0, 4.0, &coarse, Some(&s), &cfg);
+        assert_eq!(hs.finest_resolution, 80);
+        assert!(r[0].contains("only at 483"), "{r:?}");
+    }
+
+    #[test]
     fn hash_sizes_follow_the_box_and_the_budget() {
         let cfg = AutoConfig::new().with_cells_per_footprint(1.0);
         // A flat box (0.1 m thick in a 2 m cube) raises the coarsest level: 4 · 2 / 0.1 = 80.
         let fp = Footprint { size: 0.002, distance: 1.0, pixel_angle: 0.002, view: 0 };
-        let (hs, _) = hash_sizes(2.0, 0.1, &fp, &cfg);
+        let (hs, _) = hash_sizes(2.0, 0.1, &fp, None, &cfg);
         assert_eq!((hs.base_resolution, hs.finest_resolution), (80, 1000));
         // A tiny budget binds: 16 levels... of 2 features × 12 bytes in 1 MiB → T ≤ 2^15 / levels.
         let small = AutoConfig::new().with_cells_per_footprint(1.0).with_hash_memory_mib(1.0);
-        let (hs, r) = hash_sizes(2.0, 2.0, &fp, &small);
+        let (hs, r) = hash_sizes(2.0, 2.0, &fp, None, &small);
         let bytes = hs.levels * (1 << hs.log2_table_size) * 2 * 12;
         assert!(bytes <= 1 << 20 && bytes * 2 > 1 << 20, "{hs:?}");
         assert!(r[3].contains("budget"), "{r:?}");
         // A coarse camera: finest level small enough to be dense.
         let coarse = Footprint { size: 0.2, distance: 10.0, pixel_angle: 0.02, view: 0 };
-        let (hs, r) = hash_sizes(2.0, 2.0, &coarse, &cfg);
+        let (hs, r) = hash_sizes(2.0, 2.0, &coarse, None, &cfg);
         assert_eq!((hs.finest_resolution, hs.base_resolution, hs.levels), (16, 16, 1));
         assert_eq!(hs.log2_table_size, 13); // 17³ = 4913 ≤ 2^13
         assert!(r[3].contains("densely"), "{r:?}");
@@ -1062,25 +1202,29 @@ mod tests {
         // same grid and step as one cell per footprint at finest 100.
         // With a step of one footprint (configs written before `finest_cells_per_step`).
         let two = AutoConfig::new().with_cells_per_footprint(2.0).with_finest_cells_per_step(None);
-        assert_eq!((sampling(200, 2.0, &two, 1024).0, sampling(200, 2.0, &two, 1024).1), (32, 174));
+        assert_eq!((sampling(200, 2.0, 0.02, &two, 1024).0, sampling(200, 2.0, 0.02, &two, 1024).1), (32, 174));
         let one = AutoConfig::new().with_cells_per_footprint(1.0).with_finest_cells_per_step(None);
-        let (grid, spd, r) = sampling(100, 2.0, &one, 1024);
+        let (grid, spd, r) = sampling(100, 2.0, 0.02, &one, 1024);
         // 100 / 4 = 25 → nearest power of two 32; √3 · 100 = 173.2 → 174.
         assert_eq!((grid, spd), (32, 174));
         assert!(r[1].contains("= 1.00 smallest pixel footprints"), "{r:?}");
         // The default step, two finest cells: ⌈√3 · 300 / 2⌉ = 260 steps per diagonal, a step
         // of 2 m · √3 / 260 = 1.33 cm ≈ 2 finest cells of 6.67 mm.
         let cfg = AutoConfig::new().with_cells_per_footprint(1.0);
-        let (grid, spd, r) = sampling(300, 2.0, &cfg, 1024);
+        let (grid, spd, r) = sampling(300, 2.0, 2.0 / 300.0, &cfg, 1024);
         assert_eq!((grid, spd), (64, 260)); // 300 / 4 = 75 → 64
         assert!(r[1].contains("= 2.00 finest cells = 2.00 smallest pixel footprints"), "{r:?}");
+        // A finest level coarser than the footprint (the table's capacity bound it): two finest
+        // cells of 6.67 mm are four footprints of 3.33 mm.
+        let (_, _, r) = sampling(300, 2.0, 1.0 / 300.0, &cfg, 1024);
+        assert!(r[1].contains("= 2.00 finest cells = 4.00 smallest pixel footprints"), "{r:?}");
         // instant-ngp's ratio, 2√3 cells: 150 steps.
         let ngp = AutoConfig::new().with_cells_per_footprint(1.0).with_finest_cells_per_step(Some(2.0 * 3f64.sqrt()));
-        assert!((150..=151).contains(&sampling(300, 2.0, &ngp, 1024).1));
-        let (grid, spd, r) = sampling(8000, 2.0, &cfg, 1024);
+        assert!((150..=151).contains(&sampling(300, 2.0, 2.0 / 300.0, &ngp, 1024).1));
+        let (grid, spd, r) = sampling(8000, 2.0, 2.0 / 8000.0, &cfg, 1024);
         assert_eq!((grid, spd), (64, 1024));
         assert!(r[1].contains("at most 1024"), "{r:?}");
-        assert_eq!(sampling(20, 2.0, &cfg, 1024).0, 16);
+        assert_eq!(sampling(20, 2.0, 0.1, &cfg, 1024).0, 16);
     }
 
     fn facts(view_dependent: bool) -> SceneFacts {
