@@ -75,7 +75,12 @@ pub struct AutoConfig {
     /// Table capacity ([`capacity_resolution`]): no level finer than the resolution at which
     /// the surface the train views see (ground-truth depth) covers this many cells per table
     /// entry, however small the pixel footprint. `None` (and configs written before this
-    /// option): the footprint alone sets the finest level.
+    /// option): the footprint alone sets the finest level. Measured with 4 (standard datasets,
+    /// 2-minute runs, one each; 4 was chosen, not swept): it lowered the finest level on deep
+    /// (15002 → 686), cornell (588 → 364), materials (551 → 307) and tabletop (333 → 293);
+    /// test PSNR and time to 30 dB went from 31.38 dB / 85 s to 33.53 dB / 58 s on deep, 35.46 /
+    /// 18.0 to 35.66 / 12.6 on cornell, 32.16 / 49.2 to 32.24 / 38.7 on materials and 33.28 /
+    /// 35.5 to 33.63 / 32.2 on tabletop; cornell's depth error rose from 0.096 to 0.119 m.
     #[config(default = "Some(4.0)")]
     pub surface_cells_per_entry: Option<f64>,
     /// Footprint-sized cells (finest cells / `cells_per_footprint`) per occupancy-grid cell.
@@ -316,7 +321,7 @@ pub fn surface_cells(views: &[(&Camera, &[f32])], lo: DVec3, side: f64, resoluti
     for (cam, depth) in views {
         let w = cam.intrinsics.width as usize;
         for (p, &z) in depth.iter().enumerate() {
-            if !(z > 0.0) || !z.is_finite() || w == 0 {
+            if z <= 0.0 || !z.is_finite() || w == 0 {
                 continue;
             }
             let (px, py) = ((p % w) as f64 + 0.5, (p / w) as f64 + 0.5);
