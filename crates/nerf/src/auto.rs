@@ -299,6 +299,14 @@ pub fn smallest_footprint(cameras: &[Camera], lo: [f32; 3], hi: [f32; 3], near: 
         .min_by(|a, b| a.size.total_cmp(&b.size))
 }
 
+/// The world point pixel `p` (row-major, `width` pixels per row) of `camera` sees at z-depth
+/// `z`, through the pixel's centre.
+fn lift_pixel(camera: &Camera, p: usize, width: usize, z: f32) -> DVec3 {
+    let (px, py) = ((p % width) as f64 + 0.5, (p / width) as f64 + 0.5);
+    let ray = camera.pixel_ray(px, py);
+    ray.origin + ray.direction * camera.distance_from_z_depth(px, py, z as f64)
+}
+
 /// The surface the train views see, counted as cells of a grid over the bounding cube.
 #[derive(Clone, Debug, PartialEq)]
 pub struct SurfaceCells {
@@ -324,10 +332,7 @@ pub fn surface_cells(views: &[(&Camera, &[f32])], lo: DVec3, side: f64, resoluti
             if z <= 0.0 || !z.is_finite() || w == 0 {
                 continue;
             }
-            let (px, py) = ((p % w) as f64 + 0.5, (p / w) as f64 + 0.5);
-            let ray = cam.pixel_ray(px, py);
-            let x = ray.origin + ray.direction * cam.distance_from_z_depth(px, py, z as f64);
-            let c = ((x - lo) * scale).floor();
+            let c = ((lift_pixel(cam, p, w, z) - lo) * scale).floor();
             let (i, j, k) = (c.x as i64, c.y as i64, c.z as i64);
             if !(0..r).contains(&i) || !(0..r).contains(&j) || !(0..r).contains(&k) {
                 continue;
@@ -595,9 +600,7 @@ pub fn colour_spread(views: &[SpreadView<'_>], max_points: usize, seed: u64) -> 
         if v.rgba[p][3] < 0.999 || v.depth[p] <= 0.0 {
             continue;
         }
-        let (px, py) = ((p % w) as f64 + 0.5, (p / w) as f64 + 0.5);
-        let ray = v.camera.pixel_ray(px, py);
-        let x = ray.origin + ray.direction * v.camera.distance_from_z_depth(px, py, v.depth[p] as f64);
+        let x = lift_pixel(v.camera, p, w, v.depth[p]);
         let mut cols = vec![[v.rgba[p][0] as f64, v.rgba[p][1] as f64, v.rgba[p][2] as f64]];
         for (ui, u) in views.iter().enumerate() {
             if ui == vi {
@@ -924,8 +927,7 @@ pub fn resolve(config: &mut TrainConfig, ds: &Dataset, train: &TrainData) -> Res
     let surface = match auto.surface_cells_per_entry {
         Some(k) if k > 0.0 => train_depths(ds, config.downscale)?.map(|depths| {
             let views: Vec<(&Camera, &[f32])> = cameras.iter().zip(&depths).map(|(c, d)| (c, d.as_slice())).collect();
-            let centre = DVec3::from_array(bounds.center().map(f64::from));
-            let lo = centre - DVec3::splat(cube_side / 2.0);
+            let lo = DVec3::from_array(bounds.cube().0.map(f64::from));
             surface_cells(&views, lo, cube_side, SURFACE_COUNT_RESOLUTION)
         }),
         _ => None,
@@ -1018,8 +1020,7 @@ fn train_depths(ds: &Dataset, downscale: u32) -> Result<Option<Vec<Vec<f32>>>, S
     }
     let mut out = Vec::with_capacity(ds.train.len());
     for f in &ds.train {
-        let v = crate::data::ViewPixels::load(f, downscale, true).map_err(|e| e.to_string())?;
-        match v.gt {
+        match crate::data::ViewPixels::load_ground_truth(f, downscale).map_err(|e| e.to_string())? {
             Some((depth, _)) => out.push(depth),
             None => return Ok(None),
         }

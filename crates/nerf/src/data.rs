@@ -93,28 +93,33 @@ impl ViewPixels {
                 rgba[y * w + x] = acc.map(|v| v / n);
             }
         }
-        let gt = match (&frame.gt_path, with_gt) {
-            (Some(p), true) => {
-                let g = dataset::read_ground_truth(p)?;
-                // For even factors no full-resolution pixel centre coincides with a downscaled
-                // one; take the nearest, a documented approximation.
-                let idx = |x: usize, y: usize| {
-                    let (sx, sy) = ((x * k as usize + k as usize / 2).min(g.width as usize - 1), (y * k as usize + k as usize / 2).min(g.height as usize - 1));
-                    sy * g.width as usize + sx
-                };
-                let mut depth = vec![0.0; w * h];
-                let mut alpha = vec![0.0; w * h];
-                for y in 0..h {
-                    for x in 0..w {
-                        depth[y * w + x] = g.depth[idx(x, y)];
-                        alpha[y * w + x] = g.alpha[idx(x, y)];
-                    }
-                }
-                Some((depth, alpha))
-            }
-            _ => None,
-        };
+        let gt = if with_gt { Self::load_ground_truth(frame, k)? } else { None };
         Ok(Self { camera, rgba, gt })
+    }
+
+    /// The frame's ground truth (z-depth, alpha) at `downscale` (see [`Self::gt`]), without
+    /// reading its image; `None` when the frame has none.
+    pub fn load_ground_truth(frame: &Frame, downscale: u32) -> Result<Option<(Vec<f32>, Vec<f32>)>, DataError> {
+        let Some(p) = &frame.gt_path else { return Ok(None) };
+        let k = downscale.max(1);
+        let camera = frame.camera.downscaled(k);
+        let (w, h) = (camera.intrinsics.width as usize, camera.intrinsics.height as usize);
+        let g = dataset::read_ground_truth(p)?;
+        // For even factors no full-resolution pixel centre coincides with a downscaled
+        // one; take the nearest, a documented approximation.
+        let idx = |x: usize, y: usize| {
+            let (sx, sy) = ((x * k as usize + k as usize / 2).min(g.width as usize - 1), (y * k as usize + k as usize / 2).min(g.height as usize - 1));
+            sy * g.width as usize + sx
+        };
+        let mut depth = vec![0.0; w * h];
+        let mut alpha = vec![0.0; w * h];
+        for y in 0..h {
+            for x in 0..w {
+                depth[y * w + x] = g.depth[idx(x, y)];
+                alpha[y * w + x] = g.alpha[idx(x, y)];
+            }
+        }
+        Ok(Some((depth, alpha)))
     }
 
     /// Width × height.
