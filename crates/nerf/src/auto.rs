@@ -9,9 +9,9 @@
 //! | decision | rule |
 //! |---|---|
 //! | bounds | scene facts' box, padded ([`SceneBounds::for_dataset`]); without facts the visual hull of the train views' alpha masks on a coarse grid ([`visual_hull`]), in two passes |
-//! | finest resolution | the bounding cube's side / the smallest pixel footprint over the box ([`smallest_footprint`]: nearest distance from a train camera to the box, at least `near`, × the pixel angle); with ground-truth depth at most the resolution at which the visible surface fills the largest hash table at 1 cell per entry ([`surface_cells`], [`capacity_resolution`]) |
+//! | finest resolution | the bounding cube's side / the smallest pixel footprint over the box ([`smallest_footprint`]: nearest distance from a train camera to the box, at least `near`, × the pixel angle); with ground-truth depth at most the resolution at which the visible surface fills the hash table at 4 cells per entry ([`surface_cells`], [`capacity_resolution`]) |
 //! | coarsest resolution | instant-ngp's 16, raised until the box's smallest side spans 4 coarsest cells |
-//! | levels, table size | levels from the two resolutions at instant-ngp's growth factor (≤ 16); table big enough for a dense finest level or, with ground-truth depth, for the visible surface at the finest level at 1 cell per entry; at most 2^17 entries per level and within a memory budget ([`hash_sizes`]) |
+//! | levels, table size | levels from the two resolutions at instant-ngp's growth factor (≤ 16); table big enough for a dense finest level, at most 2^15 entries per level (one level's parameters, gradients and Adam moments in a core's 1 MiB L2 cache) and within a memory budget ([`hash_sizes`]) |
 //! | view dependence | scene facts' `view_dependent`; without facts the spread of a surface point's colour across the train views that see it, with ground-truth depth ([`colour_spread`]); without depth it stays on |
 //! | samples | occupancy cell = 4 smallest footprints (16³…64³); marching step = 2 finest cells (between one footprint and instant-ngp's 2√3), at most `max_samples_per_ray` per cube diagonal ([`sampling`]); optionally growing with distance as the footprint does, up to one occupancy cell ([`cone`], `cone_marching`, off by default) |
 //! | stopping | stop when the best val PSNR gained < 0.1 dB over the last fifth of the time budget ([`plateau_reached`]), validating every twentieth |
@@ -50,15 +50,22 @@ pub struct AutoConfig {
     /// Features per level.
     #[config(default = 2)]
     pub features_per_level: usize,
-    /// Most log2 entries per level (with the visible surface counted, the table is sized to
-    /// hold it: see `surface_cells_per_entry`). 2^17 is the fast preset's size. (2^15, one
-    /// level's entries with their gradients and Adam moments in a core's 1 MiB L2 cache, was the
-    /// default until session 7: measured then on the standard `deep` dataset, 2-minute runs
-    /// back to back on the same machine, 2^17 at 1 surface cell per entry gave 32.48 dB test
-    /// PSNR and 0.217 m depth error against 31.55 dB and 0.298 m with 2^15 at 4 cells per
-    /// entry, at the same finest level (686) and the same number of steps (1591 and 1568): the
-    /// cache argument did not show up in the step time, the collisions did in the depth.)
-    #[config(default = 17)]
+    /// Most log2 entries per level: while training, a level's entries are read and written with
+    /// their gradient and two Adam moments, 2^15 entries × 2 features × 16 bytes = 1 MiB, one
+    /// core's L2 cache on current x86 CPUs (AMD Zen 4, Intel Sapphire Rapids: 1–2 MiB).
+    /// (2^17, the table alone in that cache, was the first default. The scenes disagree, in
+    /// single 3-minute runs on the standard datasets: 2^15 trained faster and better on
+    /// `materials` (in 40 s: 411 steps to 29.4 dB against 337 steps to 25.1 dB) and on `deep`
+    /// (34.23 against 33.14 dB), worse on `tabletop` and `thin` with a one-footprint step
+    /// (32.12 and 31.07 against 33.90 and 32.19 dB).) Session 7 tried 2^17 with the table
+    /// sized to the visible surface at 1 cell per entry (same finest levels): on `deep`, back
+    /// to back, 32.48 dB and 0.217 m depth error against 31.55 dB and 0.298 m; but over all five
+    /// standard scenes (`bench auto`, 2 minutes, one run each) auto's lead over the best fixed
+    /// size shrank on four (deep +0.58 dB against +1.72 in session 6's run with 2^15, materials +0.03 against
+    /// +0.45, thin +0.37 against +0.63, tabletop −0.16 against +0.26) and its off-surface mass
+    /// went from 2–8 % better to 2–14 % worse than the best fixed size's on deep, materials,
+    /// tabletop and thin, so 2^15 stayed.
+    #[config(default = 15)]
     pub max_log2_table_size: u32,
     /// Least log2 entries per level.
     #[config(default = 10)]
@@ -73,20 +80,15 @@ pub struct AutoConfig {
     #[config(default = 1.0)]
     pub cells_per_footprint: f64,
     /// Table capacity ([`capacity_resolution`]): no level finer than the resolution at which
-    /// the surface the train views see (ground-truth depth) covers this many cells per entry
-    /// of a `max_log2_table_size` table, however small the pixel footprint; and the table no
-    /// larger than the visible surface needs at the finest level, at this many cells per
-    /// entry. `None` (and configs written before this option): the footprint alone sets the
-    /// finest level, the dense finest level and `max_log2_table_size` the table. Measured
-    /// (standard datasets, 2-minute runs, one each): with 4 cells per entry of 2^15 it lowered
-    /// the finest level on deep (15002 → 686), cornell (588 → 364), materials (551 → 307) and
-    /// tabletop (333 → 293), and test PSNR and time to 30 dB went from 31.38 dB / 85 s to
-    /// 33.53 dB / 58 s on deep, 35.46 / 18.0 to 35.66 / 12.6 on cornell, 32.16 / 49.2 to
-    /// 32.24 / 38.7 on materials and 33.28 / 35.5 to 33.63 / 32.2 on tabletop; cornell's depth
-    /// error rose from 0.096 to 0.119 m. One cell per entry of 2^17 (the default since
-    /// session 7) keeps those finest levels and quarters the collisions (see
-    /// `max_log2_table_size`).
-    #[config(default = "Some(1.0)")]
+    /// the surface the train views see (ground-truth depth) covers this many cells per table
+    /// entry, however small the pixel footprint. `None` (and configs written before this
+    /// option): the footprint alone sets the finest level. Measured with 4 (standard datasets,
+    /// 2-minute runs, one each; 4 was chosen, not swept): it lowered the finest level on deep
+    /// (15002 → 686), cornell (588 → 364), materials (551 → 307) and tabletop (333 → 293);
+    /// test PSNR and time to 30 dB went from 31.38 dB / 85 s to 33.53 dB / 58 s on deep, 35.46 /
+    /// 18.0 to 35.66 / 12.6 on cornell, 32.16 / 49.2 to 32.24 / 38.7 on materials and 33.28 /
+    /// 35.5 to 33.63 / 32.2 on tabletop; cornell's depth error rose from 0.096 to 0.119 m.
+    #[config(default = "Some(4.0)")]
     pub surface_cells_per_entry: Option<f64>,
     /// Footprint-sized cells (finest cells / `cells_per_footprint`) per occupancy-grid cell.
     #[config(default = 4)]
@@ -393,9 +395,8 @@ pub struct HashSizes {
 ///   at most finest;
 /// - levels = 1 + ⌈ln(finest / base) / ln(`growth`)⌉, at most `max_levels`;
 /// - log2 T = the least of: ⌈log2 (finest + 1)³⌉ (a dense finest level needs no more),
-///   with a counted surface the entries that hold it at the finest level at
-///   `surface_cells_per_entry` cells per entry, `max_log2_table_size`, and the largest T with
-///   levels · T · F · 12 bytes ≤ the budget; at least `min_log2_table_size`.
+///   `max_log2_table_size`, and the largest T with levels · T · F · 12 bytes ≤ the budget;
+///   at least `min_log2_table_size`.
 ///
 /// Returns the sizes and a reason line per decision.
 ///
@@ -473,18 +474,9 @@ pub fn hash_sizes(cube_side: f64, min_side: f64, footprint: &Footprint, surface:
     let dense = ((finest as f64 + 1.0).powi(3)).log2().ceil() as u32;
     let budget_bytes = cfg.hash_memory_mib * 1024.0 * 1024.0;
     let budget = (budget_bytes / (12.0 * levels as f64 * f as f64)).max(1.0).log2().floor() as u32;
-    // The visible surface at the finest level: N₀ (finest / r₀)² cells (see
-    // `capacity_resolution`), and the entries that hold it at `k` cells per entry.
-    let surface_need = capacity.map(|(s, k, _)| {
-        let at_finest = (s.cells as f64 * (finest as f64 / s.resolution as f64).powi(2)).max(1.0);
-        (at_finest, k, (at_finest / k).max(1.0).log2().ceil().min(63.0) as u32)
-    });
-    let need = surface_need.map_or(u32::MAX, |(_, _, n)| n);
-    let log2 = dense.min(need).min(cfg.max_log2_table_size).min(budget).max(cfg.min_log2_table_size);
+    let log2 = dense.min(cfg.max_log2_table_size).min(budget).max(cfg.min_log2_table_size);
     let why = if log2 == dense {
         format!("2^{dense} holds the finest level ({}³ vertices) densely", finest + 1)
-    } else if let Some((n, k, _)) = surface_need.filter(|_| log2 == need) {
-        format!("the visible surface covers about {n:.0} cells of the finest level, 2^{need} entries hold it at {k} cells per entry")
     } else if log2 == budget && budget < cfg.max_log2_table_size {
         format!(
             "{levels} levels × {f} features × 12 bytes within the {} MiB budget (a dense finest level needs 2^{dense})",
@@ -492,11 +484,8 @@ pub fn hash_sizes(cube_side: f64, min_side: f64, footprint: &Footprint, surface:
         )
     } else if log2 == cfg.max_log2_table_size {
         format!(
-            "the most entries per level{} (a dense finest level needs 2^{dense})",
-            match surface_need {
-                Some((n, k, _)) => format!(", where the visible surface (about {n:.0} cells of the finest level) needs 2^{need} at {k} cells per entry"),
-                None => String::new(),
-            }
+            "one level's entries with their gradients and Adam moments ({} KiB) stay in a core's L2 cache (a dense finest level needs 2^{dense})",
+            (1u64 << log2) * f as u64 * 16 / 1024
         )
     } else {
         format!("the least table size (a dense finest level needs 2^{dense})")
@@ -1146,9 +1135,9 @@ mod tests {
         assert_eq!(hs.base_resolution, 16);
         // 16 → 67 at b = 1.38: 1 + ⌈ln(4.19) / ln(1.38)⌉ = 1 + 5 = 6 levels.
         assert_eq!(hs.levels, 6);
-        // A dense 68³ finest level needs 2^19 entries; the cap of 2^17 binds.
-        assert_eq!(hs.log2_table_size, 17);
-        assert!(reasons[3].starts_with("log2_table_size = 17: the most entries per level (a dense finest level needs 2^19)"), "{reasons:?}");
+        // A dense 68³ finest level needs 2^19 entries; the cache cap of 2^15 binds.
+        assert_eq!(hs.log2_table_size, 15);
+        assert!(reasons[3].contains("(1024 KiB) stay in a core's L2 cache"), "{reasons:?}");
         assert!(reasons[0].starts_with("finest_resolution = 67: 1 cell(s) per smallest pixel footprint 3.0 cm over a 2.00 m cube (train view 1 at 3.00 m)"), "{reasons:?}");
         assert_eq!(reasons.len(), 4);
     }
@@ -1177,10 +1166,6 @@ mod tests {
         let (hs, r) = hash_sizes(4.0, 4.0, &fine, Some(&s), &cfg);
         assert_eq!(hs.finest_resolution, 483);
         assert!(r[0].contains("visible surface (576 cells") && r[0].contains("would allow 4000"), "{r:?}");
-        // By default 1 cell per entry of 2^17: the same 32 √(2^17 / 576) = 482.7. At 483 the
-        // wall covers 576 (483 / 32)² ≈ 131225 cells, just over 2^17: the cap binds.
-        assert_eq!(hs.log2_table_size, 17);
-        assert!(r[3].contains("the visible surface (about 131225 cells of the finest level) needs 2^18 at 1 cells per entry"), "{r:?}");
         // Off in the settings, or a coarse footprint: the footprint decides.
         let (hs, _) = hash_sizes(4.0, 4.0, &fine, Some(&s), &cfg.clone().with_surface_cells_per_entry(None));
         assert_eq!(hs.finest_resolution, 4000);
@@ -1188,15 +1173,6 @@ mod tests {
         let (hs, r) = hash_sizes(4.0, 4.0, &coarse, Some(&s), &cfg);
         assert_eq!(hs.finest_resolution, 80);
         assert!(r[0].contains("only at 483"), "{r:?}");
-        // At 80 the wall covers 576 (80 / 32)² = 3600 cells: 2^12 entries hold them (a dense
-        // 81³ level would need 2^20); at 4 cells per entry 900 cells, 2^10.
-        assert_eq!(hs.log2_table_size, 12);
-        assert!(r[3].starts_with("log2_table_size = 12: the visible surface covers about 3600 cells of the finest level, 2^12 entries hold it at 1 cells per entry"), "{r:?}");
-        let (hs, _) = hash_sizes(4.0, 4.0, &coarse, Some(&s), &cfg.clone().with_surface_cells_per_entry(Some(4.0)));
-        assert_eq!(hs.log2_table_size, 10);
-        // Without the surface the dense level and the cap decide.
-        let (hs, _) = hash_sizes(4.0, 4.0, &coarse, None, &cfg);
-        assert_eq!(hs.log2_table_size, 17);
     }
 
     #[test]
