@@ -59,12 +59,12 @@ pub struct AutoConfig {
     /// (34.23 against 33.14 dB), worse on `tabletop` and `thin` with a one-footprint step
     /// (32.12 and 31.07 against 33.90 and 32.19 dB).) Session 7 tried 2^17 with the table
     /// sized to the visible surface at 1 cell per entry (same finest levels): on `deep`, back
-    /// to back, 32.48 dB and 0.217 m depth error against 31.55 dB and 0.298 m; but over all five
-    /// standard scenes (`bench auto`, 2 minutes, one run each) auto's lead over the best fixed
-    /// size shrank on four (deep +0.58 dB against +1.72 in session 6's run with 2^15, materials +0.03 against
-    /// +0.45, thin +0.37 against +0.63, tabletop −0.16 against +0.26) and its off-surface mass
-    /// went from 2–8 % better to 2–14 % worse than the best fixed size's on deep, materials,
-    /// tabletop and thin, so 2^15 stayed.
+    /// to back, 32.48 dB and 0.217 m depth error against 31.55 dB and 0.298 m. Over all five
+    /// standard scenes (`bench auto`, 2 minutes, one run each) auto's margins over the best
+    /// fixed size moved by no more than the bench's own run-to-run spread (the same fixed
+    /// configuration and seed in sessions 6 and 7: up to 0.8 dB, 26 % in depth error, 10 % in
+    /// off-surface mass), except deep's depth error (1.43 → 1.23 × fast-medium's); with
+    /// nothing else shown, 2^15 (a quarter of the parameters) stayed.
     #[config(default = 15)]
     pub max_log2_table_size: u32,
     /// Least log2 entries per level.
