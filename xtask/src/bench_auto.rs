@@ -178,15 +178,16 @@ fn mean_summary(runs: &[eval::RunSummary]) -> eval::RunSummary {
     m
 }
 
-/// ` (seeds a–b)`: the range of a figure over a configuration's seeds; empty for one seed.
-fn spread(runs: &[eval::RunSummary], f: impl Fn(&eval::RunSummary) -> Option<f64>, digits: usize) -> String {
+/// ` (seeds a–b)`: the range of a figure over a configuration's seeds (4 decimals, as the
+/// targets print the figures); empty for one seed.
+fn spread(runs: &[eval::RunSummary], f: impl Fn(&eval::RunSummary) -> Option<f64>) -> String {
     let v: Vec<f64> = runs.iter().filter_map(f).collect();
     if runs.len() < 2 || v.is_empty() {
         return String::new();
     }
     let lo = v.iter().copied().fold(f64::INFINITY, f64::min);
     let hi = v.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-    format!(" (seeds {lo:.digits$}–{hi:.digits$})")
+    format!(" (seeds {lo:.4}–{hi:.4})")
 }
 
 /// What the targets say about one scene's runs: `(configuration, its runs, one per
@@ -196,6 +197,7 @@ fn targets(scene: &str, grouped: &[(String, Vec<eval::RunSummary>)]) -> Vec<Stri
     let seeds_of = |name: &str| grouped.iter().find(|(n, _)| n == name).map(|(_, r)| r.as_slice()).unwrap_or(&[]);
     let Some((_, auto)) = runs.iter().find(|(n, _)| n == "auto") else { return vec![] };
     let mean = if grouped.iter().any(|(_, r)| r.len() > 1) { "mean " } else { "" };
+    let over_seeds = if mean.is_empty() { "" } else { " (means over the seeds)" };
     let mut out = Vec::new();
     let faster = |r: &eval::RunSummary| match (r.time_to_30db_s, auto.time_to_30db_s) {
         (Some(a), Some(b)) => a < b,
@@ -208,9 +210,9 @@ fn targets(scene: &str, grouped: &[(String, Vec<eval::RunSummary>)]) -> Vec<Stri
         .map(|(n, _)| n.as_str())
         .collect();
     out.push(if beaters.is_empty() {
-        format!("{scene}: met — no fixed configuration is both faster to 30 dB and > 0.3 dB better than auto{}", if mean.is_empty() { "" } else { " (means over the seeds)" })
+        format!("{scene}: met — no fixed configuration is both faster to 30 dB and > 0.3 dB better than auto{over_seeds}")
     } else {
-        format!("{scene}: MISSED — {} faster to 30 dB and > 0.3 dB better than auto{}", beaters.join(", "), if mean.is_empty() { "" } else { " (means over the seeds)" })
+        format!("{scene}: MISSED — {} faster to 30 dB and > 0.3 dB better than auto{over_seeds}", beaters.join(", "))
     });
     if let Some((_, large)) = runs.iter().find(|(n, _)| n == "fast-large") {
         out.push(format!(
@@ -229,13 +231,16 @@ fn targets(scene: &str, grouped: &[(String, Vec<eval::RunSummary>)]) -> Vec<Stri
             (Some(x), Some(y)) => format!("{x:.4} vs {y:.4} ({})", if x <= y { "no worse" } else { "WORSE" }),
             _ => "n/a".into(),
         };
-        let (a_runs, b_runs) = (seeds_of("auto"), seeds_of(bn));
+        // `; auto (seeds a–b), <best> (seeds c–d)` with several seeds, nothing with one.
+        let ranges = |f: fn(&eval::RunSummary) -> Option<f64>| {
+            if mean.is_empty() { String::new() } else { format!("; auto{}, {bn}{}", spread(seeds_of("auto"), f), spread(seeds_of(bn), f)) }
+        };
         out.push(format!(
             "{scene}: against the best fixed size by {mean}final PSNR ({bn}): {mean}depth MAE {}{}, {mean}off-surface mass {}{}",
             cmp(auto.depth_mae, b.depth_mae),
-            if mean.is_empty() { String::new() } else { format!("; auto{}, {bn}{}", spread(a_runs, |r| r.depth_mae, 4), spread(b_runs, |r| r.depth_mae, 4)) },
+            ranges(|r| r.depth_mae),
             cmp(auto.off_surface_mass, b.off_surface_mass),
-            if mean.is_empty() { String::new() } else { format!("; auto{}, {bn}{}", spread(a_runs, |r| r.off_surface_mass, 4), spread(b_runs, |r| r.off_surface_mass, 4)) },
+            ranges(|r| r.off_surface_mass),
         ));
     }
     out
