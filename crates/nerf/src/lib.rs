@@ -13,6 +13,7 @@ pub mod checkpoint;
 pub mod data;
 pub mod encoding;
 pub mod field;
+pub mod mlp;
 pub mod models;
 pub mod occupancy;
 pub mod render;

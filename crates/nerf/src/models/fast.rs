@@ -14,21 +14,20 @@
 //! Training rays are compacted as in instant-ngp: a density-only pass finds where each ray
 //! becomes opaque, and only the samples before it are trained on.
 
-use super::ops::{self, DensityActivation, stream, stream_seed};
+use super::ops::{DensityActivation, stream, stream_seed};
 use super::{RayOutputs, StepStats, StepTimings, all_finite, expected_distance, mse_and_grad};
 use crate::backend;
 use crate::checkpoint::StateDict;
 use crate::data::{RayBatch, SceneBounds};
 use crate::encoding::hashgrid::{Adam, AdamConfig, HashGrid, HashGridConfig};
 use crate::encoding::sh::{sh_encode, sh_output_dim};
-use crate::field::{AdamSettings, HashField, HashFieldConfig, MlpAdam, seeded_init, tensor2, to_vec};
+use crate::field::{AdamSettings, HashField, HashFieldConfig, MlpAdam, seeded_init};
+use crate::mlp::HashMlp;
 use crate::occupancy::{MarchOptions, OccupancyGrid, OccupancyGridConfig};
 use crate::sampling::{Aabb, RaySamples, SampleMode};
 use crate::volrend;
 use burn::config::Config;
 use burn::module::Module;
-use burn::optim::GradientsParams;
-use burn::tensor::Device;
 use std::time::Instant;
 
 /// Settings of the fast model.
@@ -171,7 +170,6 @@ pub struct FastModel {
     pub adam: MlpAdam,
     /// Occupancy grid over the scene box.
     pub occupancy: OccupancyGrid,
-    device: Device,
     /// Hash-table gradient, all zeros between steps (the sparse Adam clears what it used).
     grad: Vec<f32>,
     /// Table entries touched this step, all false between steps.
@@ -204,6 +202,7 @@ impl FastModel {
             update_fraction: 0.25,
             seed: stream_seed(seed, stream::OCCUPANCY),
         });
+        HashMlp::from_field(&field)?;
         let adam = MlpAdam::new(&AdamSettings::new(config.beta1, config.beta2, config.eps));
         let grid_adam = Adam::new(AdamConfig { lr: 1e-2, beta1: config.beta1, beta2: config.beta2, eps: config.eps }, n);
         Ok(Self {
@@ -214,7 +213,6 @@ impl FastModel {
             grid,
             adam,
             occupancy,
-            device,
             grad: vec![0.0; n],
             touched: vec![false; hash.levels * hash.table_size()],
             lr: 1e-2,
@@ -224,6 +222,11 @@ impl FastModel {
     /// Marching step size: the bounding cube's diagonal / `steps_per_diagonal`.
     pub fn step_size(&self) -> f32 {
         2.0 * self.bounds.half_extent() * 3f32.sqrt() / self.config.steps_per_diagonal.max(1) as f32
+    }
+
+    /// The networks' current weights as plain vectors for the fused kernels ([`crate::mlp`]).
+    fn mlp(&self) -> HashMlp {
+        HashMlp::from_field(&self.field).expect("the fast model's networks have the fused kernels' shape (checked in new)")
     }
 
     fn march(&self, origins: &[[f32; 3]], dirs: &[[f32; 3]], jitter: SampleMode) -> RaySamples {
@@ -290,15 +293,16 @@ impl FastModel {
             return;
         }
         let dt = self.step_size();
-        let (grid, field, bounds) = (&self.grid, self.field.valid(), &self.bounds);
+        let mlp = self.mlp();
+        let (grid, bounds) = (&self.grid, &self.bounds);
         let thr = self.config.grid_threshold;
-        self.occupancy.update(step, dt, thr, &mut |pts| density_at(grid, &field, bounds, pts));
+        self.occupancy.update(step, dt, thr, &mut |pts| density_at(grid, &mlp, bounds, pts));
     }
 
     /// Density at world points (inference).
     pub fn density(&self, points: &[[f32; 3]]) -> Vec<f32> {
-        let net = self.field.valid();
-        points.chunks(65536).flat_map(|c| density_at(&self.grid, &net, &self.bounds, c)).collect()
+        let mlp = self.mlp();
+        points.chunks(65536).flat_map(|c| density_at(&self.grid, &mlp, &self.bounds, c)).collect()
     }
 
     /// One training step.
@@ -319,8 +323,9 @@ impl FastModel {
         // marched sample finds where each ray's transmittance falls below
         // `train_min_transmittance`; only the samples before that are trained on.
         let t0 = Instant::now();
+        let mlp = self.mlp();
         let keep = (self.config.train_min_transmittance > 0.0 && !marched.is_empty()).then(|| {
-            let sigma = density_from_encoding(&self.field.valid(), enc_all.clone(), dims);
+            let sigma: Vec<f32> = mlp.raw_density(&enc_all).into_iter().map(|x| ACT.forward(x)).collect();
             let tau_stop = -self.config.train_min_transmittance.ln();
             keep_until_opaque(&marched, &sigma, tau_stop)
         });
@@ -347,16 +352,10 @@ impl FastModel {
         }
 
         let t0 = Instant::now();
-        let shd = self.config.dir_dims();
-        let enc_t = tensor2(enc, n, dims, &self.device).require_grad();
-        let sh_t = (shd > 0).then(|| tensor2(sh, n, shd, &self.device));
-        let (raw_t, rgb_t) = field_forward(&self.field, enc_t.clone(), sh_t);
-        let raw = to_vec(raw_t.clone());
-        let rgb_flat = to_vec(rgb_t.clone());
+        let (raw, rgb) = mlp.forward(&enc, &sh);
         tm.mlp += t0.elapsed().as_secs_f64();
 
         let t0 = Instant::now();
-        let rgb = ops::rgb3(&rgb_flat);
         let sigma: Vec<f32> = raw.iter().map(|x| ACT.forward(*x)).collect();
         let (o, ts, te, bg) = (&samples.offsets, &samples.t_start, &samples.t_end, &batch.background);
         let comp = volrend::composite_forward(o, &sigma, &rgb, ts, te, bg);
@@ -374,19 +373,15 @@ impl FastModel {
         };
         let g = volrend::composite_backward_with_weights(o, &sigma, &rgb, ts, te, bg, &comp, &d_out, &zeros, &zeros, d_weights.as_deref());
         let d_raw: Vec<f32> = g.d_sigma.iter().zip(&raw).map(|(g, x)| ACT.backward(*x, *g)).collect();
-        let d_rgb_flat: Vec<f32> = g.d_rgb.iter().flatten().copied().collect();
         tm.render += t0.elapsed().as_secs_f64();
         let stats = |skipped, tm| StepStats { loss, mse, samples: n, skipped_nonfinite: skipped, timings: tm };
-        if !loss.is_finite() || !all_finite(&d_raw) || !all_finite(&d_rgb_flat) {
+        if !loss.is_finite() || !all_finite(&d_raw) || !g.d_rgb.iter().all(|c| all_finite(c)) {
             return stats(true, tm);
         }
 
         let t0 = Instant::now();
-        let surrogate = (raw_t * tensor2(d_raw, n, 1, &self.device)).sum()
-            + (rgb_t * tensor2(d_rgb_flat, n, 3, &self.device)).sum();
-        let grads = surrogate.backward();
-        let d_enc = enc_t.grad(&grads).map(to_vec).unwrap_or_default();
-        let mut gp = GradientsParams::from_grads(grads, &self.field);
+        let (d_enc, grads) = mlp.backward(&enc, &sh, &d_raw, &g.d_rgb);
+        let mut gp = grads.into_params(&self.field);
         tm.mlp += t0.elapsed().as_secs_f64();
         if d_enc.len() != n * dims || !all_finite(&d_enc) {
             return stats(true, tm);
@@ -410,11 +405,9 @@ impl FastModel {
     /// evaluated lie past the termination point and get weight 0.
     pub fn render_rays(&self, origins: &[[f32; 3]], dirs: &[[f32; 3]], background: [f32; 3]) -> RayOutputs {
         let samples = self.march(origins, dirs, SampleMode::Deterministic);
-        let net = self.field.valid();
-        let dev = backend::inference_device();
+        let mlp = self.mlp();
         let rays = origins.len();
         let n = samples.len();
-        let (dims, shd) = (self.grid.output_dim(), self.config.dir_dims());
         let mut sigma = vec![0.0f32; n];
         let mut rgb = vec![[0.0f32; 3]; n];
         let mut evaluated = vec![false; n];
@@ -436,13 +429,10 @@ impl FastModel {
                 break;
             }
             let (_, enc, sh) = self.encode(&samples, Some(&idx), origins, dirs);
-            let m = idx.len();
-            let sh_t = (shd > 0).then(|| tensor2(sh, m, shd, &dev));
-            let (raw_t, rgb_t) = field_forward(&net, tensor2(enc, m, dims, &dev), sh_t);
-            let (raw, rgb_flat) = (to_vec(raw_t), to_vec(rgb_t));
+            let (raw, rgb_k) = mlp.forward(&enc, &sh);
             for (k, &s) in idx.iter().enumerate() {
                 sigma[s] = ACT.forward(raw[k]);
-                rgb[s] = [rgb_flat[3 * k], rgb_flat[3 * k + 1], rgb_flat[3 * k + 2]];
+                rgb[s] = rgb_k[k];
                 evaluated[s] = true;
             }
             for (r, e) in live {
@@ -539,36 +529,12 @@ impl FastModel {
     }
 }
 
-/// The field's forward pass; without a direction input (`sh` `None`) the colour network sees
-/// the geometry features only.
-///
-/// # Shapes
-/// `enc`: [N, L·F], `sh`: [N, dir_dims] → (raw density [N, 1], rgb [N, 3]).
-fn field_forward(net: &HashField, enc: burn::tensor::Tensor<2>, sh: Option<burn::tensor::Tensor<2>>) -> (burn::tensor::Tensor<2>, burn::tensor::Tensor<2>) {
-    match sh {
-        Some(sh) => net.forward(enc, sh),
-        None => {
-            let geo = net.density.forward(enc);
-            let [n, _] = geo.dims();
-            let raw = geo.clone().slice([0..n, 0..1]);
-            (raw, burn::tensor::activation::sigmoid(net.color.forward(geo)))
-        }
-    }
-}
-
 /// σ at world points: hash encoding, the density network's first output, [`ACT`].
-fn density_at(grid: &HashGrid, net: &HashField, bounds: &SceneBounds, points: &[[f32; 3]]) -> Vec<f32> {
+fn density_at(grid: &HashGrid, mlp: &HashMlp, bounds: &SceneBounds, points: &[[f32; 3]]) -> Vec<f32> {
     let unit: Vec<[f32; 3]> = points.iter().map(|p| bounds.to_unit(*p)).collect();
     let mut enc = vec![0.0; unit.len() * grid.output_dim()];
     grid.encode(&unit, &mut enc);
-    density_from_encoding(net, enc, grid.output_dim())
-}
-
-/// σ from hash encodings `[n][dims]` (inference).
-fn density_from_encoding(net: &HashField, enc: Vec<f32>, dims: usize) -> Vec<f32> {
-    let n = enc.len() / dims.max(1);
-    let geo = net.density.forward(tensor2(enc, n, dims, &backend::inference_device()));
-    to_vec(geo.slice([0..n, 0..1])).into_iter().map(|x| ACT.forward(x)).collect()
+    mlp.raw_density(&enc).into_iter().map(|x| ACT.forward(x)).collect()
 }
 
 /// The samples of each ray up to (and including) the one at which the optical depth

@@ -1,0 +1,572 @@
+//! The fast model's two networks ([`crate::field::HashField`]) run as plain Rust kernels:
+//! forward and an exact hand-written backward, in tiles of [`TILE`] samples that keep every
+//! layer's activations in a core's cache, with the matrix products done by the `gemm` crate
+//! (the kernels burn's `flex` backend uses, picked at run time for the CPU: AVX-512, AVX2+FMA
+//! or SSE).
+//!
+//! Why: through burn the networks ran at ~35–45 GFLOP/s on this machine's 2 cores (`cargo
+//! xtask bench nerf`) and took ~70 % of a training step. Each layer there is a separate pass
+//! over a `[32768 × 64]` tensor (8 MiB, out of cache), plus autodiff bookkeeping, the
+//! concatenation, the slice, the surrogate loss and their backward passes. Here a tile of
+//! samples goes through all layers while it is in L2, and its backward pass recomputes the
+//! tile's forward (a third of the work) instead of keeping `[N × 64]` activations.
+//!
+//! burn stays the owner of the parameters (initialisation, checkpoints, its Adam):
+//! [`HashMlp::from_field`] reads the weights before a step and [`HashMlpGrads::into_params`]
+//! hands the gradients back to burn's optimiser as [`GradientsParams`].
+//!
+//! # Determinism
+//! Samples are split into chunks of [`TILE`] fixed by their index, never by the thread count;
+//! each chunk's weight gradients go to its own buffer, and the buffers are summed in chunk
+//! order. The same inputs give bit-identical outputs with any number of threads.
+//!
+//! # Layout
+//! A layer computes `y = x·W + b` with `W` row-major `[d_in][d_out]` (burn's `Linear`
+//! layout); activations are row-major `[samples][features]`.
+
+use crate::field::{HashField, Mlp};
+use burn::module::Param;
+use burn::optim::GradientsParams;
+use burn::tensor::{Tensor, TensorData};
+use rayon::prelude::*;
+
+/// Samples per tile (and per parallel task and gradient buffer).
+pub const TILE: usize = 512;
+
+/// One dense layer: `y = x·W + b`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Dense {
+    pub d_in: usize,
+    pub d_out: usize,
+    /// `[d_in][d_out]`.
+    pub w: Vec<f32>,
+    /// `[d_out]`; all zeros for a layer without bias.
+    pub b: Vec<f32>,
+}
+
+impl Dense {
+    fn zeros_like(&self) -> Dense {
+        Dense { d_in: self.d_in, d_out: self.d_out, w: vec![0.0; self.w.len()], b: vec![0.0; self.b.len()] }
+    }
+    fn add(&mut self, o: &Dense) {
+        self.w.iter_mut().zip(&o.w).for_each(|(a, b)| *a += b);
+        self.b.iter_mut().zip(&o.b).for_each(|(a, b)| *a += b);
+    }
+}
+
+/// A stack of dense layers: ReLU after each but the last (which is linear).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Stack {
+    pub layers: Vec<Dense>,
+}
+
+/// The fast field's networks as plain weights: the density stack (encoding → geometry
+/// features, the first of which is the raw density) and the colour stack ([geometry, SH] →
+/// RGB before its sigmoid).
+#[derive(Clone, Debug, PartialEq)]
+pub struct HashMlp {
+    pub density: Stack,
+    pub color: Stack,
+    /// Width of the direction input (0: the colour stack sees the geometry features only).
+    pub dir_dims: usize,
+}
+
+/// Gradients of the loss with respect to every weight and bias of a [`HashMlp`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct HashMlpGrads {
+    pub density: Vec<Dense>,
+    pub color: Vec<Dense>,
+}
+
+fn read_mlp(mlp: &Mlp, name: &str) -> Result<Stack, String> {
+    if !mlp.skips.is_empty() {
+        return Err(format!("{name}: skip connections are not supported by the fused kernels"));
+    }
+    if mlp.layers.len() != mlp.depth + 1 {
+        return Err(format!("{name}: expected {} hidden layers and an output layer, found {} layers", mlp.depth, mlp.layers.len()));
+    }
+    let layers = mlp
+        .layers
+        .iter()
+        .map(|l| {
+            let [d_in, d_out] = l.weight.val().dims();
+            let w = crate::field::to_vec(l.weight.val());
+            let b = l.bias.as_ref().map_or_else(|| vec![0.0; d_out], |b| crate::field::to_vec(b.val()));
+            Dense { d_in, d_out, w, b }
+        })
+        .collect::<Vec<_>>();
+    for pair in layers.windows(2) {
+        if pair[0].d_out != pair[1].d_in {
+            return Err(format!("{name}: a layer of width {} feeds one that takes {}", pair[0].d_out, pair[1].d_in));
+        }
+    }
+    Ok(Stack { layers })
+}
+
+impl HashMlp {
+    /// The weights of a burn [`HashField`] (read from its tensors).
+    pub fn from_field(field: &HashField) -> Result<Self, String> {
+        let density = read_mlp(&field.density, "density network")?;
+        let color = read_mlp(&field.color, "colour network")?;
+        let geo = density.layers.last().map_or(0, |l| l.d_out);
+        let c_in = color.layers.first().map_or(0, |l| l.d_in);
+        if geo == 0 || c_in < geo || color.layers.last().map(|l| l.d_out) != Some(3) {
+            return Err(format!("field shapes: {geo} geometry features, colour input {c_in}, colour output must be 3"));
+        }
+        Ok(Self { density, color, dir_dims: c_in - geo })
+    }
+
+    /// Width of the encoding input.
+    pub fn enc_dims(&self) -> usize {
+        self.density.layers[0].d_in
+    }
+
+    fn geo_dims(&self) -> usize {
+        self.density.layers.last().map_or(0, |l| l.d_out)
+    }
+
+    /// Raw density (the first geometry feature, before the activation) and RGB (after the
+    /// sigmoid) of `n` samples: `enc` `[n][enc_dims]`, `sh` `[n][dir_dims]` (empty when
+    /// `dir_dims` is 0).
+    pub fn forward(&self, enc: &[f32], sh: &[f32]) -> (Vec<f32>, Vec<[f32; 3]>) {
+        let n = self.check(enc, sh);
+        let (ed, sd) = (self.enc_dims(), self.dir_dims);
+        let mut raw = vec![0.0; n];
+        let mut rgb = vec![[0.0; 3]; n];
+        raw.par_chunks_mut(TILE).zip(rgb.par_chunks_mut(TILE)).enumerate().for_each(|(c, (raw, rgb))| {
+            let (s0, t) = (c * TILE, raw.len());
+            let mut ws = Workspace::default();
+            self.tile_forward(&enc[s0 * ed..(s0 + t) * ed], &sh[s0 * sd..(s0 + t) * sd], t, &mut ws);
+            let geo = ws.density.last().unwrap();
+            let gd = self.geo_dims();
+            for k in 0..t {
+                raw[k] = geo[k * gd];
+                let o = &ws.color.last().unwrap()[3 * k..3 * k + 3];
+                rgb[k] = [sigmoid(o[0]), sigmoid(o[1]), sigmoid(o[2])];
+            }
+        });
+        (raw, rgb)
+    }
+
+    /// Raw density only (the density stack), for `n` samples `enc` `[n][enc_dims]`.
+    pub fn raw_density(&self, enc: &[f32]) -> Vec<f32> {
+        let ed = self.enc_dims();
+        assert!(ed > 0 && enc.len().is_multiple_of(ed), "encoding length {} is not a multiple of {ed}", enc.len());
+        let n = enc.len() / ed;
+        let gd = self.geo_dims();
+        let mut raw = vec![0.0; n];
+        raw.par_chunks_mut(TILE).enumerate().for_each(|(c, raw)| {
+            let (s0, t) = (c * TILE, raw.len());
+            let mut outs = Vec::new();
+            forward_stack(&self.density, &enc[s0 * ed..(s0 + t) * ed], t, &mut outs);
+            let geo = outs.last().unwrap();
+            for k in 0..t {
+                raw[k] = geo[k * gd];
+            }
+        });
+        raw
+    }
+
+    /// The exact backward pass: given the loss gradient with respect to each sample's raw
+    /// density `d_raw` `[n]` and RGB (after the sigmoid) `d_rgb` `[n]`, returns the gradient
+    /// with respect to the encoding `[n][enc_dims]` and to every parameter (summed over the
+    /// samples). The forward pass is recomputed tile by tile.
+    pub fn backward(&self, enc: &[f32], sh: &[f32], d_raw: &[f32], d_rgb: &[[f32; 3]]) -> (Vec<f32>, HashMlpGrads) {
+        let n = self.check(enc, sh);
+        assert!(d_raw.len() == n && d_rgb.len() == n, "gradients for {} / {} samples, not {n}", d_raw.len(), d_rgb.len());
+        let (ed, sd, gd) = (self.enc_dims(), self.dir_dims, self.geo_dims());
+        let mut d_enc = vec![0.0; n * ed];
+        let partials: Vec<HashMlpGrads> = d_enc
+            .par_chunks_mut(TILE * ed)
+            .enumerate()
+            .map(|(c, d_enc)| {
+                let (s0, t) = (c * TILE, d_enc.len() / ed);
+                let x = &enc[s0 * ed..(s0 + t) * ed];
+                let mut ws = Workspace::default();
+                let cin = self.tile_forward(x, &sh[s0 * sd..(s0 + t) * sd], t, &mut ws);
+                let mut g = self.zero_grads();
+                // Colour: d(pre-sigmoid) = d_rgb · s (1 − s).
+                let out = ws.color.last().unwrap();
+                let mut d_out = vec![0.0; t * 3];
+                for k in 0..t {
+                    for j in 0..3 {
+                        let s = sigmoid(out[3 * k + j]);
+                        d_out[3 * k + j] = d_rgb[s0 + k][j] * s * (1.0 - s);
+                    }
+                }
+                let d_cin = backward_stack(&self.color, &cin, &ws.color, d_out, t, &mut g.color);
+                // Geometry features: from the colour input, plus the raw density's gradient.
+                let cd = gd + sd;
+                let mut d_geo = vec![0.0; t * gd];
+                for k in 0..t {
+                    d_geo[k * gd..(k + 1) * gd].copy_from_slice(&d_cin[k * cd..k * cd + gd]);
+                    d_geo[k * gd] += d_raw[s0 + k];
+                }
+                let d_x = backward_stack(&self.density, x, &ws.density, d_geo, t, &mut g.density);
+                d_enc.copy_from_slice(&d_x);
+                g
+            })
+            .collect();
+        let mut total = self.zero_grads();
+        for p in &partials {
+            total.density.iter_mut().zip(&p.density).for_each(|(a, b)| a.add(b));
+            total.color.iter_mut().zip(&p.color).for_each(|(a, b)| a.add(b));
+        }
+        (d_enc, total)
+    }
+
+    fn zero_grads(&self) -> HashMlpGrads {
+        HashMlpGrads {
+            density: self.density.layers.iter().map(Dense::zeros_like).collect(),
+            color: self.color.layers.iter().map(Dense::zeros_like).collect(),
+        }
+    }
+
+    /// Checks the input lengths; returns the sample count.
+    fn check(&self, enc: &[f32], sh: &[f32]) -> usize {
+        let ed = self.enc_dims();
+        assert!(ed > 0 && enc.len().is_multiple_of(ed), "encoding length {} is not a multiple of {ed}", enc.len());
+        let n = enc.len() / ed;
+        assert_eq!(sh.len(), n * self.dir_dims, "direction input for {n} samples of width {}", self.dir_dims);
+        n
+    }
+
+    /// Forward pass of one tile of `t` samples into `ws`; returns the colour stack's input.
+    fn tile_forward(&self, x: &[f32], sh: &[f32], t: usize, ws: &mut Workspace) -> Vec<f32> {
+        forward_stack(&self.density, x, t, &mut ws.density);
+        let (gd, sd) = (self.geo_dims(), self.dir_dims);
+        let geo = ws.density.last().unwrap();
+        let cin = if sd == 0 {
+            geo.clone()
+        } else {
+            let mut cin = vec![0.0; t * (gd + sd)];
+            for k in 0..t {
+                let row = &mut cin[k * (gd + sd)..(k + 1) * (gd + sd)];
+                row[..gd].copy_from_slice(&geo[k * gd..(k + 1) * gd]);
+                row[gd..].copy_from_slice(&sh[k * sd..(k + 1) * sd]);
+            }
+            cin
+        };
+        forward_stack(&self.color, &cin, t, &mut ws.color);
+        cin
+    }
+}
+
+impl HashMlpGrads {
+    /// The gradients as burn's [`GradientsParams`] for `field`'s parameters (weights and
+    /// biases), ready for its optimiser.
+    pub fn into_params(self, field: &HashField) -> GradientsParams {
+        let mut out = GradientsParams::new();
+        let dev = crate::backend::inference_device();
+        for (mlp, grads) in [(&field.density, self.density), (&field.color, self.color)] {
+            for (layer, g) in mlp.layers.iter().zip(grads) {
+                out.register::<2>(layer.weight.id, Tensor::from_data(TensorData::new(g.w, [g.d_in, g.d_out]), &dev));
+                if let Some(b) = &layer.bias {
+                    register_bias(&mut out, b, g.b, &dev);
+                }
+            }
+        }
+        out
+    }
+}
+
+fn register_bias(out: &mut GradientsParams, b: &Param<Tensor<1>>, g: Vec<f32>, dev: &burn::tensor::Device) {
+    let n = g.len();
+    out.register::<1>(b.id, Tensor::from_data(TensorData::new(g, [n]), dev));
+}
+
+/// Per-tile activations: each layer's output (after its ReLU for hidden layers, before any
+/// activation for the last).
+#[derive(Default)]
+struct Workspace {
+    density: Vec<Vec<f32>>,
+    color: Vec<Vec<f32>>,
+}
+
+fn sigmoid(x: f32) -> f32 {
+    1.0 / (1.0 + (-x).exp())
+}
+
+/// Runs a stack over `t` samples `x` `[t][d_in]`; `outs[i]` = layer `i`'s output.
+fn forward_stack(stack: &Stack, x: &[f32], t: usize, outs: &mut Vec<Vec<f32>>) {
+    outs.clear();
+    let last = stack.layers.len() - 1;
+    for (i, l) in stack.layers.iter().enumerate() {
+        let input: &[f32] = if i == 0 { x } else { &outs[i - 1] };
+        let mut y = vec![0.0; t * l.d_out];
+        for row in y.chunks_exact_mut(l.d_out) {
+            row.copy_from_slice(&l.b);
+        }
+        mm::matmul_acc(&mut y, input, &l.w, t, l.d_in, l.d_out);
+        if i < last {
+            y.iter_mut().for_each(|v| *v = v.max(0.0));
+        }
+        outs.push(y);
+    }
+}
+
+/// Backward through a stack for one tile: `d_last` is the gradient with respect to the last
+/// layer's output; accumulates parameter gradients into `grads` and returns the gradient
+/// with respect to the stack's input `x`.
+fn backward_stack(stack: &Stack, x: &[f32], outs: &[Vec<f32>], d_last: Vec<f32>, t: usize, grads: &mut [Dense]) -> Vec<f32> {
+    let mut d = d_last;
+    for i in (0..stack.layers.len()).rev() {
+        let l = &stack.layers[i];
+        let input: &[f32] = if i == 0 { x } else { &outs[i - 1] };
+        let g = &mut grads[i];
+        mm::matmul_tn_acc(&mut g.w, input, &d, t, l.d_in, l.d_out);
+        for row in d.chunks_exact(l.d_out) {
+            g.b.iter_mut().zip(row).for_each(|(a, b)| *a += b);
+        }
+        let mut d_in = vec![0.0; t * l.d_in];
+        mm::matmul_nt(&mut d_in, &d, &l.w, t, l.d_out, l.d_in);
+        if i > 0 {
+            // Through the previous layer's ReLU: its output is > 0 exactly where it passed.
+            d_in.iter_mut().zip(input).for_each(|(g, y)| {
+                if *y <= 0.0 {
+                    *g = 0.0
+                }
+            });
+        }
+        d = d_in;
+    }
+    d
+}
+
+/// Matrix products on row-major slices through the `gemm` crate (single-threaded: the
+/// callers parallelise over tiles). The only unsafe code of the crate: `gemm`'s entry point
+/// takes raw pointers and strides, and each wrapper checks every slice's length against the
+/// shape first.
+#[allow(unsafe_code)]
+mod mm {
+    use gemm::{Parallelism, gemm};
+
+    /// `c[m][n] += a[m][k] · b[k][n]`.
+    pub fn matmul_acc(c: &mut [f32], a: &[f32], b: &[f32], m: usize, k: usize, n: usize) {
+        assert!(c.len() == m * n && a.len() == m * k && b.len() == k * n, "matmul_acc shapes");
+        if m == 0 || n == 0 || k == 0 {
+            return;
+        }
+        // SAFETY: the lengths match the shapes and strides (checked above); `c` is exclusive.
+        unsafe {
+            gemm(
+                m, n, k, c.as_mut_ptr(), 1, n as isize, true, a.as_ptr(), 1, k as isize, b.as_ptr(), 1, n as isize, 1.0, 1.0,
+                false, false, false, Parallelism::None,
+            )
+        }
+    }
+
+    /// `c[k][n] += a[m][k]ᵀ · b[m][n]` (a weight gradient: inputs transposed times output
+    /// gradients).
+    pub fn matmul_tn_acc(c: &mut [f32], a: &[f32], b: &[f32], m: usize, k: usize, n: usize) {
+        assert!(c.len() == k * n && a.len() == m * k && b.len() == m * n, "matmul_tn_acc shapes");
+        if m == 0 || n == 0 || k == 0 {
+            return;
+        }
+        // SAFETY: as above; aᵀ is `a` read with row stride 1 and column stride k.
+        unsafe {
+            gemm(
+                k, n, m, c.as_mut_ptr(), 1, n as isize, true, a.as_ptr(), k as isize, 1, b.as_ptr(), 1, n as isize, 1.0, 1.0,
+                false, false, false, Parallelism::None,
+            )
+        }
+    }
+
+    /// `c[m][k] = a[m][n] · b[k][n]ᵀ` (an input gradient: output gradients times the weights
+    /// transposed).
+    pub fn matmul_nt(c: &mut [f32], a: &[f32], b: &[f32], m: usize, n: usize, k: usize) {
+        assert!(c.len() == m * k && a.len() == m * n && b.len() == k * n, "matmul_nt shapes");
+        if m == 0 || k == 0 {
+            return;
+        }
+        if n == 0 {
+            c.iter_mut().for_each(|v| *v = 0.0);
+            return;
+        }
+        // SAFETY: as above; bᵀ is `b` read with row stride 1 and column stride n.
+        unsafe {
+            gemm(
+                m, k, n, c.as_mut_ptr(), 1, k as isize, false, a.as_ptr(), 1, n as isize, b.as_ptr(), n as isize, 1, 0.0, 1.0,
+                false, false, false, Parallelism::None,
+            )
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::field::{HashFieldConfig, seeded_init, tensor2, to_vec};
+    use crate::models::ops::uniform;
+
+    fn inputs(n: usize, d: usize, stream: u64) -> Vec<f32> {
+        (0..n * d).map(|k| uniform(7, stream, k as u64, 0) * 2.0 - 1.0).collect()
+    }
+
+    /// burn's forward and autodiff backward of the same field: (raw, rgb, d_enc, grads).
+    fn burn_reference(
+        field: &HashField,
+        enc: &[f32],
+        sh: &[f32],
+        ed: usize,
+        sd: usize,
+        d_raw: &[f32],
+        d_rgb: &[[f32; 3]],
+    ) -> (Vec<f32>, Vec<f32>, Vec<f32>, GradientsParams) {
+        let dev = crate::backend::train_device();
+        let n = enc.len() / ed;
+        let enc_t = tensor2(enc.to_vec(), n, ed, &dev).require_grad();
+        let (raw_t, rgb_t) = if sd > 0 {
+            field.forward(enc_t.clone(), tensor2(sh.to_vec(), n, sd, &dev))
+        } else {
+            let geo = field.density.forward(enc_t.clone());
+            let raw = geo.clone().slice([0..n, 0..1]);
+            (raw, burn::tensor::activation::sigmoid(field.color.forward(geo)))
+        };
+        let (raw, rgb) = (to_vec(raw_t.clone()), to_vec(rgb_t.clone()));
+        let d_rgb_flat: Vec<f32> = d_rgb.iter().flatten().copied().collect();
+        let surrogate = (raw_t * tensor2(d_raw.to_vec(), n, 1, &dev)).sum() + (rgb_t * tensor2(d_rgb_flat, n, 3, &dev)).sum();
+        let grads = surrogate.backward();
+        let d_enc = enc_t.grad(&grads).map(to_vec).unwrap();
+        (raw, rgb, d_enc, GradientsParams::from_grads(grads, field))
+    }
+
+    fn assert_close(what: &str, ours: &[f32], reference: &[f32], tol: f32) {
+        assert_eq!(ours.len(), reference.len(), "{what}: lengths");
+        let scale = reference.iter().fold(0.0f32, |m, v| m.max(v.abs())).max(1e-6);
+        for (i, (a, b)) in ours.iter().zip(reference).enumerate() {
+            assert!((a - b).abs() <= tol * scale, "{what}[{i}]: {a} against burn's {b} (scale {scale})");
+        }
+    }
+
+    /// Forward outputs, input gradients and every parameter gradient agree with burn's
+    /// autodiff, with and without the direction input, for a sample count that is not a
+    /// multiple of the tile.
+    #[test]
+    fn matches_burn_forward_and_autodiff() {
+        for (sd, n) in [(16usize, 2 * TILE + 77), (0, 300)] {
+            let ed = 24;
+            let cfg = HashFieldConfig::new(ed, sd).with_color_depth(2);
+            let field = seeded_init(cfg.init(&crate::backend::train_device()), 3);
+            let enc = inputs(n, ed, 1);
+            let sh = inputs(n, sd, 2);
+            let d_raw: Vec<f32> = inputs(n, 1, 3);
+            let d_rgb: Vec<[f32; 3]> = inputs(n, 3, 4).chunks(3).map(|c| [c[0], c[1], c[2]]).collect();
+            let (raw_b, rgb_b, d_enc_b, mut grads_b) = burn_reference(&field, &enc, &sh, ed, sd, &d_raw, &d_rgb);
+
+            let mlp = HashMlp::from_field(&field).unwrap();
+            assert_eq!((mlp.enc_dims(), mlp.dir_dims), (ed, sd));
+            let (raw, rgb) = mlp.forward(&enc, &sh);
+            assert_close("raw", &raw, &raw_b, 1e-5);
+            assert_close("rgb", &rgb.iter().flatten().copied().collect::<Vec<_>>(), &rgb_b, 1e-5);
+            assert_eq!(mlp.raw_density(&enc), raw, "the density-only pass gives the same raw density");
+
+            let (d_enc, grads) = mlp.backward(&enc, &sh, &d_raw, &d_rgb);
+            assert_close("d_enc", &d_enc, &d_enc_b, 1e-4);
+            let mut ours = grads.into_params(&field);
+            let mut checked = 0;
+            for mlp_b in [&field.density, &field.color] {
+                for layer in &mlp_b.layers {
+                    let w = |g: &mut GradientsParams| to_vec(g.remove::<2>(layer.weight.id).unwrap());
+                    assert_close("weight gradient", &w(&mut ours), &w(&mut grads_b), 1e-4);
+                    let b_id = layer.bias.as_ref().unwrap().id;
+                    let b = |g: &mut GradientsParams| to_vec(g.remove::<1>(b_id).unwrap());
+                    assert_close("bias gradient", &b(&mut ours), &b(&mut grads_b), 1e-4);
+                    checked += 2;
+                }
+            }
+            assert_eq!(checked, 2 * (2 + 3), "every layer's weight and bias compared");
+        }
+    }
+
+    /// One Adam step with our gradients moves burn's parameters as one with burn's own.
+    #[test]
+    fn gradients_step_burns_optimiser() {
+        use crate::field::{AdamSettings, MlpAdam, param_vectors};
+        let (ed, sd, n) = (16, 9, 200);
+        let field = seeded_init(HashFieldConfig::new(ed, sd).init(&crate::backend::train_device()), 5);
+        let (enc, sh) = (inputs(n, ed, 1), inputs(n, sd, 2));
+        let d_raw = inputs(n, 1, 3);
+        let d_rgb: Vec<[f32; 3]> = inputs(n, 3, 4).chunks(3).map(|c| [c[0], c[1], c[2]]).collect();
+        let (_, _, _, mut grads_b) = burn_reference(&field, &enc, &sh, ed, sd, &d_raw, &d_rgb);
+        let settings = AdamSettings::new(0.9, 0.99, 1e-15);
+        let stepped_b = MlpAdam::new(&settings).step(1e-2, field.clone(), &mut grads_b);
+        let mlp = HashMlp::from_field(&field).unwrap();
+        let mut ours = mlp.backward(&enc, &sh, &d_raw, &d_rgb).1.into_params(&field);
+        let stepped = MlpAdam::new(&settings).step(1e-2, field.clone(), &mut ours);
+        let (a, b) = (param_vectors(&stepped), param_vectors(&stepped_b));
+        let before = param_vectors(&field);
+        for ((a, b), p) in a.iter().zip(&b).zip(&before) {
+            assert_close("stepped parameter", a, b, 1e-5);
+            assert!(a.iter().zip(p).any(|(x, y)| x != y), "the step moved the parameters");
+        }
+    }
+
+    /// Bit-identical results with 1 and 3 threads.
+    #[test]
+    fn deterministic_across_thread_counts() {
+        let (ed, sd, n) = (32, 16, 5 * TILE + 3);
+        let field = seeded_init(HashFieldConfig::new(ed, sd).init(&crate::backend::inference_device()), 9);
+        let mlp = HashMlp::from_field(&field).unwrap();
+        let (enc, sh) = (inputs(n, ed, 1), inputs(n, sd, 2));
+        let d_raw = inputs(n, 1, 3);
+        let d_rgb: Vec<[f32; 3]> = inputs(n, 3, 4).chunks(3).map(|c| [c[0], c[1], c[2]]).collect();
+        let run = |threads| {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            pool.install(|| (mlp.forward(&enc, &sh), mlp.backward(&enc, &sh, &d_raw, &d_rgb)))
+        };
+        assert!(run(1) == run(3));
+    }
+
+    #[test]
+    fn empty_input_gives_empty_outputs() {
+        let field = seeded_init(HashFieldConfig::new(8, 4).init(&crate::backend::inference_device()), 1);
+        let mlp = HashMlp::from_field(&field).unwrap();
+        let (raw, rgb) = mlp.forward(&[], &[]);
+        assert!(raw.is_empty() && rgb.is_empty());
+        let (d_enc, g) = mlp.backward(&[], &[], &[], &[]);
+        assert!(d_enc.is_empty());
+        assert!(g.density.iter().chain(&g.color).all(|l| l.w.iter().chain(&l.b).all(|v| *v == 0.0)));
+    }
+}
+
+#[cfg(test)]
+mod speed {
+    use super::*;
+    use crate::field::{HashFieldConfig, seeded_init};
+
+    /// Not a test: `cargo test -p nerf --lib mlp::speed -- --ignored --nocapture` prints the
+    /// kernels' throughput (for profiling).
+    #[test]
+    #[ignore]
+    fn throughput() {
+        let (ed, sd, n) = (32, 16, 32768);
+        let field = seeded_init(HashFieldConfig::new(ed, sd).init(&crate::backend::inference_device()), 9);
+        let mlp = HashMlp::from_field(&field).unwrap();
+        let enc: Vec<f32> = (0..n * ed).map(|k| ((k * 7919) % 1000) as f32 / 500.0 - 1.0).collect();
+        let sh: Vec<f32> = (0..n * sd).map(|k| ((k * 104729) % 1000) as f32 / 500.0 - 1.0).collect();
+        let d_raw = vec![0.01; n];
+        let d_rgb = vec![[0.01, -0.02, 0.03]; n];
+        let macs = (ed * 64 + 64 * 16 + 32 * 64 + 64 * 64 + 64 * 3) as f64 * n as f64;
+        for _ in 0..3 {
+            let t = std::time::Instant::now();
+            let reps = 20;
+            for _ in 0..reps {
+                std::hint::black_box(mlp.forward(&enc, &sh));
+            }
+            let f = t.elapsed().as_secs_f64() / reps as f64;
+            let t = std::time::Instant::now();
+            for _ in 0..reps {
+                std::hint::black_box(mlp.backward(&enc, &sh, &d_raw, &d_rgb));
+            }
+            let b = t.elapsed().as_secs_f64() / reps as f64;
+            println!(
+                "forward {:.2} ms ({:.1} GFLOP/s), backward incl. recompute {:.2} ms ({:.1} GFLOP/s)",
+                f * 1e3,
+                2.0 * macs / f / 1e9,
+                b * 1e3,
+                6.0 * macs / b / 1e9
+            );
+        }
+    }
+}
