@@ -1,6 +1,7 @@
 //! The fast model (instant-ngp's recipe on the CPU): a multiresolution hash encoding
 //! ([`crate::encoding::hashgrid`], sparse Adam), a tiny density network and a colour network on
-//! spherical harmonics of the direction (burn), an occupancy grid ([`crate::occupancy`]) that
+//! spherical harmonics of the direction (parameters and Adam in burn, forward and backward
+//! as fused Rust kernels, [`crate::mlp`]), an occupancy grid ([`crate::occupancy`]) that
 //! skips empty space while marching with a constant step, and early ray termination at
 //! inference (transmittance < 1e-4, [`volrend::CompositeOptions::INFERENCE`]).
 //!

@@ -3,12 +3,14 @@
 //! - [`paper`]: the NeRF paper (positional encoding, 8×256 MLP, hierarchical sampling).
 //! - [`fast`]: instant-ngp's recipe (hash encoding, tiny MLPs, occupancy grid).
 //!
-//! Both share the training-step pattern that fits burn: inputs are encoded in Rust, the
-//! networks run in burn, per-sample raw density and colour come back to Rust where the density
-//! activation, volume rendering ([`crate::volrend::composite_forward`]) and the loss and its gradient
-//! w.r.t. the per-sample outputs are computed; those gradients go back into burn through the
-//! surrogate `sum(output · grad.detach())`, whose backward gives exactly the parameter
-//! gradients of the loss; burn's Adam steps the network.
+//! Both share the training-step pattern: inputs are encoded in Rust, the networks give
+//! per-sample raw density and colour, and Rust applies the density activation, volume
+//! rendering ([`crate::volrend::composite_forward`]) and the loss and its gradient w.r.t. the
+//! per-sample outputs. The paper model's networks run in burn, and those gradients go back
+//! into burn through the surrogate `sum(output · grad.detach())`, whose backward gives exactly
+//! the parameter gradients of the loss; the fast model's small networks run as fused Rust
+//! kernels with a hand-written backward ([`crate::mlp`]), whose parameter gradients are handed
+//! to burn's optimiser. burn's Adam steps both.
 
 pub mod fast;
 pub mod ops;
