@@ -322,11 +322,8 @@ fn backward_stack(stack: &Stack, x: &[f32], outs: &[Vec<f32>], d_last: Vec<f32>,
         mm::matmul_nt(&mut d_in, &d, &l.w, t, l.d_out, l.d_in);
         if i > 0 {
             // Through the previous layer's ReLU: its output is > 0 exactly where it passed.
-            d_in.iter_mut().zip(input).for_each(|(g, y)| {
-                if *y <= 0.0 {
-                    *g = 0.0
-                }
-            });
+            // (A select rather than a branch: the pattern is data-dependent.)
+            d_in.iter_mut().zip(input).for_each(|(g, y)| *g = if *y > 0.0 { *g } else { 0.0 });
         }
         d = d_in;
     }
