@@ -148,20 +148,26 @@ impl HashMlp {
         (raw, rgb)
     }
 
-    /// Raw density only (the density stack), for `n` samples `enc` `[n][enc_dims]`.
+    /// Raw density only, for `n` samples `enc` `[n][enc_dims]`: the density stack's hidden
+    /// layers, then only the first output of its last layer (the other geometry features are
+    /// not needed; equal to [`Self::forward`]'s up to rounding).
     pub fn raw_density(&self, enc: &[f32]) -> Vec<f32> {
         let ed = self.enc_dims();
         assert!(ed > 0 && enc.len().is_multiple_of(ed), "encoding length {} is not a multiple of {ed}", enc.len());
         let n = enc.len() / ed;
-        let gd = self.geo_dims();
+        let (hidden, last) = self.density.layers.split_at(self.density.layers.len() - 1);
+        let last = &last[0];
+        // Column 0 of the last layer's weights, contiguous.
+        let w0: Vec<f32> = (0..last.d_in).map(|i| last.w[i * last.d_out]).collect();
         let mut raw = vec![0.0; n];
         raw.par_chunks_mut(TILE).enumerate().for_each(|(c, raw)| {
             let (s0, t) = (c * TILE, raw.len());
+            let x = &enc[s0 * ed..(s0 + t) * ed];
             let mut outs = Vec::new();
-            forward_stack(&self.density, &enc[s0 * ed..(s0 + t) * ed], t, &mut outs);
-            let geo = outs.last().unwrap();
-            for k in 0..t {
-                raw[k] = geo[k * gd];
+            forward_layers(hidden, hidden.len(), x, t, &mut outs);
+            let h: &[f32] = outs.last().map_or(x, |v| v.as_slice());
+            for (k, r) in raw.iter_mut().enumerate() {
+                *r = last.b[0] + h[k * last.d_in..(k + 1) * last.d_in].iter().zip(&w0).map(|(a, b)| a * b).sum::<f32>();
             }
         });
         raw
@@ -289,16 +295,20 @@ fn sigmoid(x: f32) -> f32 {
 
 /// Runs a stack over `t` samples `x` `[t][d_in]`; `outs[i]` = layer `i`'s output.
 fn forward_stack(stack: &Stack, x: &[f32], t: usize, outs: &mut Vec<Vec<f32>>) {
+    forward_layers(&stack.layers, stack.layers.len() - 1, x, t, outs)
+}
+
+/// Runs `layers` over `t` samples `x`, the first `relu` of them followed by a ReLU.
+fn forward_layers(layers: &[Dense], relu: usize, x: &[f32], t: usize, outs: &mut Vec<Vec<f32>>) {
     outs.clear();
-    let last = stack.layers.len() - 1;
-    for (i, l) in stack.layers.iter().enumerate() {
+    for (i, l) in layers.iter().enumerate() {
         let input: &[f32] = if i == 0 { x } else { &outs[i - 1] };
         let mut y = vec![0.0; t * l.d_out];
         for row in y.chunks_exact_mut(l.d_out) {
             row.copy_from_slice(&l.b);
         }
         mm::matmul_acc(&mut y, input, &l.w, t, l.d_in, l.d_out);
-        if i < last {
+        if i < relu {
             y.iter_mut().for_each(|v| *v = v.max(0.0));
         }
         outs.push(y);
@@ -456,7 +466,7 @@ mod tests {
             let (raw, rgb) = mlp.forward(&enc, &sh);
             assert_close("raw", &raw, &raw_b, 1e-5);
             assert_close("rgb", &rgb.iter().flatten().copied().collect::<Vec<_>>(), &rgb_b, 1e-5);
-            assert_eq!(mlp.raw_density(&enc), raw, "the density-only pass gives the same raw density");
+            assert_close("raw density only", &mlp.raw_density(&enc), &raw_b, 1e-5);
 
             let (d_enc, grads) = mlp.backward(&enc, &sh, &d_raw, &d_rgb);
             assert_close("d_enc", &d_enc, &d_enc_b, 1e-4);
