@@ -1,6 +1,6 @@
 //! `cargo xtask bench nerf`: training throughput of both models on a synthetic 64×64 dataset
 //! (written to a temporary folder, so no prior step is needed): rays/s, samples/s, the time of
-//! a step split into encoding, MLP (forward + backward), rendering and optimiser, and the MLP's
+//! a step split into encoding, MLP (forward + backward; for `fast` with compositing and loss, which run inside its fused sweep), rendering and optimiser, and the MLP's
 //! achieved GFLOP/s against this machine's measured burn matmul peak; and the fast model's
 //! networks on one batch through the fused kernels ([`nerf::mlp`]) against the same networks
 //! through burn (forward, and forward + autodiff backward), measured in the same run.
@@ -85,9 +85,15 @@ fn networks_fused_vs_burn(peak: f64) {
     let fused_fwd = time(&mut || {
         std::hint::black_box(mlp.forward(&enc, &sh));
     });
+    // As training runs them: one sweep over groups of samples, forward → loss gradient (here
+    // fixed values) → backward, each group in cache.
+    let groups: Vec<std::ops::Range<usize>> = (0..n).step_by(nerf::mlp::TILE).map(|s| s..(s + nerf::mlp::TILE).min(n)).collect();
     let fused_step = time(&mut || {
-        std::hint::black_box(mlp.forward(&enc, &sh));
-        std::hint::black_box(mlp.backward(&enc, &sh, &d_raw, &d_rgb));
+        std::hint::black_box(mlp.train_groups(&enc, &sh, &groups, |g, _, _| nerf::mlp::GroupGrads {
+            d_raw: d_raw[groups[g].clone()].to_vec(),
+            d_rgb: d_rgb[groups[g].clone()].to_vec(),
+            value: (),
+        }));
     });
     let burn_pass = |backward: bool| {
         let dev = if backward { nerf::backend::train_device() } else { nerf::backend::inference_device() };

@@ -199,10 +199,19 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         summary.skipped_nonfinite
     );
     let tm = trainer.timings;
-    eprintln!(
-        "time in steps: encoding {:.1}s, MLP {:.1}s, rendering {:.1}s, optimizer and grid updates {:.1}s",
-        tm.encoding, tm.mlp, tm.render, tm.optimizer
-    );
+    if matches!(trainer.config.model, nerf::models::ModelConfig::Fast(_)) {
+        eprintln!(
+            "time in steps: encoding {:.1}s, networks with compositing and loss {:.1}s, optimizer and grid updates {:.1}s",
+            tm.encoding,
+            tm.mlp + tm.render,
+            tm.optimizer
+        );
+    } else {
+        eprintln!(
+            "time in steps: encoding {:.1}s, MLP {:.1}s, rendering {:.1}s, optimizer and grid updates {:.1}s",
+            tm.encoding, tm.mlp, tm.render, tm.optimizer
+        );
+    }
     eprintln!("outputs in {}", args.out.display());
     Ok(())
 }

@@ -71,6 +71,17 @@ pub struct HashMlp {
     pub dir_dims: usize,
 }
 
+/// What the loss of a group of samples returns to [`HashMlp::train_groups`].
+#[derive(Clone, Debug)]
+pub struct GroupGrads<R> {
+    /// Loss gradient with respect to each sample's raw density (before the activation).
+    pub d_raw: Vec<f32>,
+    /// … and to its RGB (after the sigmoid).
+    pub d_rgb: Vec<[f32; 3]>,
+    /// Anything else the caller wants back from the group.
+    pub value: R,
+}
+
 /// Gradients of the loss with respect to every weight and bias of a [`HashMlp`].
 #[derive(Clone, Debug, PartialEq)]
 pub struct HashMlpGrads {
@@ -180,7 +191,7 @@ impl HashMlp {
     pub fn backward(&self, enc: &[f32], sh: &[f32], d_raw: &[f32], d_rgb: &[[f32; 3]]) -> (Vec<f32>, HashMlpGrads) {
         let n = self.check(enc, sh);
         assert!(d_raw.len() == n && d_rgb.len() == n, "gradients for {} / {} samples, not {n}", d_raw.len(), d_rgb.len());
-        let (ed, sd, gd) = (self.enc_dims(), self.dir_dims, self.geo_dims());
+        let (ed, sd) = (self.enc_dims(), self.dir_dims);
         let mut d_enc = vec![0.0; n * ed];
         let partials: Vec<HashMlpGrads> = d_enc
             .par_chunks_mut(TILE * ed)
@@ -190,35 +201,107 @@ impl HashMlp {
                 let x = &enc[s0 * ed..(s0 + t) * ed];
                 let mut ws = Workspace::default();
                 let cin = self.tile_forward(x, &sh[s0 * sd..(s0 + t) * sd], t, &mut ws);
+                let rgb: Vec<[f32; 3]> = ws.color.last().unwrap().chunks_exact(3).map(|o| [sigmoid(o[0]), sigmoid(o[1]), sigmoid(o[2])]).collect();
                 let mut g = self.zero_grads();
-                // Colour: d(pre-sigmoid) = d_rgb · s (1 − s).
-                let out = ws.color.last().unwrap();
-                let mut d_out = vec![0.0; t * 3];
-                for k in 0..t {
-                    for j in 0..3 {
-                        let s = sigmoid(out[3 * k + j]);
-                        d_out[3 * k + j] = d_rgb[s0 + k][j] * s * (1.0 - s);
-                    }
-                }
-                let d_cin = backward_stack(&self.color, &cin, &ws.color, d_out, t, &mut g.color);
-                // Geometry features: from the colour input, plus the raw density's gradient.
-                let cd = gd + sd;
-                let mut d_geo = vec![0.0; t * gd];
-                for k in 0..t {
-                    d_geo[k * gd..(k + 1) * gd].copy_from_slice(&d_cin[k * cd..k * cd + gd]);
-                    d_geo[k * gd] += d_raw[s0 + k];
-                }
-                let d_x = backward_stack(&self.density, x, &ws.density, d_geo, t, &mut g.density);
+                let d_x = self.tile_backward(x, &cin, &ws, &rgb, &d_raw[s0..s0 + t], &d_rgb[s0..s0 + t], &mut g);
                 d_enc.copy_from_slice(&d_x);
                 g
             })
             .collect();
+        (d_enc, self.sum_grads(&partials))
+    }
+
+    /// Forward, the caller's loss and the backward pass in one sweep over groups of samples,
+    /// each group in cache from start to end and nothing recomputed: for group `g` (samples
+    /// `groups[g]`; the groups must be contiguous, in order, and cover every sample), the
+    /// networks' raw density and RGB go to `loss(g, raw, rgb)`, which returns the loss
+    /// gradient with respect to them (and any value of its own, e.g. its part of the loss);
+    /// then the backward pass of the group runs on the activations it left.
+    ///
+    /// This is how training uses the networks: a group holds whole rays, so the caller can
+    /// composite them and take the loss's gradient inside the group. Returns the gradient with
+    /// respect to the encoding `[n][enc_dims]`, every parameter's gradient (the groups' sums
+    /// added in group order) and the callers' values in group order.
+    pub fn train_groups<R: Send>(
+        &self,
+        enc: &[f32],
+        sh: &[f32],
+        groups: &[std::ops::Range<usize>],
+        loss: impl Fn(usize, &[f32], &[[f32; 3]]) -> GroupGrads<R> + Sync,
+    ) -> (Vec<f32>, HashMlpGrads, Vec<R>) {
+        let n = self.check(enc, sh);
+        let mut next = 0;
+        for g in groups {
+            assert!(g.start == next && g.end >= g.start, "groups must be contiguous and in order");
+            next = g.end;
+        }
+        assert_eq!(next, n, "the groups must cover all {n} samples");
+        let (ed, sd, gd) = (self.enc_dims(), self.dir_dims, self.geo_dims());
+        let mut d_enc = vec![0.0; n * ed];
+        let mut pieces = Vec::with_capacity(groups.len());
+        let mut rest: &mut [f32] = &mut d_enc;
+        for g in groups {
+            let (head, tail) = std::mem::take(&mut rest).split_at_mut(g.len() * ed);
+            pieces.push(head);
+            rest = tail;
+        }
+        let results: Vec<(HashMlpGrads, R)> = pieces
+            .into_par_iter()
+            .enumerate()
+            .map(|(gi, d_enc)| {
+                let range = groups[gi].clone();
+                let (s0, t) = (range.start, range.len());
+                let x = &enc[s0 * ed..(s0 + t) * ed];
+                let mut ws = Workspace::default();
+                let cin = self.tile_forward(x, &sh[s0 * sd..(s0 + t) * sd], t, &mut ws);
+                let geo = ws.density.last().unwrap();
+                let raw: Vec<f32> = (0..t).map(|k| geo[k * gd]).collect();
+                let rgb: Vec<[f32; 3]> = ws.color.last().unwrap().chunks_exact(3).map(|o| [sigmoid(o[0]), sigmoid(o[1]), sigmoid(o[2])]).collect();
+                let GroupGrads { d_raw, d_rgb, value } = loss(gi, &raw, &rgb);
+                assert!(d_raw.len() == t && d_rgb.len() == t, "group {gi}: gradients for {} / {} samples, not {t}", d_raw.len(), d_rgb.len());
+                let mut g = self.zero_grads();
+                let d_x = self.tile_backward(x, &cin, &ws, &rgb, &d_raw, &d_rgb, &mut g);
+                d_enc.copy_from_slice(&d_x);
+                (g, value)
+            })
+            .collect();
+        let (partials, values): (Vec<HashMlpGrads>, Vec<R>) = results.into_iter().unzip();
+        (d_enc, self.sum_grads(&partials), values)
+    }
+
+    /// The backward pass of one tile of `t` samples from its forward pass's activations `ws`
+    /// (input `x`, colour input `cin`, output `rgb` after the sigmoid): adds the parameter
+    /// gradients to `g` and returns the gradient with respect to `x`.
+    #[allow(clippy::too_many_arguments)]
+    fn tile_backward(&self, x: &[f32], cin: &[f32], ws: &Workspace, rgb: &[[f32; 3]], d_raw: &[f32], d_rgb: &[[f32; 3]], g: &mut HashMlpGrads) -> Vec<f32> {
+        let t = rgb.len();
+        let (sd, gd) = (self.dir_dims, self.geo_dims());
+        // Colour: d(pre-sigmoid) = d_rgb · s (1 − s).
+        let mut d_out = vec![0.0; t * 3];
+        for k in 0..t {
+            for j in 0..3 {
+                let s = rgb[k][j];
+                d_out[3 * k + j] = d_rgb[k][j] * s * (1.0 - s);
+            }
+        }
+        let d_cin = backward_stack(&self.color, cin, &ws.color, d_out, t, &mut g.color);
+        // Geometry features: from the colour input, plus the raw density's gradient.
+        let cd = gd + sd;
+        let mut d_geo = vec![0.0; t * gd];
+        for k in 0..t {
+            d_geo[k * gd..(k + 1) * gd].copy_from_slice(&d_cin[k * cd..k * cd + gd]);
+            d_geo[k * gd] += d_raw[k];
+        }
+        backward_stack(&self.density, x, &ws.density, d_geo, t, &mut g.density)
+    }
+
+    fn sum_grads(&self, partials: &[HashMlpGrads]) -> HashMlpGrads {
         let mut total = self.zero_grads();
-        for p in &partials {
+        for p in partials {
             total.density.iter_mut().zip(&p.density).for_each(|(a, b)| a.add(b));
             total.color.iter_mut().zip(&p.color).for_each(|(a, b)| a.add(b));
         }
-        (d_enc, total)
+        total
     }
 
     fn zero_grads(&self) -> HashMlpGrads {
@@ -259,6 +342,11 @@ impl HashMlp {
 }
 
 impl HashMlpGrads {
+    /// Whether every gradient is finite.
+    pub fn is_finite(&self) -> bool {
+        self.density.iter().chain(&self.color).all(|l| l.w.iter().chain(&l.b).all(|v| v.is_finite()))
+    }
+
     /// The gradients as burn's [`GradientsParams`] for `field`'s parameters (weights and
     /// biases), ready for its optimiser.
     pub fn into_params(self, field: &HashField) -> GradientsParams {
@@ -507,6 +595,35 @@ mod tests {
             assert_close("stepped parameter", a, b, 1e-5);
             assert!(a.iter().zip(p).any(|(x, y)| x != y), "the step moved the parameters");
         }
+    }
+
+    /// The grouped sweep gives what a forward pass, then the backward pass with the same
+    /// per-sample gradients, gives (groups of uneven sizes, one empty).
+    #[test]
+    fn train_groups_equals_forward_then_backward() {
+        let (ed, sd, n) = (20, 9, 1500);
+        let field = seeded_init(HashFieldConfig::new(ed, sd).init(&crate::backend::inference_device()), 4);
+        let mlp = HashMlp::from_field(&field).unwrap();
+        let (enc, sh) = (inputs(n, ed, 1), inputs(n, sd, 2));
+        let d_raw = inputs(n, 1, 3);
+        let d_rgb: Vec<[f32; 3]> = inputs(n, 3, 4).chunks(3).map(|c| [c[0], c[1], c[2]]).collect();
+        let (raw, rgb) = mlp.forward(&enc, &sh);
+        let (d_enc, grads) = mlp.backward(&enc, &sh, &d_raw, &d_rgb);
+        let groups = [0..100, 100..700, 700..700, 700..703, 703..n];
+        let (d_enc_g, grads_g, values) = mlp.train_groups(&enc, &sh, &groups, |g, raw_g, rgb_g| {
+            let r = groups[g].clone();
+            assert_close("grouped raw", raw_g, &raw[r.clone()], 1e-6);
+            let flat = |v: &[[f32; 3]]| v.iter().flatten().copied().collect::<Vec<_>>();
+            assert_close("grouped rgb", &flat(rgb_g), &flat(&rgb[r.clone()]), 1e-6);
+            GroupGrads { d_raw: d_raw[r.clone()].to_vec(), d_rgb: d_rgb[r.clone()].to_vec(), value: r.len() }
+        });
+        assert_eq!(values, vec![100, 600, 0, 3, n - 703]);
+        assert_close("d_enc", &d_enc_g, &d_enc, 1e-5);
+        for (a, b) in grads_g.density.iter().chain(&grads_g.color).zip(grads.density.iter().chain(&grads.color)) {
+            assert_close("weight gradient", &a.w, &b.w, 1e-5);
+            assert_close("bias gradient", &a.b, &b.b, 1e-5);
+        }
+        assert!(grads_g.is_finite());
     }
 
     /// Bit-identical results with 1 and 3 threads.

@@ -23,7 +23,7 @@ use crate::data::{RayBatch, SceneBounds};
 use crate::encoding::hashgrid::{Adam, AdamConfig, HashGrid, HashGridConfig};
 use crate::encoding::sh::{sh_encode, sh_output_dim};
 use crate::field::{AdamSettings, HashField, HashFieldConfig, MlpAdam, seeded_init};
-use crate::mlp::HashMlp;
+use crate::mlp::{GroupGrads, HashMlp};
 use crate::occupancy::{MarchOptions, OccupancyGrid, OccupancyGridConfig};
 use crate::sampling::{Aabb, RaySamples, SampleMode};
 use crate::volrend;
@@ -352,41 +352,61 @@ impl FastModel {
             return StepStats { loss: mse, mse, samples: 0, skipped_nonfinite: false, timings: tm };
         }
 
+        // Networks, compositing, loss and backward in one sweep over groups of whole rays
+        // ([`HashMlp::train_groups`]): each group stays in cache from the networks' forward
+        // to their backward. (Its time is counted as MLP time; rendering is inside it.)
         let t0 = Instant::now();
-        let (raw, rgb) = mlp.forward(&enc, &sh);
-        tm.mlp += t0.elapsed().as_secs_f64();
-
-        let t0 = Instant::now();
-        let sigma: Vec<f32> = raw.iter().map(|x| ACT.forward(*x)).collect();
-        let (o, ts, te, bg) = (&samples.offsets, &samples.t_start, &samples.t_end, &batch.background);
-        let comp = volrend::composite_forward(o, &sigma, &rgb, ts, te, bg);
-        let (mse, d_out) = mse_and_grad(&comp.rgb, &batch.target);
-        let zeros = vec![0.0; d_out.len()];
+        let groups = ray_groups(&samples.offsets, crate::mlp::TILE);
+        let sample_ranges: Vec<std::ops::Range<usize>> = groups.iter().map(|g| g.1.clone()).collect();
+        let n_rays = samples.n_rays();
+        let norm = (3 * n_rays).max(1) as f32;
         let lambda = self.config.distortion_weight.filter(|l| *l > 0.0 && l.is_finite());
-        let (loss, d_weights) = match lambda {
-            Some(l) => {
-                let rays = d_out.len().max(1);
-                let scale = 1.0 / (self.bounds.far - self.bounds.near).max(1e-6);
-                let (per_ray, dw) = volrend::distortion(o, &comp.weights, ts, te, scale, &vec![l / rays as f32; d_out.len()]);
-                (mse + l * per_ray.iter().map(|&v| v as f64).sum::<f64>() as f32 / rays as f32, Some(dw))
-            }
-            None => (mse, None),
+        let scale = 1.0 / (self.bounds.far - self.bounds.near).max(1e-6);
+        let (d_enc, grads, parts) = mlp.train_groups(&enc, &sh, &sample_ranges, |gi, raw, rgb| {
+            let (rays, smp) = (groups[gi].0.clone(), groups[gi].1.clone());
+            let base = samples.offsets[rays.start];
+            let o: Vec<u32> = samples.offsets[rays.start..=rays.end].iter().map(|v| v - base).collect();
+            let (ts, te) = (&samples.t_start[smp.clone()], &samples.t_end[smp]);
+            let (bg, target) = (&batch.background[rays.clone()], &batch.target[rays.clone()]);
+            let sigma: Vec<f32> = raw.iter().map(|x| ACT.forward(*x)).collect();
+            let comp = volrend::composite_forward(&o, &sigma, rgb, ts, te, bg);
+            // Squared error summed over the group; the gradient of the batch's mean.
+            let mut sq = 0.0f64;
+            let d_out: Vec<[f32; 3]> = comp
+                .rgb
+                .iter()
+                .zip(target)
+                .map(|(c, t)| {
+                    std::array::from_fn(|k| {
+                        let e = c[k] - t[k];
+                        sq += (e * e) as f64;
+                        2.0 * e / norm
+                    })
+                })
+                .collect();
+            let (dist, d_weights) = match lambda {
+                Some(l) => {
+                    let (per_ray, dw) = volrend::distortion(&o, &comp.weights, ts, te, scale, &vec![l / n_rays.max(1) as f32; rays.len()]);
+                    (per_ray.iter().map(|&v| v as f64).sum::<f64>(), Some(dw))
+                }
+                None => (0.0, None),
+            };
+            let zeros = vec![0.0; rays.len()];
+            let g = volrend::composite_backward_with_weights(&o, &sigma, rgb, ts, te, bg, &comp, &d_out, &zeros, &zeros, d_weights.as_deref());
+            let d_raw = g.d_sigma.iter().zip(raw).map(|(g, x)| ACT.backward(*x, *g)).collect();
+            GroupGrads { d_raw, d_rgb: g.d_rgb, value: (sq, dist) }
+        });
+        let mse = (parts.iter().map(|p| p.0).sum::<f64>() / norm as f64) as f32;
+        let loss = match lambda {
+            Some(l) => mse + l * (parts.iter().map(|p| p.1).sum::<f64>() / n_rays.max(1) as f64) as f32,
+            None => mse,
         };
-        let g = volrend::composite_backward_with_weights(o, &sigma, &rgb, ts, te, bg, &comp, &d_out, &zeros, &zeros, d_weights.as_deref());
-        let d_raw: Vec<f32> = g.d_sigma.iter().zip(&raw).map(|(g, x)| ACT.backward(*x, *g)).collect();
-        tm.render += t0.elapsed().as_secs_f64();
-        let stats = |skipped, tm| StepStats { loss, mse, samples: n, skipped_nonfinite: skipped, timings: tm };
-        if !loss.is_finite() || !all_finite(&d_raw) || !g.d_rgb.iter().all(|c| all_finite(c)) {
-            return stats(true, tm);
-        }
-
-        let t0 = Instant::now();
-        let (d_enc, grads) = mlp.backward(&enc, &sh, &d_raw, &g.d_rgb);
-        let mut gp = grads.into_params(&self.field);
         tm.mlp += t0.elapsed().as_secs_f64();
-        if d_enc.len() != n * dims || !all_finite(&d_enc) {
+        let stats = |skipped, tm| StepStats { loss, mse, samples: n, skipped_nonfinite: skipped, timings: tm };
+        if !loss.is_finite() || d_enc.len() != n * dims || !all_finite(&d_enc) || !grads.is_finite() {
             return stats(true, tm);
         }
+        let mut gp = grads.into_params(&self.field);
 
         let t0 = Instant::now();
         self.grid.backward_touched(&unit, &d_enc, &mut self.grad, &mut self.touched);
@@ -538,6 +558,22 @@ fn density_at(grid: &HashGrid, mlp: &HashMlp, bounds: &SceneBounds, points: &[[f
     mlp.raw_density(&enc).into_iter().map(|x| ACT.forward(x)).collect()
 }
 
+/// Consecutive rays grouped so that each group holds about `target` samples: a group closes
+/// once it reaches `target` (a ray is never split; one longer than `target` is a group of its
+/// own). Returns each group's rays and samples. Depends only on `offsets`, never on threads.
+fn ray_groups(offsets: &[u32], target: usize) -> Vec<(std::ops::Range<usize>, std::ops::Range<usize>)> {
+    let mut out = Vec::new();
+    let n_rays = offsets.len().saturating_sub(1);
+    let mut r0 = 0;
+    for r in 0..n_rays {
+        if (offsets[r + 1] - offsets[r0]) as usize >= target || r + 1 == n_rays {
+            out.push((r0..r + 1, offsets[r0] as usize..offsets[r + 1] as usize));
+            r0 = r + 1;
+        }
+    }
+    out
+}
+
 /// The samples of each ray up to (and including) the one at which the optical depth
 /// `Σ σ_j δ_j` before it still is ≤ `tau_stop` (transmittance ≥ e^−tau_stop): a prefix of
 /// every ray. Returns the kept samples and their indices in `s`.
@@ -557,4 +593,23 @@ fn keep_until_opaque(s: &RaySamples, sigma: &[f32], tau_stop: f32) -> (RaySample
         out.end_ray();
     }
     (out, idx)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ray_groups_hold_whole_rays_of_about_the_target() {
+        // Rays of 3, 0, 5, 2, 9, 1 samples; target 4.
+        let offsets = [0u32, 3, 3, 8, 10, 19, 20];
+        let g = ray_groups(&offsets, 4);
+        assert_eq!(g, vec![(0..3, 0..8), (3..5, 8..19), (5..6, 19..20)]);
+        // A target of 1 makes every non-empty ray close a group; empty rays join the next.
+        let g = ray_groups(&offsets, 1);
+        assert_eq!(g, vec![(0..1, 0..3), (1..3, 3..8), (3..4, 8..10), (4..5, 10..19), (5..6, 19..20)]);
+        assert!(ray_groups(&[0], 4).is_empty());
+        // A batch of rays without samples is one empty group.
+        assert_eq!(ray_groups(&[0, 0, 0], 4), vec![(0..2, 0..0)]);
+    }
 }

@@ -52,9 +52,11 @@ impl ModelConfig {
 pub struct StepTimings {
     /// Sampling and input encodings (and, for `fast`, the hash-grid backward).
     pub encoding: f64,
-    /// Network forward and backward in burn.
+    /// Network forward and backward (`paper`: in burn; `fast`: the fused sweep of
+    /// [`crate::mlp::HashMlp::train_groups`], which also composites and takes the loss, so
+    /// that its rendering time is counted here).
     pub mlp: f64,
-    /// Volume rendering forward and backward, and the loss.
+    /// Volume rendering forward and backward, and the loss (`paper` only, see `mlp`).
     pub render: f64,
     /// Optimiser steps (burn Adam for the networks, sparse Adam for the hash table) and the
     /// occupancy-grid update.
