@@ -58,75 +58,24 @@ pub fn run() -> anyhow::Result<()> {
     Ok(())
 }
 
-/// The fast preset's networks (32 hash features, 16 SH coefficients, 64-wide) on 32768
-/// samples: medians of 5 timed runs after a warm-up, fused kernels against burn.
+/// The fast preset's networks through the fused kernels and through burn
+/// ([`nerf::mlp::speed_against_burn`]).
 fn networks_fused_vs_burn(peak: f64) {
-    use nerf::field::{HashFieldConfig, seeded_init, tensor2, to_vec};
-    let (ed, sd, n) = (32usize, 16usize, 32768usize);
-    let field = seeded_init(HashFieldConfig::new(ed, sd).init(&nerf::backend::train_device()), 1);
-    let mlp = nerf::mlp::HashMlp::from_field(&field).expect("the preset's field shape");
-    let value = |k: usize, s: u64| nerf::models::ops::uniform(s, 0, k as u64, 0) * 2.0 - 1.0;
-    let enc: Vec<f32> = (0..n * ed).map(|k| value(k, 1)).collect();
-    let sh: Vec<f32> = (0..n * sd).map(|k| value(k, 2)).collect();
-    let d_raw: Vec<f32> = (0..n).map(|k| 1e-3 * value(k, 3)).collect();
-    let d_rgb: Vec<[f32; 3]> = (0..n).map(|k| [1e-3 * value(3 * k, 4), 1e-3 * value(3 * k + 1, 4), 1e-3 * value(3 * k + 2, 4)]).collect();
-    let time = |f: &mut dyn FnMut()| {
-        f();
-        let mut t: Vec<f64> = (0..5)
-            .map(|_| {
-                let t0 = std::time::Instant::now();
-                f();
-                t0.elapsed().as_secs_f64()
-            })
-            .collect();
-        t.sort_by(f64::total_cmp);
-        t[2]
-    };
-    let fused_fwd = time(&mut || {
-        std::hint::black_box(mlp.forward(&enc, &sh));
-    });
-    // As training runs them: one sweep over groups of samples, forward → loss gradient (here
-    // fixed values) → backward, each group in cache.
-    let groups: Vec<std::ops::Range<usize>> = (0..n).step_by(nerf::mlp::TILE).map(|s| s..(s + nerf::mlp::TILE).min(n)).collect();
-    let fused_step = time(&mut || {
-        std::hint::black_box(mlp.train_groups(&enc, &sh, &groups, |g, _, _| nerf::mlp::GroupGrads {
-            d_raw: d_raw[groups[g].clone()].to_vec(),
-            d_rgb: d_rgb[groups[g].clone()].to_vec(),
-            value: (),
-        }));
-    });
-    let burn_pass = |backward: bool| {
-        let dev = if backward { nerf::backend::train_device() } else { nerf::backend::inference_device() };
-        let field = if backward { field.clone() } else { burn::module::Module::valid(&field) };
-        let enc_t = tensor2(enc.clone(), n, ed, &dev);
-        let enc_t = if backward { enc_t.require_grad() } else { enc_t };
-        let (raw, rgb) = field.forward(enc_t.clone(), tensor2(sh.clone(), n, sd, &dev));
-        let (r, c) = (to_vec(raw.clone()), to_vec(rgb.clone()));
-        if backward {
-            let d_rgb_flat: Vec<f32> = d_rgb.iter().flatten().copied().collect();
-            let surrogate = (raw * tensor2(d_raw.clone(), n, 1, &dev)).sum() + (rgb * tensor2(d_rgb_flat, n, 3, &dev)).sum();
-            let grads = surrogate.backward();
-            let d_enc = enc_t.grad(&grads).map(to_vec);
-            std::hint::black_box((d_enc, grads));
-        }
-        std::hint::black_box((r, c));
-    };
-    let burn_fwd = time(&mut || burn_pass(false));
-    let burn_step = time(&mut || burn_pass(true));
-    let macs = (ed * 64 + 64 * 16 + (16 + sd) * 64 + 64 * 64 + 64 * 3) as f64 * n as f64;
-    let gf = |flops: f64, s: f64| flops / s / 1e9;
+    let s = nerf::mlp::speed_against_burn(32, 16, 32768);
+    let gf = |flops: f64, secs: f64| flops / secs / 1e9;
     println!(
-        "networks (fast preset, {n} samples; GFLOP/s count 2 FLOPs per multiply-add, 3 passes for forward + backward; peak {peak:.0}): \
+        "networks (fast preset, {} samples; medians of 5; GFLOP/s count 2 FLOPs per multiply-add, 3 passes for forward + backward; peak {peak:.0}): \
          forward: fused {:.1} ms ({:.0} GFLOP/s), burn {:.1} ms ({:.0}) = {:.2}x | forward + backward: fused {:.1} ms ({:.0} GFLOP/s), burn {:.1} ms ({:.0}) = {:.2}x",
-        fused_fwd * 1e3,
-        gf(2.0 * macs, fused_fwd),
-        burn_fwd * 1e3,
-        gf(2.0 * macs, burn_fwd),
-        burn_fwd / fused_fwd,
-        fused_step * 1e3,
-        gf(6.0 * macs, fused_step),
-        burn_step * 1e3,
-        gf(6.0 * macs, burn_step),
-        burn_step / fused_step,
+        s.samples,
+        s.fused_forward_s * 1e3,
+        gf(2.0 * s.macs, s.fused_forward_s),
+        s.burn_forward_s * 1e3,
+        gf(2.0 * s.macs, s.burn_forward_s),
+        s.burn_forward_s / s.fused_forward_s,
+        s.fused_train_s * 1e3,
+        gf(6.0 * s.macs, s.fused_train_s),
+        s.burn_train_s * 1e3,
+        gf(6.0 * s.macs, s.burn_train_s),
+        s.burn_train_s / s.fused_train_s,
     );
 }

@@ -488,6 +488,84 @@ mod mm {
     }
 }
 
+/// Seconds of one batch through the fast model's networks (64-wide, 16 geometry features,
+/// two colour layers; medians of 5 runs after a warm-up) — `cargo xtask bench nerf`'s
+/// comparison of these kernels with burn, measured in one run.
+#[derive(Clone, Copy, Debug)]
+pub struct NetworkSpeed {
+    pub samples: usize,
+    /// Forward multiply-adds of the batch.
+    pub macs: f64,
+    /// [`HashMlp::forward`].
+    pub fused_forward_s: f64,
+    /// [`HashMlp::train_groups`] over groups of [`TILE`] samples with a fixed loss gradient.
+    pub fused_train_s: f64,
+    /// burn's forward on the inference device.
+    pub burn_forward_s: f64,
+    /// burn's forward and autodiff backward (the surrogate loss the paper model uses), with
+    /// the gradients with respect to the input and the parameters.
+    pub burn_train_s: f64,
+}
+
+/// Measures [`NetworkSpeed`] for `enc_dims` encoding features, `dir_dims` direction features
+/// and `n` samples of fixed pseudo-random inputs.
+pub fn speed_against_burn(enc_dims: usize, dir_dims: usize, n: usize) -> NetworkSpeed {
+    use crate::field::{HashFieldConfig, seeded_init, tensor2, to_vec};
+    use burn::module::Module;
+    let (ed, sd) = (enc_dims, dir_dims);
+    let field = seeded_init(HashFieldConfig::new(ed, sd).init(&crate::backend::train_device()), 1);
+    let mlp = HashMlp::from_field(&field).expect("the default field's shape");
+    let value = |k: usize, s: u64| crate::models::ops::uniform(s, 0, k as u64, 0) * 2.0 - 1.0;
+    let enc: Vec<f32> = (0..n * ed).map(|k| value(k, 1)).collect();
+    let sh: Vec<f32> = (0..n * sd).map(|k| value(k, 2)).collect();
+    let d_raw: Vec<f32> = (0..n).map(|k| 1e-3 * value(k, 3)).collect();
+    let d_rgb: Vec<[f32; 3]> = (0..n).map(|k| std::array::from_fn(|j| 1e-3 * value(3 * k + j, 4))).collect();
+    let time = |f: &mut dyn FnMut()| {
+        f();
+        let mut t: Vec<f64> = (0..5)
+            .map(|_| {
+                let t0 = std::time::Instant::now();
+                f();
+                t0.elapsed().as_secs_f64()
+            })
+            .collect();
+        t.sort_by(f64::total_cmp);
+        t[2]
+    };
+    let fused_forward_s = time(&mut || {
+        std::hint::black_box(mlp.forward(&enc, &sh));
+    });
+    let groups: Vec<std::ops::Range<usize>> = (0..n).step_by(TILE).map(|s| s..(s + TILE).min(n)).collect();
+    let fused_train_s = time(&mut || {
+        std::hint::black_box(mlp.train_groups(&enc, &sh, &groups, |g, _, _| GroupGrads {
+            d_raw: d_raw[groups[g].clone()].to_vec(),
+            d_rgb: d_rgb[groups[g].clone()].to_vec(),
+            value: (),
+        }));
+    });
+    let inference = field.valid();
+    let burn_pass = |backward: bool| {
+        let (dev, net) = if backward { (crate::backend::train_device(), &field) } else { (crate::backend::inference_device(), &inference) };
+        let enc_t = tensor2(enc.clone(), n, ed, &dev);
+        let enc_t = if backward { enc_t.require_grad() } else { enc_t };
+        let (raw, rgb) = net.forward(enc_t.clone(), tensor2(sh.clone(), n, sd, &dev));
+        let (r, c) = (to_vec(raw.clone()), to_vec(rgb.clone()));
+        if backward {
+            let d_rgb_flat: Vec<f32> = d_rgb.iter().flatten().copied().collect();
+            let surrogate = (raw * tensor2(d_raw.clone(), n, 1, &dev)).sum() + (rgb * tensor2(d_rgb_flat, n, 3, &dev)).sum();
+            let mut grads = surrogate.backward();
+            let d_enc = enc_t.grad(&grads).map(to_vec);
+            let params = GradientsParams::from_module(&mut grads, net);
+            std::hint::black_box((d_enc, params.len()));
+        }
+        std::hint::black_box((r, c));
+    };
+    let burn_forward_s = time(&mut || burn_pass(false));
+    let burn_train_s = time(&mut || burn_pass(true));
+    let macs = (ed * 64 + 64 * 16 + (16 + sd) * 64 + 64 * 64 + 64 * 3) as f64 * n as f64;
+    NetworkSpeed { samples: n, macs, fused_forward_s, fused_train_s, burn_forward_s, burn_train_s }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
