@@ -8,17 +8,21 @@
 //! xtask bench nerf`) and took ~70 % of a training step. Each layer there is a separate pass
 //! over a `[32768 × 64]` tensor (8 MiB, out of cache), plus autodiff bookkeeping, the
 //! concatenation, the slice, the surrogate loss and their backward passes. Here a tile of
-//! samples goes through all layers while it is in L2, and its backward pass recomputes the
-//! tile's forward (a third of the work) instead of keeping `[N × 64]` activations.
+//! samples goes through all layers while it is in L2. Training uses
+//! [`HashMlp::train_groups`]: per group of whole rays, forward, the caller's compositing and
+//! loss, and the backward pass on the activations still in cache, so nothing is recomputed
+//! and no `[N × 64]` array is built ([`HashMlp::backward`], for a gradient given after a
+//! separate forward pass, recomputes each tile's forward instead). Measured: `cargo xtask
+//! bench nerf` prints these kernels against burn on the same networks and batch.
 //!
 //! burn stays the owner of the parameters (initialisation, checkpoints, its Adam):
 //! [`HashMlp::from_field`] reads the weights before a step and [`HashMlpGrads::into_params`]
 //! hands the gradients back to burn's optimiser as [`GradientsParams`].
 //!
 //! # Determinism
-//! Samples are split into chunks of [`TILE`] fixed by their index, never by the thread count;
-//! each chunk's weight gradients go to its own buffer, and the buffers are summed in chunk
-//! order. The same inputs give bit-identical outputs with any number of threads.
+//! Samples are split into tiles of [`TILE`] (or the caller's groups) fixed by their index,
+//! never by the thread count; each tile's weight gradients go to its own buffer, and the
+//! buffers are summed in order. The same inputs give bit-identical outputs with any number of threads.
 //!
 //! # Layout
 //! A layer computes `y = x·W + b` with `W` row-major `[d_in][d_out]` (burn's `Linear`
