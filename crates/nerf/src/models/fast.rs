@@ -16,7 +16,7 @@
 //! becomes opaque, and only the samples before it are trained on.
 
 use super::ops::{DensityActivation, stream, stream_seed};
-use super::{RayOutputs, StepStats, StepTimings, all_finite, expected_distance, mse_and_grad};
+use super::{RayOutputs, StepStats, StepTimings, all_finite, expected_distance, mse_and_grad, squared_error_and_grad};
 use crate::backend;
 use crate::checkpoint::StateDict;
 use crate::data::{RayBatch, SceneBounds};
@@ -371,19 +371,7 @@ impl FastModel {
             let sigma: Vec<f32> = raw.iter().map(|x| ACT.forward(*x)).collect();
             let comp = volrend::composite_forward(&o, &sigma, rgb, ts, te, bg);
             // Squared error summed over the group; the gradient of the batch's mean.
-            let mut sq = 0.0f64;
-            let d_out: Vec<[f32; 3]> = comp
-                .rgb
-                .iter()
-                .zip(target)
-                .map(|(c, t)| {
-                    std::array::from_fn(|k| {
-                        let e = c[k] - t[k];
-                        sq += (e * e) as f64;
-                        2.0 * e / norm
-                    })
-                })
-                .collect();
+            let (sq, d_out) = squared_error_and_grad(&comp.rgb, target, norm);
             let (dist, d_weights) = match lambda {
                 Some(l) => {
                     let (per_ray, dw) = volrend::distortion(&o, &comp.weights, ts, te, scale, &vec![l / n_rays.max(1) as f32; rays.len()]);

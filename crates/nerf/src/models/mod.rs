@@ -197,7 +197,15 @@ impl Model {
 /// channels).
 pub(crate) fn mse_and_grad(rgb: &[[f32; 3]], target: &[[f32; 3]]) -> (f32, Vec<[f32; 3]>) {
     let n = (rgb.len() * 3).max(1) as f32;
-    let mut loss = 0.0f64;
+    let (sum, grad) = squared_error_and_grad(rgb, target, n);
+    ((sum / n as f64) as f32, grad)
+}
+
+/// The summed squared error of some rays and the gradient of `sum / n` w.r.t. their colour
+/// (`n`: the number of values the mean is over, which may include other rays: the fast model
+/// takes the loss group by group).
+pub(crate) fn squared_error_and_grad(rgb: &[[f32; 3]], target: &[[f32; 3]], n: f32) -> (f64, Vec<[f32; 3]>) {
+    let mut sum = 0.0f64;
     let grad = rgb
         .iter()
         .zip(target)
@@ -205,13 +213,13 @@ pub(crate) fn mse_and_grad(rgb: &[[f32; 3]], target: &[[f32; 3]]) -> (f32, Vec<[
             let mut g = [0.0; 3];
             for k in 0..3 {
                 let e = c[k] - t[k];
-                loss += (e * e) as f64;
+                sum += (e * e) as f64;
                 g[k] = 2.0 * e / n;
             }
             g
         })
         .collect();
-    ((loss / n as f64) as f32, grad)
+    (sum, grad)
 }
 
 /// Σwt / Σw from [`crate::volrend`]'s unnormalised distance (0 where the opacity is ≤ 1e-6).
