@@ -152,13 +152,9 @@ impl HashMlp {
             let (s0, t) = (c * TILE, raw.len());
             let mut ws = Workspace::default();
             self.tile_forward(&enc[s0 * ed..(s0 + t) * ed], &sh[s0 * sd..(s0 + t) * sd], t, &mut ws);
-            let geo = ws.density.last().unwrap();
-            let gd = self.geo_dims();
-            for k in 0..t {
-                raw[k] = geo[k * gd];
-                let o = &ws.color.last().unwrap()[3 * k..3 * k + 3];
-                rgb[k] = [sigmoid(o[0]), sigmoid(o[1]), sigmoid(o[2])];
-            }
+            let (r, c) = self.tile_outputs(&ws, t);
+            raw.copy_from_slice(&r);
+            rgb.copy_from_slice(&c);
         });
         (raw, rgb)
     }
@@ -167,9 +163,7 @@ impl HashMlp {
     /// layers, then only the first output of its last layer (the other geometry features are
     /// not needed; equal to [`Self::forward`]'s up to rounding).
     pub fn raw_density(&self, enc: &[f32]) -> Vec<f32> {
-        let ed = self.enc_dims();
-        assert!(ed > 0 && enc.len().is_multiple_of(ed), "encoding length {} is not a multiple of {ed}", enc.len());
-        let n = enc.len() / ed;
+        let (n, ed) = (self.samples_in(enc), self.enc_dims());
         let (hidden, last) = self.density.layers.split_at(self.density.layers.len() - 1);
         let last = &last[0];
         // Column 0 of the last layer's weights, contiguous.
@@ -191,28 +185,18 @@ impl HashMlp {
     /// The exact backward pass: given the loss gradient with respect to each sample's raw
     /// density `d_raw` `[n]` and RGB (after the sigmoid) `d_rgb` `[n]`, returns the gradient
     /// with respect to the encoding `[n][enc_dims]` and to every parameter (summed over the
-    /// samples). The forward pass is recomputed tile by tile.
+    /// samples). The forward pass is recomputed: this is [`Self::train_groups`] over tiles of
+    /// [`TILE`] samples with the given gradients.
     pub fn backward(&self, enc: &[f32], sh: &[f32], d_raw: &[f32], d_rgb: &[[f32; 3]]) -> (Vec<f32>, HashMlpGrads) {
         let n = self.check(enc, sh);
         assert!(d_raw.len() == n && d_rgb.len() == n, "gradients for {} / {} samples, not {n}", d_raw.len(), d_rgb.len());
-        let (ed, sd) = (self.enc_dims(), self.dir_dims);
-        let mut d_enc = vec![0.0; n * ed];
-        let partials: Vec<HashMlpGrads> = d_enc
-            .par_chunks_mut(TILE * ed)
-            .enumerate()
-            .map(|(c, d_enc)| {
-                let (s0, t) = (c * TILE, d_enc.len() / ed);
-                let x = &enc[s0 * ed..(s0 + t) * ed];
-                let mut ws = Workspace::default();
-                let cin = self.tile_forward(x, &sh[s0 * sd..(s0 + t) * sd], t, &mut ws);
-                let rgb: Vec<[f32; 3]> = ws.color.last().unwrap().chunks_exact(3).map(|o| [sigmoid(o[0]), sigmoid(o[1]), sigmoid(o[2])]).collect();
-                let mut g = self.zero_grads();
-                let d_x = self.tile_backward(x, &cin, &ws, &rgb, &d_raw[s0..s0 + t], &d_rgb[s0..s0 + t], &mut g);
-                d_enc.copy_from_slice(&d_x);
-                g
-            })
-            .collect();
-        (d_enc, self.sum_grads(&partials))
+        let tiles: Vec<std::ops::Range<usize>> = (0..n).step_by(TILE).map(|s| s..(s + TILE).min(n)).collect();
+        let (d_enc, grads, _) = self.train_groups(enc, sh, &tiles, |g, _, _| GroupGrads {
+            d_raw: d_raw[tiles[g].clone()].to_vec(),
+            d_rgb: d_rgb[tiles[g].clone()].to_vec(),
+            value: (),
+        });
+        (d_enc, grads)
     }
 
     /// Forward, the caller's loss and the backward pass in one sweep over groups of samples,
@@ -240,7 +224,7 @@ impl HashMlp {
             next = g.end;
         }
         assert_eq!(next, n, "the groups must cover all {n} samples");
-        let (ed, sd, gd) = (self.enc_dims(), self.dir_dims, self.geo_dims());
+        let (ed, sd) = (self.enc_dims(), self.dir_dims);
         let mut d_enc = vec![0.0; n * ed];
         let mut pieces = Vec::with_capacity(groups.len());
         let mut rest: &mut [f32] = &mut d_enc;
@@ -258,9 +242,7 @@ impl HashMlp {
                 let x = &enc[s0 * ed..(s0 + t) * ed];
                 let mut ws = Workspace::default();
                 let cin = self.tile_forward(x, &sh[s0 * sd..(s0 + t) * sd], t, &mut ws);
-                let geo = ws.density.last().unwrap();
-                let raw: Vec<f32> = (0..t).map(|k| geo[k * gd]).collect();
-                let rgb: Vec<[f32; 3]> = ws.color.last().unwrap().chunks_exact(3).map(|o| [sigmoid(o[0]), sigmoid(o[1]), sigmoid(o[2])]).collect();
+                let (raw, rgb) = self.tile_outputs(&ws, t);
                 let GroupGrads { d_raw, d_rgb, value } = loss(gi, &raw, &rgb);
                 assert!(d_raw.len() == t && d_rgb.len() == t, "group {gi}: gradients for {} / {} samples, not {t}", d_raw.len(), d_rgb.len());
                 let mut g = self.zero_grads();
@@ -315,11 +297,16 @@ impl HashMlp {
         }
     }
 
-    /// Checks the input lengths; returns the sample count.
-    fn check(&self, enc: &[f32], sh: &[f32]) -> usize {
+    /// The number of samples in an encoding input (checks its length).
+    fn samples_in(&self, enc: &[f32]) -> usize {
         let ed = self.enc_dims();
         assert!(ed > 0 && enc.len().is_multiple_of(ed), "encoding length {} is not a multiple of {ed}", enc.len());
-        let n = enc.len() / ed;
+        enc.len() / ed
+    }
+
+    /// Checks the input lengths; returns the sample count.
+    fn check(&self, enc: &[f32], sh: &[f32]) -> usize {
+        let n = self.samples_in(enc);
         assert_eq!(sh.len(), n * self.dir_dims, "direction input for {n} samples of width {}", self.dir_dims);
         n
     }
@@ -342,6 +329,16 @@ impl HashMlp {
         };
         forward_stack(&self.color, &cin, t, &mut ws.color);
         cin
+    }
+
+    /// A tile's outputs from its forward pass: raw density (the first geometry feature) and
+    /// RGB (the colour stack's output through the sigmoid).
+    fn tile_outputs(&self, ws: &Workspace, t: usize) -> (Vec<f32>, Vec<[f32; 3]>) {
+        let gd = self.geo_dims();
+        let geo = ws.density.last().expect("the density stack has layers");
+        let raw = (0..t).map(|k| geo[k * gd]).collect();
+        let rgb = ws.color.last().expect("the colour stack has layers").chunks_exact(3).map(|o| [sigmoid(o[0]), sigmoid(o[1]), sigmoid(o[2])]).collect();
+        (raw, rgb)
     }
 }
 
@@ -492,6 +489,45 @@ mod mm {
     }
 }
 
+/// The same networks through burn, the reference these kernels are tested and measured
+/// against: the forward pass of `field` (`enc` `[n][enc_dims]`, `sh` `[n][dir_dims]`, empty
+/// for `dir_dims` 0) on `field`'s device, giving raw density and flat RGB; with `grads`
+/// (`d_raw`, `d_rgb`) also burn's autodiff backward through the surrogate
+/// `sum(raw · d_raw) + sum(rgb · d_rgb)` (as the paper model trains), giving the gradient
+/// with respect to the encoding and every parameter's. `field` must be on the training
+/// (autodiff) device when `grads` is given.
+#[allow(clippy::type_complexity)]
+pub fn burn_reference(
+    field: &HashField,
+    enc: &[f32],
+    sh: &[f32],
+    grads: Option<(&[f32], &[[f32; 3]])>,
+) -> (Vec<f32>, Vec<f32>, Option<(Vec<f32>, GradientsParams)>) {
+    use crate::field::{tensor2, to_vec};
+    let ed = field.density.layers[0].weight.val().dims()[0];
+    let n = enc.len() / ed.max(1);
+    let sd = sh.len() / n.max(1);
+    let dev = if grads.is_some() { crate::backend::train_device() } else { crate::backend::inference_device() };
+    let enc_t = tensor2(enc.to_vec(), n, ed, &dev);
+    let enc_t = if grads.is_some() { enc_t.require_grad() } else { enc_t };
+    let (raw_t, rgb_t) = if sd > 0 {
+        field.forward(enc_t.clone(), tensor2(sh.to_vec(), n, sd, &dev))
+    } else {
+        let geo = field.density.forward(enc_t.clone());
+        let raw = geo.clone().slice([0..n, 0..1]);
+        (raw, burn::tensor::activation::sigmoid(field.color.forward(geo)))
+    };
+    let (raw, rgb) = (to_vec(raw_t.clone()), to_vec(rgb_t.clone()));
+    let backward = grads.map(|(d_raw, d_rgb)| {
+        let d_rgb_flat: Vec<f32> = d_rgb.iter().flatten().copied().collect();
+        let surrogate = (raw_t * tensor2(d_raw.to_vec(), n, 1, &dev)).sum() + (rgb_t * tensor2(d_rgb_flat, n, 3, &dev)).sum();
+        let grads = surrogate.backward();
+        let d_enc = enc_t.grad(&grads).map(to_vec).unwrap_or_default();
+        (d_enc, GradientsParams::from_grads(grads, field))
+    });
+    (raw, rgb, backward)
+}
+
 /// Seconds of one batch through the fast model's networks (64-wide, 16 geometry features,
 /// two colour layers; medians of 5 runs after a warm-up) — `cargo xtask bench nerf`'s
 /// comparison of these kernels with burn, measured in one run.
@@ -514,7 +550,7 @@ pub struct NetworkSpeed {
 /// Measures [`NetworkSpeed`] for `enc_dims` encoding features, `dir_dims` direction features
 /// and `n` samples of fixed pseudo-random inputs.
 pub fn speed_against_burn(enc_dims: usize, dir_dims: usize, n: usize) -> NetworkSpeed {
-    use crate::field::{HashFieldConfig, seeded_init, tensor2, to_vec};
+    use crate::field::{HashFieldConfig, seeded_init};
     use burn::module::Module;
     let (ed, sd) = (enc_dims, dir_dims);
     let field = seeded_init(HashFieldConfig::new(ed, sd).init(&crate::backend::train_device()), 1);
@@ -548,24 +584,12 @@ pub fn speed_against_burn(enc_dims: usize, dir_dims: usize, n: usize) -> Network
         }));
     });
     let inference = field.valid();
-    let burn_pass = |backward: bool| {
-        let (dev, net) = if backward { (crate::backend::train_device(), &field) } else { (crate::backend::inference_device(), &inference) };
-        let enc_t = tensor2(enc.clone(), n, ed, &dev);
-        let enc_t = if backward { enc_t.require_grad() } else { enc_t };
-        let (raw, rgb) = net.forward(enc_t.clone(), tensor2(sh.clone(), n, sd, &dev));
-        let (r, c) = (to_vec(raw.clone()), to_vec(rgb.clone()));
-        if backward {
-            let d_rgb_flat: Vec<f32> = d_rgb.iter().flatten().copied().collect();
-            let surrogate = (raw * tensor2(d_raw.clone(), n, 1, &dev)).sum() + (rgb * tensor2(d_rgb_flat, n, 3, &dev)).sum();
-            let mut grads = surrogate.backward();
-            let d_enc = enc_t.grad(&grads).map(to_vec);
-            let params = GradientsParams::from_module(&mut grads, net);
-            std::hint::black_box((d_enc, params.len()));
-        }
-        std::hint::black_box((r, c));
-    };
-    let burn_forward_s = time(&mut || burn_pass(false));
-    let burn_train_s = time(&mut || burn_pass(true));
+    let burn_forward_s = time(&mut || {
+        std::hint::black_box(burn_reference(&inference, &enc, &sh, None));
+    });
+    let burn_train_s = time(&mut || {
+        std::hint::black_box(burn_reference(&field, &enc, &sh, Some((&d_raw, &d_rgb))));
+    });
     let macs = (ed * 64 + 64 * 16 + (16 + sd) * 64 + 64 * 64 + 64 * 3) as f64 * n as f64;
     NetworkSpeed { samples: n, macs, fused_forward_s, fused_train_s, burn_forward_s, burn_train_s }
 }
@@ -573,39 +597,35 @@ pub fn speed_against_burn(enc_dims: usize, dir_dims: usize, n: usize) -> Network
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::field::{HashFieldConfig, seeded_init, tensor2, to_vec};
+    use crate::field::{HashFieldConfig, seeded_init, to_vec};
     use crate::models::ops::uniform;
 
     fn inputs(n: usize, d: usize, stream: u64) -> Vec<f32> {
         (0..n * d).map(|k| uniform(7, stream, k as u64, 0) * 2.0 - 1.0).collect()
     }
 
-    /// burn's forward and autodiff backward of the same field: (raw, rgb, d_enc, grads).
-    fn burn_reference(
-        field: &HashField,
-        enc: &[f32],
-        sh: &[f32],
-        ed: usize,
-        sd: usize,
-        d_raw: &[f32],
-        d_rgb: &[[f32; 3]],
-    ) -> (Vec<f32>, Vec<f32>, Vec<f32>, GradientsParams) {
-        let dev = crate::backend::train_device();
-        let n = enc.len() / ed;
-        let enc_t = tensor2(enc.to_vec(), n, ed, &dev).require_grad();
-        let (raw_t, rgb_t) = if sd > 0 {
-            field.forward(enc_t.clone(), tensor2(sh.to_vec(), n, sd, &dev))
-        } else {
-            let geo = field.density.forward(enc_t.clone());
-            let raw = geo.clone().slice([0..n, 0..1]);
-            (raw, burn::tensor::activation::sigmoid(field.color.forward(geo)))
-        };
-        let (raw, rgb) = (to_vec(raw_t.clone()), to_vec(rgb_t.clone()));
-        let d_rgb_flat: Vec<f32> = d_rgb.iter().flatten().copied().collect();
-        let surrogate = (raw_t * tensor2(d_raw.to_vec(), n, 1, &dev)).sum() + (rgb_t * tensor2(d_rgb_flat, n, 3, &dev)).sum();
-        let grads = surrogate.backward();
-        let d_enc = enc_t.grad(&grads).map(to_vec).unwrap();
-        (raw, rgb, d_enc, GradientsParams::from_grads(grads, field))
+    /// Network inputs and loss gradients of `n` samples, uniform in [−1, 1).
+    struct Batch {
+        enc: Vec<f32>,
+        sh: Vec<f32>,
+        d_raw: Vec<f32>,
+        d_rgb: Vec<[f32; 3]>,
+    }
+
+    fn batch(n: usize, ed: usize, sd: usize) -> Batch {
+        Batch {
+            enc: inputs(n, ed, 1),
+            sh: inputs(n, sd, 2),
+            d_raw: inputs(n, 1, 3),
+            d_rgb: inputs(n, 3, 4).chunks(3).map(|c| [c[0], c[1], c[2]]).collect(),
+        }
+    }
+
+    /// [`super::burn_reference`] with gradients: (raw, rgb, d_enc, parameter gradients).
+    fn burn_grads(field: &HashField, enc: &[f32], sh: &[f32], d_raw: &[f32], d_rgb: &[[f32; 3]]) -> (Vec<f32>, Vec<f32>, Vec<f32>, GradientsParams) {
+        let (raw, rgb, grads) = super::burn_reference(field, enc, sh, Some((d_raw, d_rgb)));
+        let (d_enc, params) = grads.unwrap();
+        (raw, rgb, d_enc, params)
     }
 
     fn assert_close(what: &str, ours: &[f32], reference: &[f32], tol: f32) {
@@ -625,11 +645,8 @@ mod tests {
             let ed = 24;
             let cfg = HashFieldConfig::new(ed, sd).with_color_depth(2);
             let field = seeded_init(cfg.init(&crate::backend::train_device()), 3);
-            let enc = inputs(n, ed, 1);
-            let sh = inputs(n, sd, 2);
-            let d_raw: Vec<f32> = inputs(n, 1, 3);
-            let d_rgb: Vec<[f32; 3]> = inputs(n, 3, 4).chunks(3).map(|c| [c[0], c[1], c[2]]).collect();
-            let (raw_b, rgb_b, d_enc_b, mut grads_b) = burn_reference(&field, &enc, &sh, ed, sd, &d_raw, &d_rgb);
+            let Batch { enc, sh, d_raw, d_rgb } = batch(n, ed, sd);
+            let (raw_b, rgb_b, d_enc_b, mut grads_b) = burn_grads(&field, &enc, &sh, &d_raw, &d_rgb);
 
             let mlp = HashMlp::from_field(&field).unwrap();
             assert_eq!((mlp.enc_dims(), mlp.dir_dims), (ed, sd));
@@ -662,10 +679,8 @@ mod tests {
         use crate::field::{AdamSettings, MlpAdam, param_vectors};
         let (ed, sd, n) = (16, 9, 200);
         let field = seeded_init(HashFieldConfig::new(ed, sd).init(&crate::backend::train_device()), 5);
-        let (enc, sh) = (inputs(n, ed, 1), inputs(n, sd, 2));
-        let d_raw = inputs(n, 1, 3);
-        let d_rgb: Vec<[f32; 3]> = inputs(n, 3, 4).chunks(3).map(|c| [c[0], c[1], c[2]]).collect();
-        let (_, _, _, mut grads_b) = burn_reference(&field, &enc, &sh, ed, sd, &d_raw, &d_rgb);
+        let Batch { enc, sh, d_raw, d_rgb } = batch(n, ed, sd);
+        let (_, _, _, mut grads_b) = burn_grads(&field, &enc, &sh, &d_raw, &d_rgb);
         let settings = AdamSettings::new(0.9, 0.99, 1e-15);
         let stepped_b = MlpAdam::new(&settings).step(1e-2, field.clone(), &mut grads_b);
         let mlp = HashMlp::from_field(&field).unwrap();
@@ -686,9 +701,7 @@ mod tests {
         let (ed, sd, n) = (20, 9, 1500);
         let field = seeded_init(HashFieldConfig::new(ed, sd).init(&crate::backend::inference_device()), 4);
         let mlp = HashMlp::from_field(&field).unwrap();
-        let (enc, sh) = (inputs(n, ed, 1), inputs(n, sd, 2));
-        let d_raw = inputs(n, 1, 3);
-        let d_rgb: Vec<[f32; 3]> = inputs(n, 3, 4).chunks(3).map(|c| [c[0], c[1], c[2]]).collect();
+        let Batch { enc, sh, d_raw, d_rgb } = batch(n, ed, sd);
         let (raw, rgb) = mlp.forward(&enc, &sh);
         let (d_enc, grads) = mlp.backward(&enc, &sh, &d_raw, &d_rgb);
         let groups = [0..100, 100..700, 700..700, 700..703, 703..n];
@@ -714,9 +727,7 @@ mod tests {
         let (ed, sd, n) = (32, 16, 5 * TILE + 3);
         let field = seeded_init(HashFieldConfig::new(ed, sd).init(&crate::backend::inference_device()), 9);
         let mlp = HashMlp::from_field(&field).unwrap();
-        let (enc, sh) = (inputs(n, ed, 1), inputs(n, sd, 2));
-        let d_raw = inputs(n, 1, 3);
-        let d_rgb: Vec<[f32; 3]> = inputs(n, 3, 4).chunks(3).map(|c| [c[0], c[1], c[2]]).collect();
+        let Batch { enc, sh, d_raw, d_rgb } = batch(n, ed, sd);
         let run = |threads| {
             let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
             pool.install(|| (mlp.forward(&enc, &sh), mlp.backward(&enc, &sh, &d_raw, &d_rgb)))
