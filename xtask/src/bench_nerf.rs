@@ -1,9 +1,10 @@
 //! `cargo xtask bench nerf`: training throughput of both models on a synthetic 64×64 dataset
 //! (written to a temporary folder, so no prior step is needed): rays/s, samples/s, the time of
-//! a step split into encoding, MLP (forward + backward; for `fast` with compositing and loss, which run inside its fused sweep), rendering and optimiser, and the MLP's
-//! achieved GFLOP/s against this machine's measured burn matmul peak; and the fast model's
-//! networks on one batch through the fused kernels ([`nerf::mlp`]) against the same networks
-//! through burn (forward, and forward + autodiff backward), measured in the same run.
+//! a step split into encoding, MLP (forward + backward; for `fast` with compositing and loss,
+//! which run inside its fused sweep), rendering and optimiser, and the MLP's achieved GFLOP/s
+//! against this machine's measured burn matmul peak; and the fast model's networks on one
+//! batch through the fused kernels ([`nerf::mlp`]) against the same networks through burn
+//! (forward, and forward + autodiff backward), measured in the same run.
 
 use nerf::train::{TrainConfig, Trainer};
 
