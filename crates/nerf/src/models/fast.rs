@@ -288,16 +288,16 @@ impl FastModel {
         (unit, enc, sh)
     }
 
-    fn maybe_update_occupancy(&mut self, step: u64) {
+    /// Updates the occupancy grid on update steps, with the networks' weights `mlp`.
+    fn maybe_update_occupancy(&mut self, step: u64, mlp: &HashMlp) {
         let interval = self.config.grid_update_interval.max(1);
         if step == 0 || !step.is_multiple_of(interval) {
             return;
         }
         let dt = self.step_size();
-        let mlp = self.mlp();
         let (grid, bounds) = (&self.grid, &self.bounds);
         let thr = self.config.grid_threshold;
-        self.occupancy.update(step, dt, thr, &mut |pts| density_at(grid, &mlp, bounds, pts));
+        self.occupancy.update(step, dt, thr, &mut |pts| density_at(grid, mlp, bounds, pts));
     }
 
     /// Density at world points (inference).
@@ -310,7 +310,9 @@ impl FastModel {
     pub fn train_step(&mut self, batch: &RayBatch, step: u64, seed: u64) -> StepStats {
         let mut tm = StepTimings::default();
         let t0 = Instant::now();
-        self.maybe_update_occupancy(step);
+        // The networks' weights, read once for the step (they change only in its Adam step).
+        let mlp = self.mlp();
+        self.maybe_update_occupancy(step, &mlp);
         tm.optimizer += t0.elapsed().as_secs_f64();
 
         let t0 = Instant::now();
@@ -324,7 +326,6 @@ impl FastModel {
         // marched sample finds where each ray's transmittance falls below
         // `train_min_transmittance`; only the samples before that are trained on.
         let t0 = Instant::now();
-        let mlp = self.mlp();
         let keep = (self.config.train_min_transmittance > 0.0 && !marched.is_empty()).then(|| {
             let sigma: Vec<f32> = mlp.raw_density(&enc_all).into_iter().map(|x| ACT.forward(x)).collect();
             let tau_stop = -self.config.train_min_transmittance.ln();
