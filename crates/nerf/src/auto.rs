@@ -132,15 +132,26 @@ pub struct AutoConfig {
     #[config(default = "None")]
     pub cone_marching: Option<bool>,
     /// Weight of mip-NeRF 360's distortion loss ([`crate::volrend::distortion`]) when the train
-    /// views show only opaque surfaces ([`distortion_rule`]); mip-NeRF 360 uses 0.01. `None`,
-    /// the default (and configs written before this option): never. Measured on the standard
-    /// datasets (3 min, single runs) with 0.01: on `tabletop` it cut the depth error from
-    /// 0.0124 to 0.0117 m and the off-surface mass from 0.081 to 0.070 at the same PSNR, but on
-    /// `cornell` it collapsed the textureless back wall onto a wrong surface 1.7 m in front of
-    /// it early in training (val 31.7 dB, depth MAE 0.82 m, against 36.7 dB and 0.16 m for
-    /// `fast-small` without it), so it is not on by default.
-    #[config(default = "None")]
+    /// views show only opaque surfaces and triangulate them well ([`distortion_rule`]);
+    /// mip-NeRF 360 uses 0.01. `None` (and configs written before session 9, which wrote
+    /// `null`): never. Measured on the standard datasets (2 min, seed 0) with 0.01: on the
+    /// orbits `tabletop` it cut the depth error from 0.0124 to 0.0116 m and the off-surface
+    /// mass from 0.083 to 0.066; on the forward-facing `cornell` and `deep` it gathered the
+    /// weight of walls whose depth the views leave open onto a wrong depth early in training
+    /// (depth MAE 0.081 → 0.728 m and 0.24 → 0.62 m): hence [`Self::min_parallax_deg`].
+    #[config(default = "Some(0.01)")]
     pub distortion_weight: Option<f32>,
+    /// Least triangulation angle (degrees) of the worst-seen 5 % of the visible surface for the
+    /// distortion loss ([`surface_parallax`], [`distortion_rule`]). 45°: depth is then fixed to
+    /// about one pixel footprint (1 / tan 45°). The standard scenes measure 4–8° (`deep`,
+    /// `cornell`: forward-facing) or 128–148° (`tabletop`, `materials`, `thin`: orbits).
+    /// `None`: no parallax condition.
+    #[config(default = "Some(45.0)")]
+    pub min_parallax_deg: Option<f64>,
+    /// Surface points drawn for the parallax measurement (`None`, configs written before it:
+    /// 512).
+    #[config(default = "Some(512)")]
+    pub parallax_points: Option<usize>,
     /// Largest share of translucent pixels ([`translucent_share`]) among the train views'
     /// covered pixels for which the scene counts as opaque.
     #[config(default = "Some(0.005)")]
@@ -186,24 +197,56 @@ pub fn translucent_share(views: &[(usize, usize, &[f32])]) -> f64 {
 }
 
 /// The distortion-loss weight for a scene with `share` translucent pixels
-/// ([`translucent_share`]): `weight` when the surfaces look opaque (share ≤ `max_share`; each
-/// ray's weight then belongs at one surface, and the loss pulls it there instead of leaving
-/// fog, mip-NeRF 360), else none (a translucent surface in front of another needs two
-/// separate stretches of weight, which the loss penalises).
-pub fn distortion_rule(share: f64, weight: Option<f32>, max_share: f64) -> (Option<f32>, String) {
+/// ([`translucent_share`]) whose visible surface the train views triangulate as `parallax` says
+/// ([`surface_parallax`]): `weight` when the surfaces look opaque (share ≤ `max_share`) and
+/// the worst-seen part of the surface is still seen from directions at least `min_parallax_deg`
+/// apart. Then each ray's weight belongs at one surface whose depth the views determine, and
+/// the loss pulls it there instead of leaving fog (mip-NeRF 360). Otherwise none: a
+/// translucent surface in front of another needs two separate stretches of weight, which the
+/// loss penalises; and where the views leave depth open (a forward-facing capture's far or
+/// textureless walls) the loss gathers the weight early in training onto a wrong depth, which
+/// nothing later corrects (measured: `cornell`'s back wall, `deep`'s far wall). No
+/// measurement: none (the safe side).
+pub fn distortion_rule(
+    share: f64,
+    parallax: Option<&ParallaxStats>,
+    weight: Option<f32>,
+    max_share: f64,
+    min_parallax_deg: f64,
+) -> (Option<f32>, String) {
     let pct = 100.0 * share;
-    match weight.filter(|w| *w > 0.0) {
-        None => (None, "distortion_weight = 0: turned off in the auto settings".into()),
-        Some(w) if share <= max_share => (
-            Some(w),
+    let Some(w) = weight.filter(|w| *w > 0.0) else {
+        return (None, "distortion_weight = 0: turned off in the auto settings".into());
+    };
+    if share > max_share {
+        let reason = format!("distortion_weight = 0: {pct:.2} % of covered train pixels are translucent (more than {:.2} %): a ray may need weight at two surfaces", 100.0 * max_share);
+        return (None, reason);
+    }
+    let q = 100.0 * PARALLAX_QUANTILE;
+    match parallax {
+        None => (None, "distortion_weight = 0: no surface point to measure the train views' triangulation angle on; off (the safe choice)".into()),
+        Some(p) if p.low_deg < min_parallax_deg => (
+            None,
             format!(
-                "distortion_weight = {w}: the train views show opaque surfaces only ({pct:.2} % of covered pixels translucent, at most {:.2} %), so each ray's weight belongs in one short stretch (mip-NeRF 360's distortion loss, its weight)",
-                100.0 * max_share
+                "distortion_weight = 0: the train views see {q:.0} % of the surface from directions at most {:.1}° apart (median {:.1}°, {} points: {}), under {min_parallax_deg}°: depth there is fixed only to ~{:.1} pixel footprints, and the loss would pull ambiguous surfaces onto a wrong depth",
+                p.low_deg,
+                p.median_deg,
+                p.points,
+                p.source,
+                1.0 / p.low_deg.to_radians().tan().max(1e-6)
             ),
         ),
-        Some(_) => (
-            None,
-            format!("distortion_weight = 0: {pct:.2} % of covered train pixels are translucent (more than {:.2} %): a ray may need weight at two surfaces", 100.0 * max_share),
+        Some(p) => (
+            Some(w),
+            format!(
+                "distortion_weight = {w}: the train views show opaque surfaces only ({pct:.2} % of covered pixels translucent, at most {:.2} %) and see {:.0} % of the surface from directions at least {:.1}° apart (median {:.1}°, {} points: {}; at least {min_parallax_deg}°), so each ray's weight belongs in one short stretch at a depth the views fix (mip-NeRF 360's distortion loss, its weight)",
+                100.0 * max_share,
+                100.0 - q,
+                p.low_deg,
+                p.median_deg,
+                p.points,
+                p.source
+            ),
         ),
     }
 }
@@ -560,6 +603,24 @@ pub fn view_dependence_from_facts(facts: &SceneFacts) -> (bool, String) {
     }
 }
 
+/// The pixel (row-major) through which `camera` (world-to-camera `w2c`) sees the world point
+/// `x`, when `x` is in front of it, inside its image and not occluded: its ground-truth z-depth
+/// there (`depth`, row-major) agrees with `x`'s within 1 %.
+fn sees(w2c: &glam::DMat4, camera: &Camera, depth: &[f32], x: DVec3) -> Option<usize> {
+    let c = w2c.transform_point3(x);
+    let z = -c.z;
+    if z <= 1e-9 {
+        return None;
+    }
+    let k = &camera.intrinsics;
+    let (qx, qy) = (k.cx + k.fl_x * c.x / z, k.cy - k.fl_y * c.y / z);
+    if !(qx >= 0.0 && qy >= 0.0 && qx < k.width as f64 && qy < k.height as f64) {
+        return None;
+    }
+    let q = qy as usize * k.width as usize + qx as usize;
+    (depth.get(q).is_some_and(|&d| (d as f64 - z).abs() <= 0.01 * z)).then_some(q)
+}
+
 /// One train view for [`colour_spread`].
 #[derive(Clone, Copy, Debug)]
 pub struct SpreadView<'a> {
@@ -613,21 +674,8 @@ pub fn colour_spread(views: &[SpreadView<'_>], max_points: usize, seed: u64) -> 
             if ui == vi {
                 continue;
             }
-            let c = w2c[ui].transform_point3(x);
-            let z = -c.z;
-            if z <= 1e-9 {
-                continue;
-            }
-            let k = &u.camera.intrinsics;
-            let (qx, qy) = (k.cx + k.fl_x * c.x / z, k.cy - k.fl_y * c.y / z);
-            if qx < 0.0 || qy < 0.0 || qx >= k.width as f64 || qy >= k.height as f64 {
-                continue;
-            }
-            let q = qy as usize * k.width as usize + qx as usize;
-            if q >= u.rgba.len() || q >= u.depth.len() || u.rgba[q][3] < 0.999 {
-                continue;
-            }
-            if (u.depth[q] as f64 - z).abs() > 0.01 * z {
+            let Some(q) = sees(&w2c[ui], u.camera, u.depth, x) else { continue };
+            if q >= u.rgba.len() || u.rgba[q][3] < 0.999 {
                 continue;
             }
             cols.push([u.rgba[q][0] as f64, u.rgba[q][1] as f64, u.rgba[q][2] as f64]);
@@ -677,6 +725,108 @@ pub fn view_dependence_from_spread(stats: Option<&SpreadStats>, threshold: f64) 
             "view_dependent = true: no scene facts and no ground-truth depth to test colour constancy with; kept on (the safe choice)".into(),
         ),
     }
+}
+
+/// How widely apart the train views see the visible surface: each surface point's
+/// triangulation angle, the largest angle between two of the rays along which views see it.
+/// A point seen at angle `θ` has its depth pinned down to about `1 / tan θ` pixel footprints
+/// by a one-pixel disagreement between views; a small angle leaves its depth to the model's
+/// prior (a forward-facing capture's far wall).
+#[derive(Clone, Debug, PartialEq)]
+pub struct ParallaxStats {
+    /// Points measured.
+    pub points: usize,
+    /// The [`PARALLAX_QUANTILE`] quantile of the points' angles, degrees.
+    pub low_deg: f64,
+    /// The median angle, degrees.
+    pub median_deg: f64,
+    /// What the points were: surface points from ground-truth depth, or the cameras' common
+    /// look-at point.
+    pub source: &'static str,
+}
+
+/// The share of the visible surface that may be triangulated worse than
+/// [`ParallaxStats::low_deg`]: the rule looks at the worst-seen 5 % of the surface, not at
+/// single stray points.
+pub const PARALLAX_QUANTILE: f64 = 0.05;
+
+/// The largest angle (degrees) between two of the unit directions `dirs`.
+fn widest_angle(dirs: &[DVec3]) -> f64 {
+    let mut min_cos = 1.0f64;
+    for (i, a) in dirs.iter().enumerate() {
+        for b in &dirs[i + 1..] {
+            min_cos = min_cos.min(a.dot(*b));
+        }
+    }
+    min_cos.clamp(-1.0, 1.0).acos().to_degrees()
+}
+
+fn parallax_stats(mut angles: Vec<f64>, source: &'static str) -> Option<ParallaxStats> {
+    if angles.is_empty() {
+        return None;
+    }
+    angles.sort_by(f64::total_cmp);
+    let at = |q: f64| angles[((q * (angles.len() - 1) as f64).round() as usize).min(angles.len() - 1)];
+    Some(ParallaxStats { points: angles.len(), low_deg: at(PARALLAX_QUANTILE), median_deg: at(0.5), source })
+}
+
+/// Triangulation angles of the surface the train views see (`views`: camera and ground-truth
+/// z-depth per pixel, row-major, 0 where nothing is hit): up to `max_points` pixels with depth,
+/// drawn from the views in turn (keyed by `seed`), are lifted to 3D; every view in which a
+/// point lands inside the image at an agreeing depth (within 1 %: not occluded) sees it, and
+/// the point's angle is the widest between those views' rays to it (0 when only its own view
+/// sees it). `None` when no pixel has depth.
+pub fn surface_parallax(views: &[(&Camera, &[f32])], max_points: usize, seed: u64) -> Option<ParallaxStats> {
+    let w2c: Vec<glam::DMat4> = views.iter().map(|(c, _)| c.c2w.inverse()).collect();
+    let mut angles = Vec::new();
+    for k in 0..max_points * 4 {
+        if angles.len() >= max_points || views.is_empty() {
+            break;
+        }
+        let vi = k % views.len();
+        let (cam, depth) = views[vi];
+        if depth.is_empty() {
+            continue;
+        }
+        let p = ((uniform(seed, stream::VAL, 2 << 40 | k as u64, 0) as f64 * depth.len() as f64) as usize).min(depth.len() - 1);
+        if !(depth[p] > 0.0 && depth[p].is_finite()) {
+            continue;
+        }
+        let x = lift_pixel(cam, p, cam.intrinsics.width as usize, depth[p]);
+        let dirs: Vec<DVec3> = views
+            .iter()
+            .enumerate()
+            .filter(|(ui, (c, d))| *ui == vi || sees(&w2c[*ui], c, d, x).is_some())
+            .map(|(_, (c, _))| (x - c.origin()).normalize_or_zero())
+            .collect();
+        angles.push(widest_angle(&dirs));
+    }
+    parallax_stats(angles, "surface points from ground-truth depth")
+}
+
+/// The stand-in for [`surface_parallax`] when the dataset has no depth: over the views that
+/// have the cameras' common look-at point ([`look_at_point`]) in their image, the smaller of
+/// the widest angle between their rays to it and the widest angle between their optical axes.
+/// An object-centric capture orbits that point (both wide); a forward-facing one looks one way
+/// (the axes' angle is small even where near-parallel axes put the least-squares point close to
+/// the cameras). `None` when no view sees the point.
+pub fn look_at_parallax(cameras: &[Camera]) -> Option<ParallaxStats> {
+    let x = look_at_point(cameras);
+    let seeing: Vec<&Camera> = cameras
+        .iter()
+        .filter(|c| {
+            let q = c.c2w.inverse().transform_point3(x);
+            let (z, k) = (-q.z, &c.intrinsics);
+            let (u, v) = (k.cx + k.fl_x * q.x / z, k.cy - k.fl_y * q.y / z);
+            z > 1e-9 && u >= 0.0 && v >= 0.0 && u < k.width as f64 && v < k.height as f64
+        })
+        .collect();
+    if seeing.is_empty() {
+        return None;
+    }
+    let rays: Vec<DVec3> = seeing.iter().map(|c| (x - c.origin()).normalize_or_zero()).collect();
+    let axes: Vec<DVec3> = seeing.iter().map(|c| -c.c2w.z_axis.truncate().normalize_or_zero()).collect();
+    parallax_stats(vec![widest_angle(&rays).min(widest_angle(&axes))], "the cameras' common look-at point and optical axes (no depth)")
 }
 
 /// A visual hull's bounding box.
@@ -931,11 +1081,12 @@ pub fn resolve(config: &mut TrainConfig, ds: &Dataset, train: &TrainData) -> Res
     let min_side = (0..3).map(|k| (bounds.aabb_max[k] - bounds.aabb_min[k]) as f64).fold(f64::INFINITY, f64::min);
     let fp = smallest_footprint(&cameras, bounds.aabb_min, bounds.aabb_max, bounds.near as f64)
         .ok_or_else(|| "auto: the dataset has no train views".to_string())?;
+    let depths = train_depths(ds, config.downscale)?;
+    let depth_views: Option<Vec<(&Camera, &[f32])>> = depths.as_ref().map(|d| cameras.iter().zip(d).map(|(c, d)| (c, d.as_slice())).collect());
     let surface = match auto.surface_cells_per_entry {
-        Some(k) if k > 0.0 => train_depths(ds, config.downscale)?.map(|depths| {
-            let views: Vec<(&Camera, &[f32])> = cameras.iter().zip(&depths).map(|(c, d)| (c, d.as_slice())).collect();
+        Some(k) if k > 0.0 => depth_views.as_ref().map(|views| {
             let lo = DVec3::from_array(bounds.cube().0.map(f64::from));
-            surface_cells(&views, lo, cube_side, SURFACE_COUNT_RESOLUTION)
+            surface_cells(views, lo, cube_side, SURFACE_COUNT_RESOLUTION)
         }),
         _ => None,
     };
@@ -951,8 +1102,7 @@ pub fn resolve(config: &mut TrainConfig, ds: &Dataset, train: &TrainData) -> Res
     let (vd, r) = match &ds.facts {
         Some(f) => view_dependence_from_facts(f),
         None => {
-            let gts = train_depths(ds, config.downscale)?;
-            let stats = gts.as_ref().and_then(|depths| {
+            let stats = depths.as_ref().and_then(|depths| {
                 let views: Vec<SpreadView<'_>> = train
                     .views
                     .iter()
@@ -978,18 +1128,31 @@ pub fn resolve(config: &mut TrainConfig, ds: &Dataset, train: &TrainData) -> Res
         reasons.push(r);
     }
 
-    // Distortion loss (the train views' alpha is read only when the settings allow it).
-    let share = auto.distortion_weight.filter(|w| *w > 0.0).map_or(0.0, |_| {
-        let alphas = train_alphas(train);
-        let views: Vec<(usize, usize, &[f32])> = train
-            .views
-            .iter()
-            .zip(&alphas)
-            .map(|(v, a)| (v.camera.intrinsics.width as usize, v.camera.intrinsics.height as usize, a.as_slice()))
-            .collect();
-        translucent_share(&views)
-    });
-    let (dw, r) = distortion_rule(share, auto.distortion_weight, auto.max_translucent_share.unwrap_or(0.005));
+    // Distortion loss (translucency and parallax are measured only when the settings allow it).
+    let (share, parallax) = match auto.distortion_weight.filter(|w| *w > 0.0) {
+        None => (0.0, None),
+        Some(_) => {
+            let alphas = train_alphas(train);
+            let views: Vec<(usize, usize, &[f32])> = train
+                .views
+                .iter()
+                .zip(&alphas)
+                .map(|(v, a)| (v.camera.intrinsics.width as usize, v.camera.intrinsics.height as usize, a.as_slice()))
+                .collect();
+            let parallax = depth_views
+                .as_ref()
+                .and_then(|views| surface_parallax(views, auto.parallax_points.unwrap_or(512), config.seed))
+                .or_else(|| look_at_parallax(&cameras));
+            (translucent_share(&views), parallax)
+        }
+    };
+    let (dw, r) = distortion_rule(
+        share,
+        parallax.as_ref(),
+        auto.distortion_weight,
+        auto.max_translucent_share.unwrap_or(0.005),
+        auto.min_parallax_deg.unwrap_or(0.0),
+    );
     fast.distortion_weight = dw;
     reasons.push(r);
 
@@ -1055,7 +1218,8 @@ mod tests {
         }
         let share = translucent_share(&[(w, h, &opaque)]);
         assert_eq!(share, 0.0, "rims and wires are not translucent");
-        let (on, reason) = distortion_rule(share, Some(0.01), 0.005);
+        let orbit = ParallaxStats { points: 100, low_deg: 120.0, median_deg: 150.0, source: "test" };
+        let (on, reason) = distortion_rule(share, Some(&orbit), Some(0.01), 0.005, 45.0);
         assert_eq!(on, Some(0.01));
         assert!(reason.contains("opaque surfaces only"), "{reason}");
         // No alpha at all (every pixel 1): opaque.
@@ -1070,10 +1234,56 @@ mod tests {
         let share = translucent_share(&[(w, h, &glass)]);
         let covered = glass.iter().filter(|a| **a > ALPHA_EDGE).count();
         assert!((share - 64.0 / covered as f64).abs() < 1e-12, "{share}");
-        let (off, reason) = distortion_rule(share, Some(0.01), 0.005);
+        let (off, reason) = distortion_rule(share, Some(&orbit), Some(0.01), 0.005, 45.0);
         assert_eq!(off, None, "{reason}");
         assert!(reason.contains("translucent"), "{reason}");
-        assert_eq!(distortion_rule(0.0, None, 0.005).0, None, "switched off in the settings");
+        assert_eq!(distortion_rule(0.0, Some(&orbit), None, 0.005, 45.0).0, None, "switched off in the settings");
+        // Opaque, but a forward-facing capture: the worst-seen surface at 8°.
+        let forward = ParallaxStats { points: 100, low_deg: 8.0, median_deg: 10.0, source: "test" };
+        let (off, reason) = distortion_rule(0.0, Some(&forward), Some(0.01), 0.005, 45.0);
+        assert_eq!(off, None, "{reason}");
+        assert!(reason.contains("8.0°") && reason.contains("7.1 pixel footprints"), "{reason}");
+        // Nothing measured: off.
+        assert_eq!(distortion_rule(0.0, None, Some(0.01), 0.005, 45.0).0, None);
+    }
+
+    #[test]
+    fn parallax_of_an_orbit_and_of_a_forward_facing_capture() {
+        // The widest angle of a set of directions.
+        let d = |deg: f64| DVec3::new(deg.to_radians().cos(), deg.to_radians().sin(), 0.0);
+        assert!((widest_angle(&[d(0.0), d(30.0), d(100.0)]) - 100.0).abs() < 1e-9);
+        assert_eq!(widest_angle(&[d(10.0)]), 0.0);
+        let (c, r) = (DVec3::new(0.1, 0.0, -0.2), 0.8);
+        let measure = |cams: &[Camera]| {
+            let imgs = render_sphere(cams, c, r, &|_, _| [1.0; 3]);
+            let views: Vec<(&Camera, &[f32])> = cams.iter().zip(&imgs).map(|(cam, (_, d))| (cam, d.as_slice())).collect();
+            surface_parallax(&views, 300, 0).unwrap()
+        };
+        // An orbit of 12 views: every visible point is seen from widely separated directions.
+        let orbit = ring(c, 3.0, 12, 32);
+        let p = measure(&orbit);
+        assert!(p.points == 300 && p.low_deg > 60.0 && p.median_deg > 90.0, "{p:?}");
+        assert!(distortion_rule(0.0, Some(&p), Some(0.01), 0.005, 45.0).0.is_some());
+        assert!(look_at_parallax(&orbit).unwrap().low_deg > 90.0);
+        // Nine parallel views from a 0.6 m square 5 m in front of the sphere: no two rays to a
+        // point are further apart than the square's diagonal seen from the nearest point,
+        // 2 atan(0.3 √2 / (5 − 0.8)) ≈ 11.5°; and the farthest pair of views sees most points
+        // at more than 6°.
+        let forward: Vec<Camera> = (0..9)
+            .map(|k| {
+                let o = DVec3::new(0.3 * (k % 3) as f64 - 0.3, 0.3 * (k / 3) as f64 - 0.3, 0.0) + c;
+                cam(o + DVec3::Z * 5.0, o, 48, 0.6911)
+            })
+            .collect();
+        let p = measure(&forward);
+        let bound = 2.0 * (0.3 * 2f64.sqrt() / 4.2).atan().to_degrees();
+        assert!(p.low_deg < bound && p.median_deg < bound && p.median_deg > 6.0, "{p:?} (bound {bound})");
+        assert!(distortion_rule(0.0, Some(&p), Some(0.01), 0.005, 45.0).0.is_none());
+        // Without depth: parallel optical axes give 0°, whatever the least-squares point.
+        assert!(look_at_parallax(&forward).is_none_or(|p| p.low_deg < 1e-6));
+        // No pixel with depth: nothing measured.
+        let empty = vec![0.0f32; 48 * 48];
+        assert!(surface_parallax(&[(&forward[0], &empty)], 10, 0).is_none());
     }
 
     fn cam(eye: DVec3, target: DVec3, size: u32, fov: f64) -> Camera {
