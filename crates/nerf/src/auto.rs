@@ -143,8 +143,8 @@ pub struct AutoConfig {
     pub distortion_weight: Option<f32>,
     /// Least triangulation angle (degrees) of the worst-seen 5 % of the visible surface for the
     /// distortion loss ([`surface_parallax`], [`distortion_rule`]). 45°: depth is then fixed to
-    /// about one pixel footprint (1 / tan 45°). The standard scenes measure 4–8° (`deep`,
-    /// `cornell`: forward-facing) or 128–148° (`tabletop`, `materials`, `thin`: orbits).
+    /// about one pixel footprint (1 / tan 45°). The standard scenes measure 4.2° (`deep`) and
+    /// 8.0° (`cornell`), forward-facing, or 126–147° (`tabletop`, `materials`, `thin`), orbits.
     /// `None`: no parallax condition.
     #[config(default = "Some(45.0)")]
     pub min_parallax_deg: Option<f64>,
