@@ -603,10 +603,9 @@ pub fn view_dependence_from_facts(facts: &SceneFacts) -> (bool, String) {
     }
 }
 
-/// The pixel (row-major) through which `camera` (world-to-camera `w2c`) sees the world point
-/// `x`, when `x` is in front of it, inside its image and not occluded: its ground-truth z-depth
-/// there (`depth`, row-major) agrees with `x`'s within 1 %.
-fn sees(w2c: &glam::DMat4, camera: &Camera, depth: &[f32], x: DVec3) -> Option<usize> {
+/// The pixel (row-major) of `camera` (world-to-camera `w2c`) the world point `x` projects to,
+/// and its z-depth, when `x` is in front of the camera and inside its image.
+fn project(w2c: &glam::DMat4, camera: &Camera, x: DVec3) -> Option<(usize, f64)> {
     let c = w2c.transform_point3(x);
     let z = -c.z;
     if z <= 1e-9 {
@@ -617,7 +616,14 @@ fn sees(w2c: &glam::DMat4, camera: &Camera, depth: &[f32], x: DVec3) -> Option<u
     if !(qx >= 0.0 && qy >= 0.0 && qx < k.width as f64 && qy < k.height as f64) {
         return None;
     }
-    let q = qy as usize * k.width as usize + qx as usize;
+    Some((qy as usize * k.width as usize + qx as usize, z))
+}
+
+/// The pixel through which `camera` sees the world point `x` ([`project`]), when it is not
+/// occluded there: the ground-truth z-depth at that pixel (`depth`, row-major) agrees with
+/// `x`'s within 1 %.
+fn sees(w2c: &glam::DMat4, camera: &Camera, depth: &[f32], x: DVec3) -> Option<usize> {
+    let (q, z) = project(w2c, camera, x)?;
     (depth.get(q).is_some_and(|&d| (d as f64 - z).abs() <= 0.01 * z)).then_some(q)
 }
 
@@ -812,15 +818,7 @@ pub fn surface_parallax(views: &[(&Camera, &[f32])], max_points: usize, seed: u6
 /// the cameras). `None` when no view sees the point.
 pub fn look_at_parallax(cameras: &[Camera]) -> Option<ParallaxStats> {
     let x = look_at_point(cameras);
-    let seeing: Vec<&Camera> = cameras
-        .iter()
-        .filter(|c| {
-            let q = c.c2w.inverse().transform_point3(x);
-            let (z, k) = (-q.z, &c.intrinsics);
-            let (u, v) = (k.cx + k.fl_x * q.x / z, k.cy - k.fl_y * q.y / z);
-            z > 1e-9 && u >= 0.0 && v >= 0.0 && u < k.width as f64 && v < k.height as f64
-        })
-        .collect();
+    let seeing: Vec<&Camera> = cameras.iter().filter(|c| project(&c.c2w.inverse(), c, x).is_some()).collect();
     if seeing.is_empty() {
         return None;
     }
