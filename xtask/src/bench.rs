@@ -34,6 +34,13 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
 /// Repetitions per figure; the median is reported.
 const RENDER_RUNS: usize = 5;
 
+/// Timed renders per renderer, scene and sampler in the comparison with Mitsuba. The error
+/// of one render is heavy-tailed where caustics make fireflies, so its median over few renders
+/// is itself noisy: over 5 renders Mitsuba's `ldsampler` error on `tabletop` read 3.4e-4, over
+/// 15 it reads 5.5e-4 (its `multijitter`, 6.6e-4 and 6.4e-4). Both renderers get the same
+/// number of renders.
+const CMP_RUNS: usize = 15;
+
 /// Median of a non-empty list.
 fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
@@ -256,7 +263,7 @@ struct CmpRun {
 
 /// Renders our reference (`reference.npy`, RGB, two independent halves of [`CMP_REF_SPP`]; its
 /// noise, the mean squared half-difference / 4, goes to `reference_noise.json`) into the
-/// export folder and times [`RENDER_RUNS`] renders of `settings` against it.
+/// export folder and times [`CMP_RUNS`] renders of `settings` against it.
 fn compare_run(
     renderer: &pathtracer::render::Renderer,
     cam: &dataset::Camera,
@@ -281,7 +288,7 @@ fn compare_run(
     let mut times = Vec::new();
     let mut errors = Vec::new();
     let mut samples = 0;
-    for k in 0..RENDER_RUNS {
+    for k in 0..CMP_RUNS {
         let t = std::time::Instant::now();
         let out = renderer.render_view(cam, 10 + k as u32, settings);
         times.push(t.elapsed().as_secs_f64());
@@ -316,7 +323,7 @@ fn bench_render_mitsuba(ours: &[OursQuick]) -> anyhow::Result<()> {
         return Ok(());
     }
     let mut cmd = std::process::Command::new(&python);
-    cmd.arg(root.join("tests/mitsuba/bench.py"));
+    cmd.arg(root.join("tests/mitsuba/bench.py")).arg("--runs").arg(CMP_RUNS.to_string());
     for o in ours {
         cmd.arg("--export").arg(&o.export);
     }
@@ -334,7 +341,7 @@ fn bench_render_mitsuba(ours: &[OursQuick]) -> anyhow::Result<()> {
     println!(
         "vs Mitsuba 3: same camera (the quick rig's first train view) at {CMP_WIDTH} px wide, {CMP_SPP} spp, our max_bounces {} = \
          Mitsuba max_depth {} (Russian roulette from the third vertex on both: rr_depth 2), environment {:?} as an opaque \
-         background (both show it and the emitters the camera sees); medians of {RENDER_RUNS} timed renders (Mitsuba's after a first one for \
+         background (both show it and the emitters the camera sees); medians of {CMP_RUNS} timed renders (Mitsuba's after a first one for \
          JIT compilation; Mitsuba with its default `independent` sampler, with `ldsampler`, its counterpart of our padded \
          Owen-scrambled Sobol' sampler, and with `multijitter`). MSE = mean squared RGB error of one render against our {CMP_REF_SPP}-spp reference, less that \
          reference's own noise, over the pixels but the {}% where that noise is largest (a few unconverged highlight or caustic \
