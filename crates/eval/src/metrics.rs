@@ -386,7 +386,8 @@ pub fn mask_iou(pred_opacity: &[f32], gt_alpha: &[f32]) -> Result<f64, MetricErr
 
 /// Per-ray volume-rendering samples as ragged arrays (nerfacc's packed layout).
 ///
-/// Ray `r` owns samples `offsets[r]..offsets[r + 1]`; `t` are the sample midpoints as
+/// Ray `r` owns samples `offsets[r]..offsets[r + 1]`; `t` are the samples' positions (the
+/// interval midpoints, or better where the ray terminates on average within each interval) as
 /// **Euclidean distance along the unit ray direction** from the camera centre (convert
 /// first if the trainer's ray directions are not unit length), `w` their rendering weights
 /// `w_i = T_i (1 − exp(−σ_i δ_i))`. `pixel[r]` is the index `row * W + col` of the pixel
@@ -400,7 +401,7 @@ pub struct RaySamples<'a> {
     pub pixel: &'a [usize],
     /// Start of each ray's samples, plus the total sample count at the end.
     pub offsets: &'a [usize],
-    /// Sample midpoint distances along the ray.
+    /// Sample distances along the ray.
     pub t: &'a [f32],
     /// Sample rendering weights.
     pub w: &'a [f32],

@@ -17,7 +17,8 @@ use std::path::{Path, PathBuf};
 pub struct RaySamplesOut {
     /// Prefix offsets per pixel.
     pub offsets: Vec<u32>,
-    /// Sample midpoints: distance along the (unit-direction) ray.
+    /// Each sample's expected termination distance within its interval (the midpoint where the
+    /// density is low): distance along the (unit-direction) ray.
     pub t: Vec<f32>,
     /// Volume-rendering weights.
     pub w: Vec<f32>,

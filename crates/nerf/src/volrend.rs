@@ -16,13 +16,24 @@
 //! w_i       = T_i · alpha_i
 //! opacity   = Σ_i w_i
 //! colour    = Σ_i w_i c_i + T_N · background      (T_N = exp(−Σ_i x_i) = 1 − opacity)
-//! distance  = Σ_i w_i · (t_start_i + t_end_i) / 2  (NOT normalised by the opacity)
+//! s_i       = t_start_i + delta_i · (1/x_i − 1/(e^{x_i} − 1))
+//! distance  = Σ_i w_i · s_i                 (NOT normalised by the opacity)
 //! ```
 //!
-//! `distance` is the expected ray distance with the background counted as distance 0 (what the
-//! ground truth stores for a pixel that hits nothing); [`normalized_distance`] gives
-//! `distance / max(opacity, eps)` instead. The evaluation's z-depth is `distance` times the
-//! ray's z-factor (`dot(dir, camera −Z) / |dir|`), which the caller multiplies.
+//! `distance` is the expected distance at which the ray terminates, with the background
+//! counted as distance 0 (what the ground truth stores for a pixel that hits nothing);
+//! [`normalized_distance`] gives `distance / max(opacity, eps)` instead. The evaluation's
+//! z-depth is `distance` times the ray's z-factor (`dot(dir, camera −Z) / |dir|`), which the
+//! caller multiplies.
+//!
+//! `s_i` ([`termination_distance`]) is where the ray terminates on average given that it
+//! terminates in interval `i`, under the same piecewise-constant density that gives `alpha_i`:
+//! the mean of an exponential distribution of rate `sigma_i` truncated to the interval. It is
+//! the midpoint for a transparent interval (`x → 0`) and `t_start + 1/sigma` for an opaque one.
+//! The interval midpoint, which nerfacc and nerfstudio use, puts every opaque surface on
+//! average half a step behind the point where its density begins (the field is evaluated at
+//! midpoints, so a density rising at `z` is first seen by the interval whose midpoint lies
+//! in `[z, z + delta)`, which starts in `[z − delta/2, z + delta/2)`).
 //!
 //! # Worked example
 //! One ray with two samples, `sigma = [1, 2]`, intervals `[1, 1.5]` and `[1.5, 2]`, colours
@@ -33,7 +44,8 @@
 //! alpha   = [1 − e^−0.5, 1 − e^−1]   = [0.393469, 0.632121]
 //! T       = [1, e^−0.5]              = [1, 0.606531]
 //! w       = [0.393469, 0.383400]
-//! opacity = 0.776870,  colour = (0.393469, 0.383400, 0),  distance = 1.162788
+//! s       = [1 + 0.5 (2 − 1/(e^0.5 − 1)), 1.5 + 0.5 (1 − 1/(e − 1))] = [1.229253, 1.709012]
+//! opacity = 0.776870,  colour = (0.393469, 0.383400, 0),  distance = 1.138909
 //! ```
 //!
 //! # Robustness (defined behaviour for bad inputs)
@@ -113,7 +125,7 @@ pub struct CompositeGrads {
 
 /// `distance / max(opacity, eps)`: the expected distance given that the ray hit something.
 ///
-/// Example: `distance = 1.162788`, `opacity = 0.776870` → `1.496760`.
+/// Example: `distance = 1.138909`, `opacity = 0.776870` → `1.466023`.
 pub fn normalized_distance(distance: f32, opacity: f32, eps: f32) -> f32 {
     distance / opacity.max(eps)
 }
@@ -129,7 +141,7 @@ fn clean(v: f32) -> f32 {
     if v.is_nan() { 0.0 } else { v.clamp(-SIGMA_MAX, SIGMA_MAX) }
 }
 
-/// Per-sample quantities after sanitising: (optical thickness x, delta, t_mid, nan?).
+/// Per-sample quantities after sanitising: (optical thickness x, delta, t_start, nan?).
 #[inline]
 fn sample_terms(sigma: f32, t0: f32, t1: f32) -> (f32, f32, f32, bool) {
     let nan = sigma.is_nan() || t0.is_nan() || t1.is_nan();
@@ -137,7 +149,50 @@ fn sample_terms(sigma: f32, t0: f32, t1: f32) -> (f32, f32, f32, bool) {
     let d = t1 - t0;
     let d = if d > 0.0 { d.min(SIGMA_MAX) } else { 0.0 };
     let x = (clean_sigma(sigma) * d).min(SIGMA_MAX);
-    (x, d, 0.5 * t0 + 0.5 * t1, nan)
+    (x, d, t0, nan)
+}
+
+/// Below this optical thickness the termination fraction and its derivative use their Taylor
+/// series (the closed forms cancel catastrophically near 0); the series' first omitted terms
+/// are below 1e-10 here.
+const SERIES_BELOW: f32 = 0.5;
+
+/// `f(x) = 1/x − 1/(eˣ − 1)`: the mean of an exponential distribution of rate 1 truncated to
+/// `[0, x]`, divided by `x` (where in an interval of optical thickness `x` a ray that terminates
+/// in it does so on average, as a fraction of the interval). `f(0) = 1/2`, `f(x) → 1/x`.
+#[inline]
+fn termination_fraction(x: f32) -> f32 {
+    if x < SERIES_BELOW {
+        // 1/2 − x/12 + x³/720 − x⁵/30240 + x⁷/1209600 (Bernoulli numbers)
+        let x2 = x * x;
+        0.5 - x * (1.0 / 12.0 - x2 * (1.0 / 720.0 - x2 * (1.0 / 30240.0 - x2 / 1_209_600.0)))
+    } else {
+        1.0 / x - 1.0 / x.exp_m1()
+    }
+}
+
+/// `f'(x) = eˣ/(eˣ − 1)² − 1/x²` of [`termination_fraction`]; `f'(0) = −1/12`.
+#[inline]
+fn termination_fraction_dx(x: f32) -> f32 {
+    if x < SERIES_BELOW {
+        // −1/12 + x²/240 − x⁴/6048 + x⁶/172800
+        let x2 = x * x;
+        -1.0 / 12.0 + x2 * (1.0 / 240.0 - x2 * (1.0 / 6048.0 - x2 / 172_800.0))
+    } else {
+        let a = -(-x).exp_m1(); // 1 − e^−x ≥ 0.39
+        (-x).exp() / (a * a) - 1.0 / (x * x)
+    }
+}
+
+/// The expected distance at which a ray terminates given that it terminates in the interval
+/// `[t_start, t_end]` of constant density `sigma` (the `s_i` of the module doc): the midpoint
+/// for `sigma → 0`, `t_start + 1/sigma` for an opaque interval. Inputs are sanitised as in
+/// [`composite_forward`].
+///
+/// Example: `sigma = 2`, interval `[1.5, 2]` → `1.709012`.
+pub fn termination_distance(sigma: f32, t_start: f32, t_end: f32) -> f32 {
+    let (x, d, t0, _) = sample_terms(sigma, t_start, t_end);
+    t0 + d * termination_fraction(x)
 }
 
 #[inline]
@@ -239,7 +294,7 @@ pub fn composite_forward_with(
                     if trans < t_min {
                         break;
                     }
-                    let (x, _, t_mid, nan_t) = sample_terms(sigma[i], t_start[i], t_end[i]);
+                    let (x, d, t0, nan_t) = sample_terms(sigma[i], t_start[i], t_end[i]);
                     let (c, nan_c) = clean3(rgb[i]);
                     n_nan += usize::from(nan_t || nan_c);
                     let w = trans * -(-x).exp_m1();
@@ -248,7 +303,7 @@ pub fn composite_forward_with(
                         col[ch] += w * c[ch];
                     }
                     op += w;
-                    dist += w * t_mid;
+                    dist += w * (t0 + d * termination_fraction(x));
                     tau += x;
                 }
                 let (bg, nan_bg) = clean3(background[r]);
@@ -266,13 +321,16 @@ pub fn composite_forward_with(
 
 /// Exact gradients of a scalar loss `L` through [`composite_forward`].
 ///
-/// With `g_i = dL/dw_i = d_rgb·(c_i − background) + d_opacity + d_distance · t_mid_i`:
+/// With `g_i = dL/dw_i = d_rgb·(c_i − background) + d_opacity + d_distance · s_i`
+/// (`s_i = t_start_i + delta_i f(x_i)`, `f(x) = 1/x − 1/(eˣ − 1)`, see the module doc):
 ///
 /// ```text
-/// dL/dsigma_k     = delta_k · ( T_{k+1} g_k − Σ_{i>k} w_i g_i )     (T_{k+1} = T_k e^{−x_k})
+/// dL/dsigma_k     = delta_k · ( T_{k+1} g_k − Σ_{i>k} w_i g_i + d_distance · w_k delta_k f'(x_k) )
 /// dL/dc_k         = w_k · d_rgb
 /// dL/dbackground  = T_N · d_rgb
 /// ```
+///
+/// (`T_{k+1} = T_k e^{−x_k}`; the last term of `dL/dsigma_k` is `s_k`'s own dependence on `x_k`.)
 ///
 /// The suffix sum is accumulated in reverse, O(n) per ray. `out` must come from
 /// [`composite_forward`] on the same inputs (its `weights` are reused); after an early-stopped
@@ -361,17 +419,18 @@ pub fn composite_backward_with_weights(
                 *dbg = dc.map(|v| t_final * v);
                 let mut suffix = 0.0f32; // Σ_{i>k} w_i g_i
                 for i in (s0..s1).rev() {
-                    let (_, d, t_mid, _) = sample_terms(sigma[i], t_start[i], t_end[i]);
+                    let (x, d, t0, _) = sample_terms(sigma[i], t_start[i], t_end[i]);
                     let (c, _) = clean3(rgb[i]);
                     let w = out.weights[i];
                     let g = dc[0] * (c[0] - bg[0])
                         + dc[1] * (c[1] - bg[1])
                         + dc[2] * (c[2] - bg[2])
                         + dop
-                        + ddist * t_mid
+                        + ddist * (t0 + d * termination_fraction(x))
                         + d_weights.map_or(0.0, |dw| clean(dw[i]));
                     let t_next = (-tau_incl[i - s0]).exp();
-                    let dx = t_next * g - suffix;
+                    // the last term: s_k itself moves with x_k
+                    let dx = t_next * g - suffix + ddist * w * d * termination_fraction_dx(x);
                     // NaN / negative densities were replaced by the constant 0: no gradient
                     let valid = sigma[i] >= 0.0;
                     ds_blk[i - base] = if valid { d * dx } else { 0.0 };
@@ -548,7 +607,10 @@ mod tests {
                     col[ch] += w * rgb[i][ch];
                 }
                 op += w;
-                dist += w * 0.5 * (b.t0[i] as f64 + b.t1[i] as f64);
+                // ∫_0^d σ e^{−σu} (t0 + u) du, written out (not through the f32 kernel's f)
+                let s = sigma[i].max(0.0);
+                let local = if s > 0.0 { b.t0[i] as f64 * (1.0 - (-x).exp()) + (1.0 - (-x).exp() * (1.0 + x)) / s } else { 0.0 };
+                dist += (-tau).exp() * local;
                 tau += x;
             }
             r.rgb.push([0, 1, 2].map(|ch| col[ch] + (1.0 - op) * bg[ray][ch]));
@@ -601,11 +663,49 @@ mod tests {
         close(out.opacity[0], 0.776870);
         close(out.rgb[0][0], 0.393469);
         close(out.rgb[0][1], 0.383400);
-        close(out.distance[0], 1.162788);
-        close(normalized_distance(out.distance[0], out.opacity[0], 1e-6), 1.496_76);
+        close(out.distance[0], 1.138909);
+        close(normalized_distance(out.distance[0], out.opacity[0], 1e-6), 1.466_023);
+        close(termination_distance(2.0, 1.5, 2.0), 1.709012);
         let g = composite_backward(&[0, 2], &[1.0, 2.0], &[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], &[1.0, 1.5], &[1.5, 2.0], &[[0.0; 3]], &out, &[[0.0; 3]], &[1.0], &[0.0]);
         close(g.d_sigma[0], 0.111565);
         close(g.d_sigma[1], 0.111565);
+    }
+
+    /// The expected termination distance within one interval against a midpoint-rule
+    /// integration of `t σ e^{−σ(t − t0)}` in f64, over thicknesses from transparent to opaque,
+    /// on both sides of the series/closed-form switch; the derivative against f64 differences.
+    #[test]
+    fn termination_distance_matches_integration() {
+        let integrate = |sigma: f64, t0: f64, t1: f64| {
+            let n = 200_000;
+            let h = (t1 - t0) / n as f64;
+            let (mut num, mut den) = (0.0, 0.0);
+            for k in 0..n {
+                let t = t0 + (k as f64 + 0.5) * h;
+                let p = sigma * (-sigma * (t - t0)).exp();
+                num += t * p;
+                den += p;
+            }
+            num / den
+        };
+        for &x in &[1e-6f64, 1e-3, 0.1, 0.4999, 0.5, 0.5001, 1.0, 3.0, 10.0, 40.0] {
+            let (t0, t1) = (2.0f64, 2.25f64);
+            let sigma = x / (t1 - t0);
+            let got = termination_distance(sigma as f32, t0 as f32, t1 as f32) as f64;
+            let want = integrate(sigma, t0, t1);
+            assert!((got - want).abs() < 2e-6, "x {x}: {got} vs {want}");
+            // f' against a central difference of the f64 closed form
+            let f64f = |x: f64| 1.0 / x - 1.0 / x.exp_m1();
+            let h = 1e-4 * x.max(1e-2);
+            let fd = if x > 1e-2 { (f64f(x + h) - f64f(x - h)) / (2.0 * h) } else { -1.0 / 12.0 + x * x / 240.0 };
+            let d = termination_fraction_dx(x as f32) as f64;
+            assert!((d - fd).abs() < 1e-5 * (1.0 + fd.abs()), "f'({x}): {d} vs {fd}");
+        }
+        // limits: transparent → midpoint, opaque → t_start + 1/σ, infinite → t_start
+        assert_eq!(termination_distance(0.0, 1.0, 2.0), 1.5);
+        assert!((termination_distance(1e4, 1.0, 2.0) - 1.0001).abs() < 1e-6);
+        assert_eq!(termination_distance(f32::INFINITY, 1.0, 2.0), 1.0);
+        assert_eq!(termination_distance(f32::NAN, 1.0, 2.0), 1.5);
     }
 
     #[test]

@@ -465,7 +465,7 @@ impl FastModel {
         for r in 0..rays {
             for s in samples.offsets[r] as usize..samples.offsets[r + 1] as usize {
                 if evaluated[s] {
-                    out.t.push(0.5 * samples.t_start[s] + 0.5 * samples.t_end[s]);
+                    out.t.push(volrend::termination_distance(sigma[s], samples.t_start[s], samples.t_end[s]));
                     out.w.push(comp.weights[s]);
                 }
             }

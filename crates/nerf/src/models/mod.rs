@@ -95,11 +95,12 @@ pub struct RayOutputs {
     pub rgb: Vec<[f32; 3]>,
     /// Opacity Σw.
     pub opacity: Vec<f32>,
-    /// Expected distance Σwt / Σw (0 where opacity is 0).
+    /// Expected termination distance Σwt / Σw (0 where opacity is 0).
     pub distance: Vec<f32>,
-    /// Samples per ray: offsets (rays + 1), midpoints and weights.
+    /// Samples per ray: offsets (rays + 1), distances and weights.
     pub offsets: Vec<u32>,
-    /// Sample midpoints.
+    /// Each sample's expected termination distance within its interval
+    /// ([`crate::volrend::termination_distance`]: the midpoint where the density is low).
     pub t: Vec<f32>,
     /// Sample weights.
     pub w: Vec<f32>,

@@ -225,7 +225,8 @@ impl PaperModel {
         let rgb = ops::rgb3(&to_vec(rgb));
         let comp = volrend::composite_forward(&fine.offsets, &sig, &rgb, &fine.t_start, &fine.t_end, &bg);
         let distance = comp.distance.iter().zip(&comp.opacity).map(|(d, o)| expected_distance(*d, *o)).collect();
-        RayOutputs { rgb: comp.rgb, opacity: comp.opacity, distance, t: fine.t_mid(), offsets: fine.offsets, w: comp.weights }
+        let t = sig.iter().zip(fine.t_start.iter().zip(&fine.t_end)).map(|(s, (a, b))| volrend::termination_distance(*s, *a, *b)).collect();
+        RayOutputs { rgb: comp.rgb, opacity: comp.opacity, distance, t, offsets: fine.offsets, w: comp.weights }
     }
 
     /// Trainable parameters (coarse + fine).
