@@ -156,11 +156,15 @@ pub struct AutoConfig {
     /// covered pixels for which the scene counts as opaque.
     #[config(default = "Some(0.005)")]
     pub max_translucent_share: Option<f64>,
+    /// When the distortion loss is on, rays through mixed pixels get none
+    /// ([`crate::data::mixed_pixels`]: partial alpha, or a 3 × 3 depth range over this many
+    /// pixel footprints; [`crate::models::fast::FastConfig::distortion_mixed_footprints`]).
+    /// `None` (and configs written before this option): every ray gets the loss.
+    #[config(default = "Some(16.0)")]
+    pub mixed_pixel_footprints: Option<f64>,
 }
 
-/// Alpha below which a pixel is background and above which it is fully covered, for
-/// [`translucent_share`].
-const ALPHA_EDGE: f32 = 0.02;
+use crate::data::ALPHA_EDGE;
 
 /// The share of translucent pixels among the covered ones (alpha > 0.02) of the train views
 /// (`(width, height, alpha)` each): a pixel with partial alpha (0.02 < α < 0.98) whose eight
@@ -1055,7 +1059,7 @@ pub fn resolve(config: &mut TrainConfig, ds: &Dataset, train: &TrainData) -> Res
             b
         }
         (None, None) => {
-            let alphas = train_alphas(train);
+            let alphas = train.alphas();
             let refs: Vec<&[f32]> = alphas.iter().map(Vec::as_slice).collect();
             let hull = visual_hull(&cameras, &refs, auto.hull_grid, auto.mask_threshold)?;
             let b = bounds_from_hull(&hull, &cameras, config.bounds_padding);
@@ -1079,7 +1083,7 @@ pub fn resolve(config: &mut TrainConfig, ds: &Dataset, train: &TrainData) -> Res
     let min_side = (0..3).map(|k| (bounds.aabb_max[k] - bounds.aabb_min[k]) as f64).fold(f64::INFINITY, f64::min);
     let fp = smallest_footprint(&cameras, bounds.aabb_min, bounds.aabb_max, bounds.near as f64)
         .ok_or_else(|| "auto: the dataset has no train views".to_string())?;
-    let depths = train_depths(ds, config.downscale)?;
+    let depths = crate::data::frame_depths(&ds.train, config.downscale).map_err(|e| e.to_string())?;
     let depth_views: Option<Vec<(&Camera, &[f32])>> = depths.as_ref().map(|d| cameras.iter().zip(d).map(|(c, d)| (c, d.as_slice())).collect());
     let surface = match auto.surface_cells_per_entry {
         Some(k) if k > 0.0 => depth_views.as_ref().map(|views| {
@@ -1130,7 +1134,7 @@ pub fn resolve(config: &mut TrainConfig, ds: &Dataset, train: &TrainData) -> Res
     let (share, parallax) = match auto.distortion_weight.filter(|w| *w > 0.0) {
         None => (0.0, None),
         Some(_) => {
-            let alphas = train_alphas(train);
+            let alphas = train.alphas();
             let views: Vec<(usize, usize, &[f32])> = train
                 .views
                 .iter()
@@ -1153,6 +1157,13 @@ pub fn resolve(config: &mut TrainConfig, ds: &Dataset, train: &TrainData) -> Res
     );
     fast.distortion_weight = dw;
     reasons.push(r);
+    if dw.is_some()
+        && let Some(k) = auto.mixed_pixel_footprints.filter(|k| *k > 0.0)
+    {
+        let masks = train.mixed_masks(depths.as_deref(), k);
+        fast.distortion_mixed_footprints = Some(k as f32);
+        reasons.push(mixed_reason(crate::data::mixed_share(&train.alphas(), &masks), k, depths.is_some()));
+    }
 
     // Stopping.
     let interval = config.time_budget_s.map_or(30.0, |t| t * auto.val_interval_fraction);
@@ -1175,25 +1186,13 @@ pub fn resolve(config: &mut TrainConfig, ds: &Dataset, train: &TrainData) -> Res
     Ok(())
 }
 
-/// Every train view's alpha channel (the visual hull's masks, the translucency test's input).
-fn train_alphas(train: &TrainData) -> Vec<Vec<f32>> {
-    train.views.iter().map(|v| v.rgba.iter().map(|p| p[3]).collect()).collect()
-}
-
-/// Ground-truth z-depth of every train view at `downscale` (nearest pixel), when every view has
-/// it.
-fn train_depths(ds: &Dataset, downscale: u32) -> Result<Option<Vec<Vec<f32>>>, String> {
-    if ds.train.is_empty() || ds.train.iter().any(|f| f.gt_path.is_none()) {
-        return Ok(None);
-    }
-    let mut out = Vec::with_capacity(ds.train.len());
-    for f in &ds.train {
-        match crate::data::ViewPixels::load_ground_truth(f, downscale).map_err(|e| e.to_string())? {
-            Some((depth, _)) => out.push(depth),
-            None => return Ok(None),
-        }
-    }
-    Ok(Some(out))
+/// The reason line of the distortion loss's mixed-pixel exemption.
+fn mixed_reason(share: f64, footprints: f64, with_depth: bool) -> String {
+    format!(
+        "distortion_mixed_footprints = {footprints}: {:.1} % of covered train pixels are mixed (partial alpha{}), so their rays get no distortion loss: each blends surfaces at different depths, which its one centre ray reproduces only with its weight split between them",
+        100.0 * share,
+        if with_depth { format!(", or surfaces in the 3 × 3 neighbourhood more than {footprints} pixel footprints apart in ground-truth depth") } else { "; no ground-truth depth, so depth edges inside the masks are not found".to_string() }
+    )
 }
 
 #[cfg(test)]

@@ -157,6 +157,87 @@ pub struct RayBatch {
     pub background: Vec<[f32; 3]>,
     /// A global id per ray (view · 2³² + pixel) that keys per-ray random numbers.
     pub ids: Vec<u64>,
+    /// Whether each ray's pixel is a mixed pixel ([`mixed_pixels`]); empty when the data
+    /// carries no such masks (then no ray counts as mixed).
+    pub mixed: Vec<bool>,
+}
+
+/// Alpha below which a pixel is background and above which it is fully covered (the
+/// translucency test of `auto` and [`mixed_pixels`]).
+pub const ALPHA_EDGE: f32 = 0.02;
+
+/// Which pixels are *mixed*: their footprint straddles more than one surface, so their colour
+/// (the average over the pixel's area) is a blend that the single ray through the pixel centre
+/// can reproduce only with its weight split between depths. A pixel is mixed when
+/// - its alpha is partial (`ALPHA_EDGE < α < 1 − ALPHA_EDGE`): a silhouette against the
+///   background or a sub-pixel structure crosses it; or
+/// - with z-depth (`depth`, 0 or non-finite where the centre ray hits nothing), it hits a
+///   surface and the depths of the surfaces hit in its 3 × 3 neighbourhood span more than
+///   `footprints` pixel footprints at its own depth (footprint = z / `focal`, `focal` in
+///   pixels): a depth discontinuity crosses it or a neighbour. A plane seen at incidence θ spans
+///   2 tan θ footprints over the neighbourhood, so 16 flags planes steeper than 83°, and every
+///   occlusion edge.
+///
+/// `alpha` and `depth` are row-major `width × height` (a slice of another length gives no
+/// mixed pixels from it).
+pub fn mixed_pixels(width: usize, height: usize, alpha: &[f32], depth: Option<&[f32]>, focal: f64, footprints: f64) -> Vec<bool> {
+    let n = width * height;
+    let mut mixed: Vec<bool> = if alpha.len() == n { alpha.iter().map(|&a| a > ALPHA_EDGE && a < 1.0 - ALPHA_EDGE).collect() } else { vec![false; n] };
+    let Some(depth) = depth.filter(|d| d.len() == n) else { return mixed };
+    let hit = |z: f32| z.is_finite() && z > 0.0;
+    let per_footprint = footprints / focal.max(1e-12);
+    for j in 0..height {
+        for i in 0..width {
+            let z = depth[j * width + i];
+            if !hit(z) || mixed[j * width + i] {
+                continue;
+            }
+            let (mut lo, mut hi) = (z, z);
+            for y in j.saturating_sub(1)..(j + 2).min(height) {
+                for x in i.saturating_sub(1)..(i + 2).min(width) {
+                    let q = depth[y * width + x];
+                    if hit(q) {
+                        lo = lo.min(q);
+                        hi = hi.max(q);
+                    }
+                }
+            }
+            if (hi - lo) as f64 > per_footprint * z as f64 {
+                mixed[j * width + i] = true;
+            }
+        }
+    }
+    mixed
+}
+
+/// The share of mixed pixels ([`mixed_pixels`]) among the covered ones (alpha > `ALPHA_EDGE`).
+pub fn mixed_share(alphas: &[Vec<f32>], masks: &[Vec<bool>]) -> f64 {
+    let (mut covered, mut mixed) = (0usize, 0usize);
+    for (a, m) in alphas.iter().zip(masks) {
+        for (a, m) in a.iter().zip(m) {
+            if *a > ALPHA_EDGE {
+                covered += 1;
+                mixed += *m as usize;
+            }
+        }
+    }
+    if covered == 0 { 0.0 } else { mixed as f64 / covered as f64 }
+}
+
+/// Ground-truth z-depth of every frame at `downscale` (nearest pixel, see [`ViewPixels::gt`]),
+/// when every frame has it.
+pub fn frame_depths(frames: &[Frame], downscale: u32) -> Result<Option<Vec<Vec<f32>>>, DataError> {
+    if frames.is_empty() || frames.iter().any(|f| f.gt_path.is_none()) {
+        return Ok(None);
+    }
+    let mut out = Vec::with_capacity(frames.len());
+    for f in frames {
+        match ViewPixels::load_ground_truth(f, downscale)? {
+            Some((depth, _)) => out.push(depth),
+            None => return Ok(None),
+        }
+    }
+    Ok(Some(out))
 }
 
 /// The training views of a dataset.
@@ -167,6 +248,8 @@ pub struct TrainData {
     /// Background handling.
     pub background: Background,
     cumulative: Vec<usize>,
+    /// Per view, which pixels are mixed ([`Self::set_mixed`]); empty: none known.
+    mixed: Vec<Vec<bool>>,
 }
 
 impl TrainData {
@@ -180,7 +263,37 @@ impl TrainData {
         for v in &views {
             cumulative.push(cumulative.last().copied().unwrap_or(0) + v.pixels());
         }
-        Ok(Self { views, background, cumulative })
+        Ok(Self { views, background, cumulative, mixed: Vec::new() })
+    }
+
+    /// Every view's alpha channel.
+    pub fn alphas(&self) -> Vec<Vec<f32>> {
+        self.views.iter().map(|v| v.rgba.iter().map(|p| p[3]).collect()).collect()
+    }
+
+    /// Per view, its mixed pixels ([`mixed_pixels`]) from its alpha and, when given (one per
+    /// view), its z-depth.
+    pub fn mixed_masks(&self, depths: Option<&[Vec<f32>]>, footprints: f64) -> Vec<Vec<bool>> {
+        let depths = depths.filter(|d| d.len() == self.views.len());
+        self.views
+            .iter()
+            .enumerate()
+            .map(|(k, v)| {
+                let alpha: Vec<f32> = v.rgba.iter().map(|p| p[3]).collect();
+                let i = &v.camera.intrinsics;
+                mixed_pixels(i.width as usize, i.height as usize, &alpha, depths.map(|d| d[k].as_slice()), i.fl_x, footprints)
+            })
+            .collect()
+    }
+
+    /// Marks mixed pixels (one mask per view, each of the view's size), which batches then
+    /// report per ray ([`RayBatch::mixed`]).
+    pub fn set_mixed(&mut self, masks: Vec<Vec<bool>>) -> Result<(), DataError> {
+        if masks.len() != self.views.len() || masks.iter().zip(&self.views).any(|(m, v)| m.len() != v.pixels()) {
+            return Err(DataError::Invalid("mixed-pixel masks do not match the train views".into()));
+        }
+        self.mixed = masks;
+        Ok(())
     }
 
     /// Total pixels over all views.
@@ -213,6 +326,9 @@ impl TrainData {
             b.target.push(self.views[v].color(p, bg));
             b.background.push(bg);
             b.ids.push(((v as u64) << 32) | p as u64);
+            if !self.mixed.is_empty() {
+                b.mixed.push(self.mixed[v][p]);
+            }
         }
         b
     }
@@ -450,5 +566,71 @@ pub mod synthetic {
             }
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Z-depth of a `w × h` pinhole view (focal `f` pixels, centred) of the plane through
+    /// (0, 0, −d) whose normal leans `tilt` radians from the optical axis towards +x.
+    fn tilted_plane(w: usize, h: usize, f: f64, d: f64, tilt: f64) -> Vec<f32> {
+        let (s, c) = tilt.sin_cos();
+        let mut z = vec![0.0; w * h];
+        for j in 0..h {
+            for i in 0..w {
+                // Ray (x, y, −1)·t meets n·p = −d c with n = (s, 0, c): t (s x − c) = −d c.
+                let x = (i as f64 + 0.5 - w as f64 / 2.0) / f;
+                z[j * w + i] = (d * c / (c - s * x)) as f32;
+            }
+        }
+        z
+    }
+
+    #[test]
+    fn mixed_pixels_are_depth_edges_and_partial_alpha_but_not_steep_planes() {
+        let (w, h, f) = (32, 16, 80.0);
+        let opaque = vec![1.0f32; w * h];
+        // A plane at 60° incidence: neighbouring depths differ by tan 60° · z / d footprints,
+        // z / d from 0.75 to 1.5 across this view, so a neighbourhood spans 2.6 to 5.2
+        // footprints: no mixed pixel at 16 footprints; at 2 every interior pixel is.
+        let plane = tilted_plane(w, h, f, 2.0, 60f64.to_radians());
+        assert!(plane.iter().all(|z| *z > 1.45 && *z < 3.05));
+        assert!(!mixed_pixels(w, h, &opaque, Some(&plane), f, 16.0).iter().any(|m| *m));
+        let interior = |m: &[bool]| (1..h - 1).all(|j| (1..w - 1).all(|i| m[j * w + i]));
+        assert!(interior(&mixed_pixels(w, h, &opaque, Some(&plane), f, 2.0)));
+        assert!(!mixed_pixels(w, h, &opaque, Some(&plane), f, 6.0).iter().any(|m| *m));
+
+        // A one-pixel vertical wire at depth 1 in front of a wall at depth 2: the wire's
+        // column and its two neighbours are mixed, nothing else.
+        let mut wall = vec![2.0f32; w * h];
+        for j in 0..h {
+            wall[j * w + 10] = 1.0;
+        }
+        let m = mixed_pixels(w, h, &opaque, Some(&wall), f, 16.0);
+        for j in 0..h {
+            for i in 0..w {
+                assert_eq!(m[j * w + i], (9..=11).contains(&i), "pixel ({i}, {j})");
+            }
+        }
+        // The same wall with a miss (depth 0) or NaN next to it: misses are not surfaces.
+        let mut holes = vec![2.0f32; w * h];
+        holes[5] = 0.0;
+        holes[w + 20] = f32::NAN;
+        assert!(!mixed_pixels(w, h, &opaque, Some(&holes), f, 16.0).iter().any(|m| *m));
+
+        // Without depth, partial alpha alone: a silhouette pixel is mixed, covered and empty
+        // ones are not.
+        let mut alpha = vec![0.0f32; w * h];
+        alpha[3] = 0.5;
+        alpha[4] = 1.0;
+        alpha[5] = 0.99;
+        alpha[6] = 0.01;
+        let m = mixed_pixels(w, h, &alpha, None, f, 16.0);
+        assert_eq!(m.iter().enumerate().filter(|(_, m)| **m).map(|(k, _)| k).collect::<Vec<_>>(), vec![3]);
+        assert!((mixed_share(&[alpha], &[m]) - 1.0 / 3.0).abs() < 1e-12, "3 covered pixels, 1 mixed");
+        // Slices of the wrong length add nothing and do not panic.
+        assert!(!mixed_pixels(w, h, &[0.5; 3], Some(&[1.0; 3]), f, 16.0).iter().any(|m| *m));
     }
 }

@@ -387,8 +387,14 @@ impl Trainer {
         config.check().map_err(TrainError::Invalid)?;
         let ds = crate::data::load_dataset(&config.dataset)?;
         config.check_image_sizes(&ds).map_err(TrainError::Invalid)?;
-        let data = TrainData::load(&ds.train, config.downscale, config.background, false)?;
+        let mut data = TrainData::load(&ds.train, config.downscale, config.background, false)?;
         crate::auto::resolve(&mut config, &ds, &data).map_err(TrainError::Invalid)?;
+        if let ModelConfig::Fast(f) = &config.model
+            && let (Some(_), Some(k)) = (f.distortion_weight.filter(|w| *w > 0.0), f.distortion_mixed_footprints)
+        {
+            let depths = crate::data::frame_depths(&ds.train, config.downscale)?;
+            data.set_mixed(data.mixed_masks(depths.as_deref(), k as f64))?;
+        }
         if config.bounds.is_none() {
             let cams: Vec<_> = ds.train.iter().map(|f| f.camera).collect();
             config.bounds = Some(SceneBounds::for_dataset(

@@ -72,3 +72,50 @@ fn fast_training_is_bit_identical_across_thread_counts() {
     }
     assert_eq!(a.scalars, b.scalars);
 }
+
+/// The distortion loss leaves mixed pixels' rays alone (`RayBatch::mixed`): four steps on
+/// batches whose rays are all marked mixed end in the same parameters with the loss on
+/// (λ = 0.5) as with it off; with no ray marked, the loss changes them.
+#[test]
+fn distortion_loss_skips_mixed_pixels() {
+    use nerf::data::{Background, SceneBounds, TrainData};
+    use nerf::models::fast::FastModel;
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    nerf::data::synthetic::write(&data, 32, [6, 1, 1], false).unwrap();
+    let ds = nerf::data::load_dataset(&data).unwrap();
+    let train = TrainData::load(&ds.train, 1, Background::White, false).unwrap();
+    let cams: Vec<_> = ds.train.iter().map(|f| f.camera).collect();
+    let bounds = SceneBounds::for_dataset(ds.facts.as_ref(), &cams, 0.05, 1.5);
+    let base = FastConfig::new()
+        .with_levels(6)
+        .with_log2_table_size(12)
+        .with_finest_resolution(128)
+        .with_grid_resolution(16)
+        .with_steps_per_diagonal(64)
+        .with_grid_warmup_steps(2)
+        .with_grid_update_interval(2);
+    let run = |cfg: FastConfig, mixed: bool| {
+        let mut m = FastModel::new(cfg, bounds.clone(), 7).unwrap();
+        let mut losses = Vec::new();
+        for s in 0..4 {
+            let mut b = train.batch(7, s, 512);
+            b.mixed = vec![mixed; b.origins.len()];
+            let st = m.train_step(&b, s, 7);
+            assert!(st.samples > 0 && !st.skipped_nonfinite);
+            losses.push(st.loss);
+        }
+        (losses, m.state())
+    };
+    let (l_off, off) = run(base.clone(), false);
+    let (l_skip, skipped) = run(base.clone().with_distortion_weight(Some(0.5)), true);
+    let (l_on, on) = run(base.with_distortion_weight(Some(0.5)), false);
+    assert_eq!(l_off, l_skip, "mixed rays add no distortion loss");
+    assert!(l_on.iter().zip(&l_off).skip(1).all(|(a, b)| a > b), "unmixed rays do: {l_on:?} vs {l_off:?}");
+    let mut changed = 0usize;
+    for (k, v) in &off.arrays {
+        assert!(v.iter().zip(&skipped.arrays[k]).all(|(x, y)| x == y), "{k}: mixed rays changed the parameters");
+        changed += v.iter().zip(&on.arrays[k]).filter(|(x, y)| x != y).count();
+    }
+    assert!(changed > 0, "the loss on unmixed rays changed no parameter");
+}

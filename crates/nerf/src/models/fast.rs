@@ -115,6 +115,14 @@ pub struct FastConfig {
     /// [`crate::auto::AutoConfig::distortion_weight`]).
     #[config(default = "None")]
     pub distortion_weight: Option<f32>,
+    /// Rays through mixed pixels get no distortion loss ([`crate::data::mixed_pixels`]: partial
+    /// alpha, or surfaces hit in the pixel's 3 × 3 neighbourhood more than this many pixel
+    /// footprints apart in depth). Such a pixel's colour blends surfaces at different depths
+    /// (a wire and what lies behind it), which the one ray through its centre reproduces only
+    /// with its weight split between them; the loss would pull that weight together and the
+    /// blend apart. `None` (and configs written before this option): every ray gets the loss.
+    #[config(default = "None")]
+    pub distortion_mixed_footprints: Option<f32>,
     /// Adam β₁ (instant-ngp 0.9).
     #[config(default = 0.9)]
     pub beta1: f32,
@@ -375,8 +383,10 @@ impl FastModel {
             let (sq, d_out) = squared_error_and_grad(&comp.rgb, target, norm);
             let (dist, d_weights) = match lambda {
                 Some(l) => {
-                    let (per_ray, dw) = volrend::distortion(&o, &comp.weights, ts, te, scale, &vec![l / n_rays.max(1) as f32; rays.len()]);
-                    (per_ray.iter().map(|&v| v as f64).sum::<f64>(), Some(dw))
+                    // Mixed pixels' rays ([`RayBatch::mixed`]) are left out of the loss.
+                    let d_loss: Vec<f32> = rays.clone().map(|r| if batch.mixed.get(r).copied().unwrap_or(false) { 0.0 } else { l / n_rays.max(1) as f32 }).collect();
+                    let (per_ray, dw) = volrend::distortion(&o, &comp.weights, ts, te, scale, &d_loss);
+                    (per_ray.iter().zip(&d_loss).filter(|(_, d)| **d > 0.0).map(|(&v, _)| v as f64).sum::<f64>(), Some(dw))
                 }
                 None => (0.0, None),
             };
