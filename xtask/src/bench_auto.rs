@@ -174,6 +174,7 @@ fn mean_summary(runs: &[eval::RunSummary]) -> eval::RunSummary {
     m.final_psnr = runs.iter().map(|r| r.final_psnr).sum::<f64>() / n;
     m.depth_mae = mean_opt(&|r| r.depth_mae);
     m.off_surface_mass = mean_opt(&|r| r.off_surface_mass);
+    m.off_surface_front = mean_opt(&|r| r.off_surface_front);
     m.time_to_30db_s = mean_opt(&|r| r.time_to_30db_s);
     m
 }
@@ -242,6 +243,9 @@ fn targets(scene: &str, grouped: &[(String, Vec<eval::RunSummary>)]) -> Vec<Stri
             cmp(auto.off_surface_mass, b.off_surface_mass),
             ranges(|r| r.off_surface_mass),
         ));
+        if let (Some(a), Some(f)) = (auto.off_surface_front, b.off_surface_front) {
+            out.push(format!("{scene}: of that mass, in front of the surface: auto {a:.4}, {bn} {f:.4} (the rest lies behind it)"));
+        }
     }
     out
 }
@@ -331,6 +335,7 @@ mod tests {
             ssim: 0.9,
             depth_mae: Some(depth),
             off_surface_mass: Some(off),
+            off_surface_front: None,
             mask_iou: None,
             parameters: 100,
             train_wall_s: 60.0,

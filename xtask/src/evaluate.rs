@@ -108,7 +108,7 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
 fn print_summary(out: &eval::EvalRunOutput) {
     let m = &out.report.mean;
     let s = &out.summary;
-    println!("| run | PSNR dB | SSIM | depth MAE | depth δ<1.25 | mask IoU | off-surface mass | train s | steps | params | to 25 dB s | to 30 dB s |");
+    println!("| run | PSNR dB | SSIM | depth MAE | depth δ<1.25 | mask IoU | off-surface mass (in front) | train s | steps | params | to 25 dB s | to 30 dB s |");
     println!("|---|---|---|---|---|---|---|---|---|---|---|---|");
     println!(
         "| {} | {:.2} | {:.4} | {} | {} | {} | {} | {:.1} | {} | {} | {} | {} |",
@@ -118,7 +118,7 @@ fn print_summary(out: &eval::EvalRunOutput) {
         fmt_opt(m.depth_mae, 4),
         fmt_opt(m.depth_delta_1_25, 3),
         fmt_opt(m.mask_iou, 3),
-        fmt_opt(m.off_surface_mass, 3),
+        eval::compare::off_surface(s),
         s.train_wall_s,
         s.train_steps,
         s.parameters,

@@ -32,6 +32,10 @@ pub struct RunSummary {
     /// Mean off-surface mass (absent without ground-truth distance or samples).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub off_surface_mass: Option<f64>,
+    /// Its part in front of the surface (absent where the mass is, and in summaries written
+    /// before it).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub off_surface_front: Option<f64>,
     /// Mean mask IoU (absent without ground-truth alpha).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub mask_iou: Option<f64>,
@@ -59,6 +63,7 @@ impl RunSummary {
             ssim: report.mean.ssim,
             depth_mae: report.mean.depth_mae,
             off_surface_mass: report.mean.off_surface_mass,
+            off_surface_front: report.mean.off_surface_front,
             mask_iou: report.mean.mask_iou,
             parameters: report.parameters,
             train_wall_s: report.train_wall_s,
@@ -119,12 +124,20 @@ fn opt(v: Option<f64>, digits: usize) -> String {
     v.map_or("—".into(), |v| format!("{v:.digits$}"))
 }
 
+/// Off-surface mass with its part in front of the surface in brackets, when known.
+pub fn off_surface(r: &RunSummary) -> String {
+    match (r.off_surface_mass, r.off_surface_front) {
+        (Some(m), Some(f)) => format!("{m:.4} ({f:.4})"),
+        (m, _) => opt(m, 4),
+    }
+}
+
 /// The comparison table (GitHub Markdown) with a Pareto column and a line saying which
 /// axes the front uses.
 pub fn compare_table(runs: &[RunSummary]) -> String {
     let (axis, front) = pareto_runs(runs);
     let mut s = String::new();
-    s.push_str("| run | time to 25 dB (s) | time to 30 dB (s) | final PSNR (dB) | SSIM | depth MAE (m) | off-surface mass | parameters | train time (s) | Pareto |\n");
+    s.push_str("| run | time to 25 dB (s) | time to 30 dB (s) | final PSNR (dB) | SSIM | depth MAE (m) | off-surface mass (in front) | parameters | train time (s) | Pareto |\n");
     s.push_str("|---|---:|---:|---:|---:|---:|---:|---:|---:|:---:|\n");
     for (r, on) in runs.iter().zip(&front) {
         let never = |t: Option<f64>| t.map_or("never".to_string(), |t| format!("{t:.1}"));
@@ -136,7 +149,7 @@ pub fn compare_table(runs: &[RunSummary]) -> String {
             r.final_psnr,
             r.ssim,
             opt(r.depth_mae, 4),
-            opt(r.off_surface_mass, 4),
+            off_surface(r),
             r.parameters,
             r.train_wall_s,
             if *on { "★" } else { "" },
@@ -181,6 +194,7 @@ mod tests {
             ssim: 0.9,
             depth_mae: None,
             off_surface_mass: None,
+            off_surface_front: None,
             mask_iou: None,
             parameters: 1000,
             train_wall_s: wall,

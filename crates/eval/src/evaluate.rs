@@ -95,6 +95,10 @@ pub struct ViewMetrics {
     /// Mean fraction of rendering weight farther than the tolerance from the surface.
     #[serde(default, skip_serializing_if = "Option::is_none", with = "nonfinite::option")]
     pub off_surface_mass: Option<f64>,
+    /// The part of `off_surface_mass` more than the tolerance in front of the surface
+    /// (floaters, fog); the rest lies behind it ([`metrics::off_surface_split`]).
+    #[serde(default, skip_serializing_if = "Option::is_none", with = "nonfinite::option")]
+    pub off_surface_front: Option<f64>,
     /// Seconds to render the view.
     #[serde(with = "nonfinite")]
     pub render_s_per_view: f64,
@@ -219,10 +223,10 @@ pub fn evaluate_view(v: &ViewInput<'_>, opts: &EvalOptions) -> Result<ViewReport
             None
         }
     };
-    let off_surface_mass = match (v.samples, v.gt_distance, alpha) {
+    let off_surface = match (v.samples, v.gt_distance, alpha) {
         (Some(s), Some(dist), Some(a)) => {
             len("gt_distance", dist.len())?;
-            optional(metrics::off_surface_mass(&s, dist, a, opts.surface_tol), v.name, &mut notes)?
+            optional(metrics::off_surface_split(&s, dist, a, opts.surface_tol), v.name, &mut notes)?
         }
         (_, None, _) => {
             notes.push("no ground-truth ray distance: off_surface_mass omitted".into());
@@ -248,7 +252,8 @@ pub fn evaluate_view(v: &ViewInput<'_>, opts: &EvalOptions) -> Result<ViewReport
             depth_delta_1_25: depth.map(|d| d.delta_1_25),
             depth_delta_1_01: depth.map(|d| d.delta_1_01),
             mask_iou,
-            off_surface_mass,
+            off_surface_mass: off_surface.map(|o| o.total),
+            off_surface_front: off_surface.map(|o| o.front),
             render_s_per_view: v.render_s,
         },
         notes,
@@ -279,6 +284,7 @@ impl ViewMetrics {
             depth_delta_1_01: opt(|v| v.depth_delta_1_01),
             mask_iou: opt(|v| v.mask_iou),
             off_surface_mass: opt(|v| v.off_surface_mass),
+            off_surface_front: opt(|v| v.off_surface_front),
             render_s_per_view: mean(views.iter().map(|v| v.render_s_per_view))?,
         })
     }
@@ -294,6 +300,7 @@ impl ViewMetrics {
             ("depth_delta_1_01", self.depth_delta_1_01),
             ("mask_iou", self.mask_iou),
             ("off_surface_mass", self.off_surface_mass),
+            ("off_surface_front", self.off_surface_front),
         ];
         out.extend(opt.into_iter().filter_map(|(k, v)| v.map(|v| (k, v))));
         out.push(("render_s_per_view", self.render_s_per_view));

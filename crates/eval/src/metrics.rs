@@ -456,10 +456,35 @@ pub fn off_surface_mass(
     gt_alpha: &[f32],
     tol: f32,
 ) -> Result<f64, MetricError> {
+    off_surface_split(samples, gt_distance, gt_alpha, tol).map(|s| s.total)
+}
+
+/// The off-surface mass ([`off_surface_mass`]) and its part in front of the surface.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct OffSurface {
+    /// Mean over foreground rays of the weight fraction farther than `tol` from the surface.
+    pub total: f64,
+    /// The same for the weight more than `tol` **in front of** it (`t < g − tol`): floaters
+    /// and fog between the camera and the surface. `total − front` lies behind the surface:
+    /// a surface too soft or too thin to stop the ray, or one placed too far.
+    pub front: f64,
+}
+
+/// [`off_surface_mass`] split by where the mass lies: in front of the surface or behind it
+/// (same rays, same mean).
+///
+/// Example: weights 0.1 at `g − 1`, 0.7 at `g` and 0.2 at `g + 1` (tol 0.5) give total 0.3,
+/// front 0.1.
+pub fn off_surface_split(
+    samples: &RaySamples<'_>,
+    gt_distance: &[f32],
+    gt_alpha: &[f32],
+    tol: f32,
+) -> Result<OffSurface, MetricError> {
     samples.validate()?;
     check_len("gt alpha", gt_distance.len(), gt_alpha.len())?;
     let tol = f64::from(tol);
-    let mut sum = 0.0;
+    let (mut sum, mut sum_front) = (0.0, 0.0);
     let mut rays = 0usize;
     for (r, &pix) in samples.pixel.iter().enumerate() {
         if pix >= gt_distance.len() {
@@ -474,24 +499,28 @@ pub fn off_surface_mass(
         }
         let g = f64::from(gt_distance[pix]);
         let range = samples.offsets[r]..samples.offsets[r + 1];
-        let mut total = 0.0;
-        let mut off = 0.0;
+        let (mut total, mut off, mut front) = (0.0, 0.0, 0.0);
         for (&t, &w) in samples.t[range.clone()].iter().zip(&samples.w[range]) {
             let w = f64::from(w);
+            let d = f64::from(t) - g;
             total += w;
-            if (f64::from(t) - g).abs() > tol {
+            if d.abs() > tol {
                 off += w;
+            }
+            if d < -tol {
+                front += w;
             }
         }
         if total > 0.0 && total.is_finite() {
             sum += off / total;
+            sum_front += front / total;
             rays += 1;
         }
     }
     if rays == 0 {
         return Err(MetricError::EmptyMask("off_surface_mass"));
     }
-    Ok(sum / rays as f64)
+    Ok(OffSurface { total: sum / rays as f64, front: sum_front / rays as f64 })
 }
 
 #[cfg(test)]
@@ -745,6 +774,9 @@ mod tests {
         let alpha = [1.0_f32, 1.0, 1.0, 0.0];
         let m = off_surface_mass(&s, &g, &alpha, 0.05).unwrap();
         assert!((m - 0.2).abs() < 1e-7, "{m}");
+        // Ray 0's floater lies in front (0.2), ray 1's behind (0 in front): front 0.1.
+        let split = off_surface_split(&s, &g, &alpha, 0.05).unwrap();
+        assert!((split.total - m).abs() < 1e-12 && (split.front - 0.1).abs() < 1e-7, "{split:?}");
     }
 
     #[test]
@@ -759,6 +791,9 @@ mod tests {
         let s = RaySamples { pixel: &pixel, offsets: &offsets, t: &t, w: &w };
         let m = off_surface_mass(&s, &[5.0], &[1.0], 0.5).unwrap();
         assert!((m - 0.9).abs() < 1e-6, "{m}");
+        // In front: [0, 4.5) of [0, 10].
+        let front = off_surface_split(&s, &[5.0], &[1.0], 0.5).unwrap().front;
+        assert!((front - 0.45).abs() < 1e-6, "{front}");
     }
 
     #[test]

@@ -23,6 +23,7 @@ fn describe(key: &str) -> (&'static str, &'static str) {
         "depth_delta_1_01" => ("δ < 1.01", "fraction"),
         "mask_iou" => ("mask IoU", ""),
         "off_surface_mass" => ("off-surface mass", "fraction"),
+        "off_surface_front" => ("off-surface mass in front of the surface", "fraction"),
         "render_s_per_view" => ("render time per view", "s"),
         _ => ("?", ""),
     }
