@@ -17,7 +17,7 @@
 //! | distortion loss | mip-NeRF 360's, only when the train views show opaque surfaces ([`translucent_share`]) and see the surface from directions ≥ 45° apart ([`surface_parallax`], [`distortion_rule`]); then not on the rays of mixed pixels (partial alpha, or a depth edge within one pixel, [`crate::data::mixed_pixels`]), and not at all when more than 20 % of the covered pixels are mixed ([`mixed_rule`]) |
 //! | stopping | stop when the best val PSNR gained < 0.1 dB over the last fifth of the time budget ([`plateau_reached`]), validating every twentieth |
 
-use crate::data::{SceneBounds, TrainData};
+use crate::data::{ALPHA_EDGE, SceneBounds, TrainData};
 use crate::models::ModelConfig;
 use crate::models::ops::{stream, uniform};
 use crate::train::TrainConfig;
@@ -167,13 +167,11 @@ pub struct AutoConfig {
     /// loss stays on ([`mixed_rule`]). `None` (and configs written before this option): no
     /// limit. 0.2 lies between the standard `tabletop` (9 % mixed; with the loss, exempting
     /// mixed pixels: depth error 0.0118 m and off-surface mass 0.070, against 0.0125 and
-    /// 0.083 without it) and `thin` (33 %; 31.43 dB test PSNR with it, 31.75 dB without; means
+    /// 0.083 without it) and `thin` (33 %; 31.43 dB test PSNR with it, 31.72 dB without; means
     /// of 3 seeds, 2-minute runs, session 12).
     #[config(default = "Some(0.2)")]
     pub max_mixed_share: Option<f64>,
 }
-
-use crate::data::ALPHA_EDGE;
 
 /// The share of translucent pixels among the covered ones (alpha > 0.02) of the train views
 /// (`(width, height, alpha)` each): a pixel with partial alpha (0.02 < α < 0.98) whose eight
