@@ -208,6 +208,18 @@ impl TrainConfig {
         if self.log_interval_steps == 0 || self.checkpoint_interval_steps == 0 {
             return Err("log_interval_steps and checkpoint_interval_steps must be positive".into());
         }
+        if let ModelConfig::Fast(f) = &self.model {
+            if let Some(w) = f.distortion_weight
+                && !(w.is_finite() && w >= 0.0)
+            {
+                return Err(format!("model.distortion_weight must be a finite number ≥ 0, not {w}"));
+            }
+            if let Some(k) = f.distortion_mixed_footprints
+                && !(k.is_finite() && k > 0.0)
+            {
+                return Err(format!("model.distortion_mixed_footprints must be a positive number of pixel footprints, not {k}"));
+            }
+        }
         Ok(())
     }
 

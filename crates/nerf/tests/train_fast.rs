@@ -119,3 +119,23 @@ fn distortion_loss_skips_mixed_pixels() {
     }
     assert!(changed > 0, "the loss on unmixed rays changed no parameter");
 }
+
+/// Impossible distortion settings are refused before anything is written, naming the option.
+#[test]
+fn impossible_distortion_settings_are_refused() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    nerf::data::synthetic::write(&data, 16, [2, 1, 1], false).unwrap();
+    for (fast, name) in [
+        (FastConfig::new().with_distortion_weight(Some(-0.01)), "distortion_weight"),
+        (FastConfig::new().with_distortion_weight(Some(f32::NAN)), "distortion_weight"),
+        (FastConfig::new().with_distortion_weight(Some(0.01)).with_distortion_mixed_footprints(Some(0.0)), "distortion_mixed_footprints"),
+        (FastConfig::new().with_distortion_mixed_footprints(Some(f32::INFINITY)), "distortion_mixed_footprints"),
+    ] {
+        let cfg = TrainConfig::new(data.clone(), ModelConfig::Fast(fast), 64, 1e-2, 1e-3, 10).with_steps(Some(1));
+        let run = tmp.path().join("run");
+        let err = Trainer::new(cfg, &run, false).err().expect("refused").to_string();
+        assert!(err.contains(name), "{err}");
+        assert!(!run.exists(), "nothing written");
+    }
+}
