@@ -1038,7 +1038,7 @@ fn fmt_box(lo: [f32; 3], hi: [f32; 3]) -> String {
 /// dependence, sampling and the stopping rule, from the dataset `ds` and its loaded train
 /// views `train`; records a reason per decision in `config.auto_reasons`. Does nothing when
 /// `config.auto` is `None` or already resolved (`auto_reasons` set).
-pub fn resolve(config: &mut TrainConfig, ds: &Dataset, train: &TrainData) -> Result<(), String> {
+pub fn resolve(config: &mut TrainConfig, ds: &Dataset, train: &mut TrainData) -> Result<(), String> {
     let Some(auto) = config.auto.clone() else { return Ok(()) };
     if config.auto_reasons.is_some() {
         return Ok(());
@@ -1171,6 +1171,8 @@ pub fn resolve(config: &mut TrainConfig, ds: &Dataset, train: &TrainData) -> Res
         let (keep, r) = mixed_rule(crate::data::mixed_share(&train.alphas(), &masks), k, auto.max_mixed_share, depths.is_some());
         if keep {
             fast.distortion_mixed_footprints = Some(k as f32);
+            // The trainer would build the same masks from the same depths again.
+            train.set_mixed(masks).map_err(|e| e.to_string())?;
         } else {
             fast.distortion_weight = None;
         }

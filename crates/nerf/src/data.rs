@@ -122,6 +122,11 @@ impl ViewPixels {
         Ok(Some((depth, alpha)))
     }
 
+    /// The alpha channel.
+    pub fn alpha(&self) -> Vec<f32> {
+        self.rgba.iter().map(|p| p[3]).collect()
+    }
+
     /// Width × height.
     pub fn pixels(&self) -> usize {
         self.rgba.len()
@@ -268,7 +273,12 @@ impl TrainData {
 
     /// Every view's alpha channel.
     pub fn alphas(&self) -> Vec<Vec<f32>> {
-        self.views.iter().map(|v| v.rgba.iter().map(|p| p[3]).collect()).collect()
+        self.views.iter().map(ViewPixels::alpha).collect()
+    }
+
+    /// Whether mixed-pixel masks are set ([`Self::set_mixed`]).
+    pub fn has_mixed(&self) -> bool {
+        !self.mixed.is_empty()
     }
 
     /// Per view, its mixed pixels ([`mixed_pixels`]) from its alpha and, when given (one per
@@ -279,9 +289,8 @@ impl TrainData {
             .iter()
             .enumerate()
             .map(|(k, v)| {
-                let alpha: Vec<f32> = v.rgba.iter().map(|p| p[3]).collect();
                 let i = &v.camera.intrinsics;
-                mixed_pixels(i.width as usize, i.height as usize, &alpha, depths.map(|d| d[k].as_slice()), i.fl_x, footprints)
+                mixed_pixels(i.width as usize, i.height as usize, &v.alpha(), depths.map(|d| d[k].as_slice()), i.fl_x, footprints)
             })
             .collect()
     }
@@ -326,7 +335,7 @@ impl TrainData {
             b.target.push(self.views[v].color(p, bg));
             b.background.push(bg);
             b.ids.push(((v as u64) << 32) | p as u64);
-            if !self.mixed.is_empty() {
+            if self.has_mixed() {
                 b.mixed.push(self.mixed[v][p]);
             }
         }

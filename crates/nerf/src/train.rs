@@ -400,9 +400,11 @@ impl Trainer {
         let ds = crate::data::load_dataset(&config.dataset)?;
         config.check_image_sizes(&ds).map_err(TrainError::Invalid)?;
         let mut data = TrainData::load(&ds.train, config.downscale, config.background, false)?;
-        crate::auto::resolve(&mut config, &ds, &data).map_err(TrainError::Invalid)?;
+        crate::auto::resolve(&mut config, &ds, &mut data).map_err(TrainError::Invalid)?;
+        // Mixed-pixel masks, unless a fresh `auto` run's resolve built them already.
         if let ModelConfig::Fast(f) = &config.model
             && let (Some(_), Some(k)) = (f.distortion_weight.filter(|w| *w > 0.0), f.distortion_mixed_footprints)
+            && !data.has_mixed()
         {
             let depths = crate::data::frame_depths(&ds.train, config.downscale)?;
             data.set_mixed(data.mixed_masks(depths.as_deref(), k as f64))?;
