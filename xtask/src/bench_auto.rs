@@ -9,8 +9,8 @@
 //! and seed, trained twice for 2 minutes on the same dataset, differed by up to 0.8 dB in PSNR,
 //! 26 % in depth error and 10 % in off-surface mass, because the step count at the budget
 //! depends on the load); `--seeds 0,1,2` trains each configuration once per seed and checks
-//! the targets on the means. Finished runs (with `report.json`, the same budget and seed) are
-//! kept, so a re-run resumes.
+//! the targets on the means. Finished runs (with `report.json` and the same training config:
+//! budget, seed, preset and `auto` settings) are kept, so a re-run resumes.
 
 use anyhow::Context;
 use nerf::models::ModelConfig;
@@ -132,27 +132,32 @@ fn older_dataset(dir: &Path) -> Option<String> {
     crate::render::older_renderer(dir).filter(|_| dataset::Dataset::load(dir).is_ok())
 }
 
-/// Whether `run` holds a run with this budget and seed (`report`: and it is evaluated).
-fn same_run(run: &Path, budget_s: f64, seed: u64, report: bool) -> bool {
+/// Whether `run` holds a run of exactly the training config `want` (`report`: and it is
+/// evaluated). The config the bench wrote for the run (`<run>.config.json`) is compared with
+/// `want` as JSON, so a run made under other rule settings (a changed preset or `auto` option)
+/// is trained again instead of kept.
+fn same_run(run: &Path, want: &TrainConfig, report: bool) -> bool {
+    let as_json = |c: &TrainConfig| serde_json::to_value(c).ok();
     (!report || run.join("report.json").is_file())
-        && TrainConfig::read(&run.join(nerf::train::CONFIG_FILE)).is_ok_and(|c| c.time_budget_s == Some(budget_s) && c.seed == seed)
+        && TrainConfig::read(&run.join(nerf::train::CONFIG_FILE)).is_ok_and(|c| c.time_budget_s == want.time_budget_s && c.seed == want.seed)
+        && TrainConfig::read(&run.with_extension("config.json")).is_ok_and(|c| as_json(&c).is_some() && as_json(&c) == as_json(want))
 }
 
-/// Trains (resuming a run with the same budget) and evaluates one configuration.
+/// Trains (resuming a run with the same config) and evaluates one configuration.
 fn train_and_eval(name: &str, seed: u64, dataset: &Path, run: &Path, budget: &str, budget_s: f64, max_views: Option<usize>) -> anyhow::Result<()> {
-    if same_run(run, budget_s, seed, true) {
+    let mut cfg = config_of(name, dataset, budget_s)?;
+    cfg.seed = seed;
+    if same_run(run, &cfg, true) {
         eprintln!("{} is evaluated already; kept", run.display());
         return Ok(());
     }
-    let resumable = nerf::checkpoint::latest(run).is_some() && same_run(run, budget_s, seed, false);
+    let resumable = nerf::checkpoint::latest(run).is_some() && same_run(run, &cfg, false);
     if run.exists() && !resumable {
         std::fs::remove_dir_all(run).with_context(|| format!("removing the stale run {}", run.display()))?;
     }
     let mut args = crate::train::TrainArgs::for_demo(dataset, run, "fast", budget, resumable);
     if !resumable {
         let cfg_path = run.with_extension("config.json");
-        let mut cfg = config_of(name, dataset, budget_s)?;
-        cfg.seed = seed;
         dataset::io::atomic_write_json(&cfg_path, &cfg)?;
         args.config = Some(cfg_path);
     }
@@ -372,5 +377,32 @@ mod tests {
         let single: Vec<_> = grouped.iter().map(|(n, r)| (n.clone(), r[..1].to_vec())).collect();
         let t = targets("s", &single);
         assert!(t[1].contains("(fast-small): depth MAE 0.3000 vs 0.2000 (WORSE), off-surface mass 0.2000 vs 0.2500 (no worse)"), "{t:?}");
+    }
+
+    #[test]
+    fn a_run_is_kept_only_under_the_same_config() {
+        let dir = tempfile::tempdir().unwrap();
+        let run = dir.path().join("auto");
+        std::fs::create_dir_all(&run).unwrap();
+        let mut cfg = config_of("auto", Path::new("data"), 120.0).unwrap();
+        cfg.seed = 1;
+        // The trainer's resolved config (its model fields differ) and the bench's input config.
+        let mut resolved = cfg.clone();
+        resolved.model = ModelConfig::Fast(FastConfig::new().with_levels(11));
+        dataset::io::atomic_write_json(&run.join(nerf::train::CONFIG_FILE), &resolved).unwrap();
+        dataset::io::atomic_write_json(&run.with_extension("config.json"), &cfg).unwrap();
+        assert!(same_run(&run, &cfg, false));
+        assert!(!same_run(&run, &cfg, true), "not evaluated yet");
+        std::fs::write(run.join("report.json"), "{}").unwrap();
+        assert!(same_run(&run, &cfg, true));
+        let mut other_seed = cfg.clone();
+        other_seed.seed = 2;
+        assert!(!same_run(&run, &other_seed, true));
+        // Same budget and seed, but another auto rule setting: trained again.
+        let mut other_rule = cfg.clone();
+        other_rule.auto.as_mut().expect("auto preset has auto settings").max_mixed_share = Some(0.5);
+        assert!(!same_run(&run, &other_rule, true));
+        std::fs::remove_file(run.with_extension("config.json")).unwrap();
+        assert!(!same_run(&run, &cfg, true), "no record of the bench's config");
     }
 }
