@@ -11,9 +11,9 @@
 //! | bounds | scene facts' box, padded ([`SceneBounds::for_dataset`]); without facts the visual hull of the train views' alpha masks on a coarse grid ([`visual_hull`]), in two passes |
 //! | finest resolution | the bounding cube's side / the smallest pixel footprint over the box ([`smallest_footprint`]: nearest distance from a train camera to the box, at least `near`, × the pixel angle); with ground-truth depth at most the resolution at which the visible surface fills the hash table at 4 cells per entry ([`surface_cells`], [`capacity_resolution`]) |
 //! | coarsest resolution | instant-ngp's 16, raised until the box's smallest side spans 4 coarsest cells |
-//! | levels, table size | levels from the two resolutions at instant-ngp's growth factor (≤ 16); table big enough for a dense finest level, at most 2^15 entries per level (one level's parameters, gradients and Adam moments in a core's 1 MiB L2 cache) and within a memory budget ([`hash_sizes`]) |
+//! | levels, table size | levels from the two resolutions at growth 1.5 per level (≤ 16; instant-ngp's 1.38 costs more levels, each a share of a CPU step); table big enough for a dense finest level, at most 2^15 entries per level (one level's parameters, gradients and Adam moments in a core's 1 MiB L2 cache) and within a memory budget ([`hash_sizes`]) |
 //! | view dependence | scene facts' `view_dependent`; without facts the spread of a surface point's colour across the train views that see it, with ground-truth depth ([`colour_spread`]); without depth it stays on |
-//! | samples | occupancy cell = 4 smallest footprints (16³…64³); marching step = 2 finest cells (between one footprint and instant-ngp's 2√3), at most `max_samples_per_ray` per cube diagonal ([`sampling`]); optionally growing with distance as the footprint does, up to one occupancy cell ([`cone`], `cone_marching`, off by default) |
+//! | samples | occupancy cell = 8 smallest footprints (16³…64³); marching step = 2 finest cells (between one footprint and instant-ngp's 2√3), at most `max_samples_per_ray` per cube diagonal ([`sampling`]); optionally growing with distance as the footprint does, up to one occupancy cell ([`cone`], `cone_marching`, off by default) |
 //! | distortion loss | mip-NeRF 360's, only when the train views show opaque surfaces ([`translucent_share`]) and see the surface from directions ≥ 45° apart ([`surface_parallax`], [`distortion_rule`]); then not on the rays of mixed pixels (partial alpha, or a depth edge within one pixel, [`crate::data::mixed_pixels`]), and not at all when more than 20 % of the covered pixels are mixed ([`mixed_rule`]) |
 //! | stopping | stop when the best val PSNR gained < 0.1 dB over the last fifth of the time budget ([`plateau_reached`]), validating every twentieth |
 
@@ -42,8 +42,11 @@ pub struct AutoConfig {
     /// Coarsest cells across the box's smallest side.
     #[config(default = 4.0)]
     pub base_cells_per_min_side: f64,
-    /// Growth factor between levels (instant-ngp: 16 levels from 16 to 2048, b ≈ 1.38).
-    #[config(default = 1.38)]
+    /// Growth factor between levels. instant-ngp's 16 levels from 16 to 2048 grow by 1.38; on a
+    /// CPU every level costs about the same share of a training step (standard `thin`, auto's
+    /// config, 16 → 302: 84.7 ms per step with 11 levels, 69.2 ms with 8, session 13), so
+    /// auto grows by 1.5 (nerfacto's proposal grids: 1.68 and 2).
+    #[config(default = 1.5)]
     pub growth: f64,
     /// Most levels (the encoding's and the density network's cost per sample grow with them).
     #[config(default = 16)]
@@ -92,7 +95,11 @@ pub struct AutoConfig {
     #[config(default = "Some(4.0)")]
     pub surface_cells_per_entry: Option<f64>,
     /// Footprint-sized cells (finest cells / `cells_per_footprint`) per occupancy-grid cell.
-    #[config(default = 4)]
+    /// instant-ngp: 16 finest cells per cell (2048 over a 128³ grid). 4 was the first default;
+    /// a finer grid costs more per step on a CPU (refresh, marching and cache pressure:
+    /// standard `thin`, auto's config with 8 levels, 59.2 ms per step with 32³ against 69.2 ms
+    /// with 64³, session 13), so 8.
+    #[config(default = 8)]
     pub hash_cells_per_grid_cell: u32,
     /// Marching step in finest hash cells (`None`, as in configs written before this option:
     /// `cells_per_footprint`, i.e. one smallest pixel footprint). A step takes a fixed number
@@ -552,8 +559,9 @@ pub fn hash_sizes(cube_side: f64, min_side: f64, footprint: &Footprint, surface:
 /// of side `cube_side`:
 /// - grid cells per axis = the power of two nearest `finest / (cells_per_footprint ·
 ///   hash_cells_per_grid_cell)` (i.e. that many footprint-sized finest cells per cell),
-///   clamped to `[min_grid_resolution, max_grid_resolution]` (empty space is skipped at a
-///   quarter of the finest detail; finer grids cost more to refresh on a CPU);
+///   clamped to `[min_grid_resolution, max_grid_resolution]` (empty space is skipped at an
+///   eighth of the finest detail, instant-ngp's at a sixteenth; finer grids cost more per
+///   step on a CPU);
 /// - steps per diagonal = ⌈√3 · finest / `finest_cells_per_step`⌉ (two finest cells per step by
 ///   default), at most `max_samples_per_ray` so a ray through the whole cube is never
 ///   cut short.
@@ -1391,8 +1399,8 @@ mod tests {
         let (hs, reasons) = hash_sizes(2.0, 2.0, &fp, None, &AutoConfig::new().with_cells_per_footprint(1.0));
         assert_eq!(hs.finest_resolution, 67);
         assert_eq!(hs.base_resolution, 16);
-        // 16 → 67 at b = 1.38: 1 + ⌈ln(4.19) / ln(1.38)⌉ = 1 + 5 = 6 levels.
-        assert_eq!(hs.levels, 6);
+        // 16 → 67 at b = 1.5: 1 + ⌈ln(4.19) / ln(1.5)⌉ = 1 + ⌈3.53⌉ = 5 levels.
+        assert_eq!(hs.levels, 5);
         // A dense 68³ finest level needs 2^19 entries; the cache cap of 2^15 binds.
         assert_eq!(hs.log2_table_size, 15);
         assert!(reasons[3].contains("(1024 KiB) stay in a core's L2 cache"), "{reasons:?}");
@@ -1473,17 +1481,19 @@ mod tests {
         // same grid and step as one cell per footprint at finest 100.
         // With a step of one footprint (configs written before `finest_cells_per_step`).
         let two = AutoConfig::new().with_cells_per_footprint(2.0).with_finest_cells_per_step(None);
-        assert_eq!((sampling(200, 2.0, 0.02, &two, 1024).0, sampling(200, 2.0, 0.02, &two, 1024).1), (32, 174));
+        assert_eq!((sampling(200, 2.0, 0.02, &two, 1024).0, sampling(200, 2.0, 0.02, &two, 1024).1), (16, 174));
         let one = AutoConfig::new().with_cells_per_footprint(1.0).with_finest_cells_per_step(None);
         let (grid, spd, r) = sampling(100, 2.0, 0.02, &one, 1024);
-        // 100 / 4 = 25 → nearest power of two 32; √3 · 100 = 173.2 → 174.
-        assert_eq!((grid, spd), (32, 174));
+        // 100 / 8 = 12.5 → nearest power of two 16; √3 · 100 = 173.2 → 174.
+        assert_eq!((grid, spd), (16, 174));
+        // Four footprint cells per grid cell (the first default): 100 / 4 = 25 → 32.
+        assert_eq!(sampling(100, 2.0, 0.02, &one.clone().with_hash_cells_per_grid_cell(4), 1024).0, 32);
         assert!(r[1].contains("= 1.00 smallest pixel footprints"), "{r:?}");
         // The default step, two finest cells: ⌈√3 · 300 / 2⌉ = 260 steps per diagonal, a step
         // of 2 m · √3 / 260 = 1.33 cm ≈ 2 finest cells of 6.67 mm.
         let cfg = AutoConfig::new().with_cells_per_footprint(1.0);
         let (grid, spd, r) = sampling(300, 2.0, 2.0 / 300.0, &cfg, 1024);
-        assert_eq!((grid, spd), (64, 260)); // 300 / 4 = 75 → 64
+        assert_eq!((grid, spd), (32, 260)); // 300 / 8 = 37.5 → 32
         assert!(r[1].contains("= 2.00 finest cells = 2.00 smallest pixel footprints"), "{r:?}");
         // A finest level coarser than the footprint (the table's capacity bound it): two finest
         // cells of 6.67 mm are four footprints of 3.33 mm.
