@@ -9,7 +9,11 @@
 //! and seed, trained twice for 2 minutes on the same dataset, differed by up to 0.8 dB in PSNR,
 //! 26 % in depth error and 10 % in off-surface mass, because the step count at the budget
 //! depends on the load); `--seeds 0,1,2` trains each configuration once per seed and checks
-//! the targets on the means. Finished runs (with `report.json` and the same training config:
+//! the targets on the means (a worse mean is reported as inside or beyond the seeds' noise:
+//! two standard errors of the difference), `--one-seed` names configurations trained with the
+//! first seed only. The bench records the host's steal time while each run trains
+//! (`<run>.host.json`, from `/proc/stat`) and flags runs that lost more than 10 % of their CPU
+//! time. Finished runs (with `report.json` and the same training config:
 //! budget, seed, preset and `auto` settings) are kept, so a re-run resumes.
 
 use anyhow::Context;
@@ -46,6 +50,11 @@ pub struct AutoBenchArgs {
     /// targets compare the means over the seeds and print their spread.
     #[arg(long, default_value = "0", help_heading = "bench auto")]
     pub seeds: String,
+    /// Configurations trained with the first seed only, comma-separated (e.g. the slow
+    /// `fast-large,paper`, whose figures lie far from the others'): their single run stands
+    /// for them in the targets, without a spread.
+    #[arg(long, default_value = "", help_heading = "bench auto")]
+    pub one_seed: String,
 }
 
 /// The seeds of `--seeds`: at least one, no repeats.
@@ -143,6 +152,47 @@ fn same_run(run: &Path, want: &TrainConfig, report: bool) -> bool {
         && TrainConfig::read(&run.with_extension("config.json")).is_ok_and(|c| as_json(&c).is_some() && as_json(&c) == as_json(want))
 }
 
+/// The host's CPU time counters from `/proc/stat` (first line): `(steal, total)` in clock
+/// ticks; `None` where the file is missing or unreadable (not Linux).
+fn cpu_ticks() -> Option<(u64, u64)> {
+    let stat = std::fs::read_to_string("/proc/stat").ok()?;
+    parse_cpu_ticks(stat.lines().next()?)
+}
+
+/// `(steal, total)` of a `/proc/stat` `cpu` line: user nice system idle iowait irq softirq
+/// steal [guest guest_nice], where guest time is already counted in user and nice.
+fn parse_cpu_ticks(line: &str) -> Option<(u64, u64)> {
+    let mut it = line.split_whitespace();
+    (it.next()? == "cpu").then_some(())?;
+    let v: Vec<u64> = it.map(str::parse).collect::<Result<_, _>>().ok()?;
+    (v.len() >= 8).then(|| (v[7], v[..8].iter().sum()))
+}
+
+/// The share of the host's CPU time stolen by the hypervisor between two [`cpu_ticks`]
+/// readings (0 when no time passed).
+fn steal_share(before: (u64, u64), after: (u64, u64)) -> f64 {
+    let total = after.1.saturating_sub(before.1);
+    if total == 0 { 0.0 } else { after.0.saturating_sub(before.0) as f64 / total as f64 }
+}
+
+/// Where the bench records the host's steal time while it trained `run`.
+fn host_record(run: &Path) -> PathBuf {
+    run.with_extension("host.json")
+}
+
+/// What the host did while a run trained: a wall-clock benchmark on a shared machine is only
+/// as good as the CPU time it got.
+#[derive(serde::Serialize, serde::Deserialize, Clone, Debug, PartialEq)]
+struct HostRecord {
+    /// Share of the CPU time the hypervisor stole during training (0..1).
+    steal_share: f64,
+    /// Wall-clock seconds of the recorded stretch (a resumed run records its last stretch).
+    wall_s: f64,
+}
+
+/// Steal time above which a run's figures are flagged in the report.
+const STEAL_FLAG: f64 = 0.10;
+
 /// Trains (resuming a run with the same config) and evaluates one configuration.
 fn train_and_eval(name: &str, seed: u64, dataset: &Path, run: &Path, budget: &str, budget_s: f64, max_views: Option<usize>) -> anyhow::Result<()> {
     let mut cfg = config_of(name, dataset, budget_s)?;
@@ -154,6 +204,7 @@ fn train_and_eval(name: &str, seed: u64, dataset: &Path, run: &Path, budget: &st
     let resumable = nerf::checkpoint::latest(run).is_some() && same_run(run, &cfg, false);
     if run.exists() && !resumable {
         std::fs::remove_dir_all(run).with_context(|| format!("removing the stale run {}", run.display()))?;
+        let _ = std::fs::remove_file(host_record(run));
     }
     let mut args = crate::train::TrainArgs::for_demo(dataset, run, "fast", budget, resumable);
     if !resumable {
@@ -162,7 +213,12 @@ fn train_and_eval(name: &str, seed: u64, dataset: &Path, run: &Path, budget: &st
         args.config = Some(cfg_path);
     }
     eprintln!("== {name} (seed {seed}): training into {}", run.display());
+    let (before, t0) = (cpu_ticks(), std::time::Instant::now());
     crate::train::run(args)?;
+    if let (Some(b), Some(a)) = (before, cpu_ticks()) {
+        let rec = HostRecord { steal_share: steal_share(b, a), wall_s: t0.elapsed().as_secs_f64() };
+        dataset::io::atomic_write_json(&host_record(run), &rec)?;
+    }
     if crate::stop_flag().load(std::sync::atomic::Ordering::SeqCst) {
         anyhow::bail!("interrupted; re-run the same command to resume");
     }
@@ -194,6 +250,34 @@ fn spread(runs: &[eval::RunSummary], f: impl Fn(&eval::RunSummary) -> Option<f64
     let lo = v.iter().copied().fold(f64::INFINITY, f64::min);
     let hi = v.iter().copied().fold(f64::NEG_INFINITY, f64::max);
     format!(" (seeds {lo:.4}–{hi:.4})")
+}
+
+/// Two standard errors of the difference of two means (Welch): `None` unless both sides
+/// have at least two values.
+fn two_se(a: &[f64], b: &[f64]) -> Option<f64> {
+    let var_of_mean = |v: &[f64]| {
+        let n = v.len() as f64;
+        let m = v.iter().sum::<f64>() / n;
+        v.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / (n - 1.0) / n
+    };
+    (a.len() >= 2 && b.len() >= 2).then(|| 2.0 * (var_of_mean(a) + var_of_mean(b)).sqrt())
+}
+
+/// Verdict on a lower-is-better figure whose means differ by `diff` (auto's minus the other's)
+/// over auto's per-seed values `a` and the other configuration's `b`: "no worse" when
+/// `diff ≤ 0`; otherwise "WORSE", and with several seeds on both sides also whether the
+/// difference lies inside the seeds' noise (under two standard errors of the difference of
+/// the means), so a difference that a re-run could reverse is not read as a loss.
+fn verdict(a: &[f64], b: &[f64], diff: f64) -> String {
+    if diff <= 0.0 {
+        return "no worse".into();
+    }
+    let pct = |d: f64| if b.is_empty() { String::new() } else { format!(", {:+.1} %", 100.0 * d / (b.iter().sum::<f64>() / b.len() as f64)) };
+    match two_se(a, b) {
+        Some(e) if diff < e => format!("WORSE by {diff:.4}{}, inside the seeds' noise: 2 SE {e:.4}", pct(diff)),
+        Some(e) => format!("WORSE by {diff:.4}{}, beyond the seeds' noise: 2 SE {e:.4}", pct(diff)),
+        None => "WORSE".into(),
+    }
 }
 
 /// What the issue's targets say about one scene's runs: `(configuration, its runs, one per
@@ -233,8 +317,11 @@ fn targets(scene: &str, grouped: &[(String, Vec<eval::RunSummary>)]) -> Vec<Stri
         .filter(|(n, _)| n.starts_with("fast-"))
         .max_by(|a, b| a.1.final_psnr.total_cmp(&b.1.final_psnr));
     if let Some((bn, b)) = best {
-        let cmp = |x: Option<f64>, y: Option<f64>| match (x, y) {
-            (Some(x), Some(y)) => format!("{x:.4} vs {y:.4} ({})", if x <= y { "no worse" } else { "WORSE" }),
+        let cmp = |x: Option<f64>, y: Option<f64>, f: fn(&eval::RunSummary) -> Option<f64>| match (x, y) {
+            (Some(x), Some(y)) => {
+                let vals = |name: &str| seeds_of(name).iter().filter_map(f).collect::<Vec<f64>>();
+                format!("{x:.4} vs {y:.4} ({})", verdict(&vals("auto"), &vals(bn), x - y))
+            }
             _ => "n/a".into(),
         };
         // `; auto (seeds a–b), <best> (seeds c–d)` with several seeds, nothing with one.
@@ -243,9 +330,9 @@ fn targets(scene: &str, grouped: &[(String, Vec<eval::RunSummary>)]) -> Vec<Stri
         };
         out.push(format!(
             "{scene}: against the best fixed size by {mean}final PSNR ({bn}): {mean}depth MAE {}{}, {mean}off-surface mass {}{}",
-            cmp(auto.depth_mae, b.depth_mae),
+            cmp(auto.depth_mae, b.depth_mae, |r| r.depth_mae),
             ranges(|r| r.depth_mae),
-            cmp(auto.off_surface_mass, b.off_surface_mass),
+            cmp(auto.off_surface_mass, b.off_surface_mass, |r| r.off_surface_mass),
             ranges(|r| r.off_surface_mass),
         ));
         if let (Some(a), Some(f)) = (auto.off_surface_front, b.off_surface_front) {
@@ -253,6 +340,32 @@ fn targets(scene: &str, grouped: &[(String, Vec<eval::RunSummary>)]) -> Vec<Stri
         }
     }
     out
+}
+
+/// The report's lines on how much CPU each run got: its steps at the budget and the host's
+/// steal time while it trained (from the bench's record next to the run, absent for runs
+/// trained before the bench recorded it), and a warning for every run above [`STEAL_FLAG`].
+fn host_lines(dir: &Path, runs: &[eval::RunSummary]) -> String {
+    let mut parts = Vec::new();
+    let mut flags = Vec::new();
+    for r in runs {
+        let rec: Option<HostRecord> = std::fs::read(host_record(&dir.join(&r.name))).ok().and_then(|b| serde_json::from_slice(&b).ok());
+        match rec {
+            Some(h) => {
+                parts.push(format!("{} {} ({:.1} %)", r.name, r.train_steps, 100.0 * h.steal_share));
+                if h.steal_share > STEAL_FLAG {
+                    flags.push(format!(
+                        "- **{}**: the hypervisor took {:.0} % of the CPU time while it trained, so its figures understate it; delete {} and re-run to train it again\n",
+                        r.name,
+                        100.0 * h.steal_share,
+                        dir.join(&r.name).display()
+                    ));
+                }
+            }
+            None => parts.push(format!("{} {} (not recorded)", r.name, r.train_steps)),
+        }
+    }
+    format!("steps at the budget (host steal time while training): {}\n\n{}{}", parts.join(", "), flags.concat(), if flags.is_empty() { "" } else { "\n" })
 }
 
 /// Runs the benchmark.
@@ -263,14 +376,19 @@ pub fn run(args: AutoBenchArgs) -> anyhow::Result<()> {
     for c in &configs {
         config_of(c, Path::new("."), budget_s)?;
     }
+    let one_seed: Vec<String> = args.one_seed.split(',').map(|s| s.trim().to_string()).filter(|s| !s.is_empty()).collect();
+    if let Some(c) = one_seed.iter().find(|c| !configs.contains(c)) {
+        anyhow::bail!("--one-seed names '{c}', which --configs ({}) does not list", configs.join(","));
+    }
     anyhow::ensure!(args.max_views != Some(0), "--max-views 0 evaluates nothing");
     let scenes = scene_names(&args)?;
     let mut md = format!(
-        "# bench auto\n\npreset {}, budget {} per run, configurations: {}, seeds: {}\n\nfixed sizes: {}\n\n",
+        "# bench auto\n\npreset {}, budget {} per run, configurations: {}, seeds: {}{}\n\nfixed sizes: {}\n\n",
         args.preset.name(),
         args.budget,
         configs.join(", "),
         seeds.iter().map(u64::to_string).collect::<Vec<_>>().join(", "),
+        if one_seed.is_empty() { String::new() } else { format!(" ({} with seed {} only)", one_seed.join(", "), seeds[0]) },
         FIXED.iter().map(|(n, d)| format!("{n} = {d}")).collect::<Vec<_>>().join("; ")
     );
     if let Some(m) = args.max_views {
@@ -295,6 +413,7 @@ pub fn run(args: AutoBenchArgs) -> anyhow::Result<()> {
         let mut runs: Vec<(String, Vec<eval::RunSummary>)> = Vec::new();
         for c in &configs {
             let mut per_seed = Vec::new();
+            let seeds = if one_seed.contains(c) { &seeds[..1] } else { &seeds[..] };
             for (k, &seed) in seeds.iter().enumerate() {
                 let run = dir.join(run_name(c, seed, k == 0));
                 train_and_eval(c, seed, &dataset, &run, &args.budget, budget_s, args.max_views)?;
@@ -314,6 +433,7 @@ pub fn run(args: AutoBenchArgs) -> anyhow::Result<()> {
             md.push_str(&format!("## {scene}\n\n{table}\n"));
         }
         md.push_str(&format!("curves: {}\n\n", dir.join("compare.png").display()));
+        md.push_str(&host_lines(&dir, &summaries));
         checks.extend(targets(scene, &runs));
     }
     md.push_str("## Targets (issue #6)\n\n");
@@ -371,12 +491,52 @@ mod tests {
         ];
         let t = targets("s", &grouped);
         assert!(t[0].starts_with("s: met") && t[0].ends_with("(means over the seeds)"), "{t:?}");
-        assert!(t[1].contains("mean depth MAE 0.2300 vs 0.2000 (WORSE); auto (seeds 0.1600–0.3000), fast-small (seeds 0.2000–0.2000)"), "{t:?}");
+        assert!(
+            t[1].contains("mean depth MAE 0.2300 vs 0.2000 (WORSE by 0.0300, +15.0 %, inside the seeds' noise: 2 SE 0.1400); auto (seeds 0.1600–0.3000), fast-small (seeds 0.2000–0.2000)"),
+            "{t:?}"
+        );
         assert!(t[1].contains("mean off-surface mass 0.2100 vs 0.2400 (no worse)"), "{t:?}");
         // One seed: the figures as they are, no ranges.
         let single: Vec<_> = grouped.iter().map(|(n, r)| (n.clone(), r[..1].to_vec())).collect();
         let t = targets("s", &single);
         assert!(t[1].contains("(fast-small): depth MAE 0.3000 vs 0.2000 (WORSE), off-surface mass 0.2000 vs 0.2500 (no worse)"), "{t:?}");
+    }
+
+    #[test]
+    fn a_worse_mean_is_weighed_against_the_seeds_noise() {
+        // Means 0.305 vs 0.205: each side's seeds differ by 0.01, so 2 SE = 2 √(2 · 0.005² / 2) = 0.01414.
+        let v = verdict(&[0.30, 0.31], &[0.20, 0.21], 0.1);
+        assert!(v.starts_with("WORSE by 0.1000, +48.8 %, beyond the seeds' noise: 2 SE 0.0141"), "{v}");
+        // The same difference with seeds that spread by ±0.1 is inside the noise.
+        let v = verdict(&[0.205, 0.405], &[0.105, 0.305], 0.1);
+        assert!(v.contains("inside the seeds' noise: 2 SE 0.2828"), "{v}");
+        assert_eq!(verdict(&[0.1, 0.2], &[0.3, 0.4], -0.2), "no worse");
+        assert_eq!(verdict(&[0.4], &[0.3], 0.1), "WORSE", "one seed: no noise estimate");
+        assert_eq!(two_se(&[1.0], &[1.0, 2.0]), None);
+    }
+
+    #[test]
+    fn steal_time_is_read_from_proc_stat_and_flagged() {
+        // user nice system idle iowait irq softirq steal guest guest_nice
+        let a = parse_cpu_ticks("cpu  100 0 50 800 10 0 5 35 20 0").unwrap();
+        assert_eq!(a, (35, 1000), "guest time is inside user time and not added again");
+        let b = parse_cpu_ticks("cpu  300 0 100 1500 10 0 5 85 60 0").unwrap();
+        assert!((steal_share(a, b) - 50.0 / 1000.0).abs() < 1e-12);
+        assert_eq!(steal_share(a, a), 0.0);
+        assert_eq!(parse_cpu_ticks("cpu0 1 2 3 4 5 6 7 8"), None, "only the all-CPU line");
+        assert_eq!(parse_cpu_ticks("cpu 1 2 3"), None, "too few fields");
+        assert_eq!(parse_cpu_ticks("cpu 1 2 x 4 5 6 7 8"), None);
+
+        let dir = tempfile::tempdir().unwrap();
+        let rec = |name: &str, share: f64| {
+            dataset::io::atomic_write_json(&host_record(&dir.path().join(name)), &HostRecord { steal_share: share, wall_s: 120.0 }).unwrap()
+        };
+        rec("auto", 0.012);
+        rec("auto-seed1", 0.25);
+        let runs = [run("auto", 30.0, 0.1, 0.2, None), run("auto-seed1", 30.0, 0.1, 0.2, None), run("fast-small", 30.0, 0.1, 0.2, None)];
+        let text = host_lines(dir.path(), &runs);
+        assert!(text.starts_with("steps at the budget (host steal time while training): auto 10 (1.2 %), auto-seed1 10 (25.0 %), fast-small 10 (not recorded)"), "{text}");
+        assert!(text.contains("**auto-seed1**: the hypervisor took 25 %") && !text.contains("**auto**"), "{text}");
     }
 
     #[test]
