@@ -12,7 +12,7 @@
 //! | finest resolution | the bounding cube's side / the smallest pixel footprint over the box ([`smallest_footprint`]: nearest distance from a train camera to the box, at least `near`, × the pixel angle); with ground-truth depth at most the resolution at which the visible surface fills the hash table at 4 cells per entry ([`surface_cells`], [`capacity_resolution`]) |
 //! | coarsest resolution | instant-ngp's 16, raised until the box's smallest side spans 4 coarsest cells |
 //! | levels, table size | levels from the two resolutions at growth 1.5 per level (≤ 16; instant-ngp's 1.38 costs more levels, each a share of a CPU step); table big enough for a dense finest level, at most 2^15 entries per level (one level's parameters, gradients and Adam moments in a core's 1 MiB L2 cache) and within a memory budget ([`hash_sizes`]) |
-//! | view dependence | scene facts' `view_dependent`; without facts the spread of a surface point's colour across the train views that see it, with ground-truth depth ([`colour_spread`]); without depth it stays on |
+//! | view dependence | scene facts' `view_dependent`; without facts the spread of a surface point's colour across the train views that see it, with ground-truth depth ([`colour_spread`]); without depth, on the depth the model has learned after `view_test_steps` (256) steps, until then on; when it goes off the model keeps what it learned ([`view_dependence_from_model`], [`crate::models::fast::FastModel::without_view_dependence`]) |
 //! | samples | occupancy cell = 8 smallest footprints (16³…64³); marching step = 2 finest cells (between one footprint and instant-ngp's 2√3), at most `max_samples_per_ray` per cube diagonal ([`sampling`]); optionally growing with distance as the footprint does, up to one occupancy cell ([`cone`], `cone_marching`, off by default) |
 //! | distortion loss | mip-NeRF 360's, only when the train views show opaque surfaces ([`translucent_share`]) and see the surface from directions ≥ 45° apart ([`surface_parallax`], [`distortion_rule`]); then not on the rays of mixed pixels (partial alpha, or a depth edge within one pixel, [`crate::data::mixed_pixels`]), and not at all when more than 20 % of the covered pixels are mixed ([`mixed_rule`]) |
 //! | stopping | stop when the best val PSNR gained < 0.1 dB over the last fifth of the time budget ([`plateau_reached`]), validating every twentieth |
@@ -129,6 +129,11 @@ pub struct AutoConfig {
     /// Surface points drawn for the colour-spread test.
     #[config(default = 512)]
     pub spread_points: usize,
+    /// Without scene facts and ground-truth depth, the colour-spread test runs on the depth
+    /// the model has learned after this many steps ([`view_dependence_from_model`]); until then
+    /// the colour head sees the direction. `None` or 0: not tested, kept on.
+    #[config(default = "Some(256)")]
+    pub view_test_steps: Option<u64>,
     /// Stop when the val PSNR gained less than this over the window.
     #[config(default = 0.1)]
     pub plateau_min_gain_db: f64,
@@ -669,67 +674,156 @@ pub struct SpreadStats {
     pub points: usize,
     /// Median over points of the RMS (over channels) standard deviation of the colour.
     pub median_spread: f64,
+    /// Its 90th percentile over points.
+    pub p90_spread: f64,
     /// Mean views per point.
     pub views_per_point: f64,
 }
 
+/// Radius, in pixels, of the neighbourhood that must be flat in colour around a pixel the
+/// colour-spread test draws ([`colour_spread`]).
+pub const FLAT_RADIUS: usize = 2;
+/// Most RMS colour deviation (display values) within that neighbourhood. Texture makes a
+/// point's colour in other views hinge on exact registration: a depth off by a pixel's worth
+/// (a model's learned depth, or a ground-truth depth at the pixel centre against a colour
+/// averaged over the pixel) would read as view dependence. In flat regions it cannot.
+pub const FLAT_TOLERANCE: f64 = 0.03;
+
 /// The colour spread of surface points across views: up to `max_points` pixels with alpha 1
-/// and depth, drawn from the views round-robin (keyed by `seed`), are lifted to 3D with their
+/// and depth whose 5 × 5 neighbourhood is opaque and flat in colour ([`FLAT_TOLERANCE`]),
+/// drawn from the views round-robin (keyed by `seed`), are lifted to 3D with their
 /// depth; each point is projected into every other view, which sees it when it lands inside
 /// the image on an opaque pixel whose depth agrees within 1 % (not occluded); points seen by
 /// ≥ 3 views give the standard deviation of their colour. `None` when no point qualifies.
 pub fn colour_spread(views: &[SpreadView<'_>], max_points: usize, seed: u64) -> Option<SpreadStats> {
-    let w2c: Vec<glam::DMat4> = views.iter().map(|v| v.camera.c2w.inverse()).collect();
+    let images: Vec<(&Camera, &[[f32; 4]])> = views.iter().map(|v| (v.camera, v.rgba)).collect();
+    let mut lookup = |pixels: &[(usize, usize)]| -> Vec<f32> { pixels.iter().map(|&(v, p)| views[v].depth.get(p).copied().unwrap_or(0.0)).collect() };
+    colour_spread_by(&images, &mut lookup, max_points, seed)
+}
+
+/// Z-depths (0: no surface) at a batch of (view, pixel) pairs, for [`colour_spread_by`].
+pub type DepthAt<'a> = dyn FnMut(&[(usize, usize)]) -> Vec<f32> + 'a;
+
+/// [`colour_spread`] with the depth coming from `depth_at`: the z-depths (0: no surface) at a
+/// batch of (view, pixel) pairs. It asks twice per round of up to `max_points` drawn pixels:
+/// for the drawn pixels, then for the pixels of the other views they project to, so a
+/// renderer answers in batches and only for the pixels the test looks at, at full resolution.
+/// Same draws and result as [`colour_spread`] on depth maps with the same values.
+pub fn colour_spread_by(
+    views: &[(&Camera, &[[f32; 4]])],
+    depth_at: &mut DepthAt<'_>,
+    max_points: usize,
+    seed: u64,
+) -> Option<SpreadStats> {
+    let w2c: Vec<glam::DMat4> = views.iter().map(|(c, _)| c.c2w.inverse()).collect();
+    let opaque = |v: usize, p: usize| views[v].1.get(p).is_some_and(|c| c[3] >= 0.999);
+    // A drawn pixel's (2r + 1)² neighbourhood: inside the image, opaque, and flat in colour.
+    let flat = |v: usize, p: usize| {
+        let (cam, rgba) = views[v];
+        let (w, h, r) = (cam.intrinsics.width as usize, cam.intrinsics.height as usize, FLAT_RADIUS);
+        let (x, y) = (p % w, p / w);
+        if x < r || y < r || x + r >= w || y + r >= h {
+            return false;
+        }
+        let (mut sum, mut sq, mut n) = ([0.0f64; 3], [0.0f64; 3], 0.0);
+        for yy in y - r..=y + r {
+            for xx in x - r..=x + r {
+                let c = rgba[yy * w + xx];
+                if c[3] < 0.999 {
+                    return false;
+                }
+                for ch in 0..3 {
+                    sum[ch] += c[ch] as f64;
+                    sq[ch] += (c[ch] as f64).powi(2);
+                }
+                n += 1.0;
+            }
+        }
+        let var = (0..3).map(|ch| (sq[ch] / n - (sum[ch] / n).powi(2)).max(0.0)).sum::<f64>() / 3.0;
+        var.sqrt() <= FLAT_TOLERANCE
+    };
+    let colour = |v: usize, p: usize| {
+        let c = views[v].1[p];
+        [c[0] as f64, c[1] as f64, c[2] as f64]
+    };
     let mut spreads = Vec::new();
     let mut seen_total = 0usize;
     let tries = max_points * 4;
-    for k in 0..tries {
-        if spreads.len() >= max_points || views.is_empty() {
-            break;
-        }
-        let vi = k % views.len();
-        let v = &views[vi];
-        let n = v.rgba.len().min(v.depth.len());
-        if n == 0 {
-            continue;
-        }
-        let p = ((uniform(seed, stream::VAL, 1 << 40 | k as u64, 0) as f64 * n as f64) as usize).min(n - 1);
-        let w = v.camera.intrinsics.width as usize;
-        if v.rgba[p][3] < 0.999 || v.depth[p] <= 0.0 {
-            continue;
-        }
-        let x = lift_pixel(v.camera, p, w, v.depth[p]);
-        let mut cols = vec![[v.rgba[p][0] as f64, v.rgba[p][1] as f64, v.rgba[p][2] as f64]];
-        for (ui, u) in views.iter().enumerate() {
-            if ui == vi {
-                continue;
-            }
-            let Some(q) = sees(&w2c[ui], u.camera, u.depth, x) else { continue };
-            if q >= u.rgba.len() || u.rgba[q][3] < 0.999 {
-                continue;
-            }
-            cols.push([u.rgba[q][0] as f64, u.rgba[q][1] as f64, u.rgba[q][2] as f64]);
-        }
-        if cols.len() < 3 {
-            continue;
-        }
-        let m = cols.len() as f64;
-        let var: f64 = (0..3)
-            .map(|ch| {
-                let mean = cols.iter().map(|c| c[ch]).sum::<f64>() / m;
-                cols.iter().map(|c| (c[ch] - mean).powi(2)).sum::<f64>() / m
+    let round = max_points.max(1);
+    let mut k0 = 0;
+    while k0 < tries && spreads.len() < max_points && !views.is_empty() {
+        let k1 = (k0 + round).min(tries);
+        let drawn: Vec<(usize, usize)> = (k0..k1)
+            .filter_map(|k| {
+                let vi = k % views.len();
+                let n = views[vi].1.len();
+                let p = ((uniform(seed, stream::VAL, 1 << 40 | k as u64, 0) as f64 * n as f64) as usize).min(n.max(1) - 1);
+                (n > 0 && opaque(vi, p) && flat(vi, p)).then_some((vi, p))
             })
-            .sum::<f64>()
-            / 3.0;
-        seen_total += cols.len();
-        spreads.push(var.sqrt());
+            .collect();
+        k0 = k1;
+        let depth = depth_at(&drawn);
+        // Each lifted point with the range of its requests in the other views.
+        let mut points = Vec::new();
+        let (mut asks, mut want_z) = (Vec::new(), Vec::new());
+        for (&(vi, p), &z) in drawn.iter().zip(&depth) {
+            if !(z > 0.0 && z.is_finite()) {
+                continue;
+            }
+            let cam = views[vi].0;
+            let x = lift_pixel(cam, p, cam.intrinsics.width as usize, z);
+            let start = asks.len();
+            for (ui, (u, _)) in views.iter().enumerate() {
+                if ui == vi {
+                    continue;
+                }
+                if let Some((q, zq)) = project(&w2c[ui], u, x)
+                    && opaque(ui, q)
+                {
+                    asks.push((ui, q));
+                    want_z.push(zq);
+                }
+            }
+            points.push((vi, p, start..asks.len()));
+        }
+        let got = if asks.is_empty() { Vec::new() } else { depth_at(&asks) };
+        for (vi, p, range) in points {
+            if spreads.len() >= max_points {
+                break;
+            }
+            let mut cols = vec![colour(vi, p)];
+            for r in range {
+                let (d, z) = (got[r] as f64, want_z[r]);
+                if (d - z).abs() <= 0.01 * z {
+                    cols.push(colour(asks[r].0, asks[r].1));
+                }
+            }
+            if cols.len() < 3 {
+                continue;
+            }
+            let m = cols.len() as f64;
+            let var: f64 = (0..3)
+                .map(|ch| {
+                    let mean = cols.iter().map(|c| c[ch]).sum::<f64>() / m;
+                    cols.iter().map(|c| (c[ch] - mean).powi(2)).sum::<f64>() / m
+                })
+                .sum::<f64>()
+                / 3.0;
+            seen_total += cols.len();
+            spreads.push(var.sqrt());
+        }
     }
     if spreads.is_empty() {
         return None;
     }
     spreads.sort_by(f64::total_cmp);
     let points = spreads.len();
-    Some(SpreadStats { points, median_spread: spreads[points / 2], views_per_point: seen_total as f64 / points as f64 })
+    Some(SpreadStats {
+        points,
+        median_spread: spreads[points / 2],
+        p90_spread: spreads[(points * 9 / 10).min(points - 1)],
+        views_per_point: seen_total as f64 / points as f64,
+    })
 }
 
 /// View dependence from a colour-spread measurement: on when the median spread exceeds
@@ -739,21 +833,67 @@ pub fn view_dependence_from_spread(stats: Option<&SpreadStats>, threshold: f64) 
         Some(s) if s.median_spread > threshold => (
             true,
             format!(
-                "view_dependent = true: a surface point's colour varies by {:.3} (median RMS over {} points, {:.1} views each) across views, above {threshold}",
-                s.median_spread, s.points, s.views_per_point
+                "view_dependent = true: a surface point's colour varies by {:.3} (median RMS over {} points, {:.1} views each; 90th percentile {:.3}) across views, above {threshold}",
+                s.median_spread, s.points, s.views_per_point, s.p90_spread
             ),
         ),
         Some(s) => (
             false,
             format!(
-                "view_dependent = false: a surface point's colour varies by only {:.3} (median RMS over {} points, {:.1} views each) across views, at most {threshold}; the colour head takes no direction",
-                s.median_spread, s.points, s.views_per_point
+                "view_dependent = false: a surface point's colour varies by only {:.3} (median RMS over {} points, {:.1} views each; 90th percentile {:.3}) across views, at most {threshold}; the colour head takes no direction",
+                s.median_spread, s.points, s.views_per_point, s.p90_spread
             ),
         ),
         None => (
             true,
             "view_dependent = true: no scene facts and no ground-truth depth to test colour constancy with; kept on (the safe choice)".into(),
         ),
+    }
+}
+
+/// View dependence tested on the depth a model has learned, for datasets without scene
+/// facts and ground-truth depth (the Blender synthetic ones), after `step` steps:
+/// [`colour_spread_by`] over the train views, at full resolution, with the depth the model
+/// renders through the centres of the pixels the test looks at (where its opacity is at least
+/// 0.5; elsewhere no surface). A depth still off misplaces points and only adds spread, so
+/// an early test errs on the safe side (view dependence kept).
+pub fn view_dependence_from_model(
+    model: &crate::models::Model,
+    views: &[crate::data::ViewPixels],
+    threshold: f64,
+    points: usize,
+    seed: u64,
+    step: u64,
+) -> (bool, String) {
+    let images: Vec<(&Camera, &[[f32; 4]])> = views.iter().map(|v| (&v.camera, v.rgba.as_slice())).collect();
+    let mut rays = 0usize;
+    let mut render = |pixels: &[(usize, usize)]| -> Vec<f32> {
+        rays += pixels.len();
+        let (origins, dirs): (Vec<[f32; 3]>, Vec<[f32; 3]>) = pixels.iter().map(|&(v, p)| crate::data::pixel_ray(&views[v].camera, p)).unzip();
+        let out = model.render_rays(&origins, &dirs, [0.0; 3]);
+        pixels
+            .iter()
+            .enumerate()
+            .map(|(i, &(v, p))| {
+                let (o, t) = (out.opacity[i], out.distance[i]);
+                let cam = &views[v].camera;
+                let w = cam.intrinsics.width as usize;
+                if o >= 0.5 && t.is_finite() && t > 0.0 {
+                    cam.z_depth_from_distance((p % w) as f64 + 0.5, (p / w) as f64 + 0.5, t as f64) as f32
+                } else {
+                    0.0
+                }
+            })
+            .collect()
+    };
+    let stats = colour_spread_by(&images, &mut render, points, seed);
+    let source = format!("the depth the model learned in {step} steps ({rays} rays rendered over {} train views)", views.len());
+    match stats {
+        Some(st) => {
+            let (vd, reason) = view_dependence_from_spread(Some(&st), threshold);
+            (vd, format!("{reason}; measured on {source}"))
+        }
+        None => (true, format!("view_dependent = true: {source} puts no surface point in 3 views at once; kept on (the safe choice)")),
     }
 }
 
@@ -1133,7 +1273,18 @@ pub fn resolve(config: &mut TrainConfig, ds: &Dataset, train: &mut TrainData) ->
                     .collect();
                 colour_spread(&views, auto.spread_points, config.seed)
             });
-            view_dependence_from_spread(stats.as_ref(), auto.view_spread_threshold)
+            match (&stats, auto.view_test_steps.filter(|n| *n > 0)) {
+                (None, Some(n)) if depths.is_none() => {
+                    config.view_test_at = Some(n);
+                    (
+                        true,
+                        format!(
+                            "view_dependent = true until step {n}: no scene facts and no ground-truth depth; then the colour spread of surface points across the train views is measured on the depth the model has learned"
+                        ),
+                    )
+                }
+                _ => view_dependence_from_spread(stats.as_ref(), auto.view_spread_threshold),
+            }
         }
     };
     fast.view_dependent = Some(vd);
@@ -1567,7 +1718,7 @@ mod tests {
     #[test]
     fn view_dependence_from_the_data() {
         let c = DVec3::new(0.1, 0.0, -0.2);
-        let cams = ring(c, 3.0, 12, 32);
+        let cams = ring(c, 3.0, 12, 64);
         let test = |shade: &dyn Fn(DVec3, DVec3) -> [f32; 3]| {
             let imgs = render_sphere(&cams, c, 0.8, shade);
             let views: Vec<SpreadView<'_>> =

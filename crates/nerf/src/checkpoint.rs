@@ -152,6 +152,14 @@ pub fn remove_stale_temporaries(run_dir: &Path, run_files: &[&str]) -> Result<()
     Ok(())
 }
 
+/// Removes every checkpoint of a run (when the model they hold no longer matches its config).
+pub fn remove_all(run_dir: &Path) -> Result<(), CheckpointError> {
+    for (_, p) in list(run_dir) {
+        std::fs::remove_file(&p).map_err(|e| dataset::DatasetError::Io { path: p.clone(), source: e })?;
+    }
+    Ok(())
+}
+
 /// The newest checkpoint of a run, if any.
 pub fn latest(run_dir: &Path) -> Option<PathBuf> {
     list(run_dir).into_iter().max_by_key(|(s, _)| *s).map(|(_, p)| p)

@@ -455,7 +455,10 @@ pub mod synthetic {
         ([-0.5, -0.2, 0.6], 0.3, [0.2, 0.35, 0.9]),
     ];
 
-    fn trace(o: DVec3, d: DVec3) -> Option<(f64, [f64; 3])> {
+    /// Nearest hit along the ray and its colour: diffuse shading under one distant light,
+    /// plus, with `gloss` > 0, a white Fresnel-like sheen `gloss (1 − n·v)²` that brightens
+    /// towards grazing views, so every point's colour changes with the view.
+    fn trace(o: DVec3, d: DVec3, gloss: f64) -> Option<(f64, [f64; 3])> {
         let light = DVec3::new(0.5, 0.8, 0.3).normalize();
         let mut best: Option<(f64, [f64; 3])> = None;
         for (c, r, albedo) in SPHERES {
@@ -469,7 +472,8 @@ pub mod synthetic {
             if t > 1e-6 && best.is_none_or(|(bt, _)| t < bt) {
                 let n = (o + d * t - DVec3::from(c)) / r;
                 let shade = 0.35 + 0.65 * n.dot(light).max(0.0);
-                best = Some((t, albedo.map(|a| a * shade)));
+                let spec = gloss * (1.0 - n.dot(-d).clamp(0.0, 1.0)).powi(2);
+                best = Some((t, albedo.map(|a| (a * shade + spec).min(1.0))));
             }
         }
         best
@@ -492,6 +496,12 @@ pub mod synthetic {
     /// `blender_layout` only `camera_angle_x`, file paths and poses are written (no
     /// intrinsics keys, ground truth or facts), as in the original Blender synthetic folders.
     pub fn write(dir: &Path, size: u32, counts: [usize; 3], blender_layout: bool) -> Result<(), dataset::DatasetError> {
+        write_glossy(dir, size, counts, blender_layout, 0.0)
+    }
+
+    /// [`write`] with a white sheen of strength `gloss` on every sphere (view-dependent
+    /// colour when `gloss` > 0; the facts say so).
+    pub fn write_glossy(dir: &Path, size: u32, counts: [usize; 3], blender_layout: bool, gloss: f64) -> Result<(), dataset::DatasetError> {
         let intr = Intrinsics::from_fov_x(size, size, 0.6911);
         let (mut near, mut far) = (f64::INFINITY, 0.0f64);
         let mut splits = Vec::new();
@@ -515,7 +525,7 @@ pub mod synthetic {
                         let mut acc = [0.0f64; 4];
                         for (sx, sy) in [(0.25, 0.25), (0.75, 0.25), (0.25, 0.75), (0.75, 0.75)] {
                             let ray = cam.pixel_ray(i as f64 + sx, j as f64 + sy);
-                            if let Some((_, c)) = trace(ray.origin, ray.direction) {
+                            if let Some((_, c)) = trace(ray.origin, ray.direction, gloss) {
                                 for ch in 0..3 {
                                     acc[ch] += c[ch];
                                 }
@@ -528,7 +538,7 @@ pub mod synthetic {
                         }
                         img.data[4 * p + 3] = a as f32;
                         let ray = cam.pixel_center_ray(i, j);
-                        if let Some((t, _)) = trace(ray.origin, ray.direction) {
+                        if let Some((t, _)) = trace(ray.origin, ray.direction, gloss) {
                             gt.distance[p] = t as f32;
                             gt.depth[p] = cam.z_depth_from_distance(i as f64 + 0.5, j as f64 + 0.5, t) as f32;
                             gt.alpha[p] = 1.0;
@@ -559,7 +569,7 @@ pub mod synthetic {
             aabb_max: [1.05, 0.65, 0.95],
             near: near * 0.9,
             far: far * 1.1 + 1.0,
-            view_dependent: false,
+            view_dependent: gloss > 0.0,
             render: serde_json::json!({"analytic": true}),
             renderer: "nerf::data::synthetic".into(),
         };

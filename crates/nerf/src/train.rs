@@ -133,6 +133,11 @@ pub struct TrainConfig {
     /// config is used as recorded, so a resumed run rebuilds the same model).
     #[config(default = "None")]
     pub auto_reasons: Option<Vec<String>>,
+    /// Pending decision of `auto` on a dataset without scene facts and ground-truth depth: the
+    /// step after which the trainer tests view dependence on the depth the model has learned
+    /// ([`crate::auto::view_dependence_from_model`]); `None` once decided (or never needed).
+    #[config(default = "None")]
+    pub view_test_at: Option<u64>,
 }
 
 impl TrainConfig {
@@ -677,6 +682,9 @@ impl Trainer {
                 return Ok(self.summary(true, val));
             }
             let stats = self.step_once();
+            if self.config.view_test_at.is_some_and(|n| self.step >= n) {
+                self.test_view_dependence()?;
+            }
             if self.step % self.config.log_interval_steps.max(1) == 0 {
                 self.log_window()?;
             }
@@ -706,6 +714,42 @@ impl Trainer {
         self.save_checkpoint()?;
         val = self.log_val()?;
         Ok(self.summary(false, val))
+    }
+
+    /// `auto`'s pending view-dependence test ([`TrainConfig::view_test_at`]), on the training
+    /// clock (it is part of what `auto` costs). When the colour turns out constant across
+    /// views, the model continues without the direction input
+    /// ([`crate::models::fast::FastModel::without_view_dependence`]: everything it learned
+    /// carries over) and the view-dependent model's checkpoints are removed before the new
+    /// config is written, so a resumed run never pairs one with the other. The decision
+    /// replaces the provisional reason line in `config.json`.
+    fn test_view_dependence(&mut self) -> Result<(), TrainError> {
+        let t0 = Instant::now();
+        let (threshold, points) = self.config.auto.as_ref().map_or((0.04, 512), |a| (a.view_spread_threshold, a.spread_points));
+        let (vd, reason) =
+            crate::auto::view_dependence_from_model(&self.model, &self.data.views, threshold, points, self.config.seed, self.step);
+        let switch = !vd && matches!(&self.config.model, ModelConfig::Fast(f) if f.is_view_dependent());
+        if switch {
+            if let Model::Fast(m) = &self.model {
+                self.model = Model::Fast(Box::new(m.without_view_dependence().map_err(TrainError::Invalid)?));
+            }
+            if let ModelConfig::Fast(f) = &mut self.config.model {
+                f.view_dependent = Some(false);
+            }
+            checkpoint::remove_all(&self.run_dir)?;
+        }
+        let reasons = self.config.auto_reasons.get_or_insert_with(Vec::new);
+        match reasons.iter_mut().find(|r| r.starts_with("view_dependent")) {
+            Some(r) => *r = reason,
+            None => reasons.push(reason),
+        }
+        self.config.view_test_at = None;
+        self.wall_s += t0.elapsed().as_secs_f64();
+        dataset::io::atomic_write_json(&self.run_dir.join(CONFIG_FILE), &self.config)?;
+        if switch {
+            self.save_checkpoint()?;
+        }
+        Ok(())
     }
 
     fn summary(&self, interrupted: bool, val: Option<ValMetrics>) -> Summary {

@@ -74,8 +74,10 @@ fn auto_without_facts_uses_the_visual_hull_and_tests_view_dependence_from_depth(
         assert!(b.aabb_min[k] <= TRUE_MIN[k] && b.aabb_max[k] >= TRUE_MAX[k], "{b:?}");
         assert!(b.aabb_min[k] > TRUE_MIN[k] - 0.5 && b.aabb_max[k] < TRUE_MAX[k] + 0.5, "{b:?}");
     }
+    // Without facts and depth, view dependence stays on until the model's depth can test it.
     assert!(fast(&t.config).is_view_dependent());
-    assert!(t.config.auto_reasons.iter().flatten().any(|r| r.contains("no ground-truth depth")), "{:#?}", t.config.auto_reasons);
+    assert_eq!(t.config.view_test_at, Some(256));
+    assert!(t.config.auto_reasons.iter().flatten().any(|r| r.contains("until step 256")), "{:#?}", t.config.auto_reasons);
 
     // Our layout with the facts removed: ground-truth depth lets auto test colour constancy.
     let ours = tmp.path().join("ours");
@@ -90,6 +92,38 @@ fn auto_without_facts_uses_the_visual_hull_and_tests_view_dependence_from_depth(
     let t = Trainer::new(auto_config(&ours, 1), &tmp.path().join("run-o"), false).unwrap();
     assert!(!fast(&t.config).is_view_dependent(), "{:#?}", t.config.auto_reasons);
     assert!(t.config.auto_reasons.iter().flatten().any(|r| r.contains("varies by only")), "{:#?}", t.config.auto_reasons);
+}
+
+/// A Blender-layout dataset (no facts, no depth): after `view_test_steps` the trainer measures
+/// the colour spread on the depth the model has learned. The Lambertian spheres lose the
+/// direction input (and the run resumes with the new model); glossy ones keep it.
+#[test]
+fn auto_tests_view_dependence_on_the_depth_the_model_learns() {
+    let tmp = tempfile::tempdir().unwrap();
+    for (gloss, want) in [(0.0, false), (0.8, true)] {
+        let data = tmp.path().join(format!("blender-{gloss}"));
+        nerf::data::synthetic::write_glossy(&data, 48, [24, 1, 1], true, gloss).unwrap();
+        let mut cfg = auto_config(&data, 140);
+        cfg.auto.as_mut().unwrap().view_test_steps = Some(120);
+        cfg.checkpoint_interval_steps = 50;
+        let run = tmp.path().join(format!("run-{gloss}"));
+        let mut t = Trainer::new(cfg, &run, false).unwrap();
+        assert!(fast(&t.config).is_view_dependent() && t.config.view_test_at == Some(120));
+        t.run(&AtomicBool::new(false), &mut |_| {}).unwrap();
+        let written = TrainConfig::read(&run.join("config.json")).unwrap();
+        let reason = written.auto_reasons.iter().flatten().find(|r| r.starts_with("view_dependent")).unwrap().clone();
+        eprintln!("gloss {gloss}: {reason}");
+        assert_eq!(fast(&written).is_view_dependent(), want, "gloss {gloss}: {reason}");
+        assert!(reason.contains("measured on the depth the model learned in 120 steps"), "{reason}");
+        assert_eq!(written.view_test_at, None);
+        assert_eq!(fast(&t.config).is_view_dependent(), want);
+        // The run's checkpoints hold the model its config describes: it resumes.
+        let mut cfg = written.clone();
+        cfg.steps = Some(150);
+        let mut r = Trainer::new(cfg, &run, true).unwrap();
+        assert_eq!(r.step, 140);
+        assert!(r.run(&AtomicBool::new(false), &mut |_| {}).unwrap().val.is_some_and(|v| v.val_psnr.is_finite()));
+    }
 }
 
 #[test]

@@ -504,6 +504,48 @@ impl FastModel {
         dens + col
     }
 
+    /// The same model without view dependence, for a run whose test found the scene's colour
+    /// constant across views ([`crate::auto`]): the colour network's direction inputs are
+    /// dropped and what it learned otherwise is kept. Its first layer sees `[geometry, SH]`;
+    /// the SH band-0 input is the constant Y₀₀ for every direction, so its weights times Y₀₀
+    /// fold into the bias, and bands ≥ 1 (which integrate to zero over the sphere) go, so the
+    /// first layer computes its mean over all directions. Hash tables, density network, the
+    /// rest of the colour network, the occupancy grid and all optimiser moments carry over
+    /// (the first layer's moments for the rows it keeps). Already without view dependence:
+    /// an unchanged copy.
+    pub fn without_view_dependence(&self) -> Result<Self, String> {
+        let c = &self.config;
+        let mut cfg = c.clone();
+        cfg.view_dependent = Some(false);
+        let mut out = Self::new(cfg, self.bounds.clone(), 0)?;
+        let mut s = self.state();
+        if c.is_view_dependent() {
+            // Parameter tensors in visiting order: the density network's, then the colour
+            // network's first layer (weight [geo + dir, width] row-major, then bias).
+            let wi = crate::field::param_vectors(&self.field.density).len();
+            let (geo, width) = (c.geo_features, c.color_width);
+            let y00 = crate::encoding::sh::sh_encode([0.0, 0.0, 1.0])[0];
+            let key = |k: usize| format!("field.{k}");
+            let w = s.arrays.get(&key(wi)).cloned().ok_or("the colour network has no first layer")?;
+            let b = s.arrays.get(&key(wi + 1)).cloned().ok_or("the colour network's first layer has no bias")?;
+            if w.len() != (geo + c.dir_dims()) * width || b.len() != width {
+                return Err(format!("the colour network's first layer has {} weights, not ({geo} + {}) × {width}", w.len(), c.dir_dims()));
+            }
+            let band0 = &w[geo * width..(geo + 1) * width];
+            let bias: Vec<f32> = b.iter().zip(band0).map(|(b, w0)| b + y00 * w0).collect();
+            s.arrays.insert(key(wi), w[..geo * width].to_vec());
+            s.arrays.insert(key(wi + 1), bias);
+            for m in ["m1", "m2"] {
+                if let Some(v) = s.arrays.get_mut(&format!("field_adam.{wi}.{m}")) {
+                    v.truncate(geo * width);
+                }
+            }
+        }
+        out.load_state(&s)?;
+        out.lr = self.lr;
+        Ok(out)
+    }
+
     /// The full state for a checkpoint.
     pub fn state(&self) -> StateDict {
         let mut s = StateDict::default();
@@ -597,6 +639,66 @@ fn keep_until_opaque(s: &RaySamples, sigma: &[f32], tau_stop: f32) -> (RaySample
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Dropping the direction input keeps the hash tables, the density network and the
+    /// occupancy grid exactly, and the new colour network computes the old one fed the SH
+    /// vector of the direction average (Y₀₀, 0, …, 0); training goes on from there.
+    #[test]
+    fn dropping_view_dependence_keeps_the_direction_averaged_colour() {
+        let bounds = SceneBounds { aabb_min: [-1.0; 3], aabb_max: [1.0; 3], near: 0.5, far: 6.0, source: "test".into() };
+        let cfg = FastConfig::new()
+            .with_levels(4)
+            .with_log2_table_size(12)
+            .with_finest_resolution(64)
+            .with_grid_resolution(16)
+            .with_steps_per_diagonal(64)
+            .with_grid_warmup_steps(2);
+        let mut m = FastModel::new(cfg, bounds, 3).unwrap();
+        let n = 64;
+        let batch = RayBatch {
+            origins: vec![[0.0, 0.0, 3.0]; n],
+            dirs: (0..n)
+                .map(|i| {
+                    let a = i as f32 * 0.01 - 0.3;
+                    let l = (a * a + 0.04 + 1.0f32).sqrt();
+                    [a / l, 0.2 / l, -1.0 / l]
+                })
+                .collect(),
+            target: vec![[0.7, 0.3, 0.2]; n],
+            background: vec![[0.0; 3]; n],
+            ids: (0..n as u64).collect(),
+            mixed: Vec::new(),
+        };
+        for step in 0..4 {
+            m.lr = 1e-2;
+            assert!(m.train_step(&batch, step, 0).loss.is_finite());
+        }
+        let mut d = m.without_view_dependence().unwrap();
+        assert!(m.config.is_view_dependent() && !d.config.is_view_dependent());
+        assert_eq!(d.config.dir_dims(), 0);
+        assert_eq!(d.grid.params, m.grid.params);
+        assert_eq!((&d.grid_adam.m, &d.grid_adam.v), (&m.grid_adam.m, &m.grid_adam.v));
+        assert_eq!(d.occupancy.density, m.occupancy.density);
+        assert_eq!(d.occupancy.bits, m.occupancy.bits);
+        let (old, new) = (m.mlp(), d.mlp());
+        let (k, ed, sd) = (50, old.enc_dims(), m.config.dir_dims());
+        let enc: Vec<f32> = (0..k * ed).map(|i| ((i * 7919 % 1000) as f32 / 1000.0 - 0.5) * 0.4).collect();
+        let mut sh = vec![0.0f32; k * sd];
+        let y00 = sh_encode([0.0, 0.0, 1.0])[0];
+        (0..k).for_each(|r| sh[r * sd] = y00);
+        let (raw_o, rgb_o) = old.forward(&enc, &sh);
+        let (raw_n, rgb_n) = new.forward(&enc, &[]);
+        assert_eq!(raw_o, raw_n, "the density network is unchanged");
+        let diff = |a: &[[f32; 3]], b: &[[f32; 3]]| a.iter().zip(b).flat_map(|(x, y)| (0..3).map(move |c| (x[c] - y[c]).abs())).fold(0.0f32, f32::max);
+        assert!(diff(&rgb_o, &rgb_n) < 1e-5, "{}", diff(&rgb_o, &rgb_n));
+        // Not vacuous: along an actual direction the old network's colour is another.
+        let one = sh_encode([0.6, 0.0, 0.8]);
+        let sh_dir: Vec<f32> = (0..k).flat_map(|_| one[..sd].to_vec()).collect();
+        assert!(diff(&old.forward(&enc, &sh_dir).1, &rgb_n) > 1e-4);
+        d.lr = 1e-2;
+        assert!(d.train_step(&batch, 4, 0).loss.is_finite());
+        assert!(m.without_view_dependence().unwrap().without_view_dependence().is_ok(), "already off: a copy");
+    }
 
     #[test]
     fn ray_groups_hold_whole_rays_of_about_the_target() {
