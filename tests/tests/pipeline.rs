@@ -63,4 +63,22 @@ fn render_train_eval_writes_a_complete_report() {
     for f in ["report.md", "report.json", "speed_vs_error.png", "grid_r_0.png", "metrics.jsonl", "config.json"] {
         assert!(run.join(f).is_file(), "{f} missing");
     }
+
+    // The same dataset without its scene facts (a third-party dataset with depth): the
+    // off-surface tolerance comes from the box around the true surface points the test views
+    // see, no larger than the scene's box, and the mass stays a measurement (with a zero
+    // tolerance every sample would count as off the surface).
+    for split in ["train", "val", "test"] {
+        let p = data.join(format!("transforms_{split}.json"));
+        let mut v: serde_json::Value = serde_json::from_slice(&std::fs::read(&p).unwrap()).unwrap();
+        v.as_object_mut().unwrap().remove("scene_facts");
+        std::fs::write(&p, serde_json::to_vec(&v).unwrap()).unwrap();
+    }
+    let bare = eval::evaluate_run(&run, &eval::EvalRunOptions::split(SplitKind::Test), &mut |_, _| {}).expect("eval without facts");
+    let (tol, facts_tol) = (bare.report.surface_tol, out.report.surface_tol);
+    eprintln!("surface tolerance {tol} (facts: {facts_tol}), off-surface mass {:?} (facts: {:?})", bare.report.mean.off_surface_mass, m.off_surface_mass);
+    assert!(tol > 0.25 * facts_tol && tol <= facts_tol * 1.001, "{tol} vs {facts_tol}");
+    let (a, b) = (bare.report.mean.off_surface_mass.unwrap(), m.off_surface_mass.unwrap());
+    assert!(a >= b - 1e-9 && a < 1.0, "a smaller tolerance counts at least as much mass off the surface: {a} vs {b}");
+    assert!(bare.report.notes.iter().any(|n| n.contains("ground-truth surface points")), "{:?}", bare.report.notes);
 }

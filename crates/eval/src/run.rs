@@ -135,6 +135,29 @@ fn view_input(v: &LoadedView) -> ViewInput<'_> {
     }
 }
 
+/// The box around the ground-truth surface points of `views` (each covered pixel-centre ray,
+/// alpha at least [`crate::metrics::FOREGROUND_ALPHA`], lifted by its true distance): the
+/// scene's extent for the off-surface tolerance when the dataset has no scene facts but has
+/// ground truth. `None` without ground-truth hits.
+fn surface_box(frames: &[&Frame], views: &[LoadedView]) -> Option<([f32; 3], [f32; 3])> {
+    let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+    for (f, v) in frames.iter().zip(views) {
+        let Some(g) = &v.gt else { continue };
+        for (p, (&d, &a)) in g.distance.iter().zip(&g.alpha).enumerate() {
+            if a < crate::metrics::FOREGROUND_ALPHA || !(d > 0.0 && d.is_finite()) {
+                continue;
+            }
+            let ray = f.camera.pixel_center_ray((p % v.width) as u32, (p / v.width) as u32);
+            let x = ray.origin + ray.direction * d as f64;
+            for k in 0..3 {
+                lo[k] = lo[k].min(x[k]);
+                hi[k] = hi[k].max(x[k]);
+            }
+        }
+    }
+    lo[0].is_finite().then(|| (lo.map(|v| v as f32), hi.map(|v| v as f32)))
+}
+
 /// Evaluates the run in `run_dir` on `opts.split` and writes its report into the run folder.
 /// `progress(done, total)` is called after every view.
 pub fn evaluate_run(
@@ -160,9 +183,11 @@ pub fn evaluate_run(
         views.push(load_view(run_dir, &model, frame, background)?);
         progress(k + 1, frames.len());
     }
-    let options = match &dataset.facts {
-        Some(f) => EvalOptions::for_scene_bbox(f.aabb_min.map(|v| v as f32), f.aabb_max.map(|v| v as f32)),
-        None => EvalOptions::with_surface_tol(0.0),
+    let surface = if dataset.facts.is_none() { surface_box(&frames, &views) } else { None };
+    let options = match (&dataset.facts, surface) {
+        (Some(f), _) => EvalOptions::for_scene_bbox(f.aabb_min.map(|v| v as f32), f.aabb_max.map(|v| v as f32)),
+        (None, Some((lo, hi))) => EvalOptions::for_scene_bbox(lo, hi),
+        (None, None) => EvalOptions::with_surface_tol(0.0),
     };
     let inputs: Vec<ViewInput<'_>> = views.iter().map(view_input).collect();
     let info = RunInfo {
@@ -171,10 +196,15 @@ pub fn evaluate_run(
         parameters: model.parameters() as u64,
     };
     let mut report = evaluate_views(&inputs, info, &options)?;
-    if dataset.facts.is_none() {
-        report.notes.push(
+    match (&dataset.facts, surface) {
+        (Some(_), _) => {}
+        (None, Some(_)) => report.notes.push(format!(
+            "the dataset carries no scene facts: the off-surface tolerance ({:.4}) is 1 % of the diagonal of the box around the ground-truth surface points of the evaluated views",
+            options.surface_tol
+        )),
+        (None, None) => report.notes.push(
             "the dataset carries no scene facts (e.g. Blender synthetic): no bounding box for the off-surface tolerance".into(),
-        );
+        ),
     }
     let metrics_path = run_dir.join("metrics.jsonl");
     let curve = if metrics_path.exists() { read_metrics_jsonl(&metrics_path)? } else { Vec::new() };
