@@ -131,8 +131,10 @@ pub struct AutoConfig {
     pub spread_points: usize,
     /// Without scene facts and ground-truth depth, the colour-spread test runs on the depth
     /// the model has learned after this many steps ([`view_dependence_from_model`]); until then
-    /// the colour head sees the direction. `None` or 0: not tested, kept on.
-    #[config(default = "Some(256)")]
+    /// the colour head sees the direction. `None`: [`DEFAULT_VIEW_TEST_STEPS`] (so a config
+    /// written before this setting reads as today's default, and `bench auto` keeps its runs);
+    /// `Some(0)`: not tested, kept on.
+    #[config(default = "None")]
     pub view_test_steps: Option<u64>,
     /// Stop when the val PSNR gained less than this over the window.
     #[config(default = 0.1)]
@@ -851,6 +853,10 @@ pub fn view_dependence_from_spread(stats: Option<&SpreadStats>, threshold: f64) 
     }
 }
 
+/// Steps after which `auto` tests view dependence on the learned depth
+/// ([`AutoConfig::view_test_steps`]).
+pub const DEFAULT_VIEW_TEST_STEPS: u64 = 256;
+
 /// View dependence tested on the depth a model has learned, for datasets without scene
 /// facts and ground-truth depth (the Blender synthetic ones), after `step` steps:
 /// [`colour_spread_by`] over the train views, at full resolution, with the depth the model
@@ -1273,7 +1279,7 @@ pub fn resolve(config: &mut TrainConfig, ds: &Dataset, train: &mut TrainData) ->
                     .collect();
                 colour_spread(&views, auto.spread_points, config.seed)
             });
-            match (&stats, auto.view_test_steps.filter(|n| *n > 0)) {
+            match (&stats, Some(auto.view_test_steps.unwrap_or(DEFAULT_VIEW_TEST_STEPS)).filter(|n| *n > 0)) {
                 (None, Some(n)) if depths.is_none() => {
                     config.view_test_at = Some(n);
                     (

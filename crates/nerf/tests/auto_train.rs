@@ -137,6 +137,13 @@ fn configs_written_before_auto_still_read() {
     assert!(o["model"].as_object_mut().unwrap().remove("view_dependent").is_some());
     let old: TrainConfig = serde_json::from_value(v).unwrap();
     assert!(old.auto.is_none() && old.auto_reasons.is_none() && old.plateau_stop.is_none());
+    // An auto config written before the learned-depth view test reads as today's preset
+    // (what `bench auto` compares to keep a run).
+    let preset = serde_json::to_value(TrainConfig::preset("auto", "data".into()).unwrap()).unwrap();
+    let mut v = preset.clone();
+    assert!(v["auto"].as_object_mut().unwrap().remove("view_test_steps").is_some());
+    let older: TrainConfig = serde_json::from_value(v).unwrap();
+    assert_eq!(serde_json::to_value(&older).unwrap(), preset);
     // Old fast configs had the direction input: their checkpoints keep their shapes.
     assert!(fast(&old).is_view_dependent());
     assert_eq!(old.model_label(), "fast");
