@@ -62,10 +62,15 @@ pub struct AutoBenchArgs {
     pub one_seed: String,
 }
 
+/// The non-empty items of a comma-separated option, trimmed.
+fn comma_list(s: &str) -> Vec<String> {
+    s.split(',').map(|x| x.trim().to_string()).filter(|x| !x.is_empty()).collect()
+}
+
 /// The seeds of `--seeds`: at least one, no repeats.
 fn parse_seeds(s: &str) -> anyhow::Result<Vec<u64>> {
     let mut seeds = Vec::new();
-    for t in s.split(',').map(str::trim).filter(|t| !t.is_empty()) {
+    for t in comma_list(s) {
         let v: u64 = t.parse().with_context(|| format!("--seeds: '{t}' is not a non-negative integer"))?;
         anyhow::ensure!(!seeds.contains(&v), "--seeds: seed {v} is given twice");
         seeds.push(v);
@@ -123,7 +128,7 @@ fn config_of(name: &str, dataset: &Path, budget_s: f64) -> anyhow::Result<TrainC
 
 fn scene_names(args: &AutoBenchArgs) -> anyhow::Result<Vec<String>> {
     if let Some(s) = &args.scenes {
-        let v: Vec<String> = s.split(',').map(|x| x.trim().to_string()).filter(|x| !x.is_empty()).collect();
+        let v = comma_list(s);
         anyhow::ensure!(!v.is_empty(), "--scenes is empty");
         return Ok(v);
     }
@@ -376,12 +381,12 @@ fn host_lines(dir: &Path, runs: &[eval::RunSummary]) -> String {
 /// Runs the benchmark.
 pub fn run(args: AutoBenchArgs) -> anyhow::Result<()> {
     let budget_s = crate::train::parse_duration(&args.budget)?;
-    let configs: Vec<String> = args.configs.split(',').map(|s| s.trim().to_string()).filter(|s| !s.is_empty()).collect();
+    let configs = comma_list(&args.configs);
     let seeds = parse_seeds(&args.seeds)?;
     for c in &configs {
         config_of(c, Path::new("."), budget_s)?;
     }
-    let one_seed: Vec<String> = args.one_seed.split(',').map(|s| s.trim().to_string()).filter(|s| !s.is_empty()).collect();
+    let one_seed = comma_list(&args.one_seed);
     if let Some(c) = one_seed.iter().find(|c| !configs.contains(c)) {
         anyhow::bail!("--one-seed names '{c}', which --configs ({}) does not list", configs.join(","));
     }

@@ -183,11 +183,21 @@ pub fn evaluate_run(
         views.push(load_view(run_dir, &model, frame, background)?);
         progress(k + 1, frames.len());
     }
-    let surface = if dataset.facts.is_none() { surface_box(&frames, &views) } else { None };
-    let options = match (&dataset.facts, surface) {
-        (Some(f), _) => EvalOptions::for_scene_bbox(f.aabb_min.map(|v| v as f32), f.aabb_max.map(|v| v as f32)),
-        (None, Some((lo, hi))) => EvalOptions::for_scene_bbox(lo, hi),
-        (None, None) => EvalOptions::with_surface_tol(0.0),
+    // The off-surface tolerance's box, and the note that says where it came from.
+    let (options, note) = match (&dataset.facts, dataset.facts.is_none().then(|| surface_box(&frames, &views)).flatten()) {
+        (Some(f), _) => (EvalOptions::for_scene_bbox(f.aabb_min.map(|v| v as f32), f.aabb_max.map(|v| v as f32)), None),
+        (None, Some((lo, hi))) => {
+            let o = EvalOptions::for_scene_bbox(lo, hi);
+            let note = format!(
+                "the dataset carries no scene facts: the off-surface tolerance ({:.4}) is 1 % of the diagonal of the box around the ground-truth surface points of the evaluated views",
+                o.surface_tol
+            );
+            (o, Some(note))
+        }
+        (None, None) => (
+            EvalOptions::with_surface_tol(0.0),
+            Some("the dataset carries no scene facts (e.g. Blender synthetic): no bounding box for the off-surface tolerance".to_string()),
+        ),
     };
     let inputs: Vec<ViewInput<'_>> = views.iter().map(view_input).collect();
     let info = RunInfo {
@@ -196,16 +206,7 @@ pub fn evaluate_run(
         parameters: model.parameters() as u64,
     };
     let mut report = evaluate_views(&inputs, info, &options)?;
-    match (&dataset.facts, surface) {
-        (Some(_), _) => {}
-        (None, Some(_)) => report.notes.push(format!(
-            "the dataset carries no scene facts: the off-surface tolerance ({:.4}) is 1 % of the diagonal of the box around the ground-truth surface points of the evaluated views",
-            options.surface_tol
-        )),
-        (None, None) => report.notes.push(
-            "the dataset carries no scene facts (e.g. Blender synthetic): no bounding box for the off-surface tolerance".into(),
-        ),
-    }
+    report.notes.extend(note);
     let metrics_path = run_dir.join("metrics.jsonl");
     let curve = if metrics_path.exists() { read_metrics_jsonl(&metrics_path)? } else { Vec::new() };
     let name = run_name(run_dir);

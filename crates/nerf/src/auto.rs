@@ -650,12 +650,18 @@ fn project(w2c: &glam::DMat4, camera: &Camera, x: DVec3) -> Option<(usize, f64)>
     Some((qy as usize * k.width as usize + qx as usize, z))
 }
 
+/// Whether a view's depth `d` at a pixel is the point at z-depth `z` it projects there (not
+/// an occluder in front, not a surface behind): they agree within 1 %.
+fn depth_agrees(d: f64, z: f64) -> bool {
+    (d - z).abs() <= 0.01 * z
+}
+
 /// The pixel through which `camera` sees the world point `x` ([`project`]), when it is not
 /// occluded there: the ground-truth z-depth at that pixel (`depth`, row-major) agrees with
-/// `x`'s within 1 %.
+/// `x`'s ([`depth_agrees`]).
 fn sees(w2c: &glam::DMat4, camera: &Camera, depth: &[f32], x: DVec3) -> Option<usize> {
     let (q, z) = project(w2c, camera, x)?;
-    (depth.get(q).is_some_and(|&d| (d as f64 - z).abs() <= 0.01 * z)).then_some(q)
+    depth.get(q).is_some_and(|&d| depth_agrees(d as f64, z)).then_some(q)
 }
 
 /// One train view for [`colour_spread`].
@@ -795,8 +801,7 @@ pub fn colour_spread_by(
             }
             let mut cols = vec![colour(vi, p)];
             for r in range {
-                let (d, z) = (got[r] as f64, want_z[r]);
-                if (d - z).abs() <= 0.01 * z {
+                if depth_agrees(got[r] as f64, want_z[r]) {
                     cols.push(colour(asks[r].0, asks[r].1));
                 }
             }

@@ -725,9 +725,15 @@ impl Trainer {
     /// replaces the provisional reason line in `config.json`.
     fn test_view_dependence(&mut self) -> Result<(), TrainError> {
         let t0 = Instant::now();
-        let (threshold, points) = self.config.auto.as_ref().map_or((0.04, 512), |a| (a.view_spread_threshold, a.spread_points));
-        let (vd, reason) =
-            crate::auto::view_dependence_from_model(&self.model, &self.data.views, threshold, points, self.config.seed, self.step);
+        let auto = self.config.auto.clone().unwrap_or_else(AutoConfig::new);
+        let (vd, reason) = crate::auto::view_dependence_from_model(
+            &self.model,
+            &self.data.views,
+            auto.view_spread_threshold,
+            auto.spread_points,
+            self.config.seed,
+            self.step,
+        );
         let switch = !vd && matches!(&self.config.model, ModelConfig::Fast(f) if f.is_view_dependent());
         if switch {
             if let Model::Fast(m) = &self.model {
