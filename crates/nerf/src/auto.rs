@@ -331,14 +331,16 @@ pub struct PlateauStop {
 /// fit averages the validation noise down).
 pub const PLATEAU_FIT_WINDOWS: f64 = 2.0;
 
-/// The trend rule decides nothing from fewer validations than this in its fitting span.
+/// The trend rule fits at least this many validations (more when its span holds more).
 pub const PLATEAU_MIN_POINTS: usize = 5;
 
 /// The val PSNR's trend over the last [`PLATEAU_FIT_WINDOWS`] × `window_s` of `history`
 /// ((training seconds, val PSNR) points, non-finite PSNRs skipped), as (gain per window, its
 /// standard error), both dB: the least-squares slope times the window, and the slope's standard
-/// error (from the fit's residuals, n − 2 degrees of freedom) times the window. `None` until
-/// a full fitting span has passed or while it holds fewer than [`PLATEAU_MIN_POINTS`] points.
+/// error (from the fit's residuals, n − 2 degrees of freedom) times the window. When the span
+/// holds fewer than [`PLATEAU_MIN_POINTS`] validations (a step longer than the validation
+/// interval, e.g. on a loaded machine), the last that many are fitted instead. `None` until a
+/// full fitting span has passed and that many validations exist.
 ///
 /// Example: window 10 s, points every 5 s over [0, 20] s at 20, 20.5, 21, 21.5, 22 dB: slope
 /// 0.1 dB/s, gain 1.0 dB per window, standard error 0 (the points lie on the line).
@@ -348,10 +350,12 @@ pub fn plateau_trend(history: &[(f64, f64)], window_s: f64) -> Option<(f64, f64)
     if now < span - 1e-9 {
         return None;
     }
-    let pts: Vec<(f64, f64)> = history.iter().copied().filter(|&(t, p)| t >= now - span - 1e-9 && p.is_finite()).collect();
-    if pts.len() < PLATEAU_MIN_POINTS {
+    let finite: Vec<(f64, f64)> = history.iter().copied().filter(|p| p.1.is_finite()).collect();
+    let in_span = finite.iter().filter(|p| p.0 >= now - span - 1e-9).count();
+    if finite.len() < PLATEAU_MIN_POINTS {
         return None;
     }
+    let pts = &finite[finite.len() - in_span.max(PLATEAU_MIN_POINTS)..];
     let n = pts.len() as f64;
     let (tm, pm) = (pts.iter().map(|p| p.0).sum::<f64>() / n, pts.iter().map(|p| p.1).sum::<f64>() / n);
     let sxx: f64 = pts.iter().map(|p| (p.0 - tm).powi(2)).sum();
@@ -1629,9 +1633,16 @@ mod tests {
         let flat = |amp: f64| -> Vec<(f64, f64)> { (0..=12).map(|k| (5.0 * k as f64, 25.0 + if k % 2 == 0 { amp } else { -amp })).collect() };
         assert_eq!(first_stop(&trend, &flat(0.5)), None, "gain 0 ± {:?}", plateau_trend(&flat(0.5), 10.0));
         assert_eq!(first_stop(&trend, &flat(0.02)), Some(20.0));
-        // No decision before a full fitting span, nor from fewer than five points in it.
+        // No decision before a full fitting span, nor from fewer than five points.
         assert!(!plateau_reached(&flat(0.0)[..4], &trend));
         assert!(!plateau_reached(&[(0.0, 25.0), (10.0, 25.0), (20.0, 25.0)], &trend));
+        // Validations sparser than the span (slow steps): the last five are fitted.
+        let sparse: Vec<(f64, f64)> = (0..5).map(|k| (15.0 * k as f64, 25.0 + 0.001 * k as f64)).collect();
+        assert!(plateau_reached(&sparse, &trend));
+        let (gain, _) = plateau_trend(&sparse, 10.0).unwrap();
+        assert!((gain - 0.001 / 15.0 * 10.0).abs() < 1e-9, "{gain}");
+        let rising: Vec<(f64, f64)> = sparse.iter().map(|&(t, _)| (t, 25.0 + 0.1 * t)).collect();
+        assert!(!plateau_reached(&rising, &trend));
         assert!(!plateau_reached(&[], &trend));
         // The best-against-best rule: a dip after a peak is not a gain.
         assert!(plateau_reached(&[(0.0, 20.0), (5.0, 20.0), (10.0, 20.05)], &best));
