@@ -1428,21 +1428,19 @@ pub fn resolve(config: &mut TrainConfig, ds: &Dataset, train: &mut TrainData) ->
         config.val_interval_s = Some(interval);
     }
     let rule = PlateauStop { window_s: window, min_gain_db: auto.plateau_min_gain_db, trend_sigmas: auto.plateau_trend_sigmas };
-    reasons.push(match rule.trend_sigmas {
+    let measure = match rule.trend_sigmas {
         Some(k) => format!(
-            "stop when the val PSNR's least-squares trend over the last {:.1} s, {k} standard error(s) above its estimate, gains < {} dB per {:.1} s of training (validating every {:.1} s), else at the budget",
+            "the val PSNR's least-squares trend over the last {:.1} s, {k} standard error(s) above its estimate, gains < {} dB per",
             PLATEAU_FIT_WINDOWS * rule.window_s,
-            rule.min_gain_db,
-            rule.window_s,
-            config.val_interval()
+            rule.min_gain_db
         ),
-        None => format!(
-            "stop when the best val PSNR gains < {} dB over {:.1} s of training (validating every {:.1} s), else at the budget",
-            rule.min_gain_db,
-            rule.window_s,
-            config.val_interval()
-        ),
-    });
+        None => format!("the best val PSNR gains < {} dB over", rule.min_gain_db),
+    };
+    reasons.push(format!(
+        "stop when {measure} {:.1} s of training (validating every {:.1} s), else at the budget",
+        rule.window_s,
+        config.val_interval()
+    ));
     config.plateau_stop = Some(rule);
 
     config.model = ModelConfig::Fast(fast);
