@@ -82,3 +82,68 @@ fn render_train_eval_writes_a_complete_report() {
     assert!(a >= b - 1e-9 && a < 1.0, "a smaller tolerance counts at least as much mass off the surface: {a} vs {b}");
     assert!(bare.report.notes.iter().any(|n| n.contains("ground-truth surface points")), "{:?}", bare.report.notes);
 }
+
+/// Evaluation happens at the resolution a run trained at: a run trained at downscale 2 and
+/// evaluated on its val views reproduces the trainer's own final val PSNR (same views, every
+/// pixel, same premultiplied box filter of the targets) to within 0.05 dB; the same run
+/// evaluated with downscale 1 is measured on the full-resolution images and labelled so; and
+/// the exact ray caster behind even-factor ground truth gives the dataset's own ground-truth
+/// files at full resolution and the odd-factor pick at downscale 3.
+#[test]
+fn eval_measures_at_the_training_resolution() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("dataset");
+    let run = tmp.path().join("run");
+    let mut cfg = DatasetRenderConfig::preset(Preset::Quick);
+    (cfg.width, cfg.height, cfg.train, cfg.val, cfg.test, cfg.spp) = (48, 48, 12, 3, 1, 8);
+    let stop = AtomicBool::new(false);
+    render_dataset(&e2e_tests::scene("tabletop"), &data, &cfg, &RunOptions { threads: None, force: false }, &mut |_| {}, &stop)
+        .expect("render");
+
+    let mut tc = nerf::train::TrainConfig::preset("fast", data.clone()).unwrap();
+    (tc.steps, tc.batch_rays, tc.downscale) = (Some(30), 1024, 2);
+    (tc.val_max_views, tc.val_max_pixels) = (3, 1 << 20);
+    let mut trainer = nerf::train::Trainer::new(tc, &run, false).expect("trainer");
+    let summary = trainer.run(&stop, &mut |_| {}).expect("training");
+    let val_psnr = summary.val.expect("val metrics").val_psnr;
+
+    // Default: the training downscale. The trainer's val PSNR pools the squared error of every
+    // pixel of the three equal-sized views; eval reports per-view PSNRs.
+    let opts = eval::EvalRunOptions::split(SplitKind::Val);
+    let out = eval::evaluate_run(&run, &opts, &mut |_, _| {}).expect("eval");
+    let res = out.report.resolution.expect("resolution recorded");
+    assert_eq!((res.width, res.height, res.downscale, res.train_downscale), (24, 24, 2, 2));
+    let mse: f64 = out.report.views.iter().map(|v| 10f64.powf(-v.metrics.psnr / 10.0)).sum::<f64>() / out.report.views.len() as f64;
+    let pooled = -10.0 * mse.log10();
+    eprintln!("trainer val PSNR {val_psnr:.4} dB, eval at downscale 2 {pooled:.4} dB");
+    assert!((pooled - val_psnr).abs() < 0.05, "eval {pooled} dB vs the trainer's {val_psnr} dB");
+    assert!(out.report.notes.iter().any(|n| n.contains("cast exactly through")), "{:?}", out.report.notes);
+    let json: serde_json::Value = serde_json::from_slice(&std::fs::read(run.join("eval.json")).unwrap()).unwrap();
+    assert_eq!(json["resolution"]["downscale"], 2);
+    let summary_json: serde_json::Value = serde_json::from_slice(&std::fs::read(run.join("report.json")).unwrap()).unwrap();
+    assert_eq!(summary_json["resolution"]["width"], 24);
+    let md = std::fs::read_to_string(run.join("report.md")).unwrap();
+    assert!(md.contains("Evaluated at 24x24 (downscale 2, the training resolution)"), "{md}");
+
+    // Downscale 1: the full-resolution figure, labelled as such.
+    let full = eval::evaluate_run(&run, &eval::EvalRunOptions { downscale: Some(1), ..opts.clone() }, &mut |_, _| {}).expect("eval at 1");
+    let r1 = full.report.resolution.unwrap();
+    assert_eq!((r1.width, r1.height, r1.downscale, r1.train_downscale), (48, 48, 1, 2));
+    let md = std::fs::read_to_string(run.join("report.md")).unwrap();
+    assert!(md.contains("Evaluated at 48x48 (full resolution; trained at downscale 2)"), "{md}");
+    assert!(full.report.mean.psnr.is_finite() && (full.report.mean.psnr - out.report.mean.psnr).abs() > 1e-6);
+
+    // A factor that does not divide the views is refused, naming the option.
+    let err = eval::evaluate_run(&run, &eval::EvalRunOptions { downscale: Some(5), ..opts }, &mut |_, _| {}).unwrap_err().to_string();
+    assert!(err.contains("--downscale 5 does not divide the 48x48 image"), "{err}");
+
+    // The ray caster behind even factors reproduces the dataset's ground truth exactly.
+    let ds = dataset::Dataset::load(&data).unwrap();
+    let pathtracer::ground_truth::SceneLookup::Found { renderer, .. } = pathtracer::ground_truth::scene_of_dataset(&data, None).unwrap() else {
+        panic!("the scene of a dataset rendered here is found")
+    };
+    let frame = &ds.val[1];
+    let file = dataset::read_ground_truth(frame.gt_path.as_ref().unwrap()).unwrap();
+    assert_eq!(renderer.ground_truth(&frame.camera), file);
+    assert_eq!(renderer.ground_truth(&frame.camera.downscaled(3)), file.at_downscale(3).unwrap());
+}

@@ -232,7 +232,7 @@ fn train_and_eval(name: &str, seed: u64, dataset: &Path, run: &Path, budget: &st
     if crate::stop_flag().load(std::sync::atomic::Ordering::SeqCst) {
         anyhow::bail!("interrupted; re-run the same command to resume");
     }
-    crate::evaluate::run(crate::evaluate::EvalArgs { run: run.to_path_buf(), split: "test".into(), grids: 1, max_views })
+    crate::evaluate::run(crate::evaluate::EvalArgs::at_training_resolution(run.to_path_buf(), "test", 1, max_views))
 }
 
 /// One configuration's runs (one per seed) as one summary: the means of the final PSNR, depth
@@ -482,6 +482,7 @@ mod tests {
             train_steps: 10,
             render_s_per_view: 1.0,
             val_psnr_curve: Vec::new(),
+            resolution: None,
         }
     }
 

@@ -19,6 +19,21 @@ pub struct EvalArgs {
     /// Evaluate only the first N views of the split.
     #[arg(long)]
     pub max_views: Option<usize>,
+    /// Evaluate at this downscale of the dataset's images (default: the one the run trained
+    /// at; 1 = the dataset's full resolution). Must divide the image size.
+    #[arg(long)]
+    pub downscale: Option<u32>,
+    /// The scene the dataset was rendered from, for exact depth ground truth at even
+    /// downscale factors (default: found through the dataset's render_config.json).
+    #[arg(long)]
+    pub scene: Option<PathBuf>,
+}
+
+impl EvalArgs {
+    /// Every view of `split` at the run's training resolution, with `grids` picture grids.
+    pub fn at_training_resolution(run: PathBuf, split: &str, grids: usize, max_views: Option<usize>) -> Self {
+        Self { run, split: split.into(), grids, max_views, downscale: None, scene: None }
+    }
 }
 
 /// Arguments of `compare`.
@@ -90,6 +105,8 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         split: parse_split(&args.split)?,
         grid_views: args.grids,
         max_views: args.max_views,
+        downscale: args.downscale,
+        scene: args.scene.clone(),
     };
     let bar = indicatif::ProgressBar::new(0);
     bar.set_style(
@@ -108,6 +125,9 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
 fn print_summary(out: &eval::EvalRunOutput) {
     let m = &out.report.mean;
     let s = &out.summary;
+    if let Some(r) = &out.report.resolution {
+        println!("evaluated at {}", r.label());
+    }
     println!("| run | PSNR dB | SSIM | depth MAE | depth δ<1.25 | mask IoU | off-surface mass (in front) | train s | steps | params | to 25 dB s | to 30 dB s |");
     println!("|---|---|---|---|---|---|---|---|---|---|---|---|");
     println!(
@@ -161,5 +181,5 @@ pub fn run_demo(args: DemoArgs) -> anyhow::Result<()> {
     let resume = demo_run_resumable(&run_dir, &args)?;
     crate::train::run(crate::train::TrainArgs::for_demo(&dataset_dir, &run_dir, &args.model, &args.time, resume))?;
     eprintln!("== 3/3 evaluate on the test views");
-    run(EvalArgs { run: run_dir, split: "test".into(), grids: 3, max_views: None })
+    run(EvalArgs::at_training_resolution(run_dir, "test", 3, None))
 }

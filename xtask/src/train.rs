@@ -62,6 +62,10 @@ pub struct RenderNerfArgs {
     /// Output folder (default <run>/renders/<split or orbit>).
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// Render at this downscale of the dataset's images (default: the one the run trained at;
+    /// 1 = the dataset's full resolution). Must divide the image size.
+    #[arg(long)]
+    pub downscale: Option<u32>,
 }
 
 impl TrainArgs {
@@ -220,9 +224,16 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
 pub fn run_render(args: RenderNerfArgs) -> anyhow::Result<()> {
     anyhow::ensure!(args.orbit != Some(0), "--orbit 0: at least one view is needed");
     let model = RunModel::load(&args.run).with_context(|| format!("loading {}", args.run.display()))?;
+    let downscale = args.downscale.unwrap_or(model.config.downscale.max(1));
+    {
+        let ds = dataset::Dataset::load(model.dataset_dir())?;
+        for f in ds.train.iter().chain(&ds.val).chain(&ds.test) {
+            dataset::check_downscale("--downscale", downscale, &f.camera.intrinsics).map_err(|e| anyhow::anyhow!("{e} ({})", f.image_path.display()))?;
+        }
+    }
     let (label, cameras): (String, Vec<(String, dataset::Camera)>) = if let Some(n) = args.orbit {
         let ds = dataset::Dataset::load(model.dataset_dir())?;
-        let first = ds.train.first().context("dataset has no train views")?.camera.downscaled(model.config.downscale);
+        let first = ds.train.first().context("dataset has no train views")?.camera.downscaled(downscale);
         let b = model.config.bounds.clone().context("run has no bounds")?;
         let cams = nerf::render::orbit_cameras(&first, b.center(), n)
             .into_iter()
@@ -239,7 +250,7 @@ pub fn run_render(args: RenderNerfArgs) -> anyhow::Result<()> {
             s => anyhow::bail!("unknown split '{s}' (train, val or test)"),
         };
         let ds = dataset::Dataset::load(model.dataset_dir())?;
-        let cams = ds.split(kind).iter().map(|f| (f.name.clone(), f.camera.downscaled(model.config.downscale))).collect();
+        let cams = ds.split(kind).iter().map(|f| (f.name.clone(), f.camera.downscaled(downscale))).collect();
         (split, cams)
     };
     anyhow::ensure!(!cameras.is_empty(), "dataset {} has no {label} views", model.dataset_dir().display());
@@ -260,10 +271,12 @@ pub fn run_render(args: RenderNerfArgs) -> anyhow::Result<()> {
     }
     bar.finish_and_clear();
     eprintln!(
-        "rendered {} views of {} (step {}): colour PNG, opacity and z-depth .npy in {}",
+        "rendered {} views of {} (step {}) at {}x{} (downscale {downscale}): colour PNG, opacity and z-depth .npy in {}",
         cameras.len(),
         args.run.display(),
         model.train_steps(),
+        cameras[0].1.intrinsics.width,
+        cameras[0].1.intrinsics.height,
         out.display()
     );
     Ok(())

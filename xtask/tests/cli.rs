@@ -209,7 +209,7 @@ fn impossible_training_options_exit_1_and_write_nothing() {
     let tmp = tempfile::tempdir().unwrap();
     let valid = dataset_corpus().join("valid_blender");
     let run = tmp.path().join("run");
-    let cases: [(&[&str], &str); 12] = [
+    let cases: [(&[&str], &str); 13] = [
         (&["--time", "-5s"], "time budget must be positive"),
         (&["--time=-5s"], "time budget must be positive"),
         (&["--time", "0s"], "time budget must be positive"),
@@ -218,7 +218,8 @@ fn impossible_training_options_exit_1_and_write_nothing() {
         (&["--steps", "1", "--batch-rays", "0"], "batch_rays must be positive"),
         (&["--steps", "1", "--batch-samples", "0"], "batch_samples must be positive"),
         (&["--steps", "1", "--downscale", "0"], "downscale must be a positive integer"),
-        (&["--steps", "1", "--downscale", "17"], "downscale 17 leaves no pixel of the 16x16 image"),
+        (&["--steps", "1", "--downscale", "17"], "downscale 17 is larger than the 16x16 image"),
+        (&["--steps", "1", "--downscale", "3"], "downscale 3 does not divide the 16x16 image"),
         (&["--steps", "1", "--model", "nope"], "unknown model 'nope'"),
         (&["--steps", "1", "--config", "/nonexistent/train.json"], "/nonexistent/train.json"),
         (&["--steps", "1", "--resume"], "config.json"),

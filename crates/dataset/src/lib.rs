@@ -21,12 +21,14 @@
 //! ```
 
 mod camera;
+mod downscale;
 mod error;
 mod images;
 mod transforms;
 pub mod io;
 
 pub use camera::{Camera, Intrinsics, Ray};
+pub use downscale::check_downscale;
 pub use error::DatasetError;
 pub use images::{
     GroundTruth, RgbaImage, linear_to_srgb, read_exr_rgba, read_ground_truth, read_png_rgba,

@@ -50,6 +50,10 @@ pub struct RunSummary {
     /// Validation PSNR curve `[wall_s, dB]`, for `compare.png`.
     #[serde(default)]
     pub val_psnr_curve: Vec<[f64; 2]>,
+    /// The resolution the test views were evaluated at (absent in summaries written before it
+    /// was recorded).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub resolution: Option<crate::evaluate::EvalResolution>,
 }
 
 impl RunSummary {
@@ -70,6 +74,7 @@ impl RunSummary {
             train_steps: report.train_steps,
             render_s_per_view: report.mean.render_s_per_view,
             val_psnr_curve: val_psnr_points(curve).into_iter().map(|(t, p)| [t, p]).collect(),
+            resolution: report.resolution,
         }
     }
 }
@@ -137,13 +142,14 @@ pub fn off_surface(r: &RunSummary) -> String {
 pub fn compare_table(runs: &[RunSummary]) -> String {
     let (axis, front) = pareto_runs(runs);
     let mut s = String::new();
-    s.push_str("| run | time to 25 dB (s) | time to 30 dB (s) | final PSNR (dB) | SSIM | depth MAE (m) | off-surface mass (in front) | parameters | train time (s) | Pareto |\n");
-    s.push_str("|---|---:|---:|---:|---:|---:|---:|---:|---:|:---:|\n");
+    s.push_str("| run | evaluated at | time to 25 dB (s) | time to 30 dB (s) | final PSNR (dB) | SSIM | depth MAE (m) | off-surface mass (in front) | parameters | train time (s) | Pareto |\n");
+    s.push_str("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|:---:|\n");
     for (r, on) in runs.iter().zip(&front) {
         let never = |t: Option<f64>| t.map_or("never".to_string(), |t| format!("{t:.1}"));
         s.push_str(&format!(
-            "| {} | {} | {} | {:.2} | {:.4} | {} | {} | {} | {:.1} | {} |\n",
+            "| {} | {} | {} | {} | {:.2} | {:.4} | {} | {} | {} | {:.1} | {} |\n",
             r.name.replace('|', "\\|"),
+            r.resolution.map_or("-".to_string(), |e| format!("{}x{} (/{})", e.width, e.height, e.downscale)),
             never(r.time_to_25db_s),
             never(r.time_to_30db_s),
             r.final_psnr,
@@ -201,6 +207,7 @@ mod tests {
             train_steps: 100,
             render_s_per_view: 0.5,
             val_psnr_curve: vec![[1.0, 20.0], [wall, psnr]],
+            resolution: None,
         }
     }
 

@@ -128,6 +128,33 @@ pub struct RunInfo {
     pub parameters: u64,
 }
 
+/// The resolution an evaluation measured at.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct EvalResolution {
+    /// Width of the evaluated views, pixels.
+    pub width: u32,
+    /// Height of the evaluated views, pixels.
+    pub height: u32,
+    /// Integer factor the dataset's images were downscaled by (1: the dataset's full
+    /// resolution).
+    pub downscale: u32,
+    /// The downscale factor the run was trained at (the default evaluation resolution).
+    pub train_downscale: u32,
+}
+
+impl EvalResolution {
+    /// `100x100 (downscale 2, the training resolution)`, or with another factor than the
+    /// run's, e.g. `200x200 (full resolution; trained at downscale 2)`.
+    pub fn label(&self) -> String {
+        let at = if self.downscale == 1 { "full resolution".to_string() } else { format!("downscale {}", self.downscale) };
+        if self.downscale == self.train_downscale {
+            format!("{}x{} ({at}, the training resolution)", self.width, self.height)
+        } else {
+            format!("{}x{} ({at}; trained at downscale {})", self.width, self.height, self.train_downscale)
+        }
+    }
+}
+
 /// The content of `eval.json`: per-view metrics, their mean, run facts and notes.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct EvalReport {
@@ -143,6 +170,10 @@ pub struct EvalReport {
     pub parameters: u64,
     /// Off-surface tolerance used, in scene units.
     pub surface_tol: f32,
+    /// The resolution the views were evaluated at (absent in reports written before it was
+    /// recorded, and from [`evaluate_views`] alone, which does not know the dataset).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub resolution: Option<EvalResolution>,
     /// Why metrics are absent or averaged over fewer views.
     #[serde(default)]
     pub notes: Vec<String>,
@@ -347,6 +378,7 @@ impl EvalReport {
             train_steps: run.train_steps,
             parameters: run.parameters,
             surface_tol: opts.surface_tol,
+            resolution: None,
             notes,
         })
     }

@@ -41,7 +41,7 @@ pub mod run;
 pub use compare::{ParetoAxis, RunSummary, compare_runs, compare_table, pareto_front};
 pub use curve::{MetricsRecord, parse_metrics_jsonl, read_metrics_jsonl, time_to_psnr};
 pub use error::{EvalError, MetricError};
-pub use evaluate::{EvalOptions, EvalReport, RunInfo, ViewInput, ViewMetrics, ViewReport, evaluate_view, evaluate_views};
+pub use evaluate::{EvalOptions, EvalReport, EvalResolution, RunInfo, ViewInput, ViewMetrics, ViewReport, evaluate_view, evaluate_views};
 pub use io::read_json;
 pub use metrics::RaySamples;
 pub use report::write_report;

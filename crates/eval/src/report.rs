@@ -51,7 +51,11 @@ pub fn metrics_line(name: &str, m: &ViewMetrics) -> String {
 
 /// The Markdown report (summary table, notes, pictures linked relatively).
 pub fn report_markdown(name: &str, report: &EvalReport, summary: &RunSummary, grids: &[String]) -> String {
-    let mut s = format!("# Evaluation: {name}\n\n## Summary\n\n| metric | value |\n|---|---:|\n");
+    let mut s = format!("# Evaluation: {name}\n\n");
+    if let Some(r) = &report.resolution {
+        s.push_str(&format!("Evaluated at {}.\n\n", r.label()));
+    }
+    s.push_str("## Summary\n\n| metric | value |\n|---|---:|\n");
     for (key, v) in report.mean.entries() {
         let (label, unit) = describe(key);
         let unit = if unit.is_empty() { String::new() } else { format!(" ({unit})") };

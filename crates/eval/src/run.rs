@@ -1,7 +1,18 @@
 //! Evaluating a trained run end to end: load the run's latest checkpoint (through the `nerf`
-//! crate's public rendering API only), render every view of a split at the dataset's full
-//! resolution, compare with the dataset's ground truth, and write `eval.json`, `report.md`,
-//! `report.json` and the pictures into the run folder.
+//! crate's public rendering API only), render every view of a split **at the resolution the
+//! run was trained at** (its downscale factor; [`EvalRunOptions::downscale`] overrides it),
+//! compare with the dataset's ground truth at that resolution, and write `eval.json`,
+//! `report.md`, `report.json` and the pictures into the run folder.
+//!
+//! Ground truth at downscale `k`: colour is the dataset's image box-filtered over whole `k × k`
+//! blocks with alpha-premultiplied colour (`dataset::RgbaImage::downscaled`, the filter the
+//! trainer applies to its targets). Depth, distance, normal and alpha are exact at the
+//! downscaled pixel-centre rays and never averaged: for odd `k` each such ray is a
+//! full-resolution centre ray, read from the ground-truth file; for even `k` the rays are cast
+//! exactly through the scene the dataset was rendered from (found through its
+//! `render_config.json` and checked by content hash, or given as [`EvalRunOptions::scene`]);
+//! without the scene the nearest full-resolution pixel's values are used and the report says
+//! so.
 //!
 //! Colour is compared in display space (sRGB in [0, 1]), the space the models are trained in:
 //! the ground-truth PNG (straight alpha) is composited onto the same background the NeRF
@@ -13,7 +24,9 @@ use crate::evaluate::{EvalOptions, EvalReport, RunInfo, ViewInput, evaluate_view
 use crate::metrics::RaySamples;
 use crate::report::write_report;
 use crate::{EvalError, RunSummary};
+use crate::evaluate::EvalResolution;
 use dataset::{Dataset, Frame, GroundTruth, SplitKind};
+use pathtracer::ground_truth::{SceneLookup, scene_of_dataset};
 use nerf::render::{RenderedView, RunModel};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -27,12 +40,19 @@ pub struct EvalRunOptions {
     pub grid_views: usize,
     /// Evaluate at most this many views (all when `None`).
     pub max_views: Option<usize>,
+    /// Downscale factor of the dataset's images to evaluate at; `None`: the run's training
+    /// downscale (1 compares at the dataset's full resolution). It must divide every view's
+    /// size ([`dataset::check_downscale`]).
+    pub downscale: Option<u32>,
+    /// The scene file the dataset was rendered from, for exact ground truth at even downscale
+    /// factors (`None`: found through the dataset's `render_config.json`).
+    pub scene: Option<PathBuf>,
 }
 
 impl EvalRunOptions {
-    /// All views of `split`, with grids for the first three.
+    /// All views of `split` at the run's training resolution, with grids for the first three.
     pub fn split(split: SplitKind) -> Self {
-        Self { split, grid_views: 3, max_views: None }
+        Self { split, grid_views: 3, max_views: None, downscale: None, scene: None }
     }
 }
 
@@ -63,20 +83,37 @@ fn run_error(run: &Path, message: impl ToString) -> EvalError {
     EvalError::Run { run: run.to_path_buf(), message: message.to_string() }
 }
 
+/// Where a view's depth / distance / normal / alpha ground truth at the evaluated resolution
+/// comes from.
+enum GroundTruthSource {
+    /// Read from the ground-truth file: the full-resolution centre ray of an odd factor's block
+    /// is the downscaled centre ray.
+    File,
+    /// Cast exactly through the scene (even factors).
+    Scene(pathtracer::render::Renderer),
+    /// The nearest full-resolution pixel (even factors without the scene).
+    Nearest,
+}
+
 fn load_view(
     run_dir: &Path,
     model: &RunModel,
     frame: &Frame,
     background: [f32; 3],
+    downscale: u32,
+    source: &GroundTruthSource,
 ) -> Result<LoadedView, EvalError> {
+    let full = frame.camera.intrinsics;
     let png = dataset::read_png_rgba(&frame.image_path)?;
-    let k = frame.camera.intrinsics;
-    if (png.width, png.height) != (k.width, k.height) {
+    if (png.width, png.height) != (full.width, full.height) {
         return Err(run_error(
             run_dir,
-            format!("{}: image is {}x{}, camera says {}x{}", frame.image_path.display(), png.width, png.height, k.width, k.height),
+            format!("{}: image is {}x{}, camera says {}x{}", frame.image_path.display(), png.width, png.height, full.width, full.height),
         ));
     }
+    let camera = frame.camera.downscaled(downscale);
+    let k = camera.intrinsics;
+    let png = png.downscaled(downscale);
     let gt_rgb: Vec<f32> = png
         .data
         .chunks_exact(4)
@@ -86,16 +123,21 @@ fn load_view(
         })
         .collect();
     let gt = match &frame.gt_path {
-        Some(p) => Some(dataset::read_ground_truth(p)?),
+        Some(p) => {
+            let g = dataset::read_ground_truth(p)?;
+            if (g.width, g.height) != (full.width, full.height) {
+                return Err(run_error(run_dir, format!("{}: ground truth is {}x{}, camera says {}x{}", p.display(), g.width, g.height, full.width, full.height)));
+            }
+            Some(match (g.at_downscale(downscale), source) {
+                (Some(exact), _) => exact,
+                (None, GroundTruthSource::Scene(r)) => r.ground_truth(&camera),
+                (None, _) => g.nearest_at_downscale(downscale),
+            })
+        }
         None => None,
     };
-    if let Some(g) = &gt {
-        if (g.width, g.height) != (k.width, k.height) {
-            return Err(run_error(run_dir, format!("{}: ground truth is {}x{}", frame.name, g.width, g.height)));
-        }
-    }
     let start = Instant::now();
-    let pred = model.render_view(&frame.camera, background);
+    let pred = model.render_view(&camera, background);
     let render_s = start.elapsed().as_secs_f64();
     let n = k.width as usize * k.height as usize;
     let offsets = pred.samples.offsets.iter().map(|&o| o as usize).collect();
@@ -109,6 +151,30 @@ fn load_view(
         pixel: (0..n).collect(),
         offsets,
         render_s,
+    })
+}
+
+/// How the ground truth at `downscale` is obtained, and the report's note saying so (`None`
+/// when it is read exactly from the files, or there is none).
+fn ground_truth_source(dataset: &Dataset, frames: &[&Frame], downscale: u32, scene: Option<&Path>) -> Result<(GroundTruthSource, Option<String>), EvalError> {
+    if downscale % 2 == 1 || frames.iter().all(|f| f.gt_path.is_none()) {
+        return Ok((GroundTruthSource::File, None));
+    }
+    let pt = |e: pathtracer::PathTracerError| EvalError::Input(e.to_string());
+    Ok(match scene_of_dataset(&dataset.root, scene).map_err(pt)? {
+        SceneLookup::Found { renderer, path } => (
+            GroundTruthSource::Scene(renderer),
+            Some(format!(
+                "depth, distance, normal and alpha ground truth at downscale {downscale} are cast exactly through {} at the downscaled pixel centres",
+                path.display()
+            )),
+        ),
+        SceneLookup::Missing(why) => (
+            GroundTruthSource::Nearest,
+            Some(format!(
+                "depth, distance, normal and alpha ground truth at the even downscale {downscale} are those of the nearest full-resolution pixel centre (half a full-resolution pixel off the evaluated ray), because {why}; give the scene (`--scene`) for exact values or evaluate at an odd downscale"
+            )),
+        ),
     })
 }
 
@@ -147,7 +213,7 @@ fn surface_box(frames: &[&Frame], views: &[LoadedView]) -> Option<([f32; 3], [f3
             if a < crate::metrics::FOREGROUND_ALPHA || !(d > 0.0 && d.is_finite()) {
                 continue;
             }
-            let ray = f.camera.pixel_center_ray((p % v.width) as u32, (p / v.width) as u32);
+            let ray = f.camera.downscaled(resolution_factor(f, v)).pixel_center_ray((p % v.width) as u32, (p / v.width) as u32);
             let x = ray.origin + ray.direction * d as f64;
             for k in 0..3 {
                 lo[k] = lo[k].min(x[k]);
@@ -156,6 +222,11 @@ fn surface_box(frames: &[&Frame], views: &[LoadedView]) -> Option<([f32; 3], [f3
         }
     }
     lo[0].is_finite().then(|| (lo.map(|v| v as f32), hi.map(|v| v as f32)))
+}
+
+/// The factor a loaded view was downscaled by from its frame.
+fn resolution_factor(f: &Frame, v: &LoadedView) -> u32 {
+    (f.camera.intrinsics.width / v.width.max(1) as u32).max(1)
 }
 
 /// Evaluates the run in `run_dir` on `opts.split` and writes its report into the run folder.
@@ -177,12 +248,20 @@ pub fn evaluate_run(
     if let Some(m) = opts.max_views {
         frames.truncate(m.max(1));
     }
+    let train_downscale = model.config.downscale.max(1);
+    let downscale = opts.downscale.unwrap_or(train_downscale);
+    for f in &frames {
+        dataset::check_downscale("--downscale", downscale, &f.camera.intrinsics)
+            .map_err(|e| run_error(run_dir, format!("{e} ({})", f.image_path.display())))?;
+    }
+    let (source, gt_note) = ground_truth_source(&dataset, &frames, downscale, opts.scene.as_deref())?;
     let background = model.eval_background();
     let mut views = Vec::with_capacity(frames.len());
     for (k, frame) in frames.iter().enumerate() {
-        views.push(load_view(run_dir, &model, frame, background)?);
+        views.push(load_view(run_dir, &model, frame, background, downscale, &source)?);
         progress(k + 1, frames.len());
     }
+    let resolution = EvalResolution { width: views[0].width as u32, height: views[0].height as u32, downscale, train_downscale };
     // The off-surface tolerance's box, and the note that says where it came from.
     let (options, note) = match (&dataset.facts, dataset.facts.is_none().then(|| surface_box(&frames, &views)).flatten()) {
         (Some(f), _) => (EvalOptions::for_scene_bbox(f.aabb_min.map(|v| v as f32), f.aabb_max.map(|v| v as f32)), None),
@@ -206,7 +285,9 @@ pub fn evaluate_run(
         parameters: model.parameters() as u64,
     };
     let mut report = evaluate_views(&inputs, info, &options)?;
+    report.resolution = Some(resolution);
     report.notes.extend(note);
+    report.notes.extend(gt_note);
     let metrics_path = run_dir.join("metrics.jsonl");
     let curve = if metrics_path.exists() { read_metrics_jsonl(&metrics_path)? } else { Vec::new() };
     let name = run_name(run_dir);

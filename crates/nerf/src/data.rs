@@ -71,28 +71,24 @@ pub struct ViewPixels {
 }
 
 impl ViewPixels {
-    /// Loads a frame, box-filtering its image by `downscale`.
+    /// Loads a frame, box-filtering its image by `downscale` with the colour premultiplied by
+    /// alpha ([`dataset::RgbaImage::downscaled`], the filter the evaluation applies to its
+    /// ground truth), so a downscaled pixel composited onto a background is the mean of its
+    /// block's composited pixels.
     pub fn load(frame: &Frame, downscale: u32, with_gt: bool) -> Result<Self, DataError> {
-        let img = dataset::read_png_rgba(&frame.image_path)?;
         let k = downscale.max(1);
         let camera = frame.camera.downscaled(k);
+        let img = dataset::read_png_rgba(&frame.image_path)?.downscaled(k);
         let (w, h) = (camera.intrinsics.width as usize, camera.intrinsics.height as usize);
-        let mut rgba = vec![[0.0f32; 4]; w * h];
-        for y in 0..h {
-            for x in 0..w {
-                let mut acc = [0.0f32; 4];
-                for dy in 0..k as usize {
-                    for dx in 0..k as usize {
-                        let p = img.pixel((x * k as usize + dx) as u32, (y * k as usize + dy) as u32);
-                        for c in 0..4 {
-                            acc[c] += p[c];
-                        }
-                    }
-                }
-                let n = (k * k) as f32;
-                rgba[y * w + x] = acc.map(|v| v / n);
-            }
+        if (img.width as usize, img.height as usize) != (w, h) {
+            return Err(DataError::Invalid(format!(
+                "{}: the image downscaled by {k} is {}x{}, its camera downscaled is {w}x{h}",
+                frame.image_path.display(),
+                img.width,
+                img.height
+            )));
         }
+        let rgba = img.data.chunks_exact(4).map(|p| [p[0], p[1], p[2], p[3]]).collect();
         let gt = if with_gt { Self::load_ground_truth(frame, k)? } else { None };
         Ok(Self { camera, rgba, gt })
     }
@@ -104,21 +100,11 @@ impl ViewPixels {
         let k = downscale.max(1);
         let camera = frame.camera.downscaled(k);
         let (w, h) = (camera.intrinsics.width as usize, camera.intrinsics.height as usize);
-        let g = dataset::read_ground_truth(p)?;
-        // For even factors no full-resolution pixel centre coincides with a downscaled
-        // one; take the nearest, a documented approximation.
-        let idx = |x: usize, y: usize| {
-            let (sx, sy) = ((x * k as usize + k as usize / 2).min(g.width as usize - 1), (y * k as usize + k as usize / 2).min(g.height as usize - 1));
-            sy * g.width as usize + sx
-        };
-        let mut depth = vec![0.0; w * h];
-        let mut alpha = vec![0.0; w * h];
-        for y in 0..h {
-            for x in 0..w {
-                depth[y * w + x] = g.depth[idx(x, y)];
-                alpha[y * w + x] = g.alpha[idx(x, y)];
-            }
+        let g = dataset::read_ground_truth(p)?.nearest_at_downscale(k);
+        if (g.width as usize, g.height as usize) != (w, h) {
+            return Err(DataError::Invalid(format!("{}: ground truth downscaled by {k} is {}x{}, the camera {w}x{h}", p.display(), g.width, g.height)));
         }
+        let (depth, alpha) = (g.depth, g.alpha);
         Ok(Some((depth, alpha)))
     }
 

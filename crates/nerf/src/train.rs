@@ -228,19 +228,12 @@ impl TrainConfig {
         Ok(())
     }
 
-    /// Refuses a downscale factor that leaves a view of `ds` without a pixel.
+    /// Refuses a downscale factor that does not divide every view of `ds` into whole blocks
+    /// ([`dataset::check_downscale`]: zero, larger than an image, or not a divisor of its size).
     pub fn check_image_sizes(&self, ds: &dataset::Dataset) -> Result<(), String> {
         for f in ds.train.iter().chain(&ds.val).chain(&ds.test) {
-            let i = f.camera.intrinsics;
-            if i.width / self.downscale.max(1) == 0 || i.height / self.downscale.max(1) == 0 {
-                return Err(format!(
-                    "downscale {} leaves no pixel of the {}x{} image {}",
-                    self.downscale,
-                    i.width,
-                    i.height,
-                    f.image_path.display()
-                ));
-            }
+            dataset::check_downscale("downscale", self.downscale, &f.camera.intrinsics)
+                .map_err(|e| format!("{e} ({})", f.image_path.display()))?;
         }
         Ok(())
     }

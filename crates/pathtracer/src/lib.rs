@@ -19,6 +19,7 @@ pub mod dataset_render;
 pub mod error;
 pub mod export;
 pub mod geometry;
+pub mod ground_truth;
 pub mod import;
 pub mod integrator;
 pub mod light;

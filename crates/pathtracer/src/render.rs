@@ -355,6 +355,36 @@ impl Renderer {
         Some(PrimaryHit { hit, distance, normal: si.frame.n })
     }
 
+    /// The exact ground truth of pixel (`i`, `j`)'s centre ray: (z-depth, distance, normal,
+    /// `f64` distance), `None` when the ray hits nothing.
+    fn pixel_ground_truth(&self, camera: &Camera, i: u32, j: u32) -> Option<(f32, f32, Vec3, f64)> {
+        self.trace_primary(&camera.pixel_center_ray(i, j)).map(|ph| {
+            let depth = camera.z_depth_from_distance(i as f64 + 0.5, j as f64 + 0.5, ph.distance);
+            (depth as f32, ph.distance as f32, ph.normal, ph.distance)
+        })
+    }
+
+    /// The exact ground truth (z-depth, distance, normal, alpha) at every pixel-centre ray of
+    /// `camera`, with no colour: the same values [`Self::render_view`] writes, for any camera
+    /// (e.g. a dataset camera downscaled by an even factor, whose pixel centres fall between
+    /// the full-resolution ones).
+    pub fn ground_truth(&self, camera: &Camera) -> GroundTruth {
+        let (w, h) = (camera.intrinsics.width, camera.intrinsics.height);
+        let rows: Vec<Vec<Option<(f32, f32, Vec3, f64)>>> =
+            (0..h).into_par_iter().map(|j| (0..w).map(|i| self.pixel_ground_truth(camera, i, j)).collect()).collect();
+        let n = w as usize * h as usize;
+        let mut gt = GroundTruth { width: w, height: h, depth: vec![0.0; n], distance: vec![0.0; n], normal: vec![0.0; 3 * n], alpha: vec![0.0; n] };
+        for (k, px) in rows.iter().flatten().enumerate() {
+            if let Some((depth, dist, normal, _)) = px {
+                gt.depth[k] = *depth;
+                gt.distance[k] = *dist;
+                gt.normal[3 * k..3 * k + 3].copy_from_slice(&normal.to_array());
+                gt.alpha[k] = 1.0;
+            }
+        }
+        gt
+    }
+
     /// Renders one view (see the module docs). `settings` should have passed
     /// [`RenderSettings::validate`]; out-of-range values are clamped (spp 0 renders no
     /// samples: black, alpha 0; a negative or non-finite environment is treated as 0).
@@ -415,10 +445,7 @@ impl Renderer {
                         let inv = if spp > 0 { 1.0 / spp as f64 } else { 0.0 };
                         let alpha = if settings.transparent_background { hits as f64 * inv } else if spp > 0 { 1.0 } else { 0.0 };
                         let rgba = [(sum[0] * inv) as f32, (sum[1] * inv) as f32, (sum[2] * inv) as f32, alpha as f32];
-                        let gt = self.trace_primary(&camera.pixel_center_ray(i, j)).map(|ph| {
-                            let depth = camera.z_depth_from_distance(i as f64 + 0.5, j as f64 + 0.5, ph.distance);
-                            (depth as f32, ph.distance as f32, ph.normal, ph.distance)
-                        });
+                        let gt = self.pixel_ground_truth(camera, i, j);
                         PixelOut { rgba, gt, nonfinite }
                     })
                     .collect()
