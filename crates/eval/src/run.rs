@@ -20,7 +20,7 @@
 //! uses the Euclidean distance along the pixel-centre ray, both from the ground-truth EXR.
 
 use crate::curve::read_metrics_jsonl;
-use crate::evaluate::{EvalOptions, EvalReport, RunInfo, ViewInput, evaluate_views};
+use crate::evaluate::{EvalOptions, EvalReport, RunInfo, ViewInput, evaluate_view};
 use crate::metrics::RaySamples;
 use crate::report::write_report;
 use crate::{EvalError, RunSummary};
@@ -122,20 +122,7 @@ fn load_view(
             [0, 1, 2].map(|c| p[c] * a + background[c] * (1.0 - a))
         })
         .collect();
-    let gt = match &frame.gt_path {
-        Some(p) => {
-            let g = dataset::read_ground_truth(p)?;
-            if (g.width, g.height) != (full.width, full.height) {
-                return Err(run_error(run_dir, format!("{}: ground truth is {}x{}, camera says {}x{}", p.display(), g.width, g.height, full.width, full.height)));
-            }
-            Some(match (g.at_downscale(downscale), source) {
-                (Some(exact), _) => exact,
-                (None, GroundTruthSource::Scene(r)) => r.ground_truth(&camera),
-                (None, _) => g.nearest_at_downscale(downscale),
-            })
-        }
-        None => None,
-    };
+    let gt = ground_truth_at(run_dir, frame, downscale, source)?;
     let start = Instant::now();
     let pred = model.render_view(&camera, background);
     let render_s = start.elapsed().as_secs_f64();
@@ -152,6 +139,22 @@ fn load_view(
         offsets,
         render_s,
     })
+}
+
+/// The frame's depth / distance / normal / alpha ground truth at `downscale` (see
+/// [`GroundTruthSource`]); `None` when the frame has none.
+fn ground_truth_at(run_dir: &Path, frame: &Frame, downscale: u32, source: &GroundTruthSource) -> Result<Option<GroundTruth>, EvalError> {
+    let Some(p) = &frame.gt_path else { return Ok(None) };
+    let full = frame.camera.intrinsics;
+    let g = dataset::read_ground_truth(p)?;
+    if (g.width, g.height) != (full.width, full.height) {
+        return Err(run_error(run_dir, format!("{}: ground truth is {}x{}, camera says {}x{}", p.display(), g.width, g.height, full.width, full.height)));
+    }
+    Ok(Some(match (g.at_downscale(downscale), source) {
+        (Some(exact), _) => exact,
+        (None, GroundTruthSource::Scene(r)) => r.ground_truth(&frame.camera.downscaled(downscale)),
+        (None, _) => g.nearest_at_downscale(downscale),
+    }))
 }
 
 /// How the ground truth at `downscale` is obtained, and the report's note saying so (`None`
@@ -201,32 +204,41 @@ fn view_input(v: &LoadedView) -> ViewInput<'_> {
     }
 }
 
-/// The box around the ground-truth surface points of `views` (each covered pixel-centre ray,
-/// alpha at least [`crate::metrics::FOREGROUND_ALPHA`], lifted by its true distance): the
+/// The box around ground-truth surface points (each covered pixel-centre ray, alpha at least
+/// [`crate::metrics::FOREGROUND_ALPHA`], lifted by its true distance), grown view by view: the
 /// scene's extent for the off-surface tolerance when the dataset has no scene facts but has
-/// ground truth. `None` without ground-truth hits.
-fn surface_box(frames: &[&Frame], views: &[LoadedView]) -> Option<([f32; 3], [f32; 3])> {
-    let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
-    for (f, v) in frames.iter().zip(views) {
-        let Some(g) = &v.gt else { continue };
+/// ground truth.
+#[derive(Clone, Copy, Debug)]
+struct SurfaceBox {
+    lo: [f64; 3],
+    hi: [f64; 3],
+}
+
+impl SurfaceBox {
+    fn empty() -> Self {
+        Self { lo: [f64::INFINITY; 3], hi: [f64::NEG_INFINITY; 3] }
+    }
+
+    /// Adds the surface points of `g`, seen by `camera` (of `g`'s resolution).
+    fn extend(&mut self, camera: &dataset::Camera, g: &GroundTruth) {
+        let w = g.width as usize;
         for (p, (&d, &a)) in g.distance.iter().zip(&g.alpha).enumerate() {
             if a < crate::metrics::FOREGROUND_ALPHA || !(d > 0.0 && d.is_finite()) {
                 continue;
             }
-            let ray = f.camera.downscaled(resolution_factor(f, v)).pixel_center_ray((p % v.width) as u32, (p / v.width) as u32);
+            let ray = camera.pixel_center_ray((p % w) as u32, (p / w) as u32);
             let x = ray.origin + ray.direction * d as f64;
             for k in 0..3 {
-                lo[k] = lo[k].min(x[k]);
-                hi[k] = hi[k].max(x[k]);
+                self.lo[k] = self.lo[k].min(x[k]);
+                self.hi[k] = self.hi[k].max(x[k]);
             }
         }
     }
-    lo[0].is_finite().then(|| (lo.map(|v| v as f32), hi.map(|v| v as f32)))
-}
 
-/// The factor a loaded view was downscaled by from its frame.
-fn resolution_factor(f: &Frame, v: &LoadedView) -> u32 {
-    (f.camera.intrinsics.width / v.width.max(1) as u32).max(1)
+    /// `None` without any surface point.
+    fn bounds(&self) -> Option<([f32; 3], [f32; 3])> {
+        self.lo[0].is_finite().then(|| (self.lo.map(|v| v as f32), self.hi.map(|v| v as f32)))
+    }
 }
 
 /// Evaluates the run in `run_dir` on `opts.split` and writes its report into the run folder.
@@ -255,15 +267,21 @@ pub fn evaluate_run(
             .map_err(|e| run_error(run_dir, format!("{e} ({})", f.image_path.display())))?;
     }
     let (source, gt_note) = ground_truth_source(&dataset, &frames, downscale, opts.scene.as_deref())?;
-    let background = model.eval_background();
-    let mut views = Vec::with_capacity(frames.len());
-    for (k, frame) in frames.iter().enumerate() {
-        views.push(load_view(run_dir, &model, frame, background, downscale, &source)?);
-        progress(k + 1, frames.len());
-    }
-    let resolution = EvalResolution { width: views[0].width as u32, height: views[0].height as u32, downscale, train_downscale };
-    // The off-surface tolerance's box, and the note that says where it came from.
-    let (options, note) = match (&dataset.facts, dataset.facts.is_none().then(|| surface_box(&frames, &views)).flatten()) {
+    // The off-surface tolerance's box, and the note that says where it came from: the scene
+    // facts' box, or a first pass over the evaluated views' ground truth.
+    let surface = match &dataset.facts {
+        Some(_) => None,
+        None => {
+            let mut b = SurfaceBox::empty();
+            for f in &frames {
+                if let Some(g) = ground_truth_at(run_dir, f, downscale, &source)? {
+                    b.extend(&f.camera.downscaled(downscale), &g);
+                }
+            }
+            b.bounds()
+        }
+    };
+    let (options, note) = match (&dataset.facts, surface) {
         (Some(f), _) => (EvalOptions::for_scene_bbox(f.aabb_min.map(|v| v as f32), f.aabb_max.map(|v| v as f32)), None),
         (None, Some((lo, hi))) => {
             let o = EvalOptions::for_scene_bbox(lo, hi);
@@ -278,20 +296,34 @@ pub fn evaluate_run(
             Some("the dataset carries no scene facts (e.g. Blender synthetic): no bounding box for the off-surface tolerance".to_string()),
         ),
     };
-    let inputs: Vec<ViewInput<'_>> = views.iter().map(view_input).collect();
+    // One view at a time: its samples (tens of MB at 800x800) are dropped once its metrics are
+    // taken, except for the views that get a picture grid.
+    let background = model.eval_background();
+    let mut reports = Vec::with_capacity(frames.len());
+    let mut kept = Vec::new();
+    let mut resolution = None;
+    for (k, frame) in frames.iter().enumerate() {
+        let view = load_view(run_dir, &model, frame, background, downscale, &source)?;
+        resolution.get_or_insert(EvalResolution { width: view.width as u32, height: view.height as u32, downscale, train_downscale });
+        reports.push(evaluate_view(&view_input(&view), &options)?);
+        if k < opts.grid_views {
+            kept.push(view);
+        }
+        progress(k + 1, frames.len());
+    }
     let info = RunInfo {
         train_wall_s: model.train_wall_s(),
         train_steps: model.train_steps(),
         parameters: model.parameters() as u64,
     };
-    let mut report = evaluate_views(&inputs, info, &options)?;
-    report.resolution = Some(resolution);
+    let mut report = EvalReport::new(reports, info, &options)?;
+    report.resolution = resolution;
     report.notes.extend(note);
     report.notes.extend(gt_note);
     let metrics_path = run_dir.join("metrics.jsonl");
     let curve = if metrics_path.exists() { read_metrics_jsonl(&metrics_path)? } else { Vec::new() };
     let name = run_name(run_dir);
-    let grids: Vec<ViewInput<'_>> = inputs.iter().take(opts.grid_views).copied().collect();
+    let grids: Vec<ViewInput<'_>> = kept.iter().map(view_input).collect();
     let report_md = write_report(run_dir, &name, &report, &curve, &grids)?;
     let summary = RunSummary::from_report(&name, &report, &curve);
     Ok(EvalRunOutput { report, summary, report_md })
