@@ -34,7 +34,7 @@ pub fn check_downscale(option: &str, factor: u32, intr: &Intrinsics) -> Result<(
     if factor > w || factor > h {
         return Err(format!("{option} {factor} is larger than the {w}x{h} image"));
     }
-    if w % factor != 0 || h % factor != 0 {
+    if !w.is_multiple_of(factor) || !h.is_multiple_of(factor) {
         return Err(format!(
             "{option} {factor} does not divide the {w}x{h} image (factors that do: {})",
             divisors(w, h).iter().map(u32::to_string).collect::<Vec<_>>().join(", ")
@@ -45,7 +45,7 @@ pub fn check_downscale(option: &str, factor: u32, intr: &Intrinsics) -> Result<(
 
 /// Common divisors of `w` and `h`, ascending (at most the first 12).
 fn divisors(w: u32, h: u32) -> Vec<u32> {
-    (1..=w.min(h)).filter(|d| w % d == 0 && h % d == 0).take(12).collect()
+    (1..=w.min(h)).filter(|d| w.is_multiple_of(*d) && h.is_multiple_of(*d)).take(12).collect()
 }
 
 impl RgbaImage {

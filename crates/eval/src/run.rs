@@ -90,7 +90,7 @@ enum GroundTruthSource {
     /// is the downscaled centre ray.
     File,
     /// Cast exactly through the scene (even factors).
-    Scene(pathtracer::render::Renderer),
+    Scene(Box<pathtracer::render::Renderer>),
     /// The nearest full-resolution pixel (even factors without the scene).
     Nearest,
 }

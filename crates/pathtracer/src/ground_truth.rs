@@ -25,7 +25,7 @@ pub enum SceneLookup {
     /// The scene the dataset was rendered from, loaded.
     Found {
         /// The scene behind a BVH.
-        renderer: Renderer,
+        renderer: Box<Renderer>,
         /// The file it was loaded from.
         path: PathBuf,
     },
@@ -64,7 +64,7 @@ pub fn scene_of_dataset(dataset_dir: &Path, scene: Option<&Path>) -> Result<Scen
                 record.scene.hash
             )));
         }
-        return load(p).map(|renderer| SceneLookup::Found { renderer, path: p.to_path_buf() });
+        return load(p).map(|renderer| SceneLookup::Found { renderer: Box::new(renderer), path: p.to_path_buf() });
     }
     let recorded = PathBuf::from(&record.scene.path);
     let mut candidates = vec![recorded.clone()];
@@ -80,7 +80,7 @@ pub fn scene_of_dataset(dataset_dir: &Path, scene: Option<&Path>) -> Result<Scen
             continue;
         }
         match SceneSource::from_file(&c) {
-            Ok(s) if s.hash == record.scene.hash => return load(&c).map(|renderer| SceneLookup::Found { renderer, path: c }),
+            Ok(s) if s.hash == record.scene.hash => return load(&c).map(|renderer| SceneLookup::Found { renderer: Box::new(renderer), path: c }),
             Ok(_) => edited = edited.or(Some(c)),
             Err(_) => {}
         }

@@ -155,6 +155,9 @@ pub struct ViewOutput {
     pub distance_range: Option<(f64, f64)>,
 }
 
+/// One pixel's exact ground truth: (z-depth, distance, unit normal, `f64` distance).
+type PixelTruth = (f32, f32, Vec3, f64);
+
 /// A pixel-centre (ground-truth) hit.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PrimaryHit {
@@ -357,7 +360,7 @@ impl Renderer {
 
     /// The exact ground truth of pixel (`i`, `j`)'s centre ray: (z-depth, distance, normal,
     /// `f64` distance), `None` when the ray hits nothing.
-    fn pixel_ground_truth(&self, camera: &Camera, i: u32, j: u32) -> Option<(f32, f32, Vec3, f64)> {
+    fn pixel_ground_truth(&self, camera: &Camera, i: u32, j: u32) -> Option<PixelTruth> {
         self.trace_primary(&camera.pixel_center_ray(i, j)).map(|ph| {
             let depth = camera.z_depth_from_distance(i as f64 + 0.5, j as f64 + 0.5, ph.distance);
             (depth as f32, ph.distance as f32, ph.normal, ph.distance)
@@ -370,7 +373,7 @@ impl Renderer {
     /// the full-resolution ones).
     pub fn ground_truth(&self, camera: &Camera) -> GroundTruth {
         let (w, h) = (camera.intrinsics.width, camera.intrinsics.height);
-        let rows: Vec<Vec<Option<(f32, f32, Vec3, f64)>>> =
+        let rows: Vec<Vec<Option<PixelTruth>>> =
             (0..h).into_par_iter().map(|j| (0..w).map(|i| self.pixel_ground_truth(camera, i, j)).collect()).collect();
         let n = w as usize * h as usize;
         let mut gt = GroundTruth { width: w, height: h, depth: vec![0.0; n], distance: vec![0.0; n], normal: vec![0.0; 3 * n], alpha: vec![0.0; n] };
@@ -396,7 +399,7 @@ impl Renderer {
         let edge_seed = splitmix64(settings.seed ^ EDGE_SEED_KEY);
         struct PixelOut {
             rgba: [f32; 4],
-            gt: Option<(f32, f32, Vec3, f64)>,
+            gt: Option<PixelTruth>,
             nonfinite: u64,
         }
         let rows: Vec<Vec<PixelOut>> = (0..h)
