@@ -33,6 +33,8 @@ struct Cli {
 enum Command {
     /// Render a glTF scene into a posed train/val/test dataset with exact depth.
     Render(render::RenderArgs),
+    /// Merge shard folders (`render --shard K/N`) into one dataset, byte-identical to an unsharded render.
+    Merge(render::MergeArgs),
     /// Regenerate the project's own scenes in `scenes/`.
     GenScenes(gen_scenes::GenScenesArgs),
     /// Train a radiance field on a dataset's train views.
@@ -77,6 +79,7 @@ fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Render(a) => render::run(a).map(|_| ()),
+        Command::Merge(a) => render::run_merge(a),
         Command::GenScenes(a) => gen_scenes::run(a),
         Command::Train(a) => train::run(a),
         Command::RenderNerf(a) => train::run_render(a),

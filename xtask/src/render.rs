@@ -68,6 +68,33 @@ pub struct RenderArgs {
     /// Replace a dataset in --out that was rendered with different settings.
     #[arg(long)]
     pub force: bool,
+    /// Render only shard K of N (zero-based, e.g. 0/4) of the views, for `merge` to combine:
+    /// every split's numbering stays the unsharded render's.
+    #[arg(long, value_name = "K/N")]
+    pub shard: Option<pathtracer::shard::Shard>,
+}
+
+/// Arguments of `merge`.
+#[derive(clap::Args, Clone, Debug)]
+pub struct MergeArgs {
+    /// The shard folders (from `render --shard K/N`), every shard exactly once.
+    #[arg(required = true)]
+    pub shards: Vec<PathBuf>,
+    /// The dataset folder to write (must not exist or be empty).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// The scene file the shards were rendered from (default: the path they recorded).
+    #[arg(long)]
+    pub scene: Option<PathBuf>,
+}
+
+/// Merges shard folders into one dataset folder.
+pub fn run_merge(args: MergeArgs) -> anyhow::Result<()> {
+    let sum = pathtracer::shard::merge_shards(&args.shards, &args.out, args.scene.as_deref())
+        .with_context(|| format!("merging {} shards into {}", args.shards.len(), args.out.display()))?;
+    println!("dataset: {}", sum.out.display());
+    println!("{} views merged from {} shards; near {:.3}, far {:.3}", sum.views_total, args.shards.len(), sum.facts.near, sum.facts.far);
+    Ok(())
 }
 
 impl RenderArgs {
@@ -92,6 +119,7 @@ impl RenderArgs {
             environment_map: None,
             threads: None,
             force: false,
+            shard: None,
         }
     }
 }
@@ -222,9 +250,24 @@ pub fn run(args: RenderArgs) -> anyhow::Result<PathBuf> {
             bar.inc(1);
         }
     };
-    let result = render_dataset(&scene, &args.out, &cfg, &opts, &mut progress, &cancel);
+    let result = match args.shard {
+        Some(shard) => pathtracer::shard::render_shard(&scene, &args.out, &cfg, &opts, shard, &mut progress, &cancel),
+        None => render_dataset(&scene, &args.out, &cfg, &opts, &mut progress, &cancel),
+    };
     bar.finish_and_clear();
     match result {
+        Ok(sum) if args.shard.is_some() => {
+            println!("shard: {}", sum.out.display());
+            println!(
+                "shard {} ({} views: {} rendered, {} kept) in {:.1} s; combine every shard with `cargo xtask merge`",
+                args.shard.map_or(String::new(), |s| s.to_string()),
+                sum.views_total,
+                sum.views_rendered,
+                sum.views_reused,
+                sum.seconds
+            );
+            Ok(sum.out)
+        }
         Ok(sum) => {
             let rate = sum.samples as f64 / sum.seconds.max(1e-9);
             println!("dataset: {}", sum.out.display());

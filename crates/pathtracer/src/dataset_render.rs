@@ -22,6 +22,7 @@
 use crate::PathTracerError;
 use crate::rig::{DEFAULT_FOV_X, Rig, RigConfig, RigKind, build_rig, split_index};
 use crate::scene::Scene;
+use crate::shard::Shard;
 use dataset::{Camera, FrameRecord, GroundTruth, RgbaImage, SceneFacts, SplitKind};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -383,6 +384,20 @@ pub fn render_dataset(
     progress: &mut dyn FnMut(ProgressEvent),
     cancel: &AtomicBool,
 ) -> Result<DatasetSummary, PathTracerError> {
+    render_dataset_sharded(scene_path, out, cfg, opts, None, progress, cancel)
+}
+
+/// [`render_dataset`], or with `shard` only that shard's views and its manifest instead of the
+/// transforms files ([`crate::shard`]).
+pub(crate) fn render_dataset_sharded(
+    scene_path: &Path,
+    out: &Path,
+    cfg: &DatasetRenderConfig,
+    opts: &RunOptions,
+    shard: Option<Shard>,
+    progress: &mut dyn FnMut(ProgressEvent),
+    cancel: &AtomicBool,
+) -> Result<DatasetSummary, PathTracerError> {
     cfg.validate()?;
     let source = SceneSource::from_file(scene_path)?;
     let scene = crate::import::load_gltf(scene_path, &crate::import::ImportOptions::default())?;
@@ -401,7 +416,7 @@ pub fn render_dataset(
     settings.validate()?;
     renderer.load_environment_map(&settings)?;
     let adapter = PathTracer { renderer: &renderer, settings };
-    render_dataset_with(renderer.scene(), &source, &adapter, out, cfg, opts, progress, cancel)
+    render_dataset_part(renderer.scene(), &source, &adapter, out, cfg, opts, shard, progress, cancel)
 }
 
 /// The path tracer behind [`ViewRenderer`].
@@ -436,6 +451,23 @@ pub fn render_dataset_with(
     progress: &mut dyn FnMut(ProgressEvent),
     cancel: &AtomicBool,
 ) -> Result<DatasetSummary, PathTracerError> {
+    render_dataset_part(scene, source, renderer, out, cfg, opts, None, progress, cancel)
+}
+
+/// [`render_dataset_with`] for every view (`shard` `None`: then the transforms files are written
+/// last) or one shard's views (then `shard.json` is).
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn render_dataset_part(
+    scene: &Scene,
+    source: &SceneSource,
+    renderer: &dyn ViewRenderer,
+    out: &Path,
+    cfg: &DatasetRenderConfig,
+    opts: &RunOptions,
+    shard: Option<Shard>,
+    progress: &mut dyn FnMut(ProgressEvent),
+    cancel: &AtomicBool,
+) -> Result<DatasetSummary, PathTracerError> {
     cfg.validate()?;
     if opts.threads == Some(0) {
         return Err(PathTracerError::Config("--threads 0: at least one thread is needed".into()));
@@ -463,13 +495,14 @@ pub fn render_dataset_with(
 
     let start = std::time::Instant::now();
     let finished = |split, k| view_files(split, k).iter().all(|f| out.join(f).is_file());
-    let reused = rig.views().filter(|(s, k, _)| finished(*s, *k)).count() as u64;
-    let total = cfg.total_views();
+    let mine = |p: usize| shard.is_none_or(|s| s.owns(p as u64));
+    let reused = rig.views().enumerate().filter(|(p, (s, k, _))| mine(*p) && finished(*s, *k)).count() as u64;
+    let total = rig.views().enumerate().filter(|(p, _)| mine(*p)).count() as u64;
     progress(ProgressEvent::Started { total, reused, rig: rig.kind });
 
     let mut range = DistanceRange::default();
     let mut samples = 0u64;
-    for (split, k, camera) in rig.views() {
+    for (split, k, camera) in rig.views().enumerate().filter(|(p, _)| mine(*p)).map(|(_, v)| v) {
         let files = view_files(split, k).map(|f| out.join(f));
         if files.iter().all(|f| f.is_file()) {
             let gt = dataset::read_ground_truth(&files[2])?;
@@ -492,7 +525,17 @@ pub fn render_dataset_with(
     }
 
     let facts = scene_facts(scene, &rig, &range, renderer.is_view_dependent(), &record)?;
-    write_transforms(out, &rig, &facts)?;
+    match shard {
+        Some(s) => crate::shard::write_manifest(out, cfg, s)?,
+        None => {
+            write_transforms(out, &rig, &facts)?;
+            let manifest = out.join(crate::shard::SHARD_MANIFEST_FILE);
+            if manifest.is_file() {
+                // A former shard folder now holds the whole dataset.
+                std::fs::remove_file(&manifest).map_err(|e| dataset::DatasetError::Io { path: manifest.clone(), source: e })?;
+            }
+        }
+    }
     Ok(DatasetSummary {
         out: out.to_path_buf(),
         rig: rig.kind,
@@ -538,7 +581,7 @@ fn prepare_folder(out: &Path, record: &RenderRecord, force: bool) -> Result<(), 
     }
 }
 
-fn describe_difference(old: &RenderRecord, new: &RenderRecord) -> String {
+pub(crate) fn describe_difference(old: &RenderRecord, new: &RenderRecord) -> String {
     if old.scene.hash != new.scene.hash {
         return format!("scene {} (now {}) differs", old.scene.path, new.scene.path);
     }
@@ -576,6 +619,7 @@ fn is_view_file(name: &str) -> bool {
 fn dataset_top_files() -> Vec<String> {
     let mut v: Vec<String> = SplitKind::ALL.iter().map(|s| s.file_name()).collect();
     v.push("transforms.json".into());
+    v.push(crate::shard::SHARD_MANIFEST_FILE.into());
     v
 }
 

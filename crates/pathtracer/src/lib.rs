@@ -28,6 +28,7 @@ pub mod render;
 pub mod rig;
 pub mod sampler;
 pub mod scene;
+pub mod shard;
 pub mod texture;
 
 pub use error::PathTracerError;

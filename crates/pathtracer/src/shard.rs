@@ -1,0 +1,315 @@
+//! Sharded rendering: a dataset's views split into `N` deterministic shards that render
+//! independently (on other machines: a Ray task or a Slurm array job per shard), and the merge
+//! that puts them back together into a folder **byte-identical** to an unsharded render.
+//!
+//! - [`Shard`] `K/N` owns the views whose position in the rig's order (train, then val, then
+//!   test; the numbering of the unsharded render) is `K` modulo `N`, so every shard gets a
+//!   share of every split. A shard folder holds `render_config.json` (the same record as the
+//!   unsharded render), its views' files, and last `shard.json` ([`ShardManifest`]), which
+//!   marks it complete. It has no transforms files: the scene facts (near / far) need every
+//!   view's depth.
+//! - [`merge_shards`] checks that the shards come from the same scene content and settings and
+//!   together cover every view exactly once (overlapping, missing, unfinished or mismatched
+//!   shards are an error naming the shard, before anything is written), copies the views
+//!   (atomically, file by file), and writes `render_config.json` and the transforms files
+//!   through the same code as an unsharded render, so the result is the same bytes. It needs
+//!   the scene file (the path recorded in `render_config.json`, or one given) to place the
+//!   cameras and state the scene facts; its content must match the recorded hash.
+//!
+//! ```
+//! use pathtracer::shard::Shard;
+//! let s: Shard = "1/3".parse().unwrap();
+//! assert_eq!((s.index, s.count), (1, 3));
+//! assert!(s.owns(4) && !s.owns(3));
+//! assert!("3/3".parse::<Shard>().is_err());
+//! ```
+
+use crate::PathTracerError;
+use crate::dataset_render::{
+    DatasetRenderConfig, DatasetSummary, ProgressEvent, RENDER_CONFIG_FILE, RenderRecord, RunOptions, ViewImages,
+    ViewRenderer, render_dataset_part, view_files,
+};
+use crate::rig::build_rig;
+use dataset::{Camera, SplitKind};
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicBool;
+
+/// File name of a shard's manifest inside its folder.
+pub const SHARD_MANIFEST_FILE: &str = "shard.json";
+
+/// Shard `index` of `count` (zero-based): the views at positions `p` with `p % count == index`
+/// in the rig's order over all splits.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Shard {
+    /// Which shard, `0..count`.
+    pub index: u32,
+    /// How many shards.
+    pub count: u32,
+}
+
+impl Shard {
+    /// Whether the view at `position` (over all splits, in the rig's order) is this shard's.
+    pub fn owns(&self, position: u64) -> bool {
+        position % self.count as u64 == self.index as u64
+    }
+}
+
+impl std::fmt::Display for Shard {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}/{}", self.index, self.count)
+    }
+}
+
+impl std::str::FromStr for Shard {
+    type Err = String;
+    /// `K/N` with `0 ≤ K < N`.
+    fn from_str(s: &str) -> Result<Self, String> {
+        let bad = || format!("--shard '{s}': expected K/N with 0 <= K < N (e.g. 0/4), shards numbered from 0");
+        let (k, n) = s.split_once('/').ok_or_else(bad)?;
+        let (index, count): (u32, u32) = (k.trim().parse().map_err(|_| bad())?, n.trim().parse().map_err(|_| bad())?);
+        if count == 0 || index >= count {
+            return Err(bad());
+        }
+        Ok(Self { index, count })
+    }
+}
+
+/// The content of `shard.json`: which shard the folder holds and its views, written once every
+/// one of them is finished.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ShardManifest {
+    /// The shard.
+    pub shard: Shard,
+    /// Its views as `<split>/r_<k>`, in the rig's order.
+    pub views: Vec<String>,
+}
+
+/// Every view of a dataset rendered with `cfg`, in the rig's order: (position, split, index).
+fn positions(cfg: &DatasetRenderConfig) -> Vec<(u64, SplitKind, u32)> {
+    let counts = [cfg.train, cfg.val, cfg.test];
+    let mut out = Vec::new();
+    for (s, split) in SplitKind::ALL.into_iter().enumerate() {
+        for k in 0..counts[s] {
+            out.push((out.len() as u64, split, k));
+        }
+    }
+    out
+}
+
+/// The views of `shard` for a dataset rendered with `cfg`, as `<split>/r_<k>`.
+pub fn shard_views(cfg: &DatasetRenderConfig, shard: Shard) -> Vec<String> {
+    positions(cfg).into_iter().filter(|(p, _, _)| shard.owns(*p)).map(|(_, s, k)| format!("{}/r_{k}", s.name())).collect()
+}
+
+/// Renders shard `shard` of the dataset of `scene_path` into `out` (see the module docs):
+/// [`crate::dataset_render::render_dataset`] for the shard's views only, then `shard.json`.
+/// Resumes like a full render.
+pub fn render_shard(
+    scene_path: &Path,
+    out: &Path,
+    cfg: &DatasetRenderConfig,
+    opts: &RunOptions,
+    shard: Shard,
+    progress: &mut dyn FnMut(ProgressEvent),
+    cancel: &AtomicBool,
+) -> Result<DatasetSummary, PathTracerError> {
+    crate::dataset_render::render_dataset_sharded(scene_path, out, cfg, opts, Some(shard), progress, cancel)
+}
+
+/// Writes `shard.json` for a finished shard folder.
+pub(crate) fn write_manifest(out: &Path, cfg: &DatasetRenderConfig, shard: Shard) -> Result<(), PathTracerError> {
+    let manifest = ShardManifest { shard, views: shard_views(cfg, shard) };
+    Ok(dataset::io::atomic_write_json(&out.join(SHARD_MANIFEST_FILE), &manifest)?)
+}
+
+fn read_json<T: serde::de::DeserializeOwned>(path: &Path, what: &str) -> Result<T, PathTracerError> {
+    let bytes = std::fs::read(path).map_err(|e| PathTracerError::Config(format!("{}: cannot read its {what} ({e})", path.display())))?;
+    serde_json::from_slice(&bytes).map_err(|e| PathTracerError::Config(format!("{}: not a valid {what} ({e})", path.display())))
+}
+
+/// A renderer that is never asked to render: the merge finds every view already present.
+struct AlreadyRendered {
+    view_dependent: bool,
+}
+
+impl ViewRenderer for AlreadyRendered {
+    fn render_view(&self, _camera: &Camera, view_key: u32) -> Result<ViewImages, PathTracerError> {
+        Err(PathTracerError::Config(format!("view {view_key:#x} is missing after the merge")))
+    }
+    fn is_view_dependent(&self) -> bool {
+        self.view_dependent
+    }
+}
+
+/// Merges the shard folders `shards` into the dataset folder `out` (see the module docs).
+/// `scene` overrides where the scene file is looked for (default: the path recorded in the
+/// shards' `render_config.json`, as given or relative to a shard folder's ancestors); its
+/// content must match the recorded hash. `out` must not exist or be empty.
+pub fn merge_shards(shards: &[PathBuf], out: &Path, scene: Option<&Path>) -> Result<DatasetSummary, PathTracerError> {
+    let err = |m: String| PathTracerError::Config(m);
+    if shards.is_empty() {
+        return Err(err("merge: no shard folders given".into()));
+    }
+    if out.exists() && std::fs::read_dir(out).map(|mut d| d.next().is_some()).unwrap_or(true) {
+        return Err(err(format!("--out {}: exists and is not an empty folder; merge writes a new dataset folder", out.display())));
+    }
+    // Every shard: finished, same record, distinct index, same count.
+    let mut records: Vec<(PathBuf, RenderRecord, Vec<u8>, ShardManifest)> = Vec::new();
+    for dir in shards {
+        let manifest_path = dir.join(SHARD_MANIFEST_FILE);
+        if !manifest_path.is_file() {
+            return Err(err(format!(
+                "{}: no {SHARD_MANIFEST_FILE}: not a shard folder, or its render has not finished (re-run its `render --shard` to complete it)",
+                dir.display()
+            )));
+        }
+        let manifest: ShardManifest = read_json(&manifest_path, "shard manifest")?;
+        let config_path = dir.join(RENDER_CONFIG_FILE);
+        let bytes = std::fs::read(&config_path).map_err(|e| err(format!("{}: cannot read ({e})", config_path.display())))?;
+        let record: RenderRecord = serde_json::from_slice(&bytes).map_err(|e| err(format!("{}: not a valid {RENDER_CONFIG_FILE} ({e})", config_path.display())))?;
+        if let Some((first_dir, first, _, _)) = records.first() {
+            if !first.same_output(&record) {
+                return Err(err(format!(
+                    "shard {} ({}) was rendered with other settings than shard {} ({}): {}",
+                    manifest.shard,
+                    dir.display(),
+                    records[0].3.shard,
+                    first_dir.display(),
+                    crate::dataset_render::describe_difference(first, &record)
+                )));
+            }
+            if manifest.shard.count != records[0].3.shard.count {
+                return Err(err(format!(
+                    "shard {} ({}) is one of {} shards, shard {} ({}) one of {}",
+                    manifest.shard,
+                    dir.display(),
+                    manifest.shard.count,
+                    records[0].3.shard,
+                    first_dir.display(),
+                    records[0].3.shard.count
+                )));
+            }
+        }
+        if let Some((other, ..)) = records.iter().find(|(_, _, _, m)| m.shard.index == manifest.shard.index) {
+            return Err(err(format!(
+                "shard {} is given twice ({} and {}): the shards overlap",
+                manifest.shard,
+                other.display(),
+                dir.display()
+            )));
+        }
+        let expected = shard_views(&record.config, manifest.shard);
+        if manifest.views != expected {
+            return Err(err(format!(
+                "{}: its manifest lists other views than shard {} of this dataset owns",
+                manifest_path.display(),
+                manifest.shard
+            )));
+        }
+        for v in &expected {
+            let (split, k) = parse_view(v).ok_or_else(|| err(format!("{}: bad view name {v}", manifest_path.display())))?;
+            for f in view_files(split, k) {
+                if !dir.join(&f).is_file() {
+                    return Err(err(format!("shard {} ({}) lacks {f}", manifest.shard, dir.display())));
+                }
+            }
+        }
+        records.push((dir.clone(), record, bytes, manifest));
+    }
+    let count = records[0].3.shard.count;
+    let missing: Vec<String> = (0..count).filter(|i| !records.iter().any(|r| r.3.shard.index == *i)).map(|i| format!("{i}/{count}")).collect();
+    if !missing.is_empty() {
+        return Err(err(format!("shard{} {} missing: the shards given do not cover every view", if missing.len() > 1 { "s" } else { "" }, missing.join(", "))));
+    }
+    let (first_dir, record, config_bytes, _) = &records[0];
+    if record.renderer != crate::RENDERER_VERSION {
+        return Err(err(format!(
+            "{}: rendered by {}, but this merge is {}: merge with the binary that rendered the shards",
+            first_dir.display(),
+            record.renderer,
+            crate::RENDERER_VERSION
+        )));
+    }
+    let scene_path = find_scene(first_dir, record, scene)?;
+    let loaded = crate::import::load_gltf(&scene_path, &crate::import::ImportOptions::default())?;
+    let renderer = crate::render::Renderer::new(loaded, &crate::accel::AccelParams::medium_build())?;
+    // Checked: the views of the rig the recorded settings build are the ones the shards hold.
+    let rig = build_rig(renderer.scene(), &record.config.rig_config())?;
+    if rig.kind != record.rig_resolved {
+        return Err(err(format!("{}: the scene now places a {} rig, the shards a {} one", scene_path.display(), rig.kind.name(), record.rig_resolved.name())));
+    }
+
+    // Copy the views into a temporary sibling folder, finish it as a render whose views are all
+    // done, then rename it to `out`: an interrupted merge leaves no half-written dataset.
+    let final_out = out;
+    let name = final_out.file_name().map_or("dataset".into(), |n| n.to_string_lossy().into_owned());
+    let tmp = final_out.with_file_name(format!(".{name}.merge.{}.tmp", std::process::id()));
+    let io = |path: &Path, e: std::io::Error| PathTracerError::from(dataset::DatasetError::Io { path: path.to_path_buf(), source: e });
+    if tmp.exists() {
+        std::fs::remove_dir_all(&tmp).map_err(|e| io(&tmp, e))?;
+    }
+    let out = tmp.as_path();
+    std::fs::create_dir_all(out).map_err(|e| io(out, e))?;
+    // The record exactly as the shards wrote it (the scene's path as given to them), first, as
+    // a render writes it before its views.
+    dataset::io::atomic_write(&out.join(RENDER_CONFIG_FILE), config_bytes)?;
+    for (dir, _, _, manifest) in &records {
+        for v in &manifest.views {
+            let (split, k) = parse_view(v).ok_or_else(|| err(format!("bad view name {v}")))?;
+            for f in view_files(split, k) {
+                let bytes = std::fs::read(dir.join(&f)).map_err(|e| dataset::DatasetError::Io { path: dir.join(&f), source: e })?;
+                dataset::io::atomic_write(&out.join(&f), &bytes)?;
+            }
+        }
+    }
+    let adapter = AlreadyRendered { view_dependent: renderer.is_view_dependent() };
+    let opts = RunOptions { threads: Some(1), force: false };
+    let summary = render_dataset_part(renderer.scene(), &record.scene, &adapter, out, &record.config, &opts, None, &mut |_| {}, &AtomicBool::new(false))?;
+    dataset::io::atomic_write(&out.join(RENDER_CONFIG_FILE), config_bytes)?;
+    if final_out.exists() {
+        std::fs::remove_dir(final_out).map_err(|e| io(final_out, e))?;
+    }
+    std::fs::rename(out, final_out).map_err(|e| io(final_out, e))?;
+    Ok(DatasetSummary { out: final_out.to_path_buf(), ..summary })
+}
+
+/// `train/r_12` → (train, 12).
+fn parse_view(v: &str) -> Option<(SplitKind, u32)> {
+    let (split, rest) = v.split_once('/')?;
+    let split = SplitKind::ALL.into_iter().find(|s| s.name() == split)?;
+    Some((split, rest.strip_prefix("r_")?.parse().ok()?))
+}
+
+/// The scene file of a record: `given` (whose content must match), else the recorded path as
+/// given or relative to `dir`'s ancestors, the first with the recorded content.
+fn find_scene(dir: &Path, record: &RenderRecord, given: Option<&Path>) -> Result<PathBuf, PathTracerError> {
+    use crate::dataset_render::SceneSource;
+    if let Some(p) = given {
+        let s = SceneSource::from_file(p)?;
+        if s.hash != record.scene.hash {
+            return Err(PathTracerError::Config(format!(
+                "--scene {}: not the scene the shards were rendered from (content hash {} vs the recorded {})",
+                p.display(),
+                s.hash,
+                record.scene.hash
+            )));
+        }
+        return Ok(p.to_path_buf());
+    }
+    let recorded = PathBuf::from(&record.scene.path);
+    let mut candidates = vec![recorded.clone()];
+    if recorded.is_relative() {
+        let abs = dir.canonicalize().unwrap_or_else(|_| dir.to_path_buf());
+        candidates.extend(abs.ancestors().map(|a| a.join(&recorded)));
+    }
+    for c in &candidates {
+        if c.is_file() && SceneSource::from_file(c).is_ok_and(|s| s.hash == record.scene.hash) {
+            return Ok(c.clone());
+        }
+    }
+    Err(PathTracerError::Config(format!(
+        "the scene the shards were rendered from ({}, content hash {}) is not found or has changed; give it with --scene",
+        record.scene.path, record.scene.hash
+    )))
+}
