@@ -272,7 +272,20 @@ fn render_nerf_and_eval_with_no_views_exit_1_and_write_nothing() {
     // It used to evaluate one view.
     let eval_args = ["eval", run.to_str().unwrap(), "--split", "train", "--max-views", "0"];
     assert_refused(&eval_args, "--max-views 0 evaluates nothing", &run.join("eval.json"));
+    // Impossible downscale factors (the views are 16x16): one message naming the option, exit 1,
+    // nothing written.
+    for (d, what) in [("0", "--downscale 0"), ("3", "--downscale 3 does not divide the 16x16 image"), ("32", "--downscale 32 is larger than the 16x16 image")] {
+        let eval_args = ["eval", run.to_str().unwrap(), "--split", "train", "--downscale", d];
+        assert_refused(&eval_args, what, &run.join("eval.json"));
+        let args = ["render-nerf", run.to_str().unwrap(), "--out", out.to_str().unwrap(), "--split", "train", "--downscale", d];
+        assert_refused(&args, what, &out);
+    }
     let (code, stderr) = xtask(&["render-nerf", run.to_str().unwrap(), "--out", out.to_str().unwrap(), "--split", "train"]);
     assert_eq!(code, 0, "{stderr}");
     assert!(out.join("r_0.png").is_file() && out.join("r_1_depth.npy").is_file());
+    // A factor that divides the views: evaluated there and labelled so.
+    let (code, stdout) = xtask(&["eval", run.to_str().unwrap(), "--split", "train", "--grids", "0", "--downscale", "2"]);
+    assert_eq!(code, 0, "{stdout}");
+    let report: serde_json::Value = serde_json::from_slice(&std::fs::read(run.join("eval.json")).unwrap()).unwrap();
+    assert_eq!((report["resolution"]["width"].as_u64(), report["resolution"]["downscale"].as_u64()), (Some(8), Some(2)));
 }

@@ -71,7 +71,7 @@ pub struct ViewMetrics {
     /// PSNR in dB ([`metrics::psnr`]); `+∞` is written as the string `"inf"`.
     #[serde(with = "nonfinite")]
     pub psnr: f64,
-    /// SSIM ([`metrics::ssim`]).
+    /// SSIM ([`metrics::ssim`]); NaN (`null` in JSON) for an image smaller than its window.
     #[serde(with = "nonfinite")]
     pub ssim: f64,
     /// Mean absolute z-depth error, scene units.
@@ -217,8 +217,16 @@ pub fn evaluate_view(v: &ViewInput<'_>, opts: &EvalOptions) -> Result<ViewReport
     };
     len("pred_opacity", v.pred_opacity.len())?;
     let psnr = metrics::psnr(v.pred_rgb, v.gt_rgb).map_err(&err)?;
-    let ssim = metrics::ssim(v.pred_rgb, v.gt_rgb, v.width, v.height, 3).map_err(&err)?;
     let mut notes = Vec::new();
+    // An image smaller than SSIM's window (e.g. a small view evaluated at a high downscale)
+    // has no SSIM: NaN (`null` in JSON) with a note, the other metrics still count.
+    let ssim = match metrics::ssim(v.pred_rgb, v.gt_rgb, v.width, v.height, 3) {
+        Err(MetricError::TooSmall { width, height, window }) => {
+            notes.push(format!("image of {width}x{height} is smaller than SSIM's {window}x{window} window: SSIM omitted"));
+            f64::NAN
+        }
+        other => other.map_err(&err)?,
+    };
 
     let derived_alpha: Option<Vec<f32>> = match (v.gt_alpha, v.gt_depth) {
         (None, Some(d)) => Some(d.iter().map(|&z| if z > 0.0 { 1.0 } else { 0.0 }).collect()),
@@ -307,7 +315,7 @@ impl ViewMetrics {
         let opt = |f: fn(&ViewMetrics) -> Option<f64>| mean(views.iter().filter_map(f));
         Some(ViewMetrics {
             psnr: mean(views.iter().map(|v| v.psnr))?,
-            ssim: mean(views.iter().map(|v| v.ssim))?,
+            ssim: mean(views.iter().map(|v| v.ssim).filter(|s| !s.is_nan())).unwrap_or(f64::NAN),
             depth_mae: opt(|v| v.depth_mae),
             depth_rmse: opt(|v| v.depth_rmse),
             depth_abs_rel: opt(|v| v.depth_abs_rel),
