@@ -1,0 +1,153 @@
+"""Finding the prebuilt `xtask` binary and running it as a child process that dies with its
+parent (a Ray worker that is killed or cancelled takes its render or training with it)."""
+
+from __future__ import annotations
+
+import collections
+import ctypes
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+from typing import Callable, Iterable, Optional, Sequence
+
+from . import ClusterError
+
+#: The repository root (the parent of this package).
+REPO_ROOT = Path(__file__).resolve().parent.parent
+
+#: Where the workspace builds put the binary, in order of preference.
+DEFAULT_BINARIES = ("target/release/xtask", "target/debug/xtask")
+
+#: Exit status of a command-line usage error (clap): retrying cannot help.
+USAGE_EXIT = 2
+
+
+class XtaskFailed(Exception):
+    """`xtask` exited non-zero or was killed: worth a retry on a cluster (a node's disk, memory,
+    a killed process)."""
+
+    def __init__(self, what: str, returncode: int, tail: Sequence[str]):
+        self.what, self.returncode, self.tail = what, returncode, list(tail)
+        super().__init__(describe_exit(what, returncode, tail))
+
+    def __reduce__(self):
+        return (type(self), (self.what, self.returncode, self.tail))
+
+
+class XtaskUsageError(Exception):
+    """`xtask` refused its arguments (exit status 2): the same on every node, not retried."""
+
+    def __init__(self, what: str, returncode: int, tail: Sequence[str]):
+        self.what, self.returncode, self.tail = what, returncode, list(tail)
+        super().__init__(describe_exit(what, returncode, tail))
+
+    def __reduce__(self):
+        return (type(self), (self.what, self.returncode, self.tail))
+
+
+def describe_exit(what: str, returncode: int, tail: Sequence[str]) -> str:
+    how = f"was killed by signal {-returncode}" if returncode < 0 else f"exited with status {returncode}"
+    lines = "".join(f"\n    {line}" for line in tail)
+    return f"{what} {how}" + (f"; its last output:{lines}" if lines else "")
+
+
+def find_xtask(path: Optional[str]) -> tuple[str, str]:
+    """The binary to run and how it was chosen: `path` as given (it must exist here only when it
+    is meant for this machine too, so a missing one is not an error), else
+    `target/release/xtask` if it exists, else `target/debug/xtask`, under the repository root."""
+    if path:
+        p = Path(path).expanduser()
+        return (str(p.resolve()) if p.exists() else str(p)), "--xtask"
+    for rel in DEFAULT_BINARIES:
+        p = REPO_ROOT / rel
+        if p.is_file():
+            return str(p), f"the {rel.split('/')[1]} build"
+    raise ClusterError(
+        f"no xtask binary in {REPO_ROOT / 'target'}: build it with `cargo build --release -p xtask` "
+        "(or the workspace build), or give --xtask PATH"
+    )
+
+
+def _die_with_parent() -> None:
+    """In the child before exec: SIGKILL when the parent thread that started it goes (Linux)."""
+    try:
+        libc = ctypes.CDLL("libc.so.6", use_errno=True)
+        libc.prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+    except OSError:
+        pass
+
+
+def child_preexec() -> Optional[Callable[[], None]]:
+    return _die_with_parent if sys.platform.startswith("linux") else None
+
+
+def run(
+    cmd: Sequence[str],
+    what: str,
+    *,
+    cwd: Optional[str] = None,
+    env: Optional[dict] = None,
+    on_line: Optional[Callable[[str], None]] = None,
+    tail_lines: int = 20,
+) -> list[str]:
+    """Runs `cmd`, handing each line of its merged stdout/stderr to `on_line`; returns the lines.
+    Raises `XtaskUsageError` on exit status 2, `XtaskFailed` on any other failure. The child is
+    killed if this process dies or this call is interrupted."""
+    if not Path(cmd[0]).is_file():
+        raise XtaskFailed(what, 127, [f"no such binary on {os.uname().nodename}: {cmd[0]}"])
+    proc = subprocess.Popen(
+        list(cmd),
+        cwd=cwd,
+        env=env,
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        errors="replace",
+        bufsize=1,
+        preexec_fn=child_preexec(),
+    )
+    lines: list[str] = []
+    tail: collections.deque[str] = collections.deque(maxlen=tail_lines)
+    try:
+        assert proc.stdout is not None
+        for raw in proc.stdout:
+            line = raw.rstrip("\n")
+            lines.append(line)
+            tail.append(line)
+            if on_line:
+                on_line(line)
+        rc = proc.wait()
+    finally:
+        stop(proc)
+    if rc == USAGE_EXIT:
+        raise XtaskUsageError(what, rc, tail)
+    if rc != 0:
+        raise XtaskFailed(what, rc, tail)
+    return lines
+
+
+def stop(proc: subprocess.Popen, grace_s: float = 5.0) -> None:
+    """Ends `proc` if it still runs: SIGTERM, then SIGKILL after `grace_s`."""
+    if proc.poll() is not None:
+        return
+    proc.terminate()
+    try:
+        proc.wait(timeout=grace_s)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+
+
+def with_threads(env: Optional[dict], threads: Optional[int]) -> dict:
+    """The environment for a child that should use `threads` cores (rayon's global pool)."""
+    out = dict(os.environ if env is None else env)
+    if threads:
+        out["RAYON_NUM_THREADS"] = str(threads)
+    return out
+
+
+def has_flag(args: Iterable[str], flag: str) -> bool:
+    return any(a == flag or a.startswith(flag + "=") for a in args)
