@@ -224,9 +224,11 @@ mod tests {
         assert_eq!(pareto_runs(&runs), (ParetoAxis::TimeTo30Db, vec![true, true]));
         let runs = vec![run("fast", Some(50.0), 31.0, 100.0), run("weak", None, 28.0, 200.0)];
         assert_eq!(pareto_runs(&runs), (ParetoAxis::TrainWall, vec![true, false]));
+        let mut runs = runs;
+        runs[0].resolution = Some(crate::evaluate::EvalResolution { width: 100, height: 80, downscale: 2, train_downscale: 2 });
         let table = compare_table(&runs);
-        assert!(table.contains("| weak | never | never | 28.00 |"), "{table}");
-        assert!(table.contains("| fast | 25.0 | 50.0 | 31.00 |"), "{table}");
+        assert!(table.contains("| weak | - | never | never | 28.00 |"), "{table}");
+        assert!(table.contains("| fast | 100x80 (/2) | 25.0 | 50.0 | 31.00 |"), "{table}");
         assert!(table.contains("total training time"));
     }
 
