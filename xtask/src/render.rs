@@ -211,15 +211,15 @@ pub fn cancel_flag() -> Arc<AtomicBool> {
     crate::stop_flag()
 }
 
-/// Renders a dataset; returns its folder.
 /// The renderer named in the dataset folder `dir`'s render record when it is not this one
 /// (`None` without a readable record, or when it is this renderer's).
 pub fn older_renderer(dir: &Path) -> Option<String> {
     let bytes = std::fs::read(dir.join(pathtracer::dataset_render::RENDER_CONFIG_FILE)).ok()?;
     let renderer = serde_json::from_slice::<serde_json::Value>(&bytes).ok()?["renderer"].as_str()?.to_string();
-    (renderer != pathtracer::RENDERER_VERSION).then_some(renderer)
+    (renderer != pathtracer::version::renderer_version()).then_some(renderer)
 }
 
+/// Renders a dataset; returns its folder.
 pub fn run(args: RenderArgs) -> anyhow::Result<PathBuf> {
     let cfg = build_config(&args)?;
     let scene = resolve_scene(&args.scene)?;

@@ -13,8 +13,9 @@
 //!
 //! ```
 //! use dataset::RgbaImage;
-//! // An opaque red pixel next to a transparent one: half coverage, still red.
-//! let img = RgbaImage { width: 2, height: 1, data: vec![1.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 0.0] };
+//! // A 2x2 block: two opaque red pixels, two transparent blue ones: half coverage, still red.
+//! let (red, clear) = ([1.0, 0.0, 0.0, 1.0], [0.0, 0.0, 1.0, 0.0]);
+//! let img = RgbaImage { width: 2, height: 2, data: [red, clear, clear, red].concat() };
 //! let d = img.downscaled(2);
 //! assert_eq!(d.pixel(0, 0), [1.0, 0.0, 0.0, 0.5]);
 //! ```

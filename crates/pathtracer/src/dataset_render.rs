@@ -317,20 +317,39 @@ pub fn view_key(split: SplitKind, index: u32) -> u32 {
 pub struct SceneSource {
     /// The scene file as given.
     pub path: String,
-    /// FNV-1a 64 hash of the scene file's bytes (hex), to notice an edited scene on resume.
+    /// FNV-1a 64 hash (hex) of the scene's content — the file and every buffer and image it
+    /// references ([`SceneSource::from_scene`]) — to notice an edited scene on resume.
     pub hash: String,
 }
 
 impl SceneSource {
-    /// Reads the scene file to hash it.
+    /// Reads a file (e.g. an environment map) to hash its bytes.
     pub fn from_file(path: &Path) -> Result<Self, PathTracerError> {
         let bytes = std::fs::read(path).map_err(|e| PathTracerError::import(path, e.to_string()))?;
-        Ok(Self { path: path.display().to_string(), hash: format!("{:016x}", fnv1a(&bytes)) })
+        Ok(Self { path: path.display().to_string(), hash: format!("{:016x}", fnv1a(FNV_OFFSET, &bytes)) })
+    }
+
+    /// Reads a glTF / GLB scene to hash its content: the file's bytes and every external buffer
+    /// and image it references (each URI and its file's bytes, in the file's order), so editing
+    /// a `.bin` or a texture changes the hash as editing the glTF does. A referenced file that
+    /// cannot be read is an error naming it.
+    pub fn from_scene(path: &Path) -> Result<Self, PathTracerError> {
+        let bytes = std::fs::read(path).map_err(|e| PathTracerError::import(path, e.to_string()))?;
+        let mut h = fnv1a(FNV_OFFSET, &bytes);
+        for (uri, file) in crate::import::external_files(&bytes, path.parent().unwrap_or(Path::new(""))) {
+            let data = std::fs::read(&file)
+                .map_err(|e| PathTracerError::import(path, format!("references '{uri}' ({}), which cannot be read: {e}", file.display())))?;
+            h = fnv1a(fnv1a(h, uri.as_bytes()), &data);
+        }
+        Ok(Self { path: path.display().to_string(), hash: format!("{h:016x}") })
     }
 }
 
-fn fnv1a(bytes: &[u8]) -> u64 {
-    bytes.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, b| (h ^ *b as u64).wrapping_mul(0x0100_0000_01b3))
+const FNV_OFFSET: u64 = 0xcbf2_9ce4_8422_2325;
+
+/// FNV-1a 64, continuing from `h`.
+fn fnv1a(h: u64, bytes: &[u8]) -> u64 {
+    bytes.iter().fold(h, |h, b| (h ^ *b as u64).wrapping_mul(0x0100_0000_01b3))
 }
 
 /// The content of `render_config.json`.
@@ -399,7 +418,7 @@ pub(crate) fn render_dataset_sharded(
     cancel: &AtomicBool,
 ) -> Result<DatasetSummary, PathTracerError> {
     cfg.validate()?;
-    let source = SceneSource::from_file(scene_path)?;
+    let source = SceneSource::from_scene(scene_path)?;
     let scene = crate::import::load_gltf(scene_path, &crate::import::ImportOptions::default())?;
     let mut renderer = crate::render::Renderer::new(scene, &crate::accel::AccelParams::medium_build())?;
     for w in &renderer.scene().warnings {
@@ -476,7 +495,7 @@ pub(crate) fn render_dataset_part(
     let environment_map = cfg.environment_map.as_deref().map(SceneSource::from_file).transpose()?;
     let record = RenderRecord {
         scene: source.clone(),
-        renderer: crate::RENDERER_VERSION.to_string(),
+        renderer: crate::version::renderer_version().to_string(),
         rig_resolved: rig.kind,
         config: cfg.clone(),
         environment_map,
@@ -1026,7 +1045,7 @@ mod tests {
         assert!(!out.exists());
         run(&out, &with(&a), 1, false).unwrap();
         let rec: RenderRecord = serde_json::from_slice(&std::fs::read(out.join(RENDER_CONFIG_FILE)).unwrap()).unwrap();
-        assert_eq!(rec.environment_map.as_ref().map(|m| m.hash.clone()), Some(format!("{:016x}", fnv1a(b"sky a"))));
+        assert_eq!(rec.environment_map.as_ref().map(|m| m.hash.clone()), Some(format!("{:016x}", fnv1a(FNV_OFFSET, b"sky a"))));
         // The same content under another path resumes (nothing to render).
         assert_eq!(run(&out, &with(&a_copy), 1, false).unwrap().views_rendered, 0);
         // Another map, or none, is refused.

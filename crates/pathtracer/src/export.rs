@@ -342,7 +342,7 @@ pub fn manifest(scene: &Scene, cameras: &[Camera], settings: &RenderSettings) ->
         .collect();
     ExportManifest {
         format_version: EXPORT_FORMAT_VERSION,
-        renderer: crate::RENDERER_VERSION.to_string(),
+        renderer: crate::version::renderer_version().to_string(),
         scene: scene.name.clone(),
         origin: o.to_array(),
         vertices: scene.mesh.positions.len(),

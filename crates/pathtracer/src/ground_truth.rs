@@ -54,7 +54,7 @@ pub fn scene_of_dataset(dataset_dir: &Path, scene: Option<&Path>) -> Result<Scen
     let bytes = std::fs::read(&config).map_err(|e| PathTracerError::import(&config, e.to_string()))?;
     let record: RenderRecord = serde_json::from_slice(&bytes).map_err(|e| PathTracerError::import(&config, e.to_string()))?;
     if let Some(p) = scene {
-        let source = SceneSource::from_file(p)?;
+        let source = SceneSource::from_scene(p)?;
         if source.hash != record.scene.hash {
             return Err(PathTracerError::Config(format!(
                 "{} is not the scene {} was rendered from (content hash {} vs the recorded {})",
@@ -79,7 +79,7 @@ pub fn scene_of_dataset(dataset_dir: &Path, scene: Option<&Path>) -> Result<Scen
         if !c.is_file() {
             continue;
         }
-        match SceneSource::from_file(&c) {
+        match SceneSource::from_scene(&c) {
             Ok(s) if s.hash == record.scene.hash => return load(&c).map(|renderer| SceneLookup::Found { renderer: Box::new(renderer), path: c }),
             Ok(_) => edited = edited.or(Some(c)),
             Err(_) => {}

@@ -223,12 +223,12 @@ pub fn merge_shards(shards: &[PathBuf], out: &Path, scene: Option<&Path>) -> Res
         return Err(err(format!("shard{} {} missing: the shards given do not cover every view", if missing.len() > 1 { "s" } else { "" }, missing.join(", "))));
     }
     let (first_dir, record, config_bytes, _) = &records[0];
-    if record.renderer != crate::RENDERER_VERSION {
+    if record.renderer != crate::version::renderer_version() {
         return Err(err(format!(
             "{}: rendered by {}, but this merge is {}: merge with the binary that rendered the shards",
             first_dir.display(),
             record.renderer,
-            crate::RENDERER_VERSION
+            crate::version::renderer_version()
         )));
     }
     let scene_path = find_scene(first_dir, record, scene)?;
@@ -286,7 +286,7 @@ fn parse_view(v: &str) -> Option<(SplitKind, u32)> {
 fn find_scene(dir: &Path, record: &RenderRecord, given: Option<&Path>) -> Result<PathBuf, PathTracerError> {
     use crate::dataset_render::SceneSource;
     if let Some(p) = given {
-        let s = SceneSource::from_file(p)?;
+        let s = SceneSource::from_scene(p)?;
         if s.hash != record.scene.hash {
             return Err(PathTracerError::Config(format!(
                 "--scene {}: not the scene the shards were rendered from (content hash {} vs the recorded {})",
@@ -304,7 +304,7 @@ fn find_scene(dir: &Path, record: &RenderRecord, given: Option<&Path>) -> Result
         candidates.extend(abs.ancestors().map(|a| a.join(&recorded)));
     }
     for c in &candidates {
-        if c.is_file() && SceneSource::from_file(c).is_ok_and(|s| s.hash == record.scene.hash) {
+        if c.is_file() && SceneSource::from_scene(c).is_ok_and(|s| s.hash == record.scene.hash) {
             return Ok(c.clone());
         }
     }

@@ -112,7 +112,7 @@ fn tiny_dataset_is_complete_exact_deterministic_and_resumable() {
     assert!((facts.aabb_min[0] + 2.0).abs() < 1e-6 && (facts.aabb_max[2] - 2.0).abs() < 1e-6);
     assert!(facts.near > 0.0 && facts.near < facts.far);
     assert_eq!(facts.render["width"], 16);
-    assert_eq!(facts.renderer, pathtracer::RENDERER_VERSION);
+    assert_eq!(facts.renderer, pathtracer::version::renderer_version());
 
     // Ground truth: depth is the z-depth of the distance, hit points lie on the ground plane
     // or the cube's surface, and every hit lies within [near, far].
@@ -222,4 +222,37 @@ fn every_committed_scene_renders() {
         }
     }
     std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// The dataset's identity covers the scene's buffers: editing the `.bin` next to the glTF (the
+/// glTF file itself untouched) makes a re-render into the same folder refuse to reuse the views,
+/// naming the scene; `--force` renders again. A referenced file that is missing is an error
+/// naming it.
+#[test]
+fn editing_a_scene_buffer_refuses_a_resume() {
+    let dir = tmp("edited-bin");
+    std::fs::create_dir_all(&dir).unwrap();
+    let scene = tiny_scene(&dir);
+    let cfg = DatasetRenderConfig { train: 1, val: 1, test: 1, ..tiny_config() };
+    let out = dir.join("data");
+    render(&scene, &out, &cfg, 2).unwrap();
+    let bins: Vec<PathBuf> = std::fs::read_dir(&dir).unwrap().flatten().map(|e| e.path()).filter(|p| p.extension().is_some_and(|e| e == "bin")).collect();
+    assert_eq!(bins.len(), 1, "the tiny scene keeps its geometry in one .bin: {bins:?}");
+    let before = pathtracer::dataset_render::SceneSource::from_scene(&scene).unwrap();
+    let mut bytes = std::fs::read(&bins[0]).unwrap();
+    // Move the cube's first vertex a little (little-endian f32 at the buffer's start is a
+    // position coordinate in scenegen's layout; any changed byte must change the identity).
+    bytes[0] ^= 0x01;
+    std::fs::write(&bins[0], &bytes).unwrap();
+    let after = pathtracer::dataset_render::SceneSource::from_scene(&scene).unwrap();
+    assert_ne!(before.hash, after.hash);
+    let e = render(&scene, &out, &cfg, 2).unwrap_err().to_string();
+    assert!(e.contains("differs") && e.contains("--force"), "{e}");
+    let opts = RunOptions { threads: Some(2), force: true };
+    let sum = render_dataset(&scene, &out, &cfg, &opts, &mut |_| {}, &AtomicBool::new(false)).unwrap();
+    assert_eq!(sum.views_rendered, 3);
+    std::fs::remove_file(&bins[0]).unwrap();
+    let e = pathtracer::dataset_render::SceneSource::from_scene(&scene).unwrap_err().to_string();
+    assert!(e.contains("cannot be read") && e.contains(".bin"), "{e}");
+    let _ = std::fs::remove_dir_all(&dir);
 }

@@ -103,6 +103,31 @@ pub fn load_gltf(path: &Path, options: &ImportOptions) -> Result<Scene, PathTrac
     load_gltf_from_slice(&bytes, Some(base_dir), &path.display().to_string(), options)
 }
 
+/// The external files (buffers and images, not `data:` URIs or the GLB chunk) the glTF or GLB
+/// `bytes` reference, as (URI as written, path resolved against `base_dir`), in the order
+/// buffers then images. Unparseable JSON or URIs give no entry here: the import reports them.
+pub fn external_files(bytes: &[u8], base_dir: &Path) -> Vec<(String, PathBuf)> {
+    let json_bytes = if glb::is_glb(bytes) {
+        match glb::parse(bytes) {
+            Ok(g) => g.json,
+            Err(_) => return Vec::new(),
+        }
+    } else {
+        bytes
+    };
+    let Ok(raw) = serde_json::from_slice::<serde_json::Value>(json_bytes) else { return Vec::new() };
+    let mut out = Vec::new();
+    for key in ["buffers", "images"] {
+        for item in raw.get(key).and_then(|v| v.as_array()).into_iter().flatten() {
+            let Some(u) = item.get("uri").and_then(|u| u.as_str()) else { continue };
+            if let Ok(uri::UriTarget::File(p)) = uri::resolve(u, Some(base_dir)) {
+                out.push((u.to_string(), p));
+            }
+        }
+    }
+    out
+}
+
 /// Imports a glTF (JSON) or GLB file held in memory. `base_dir` resolves external buffers and
 /// images (`None`: only `data:` URIs and the GLB chunk are allowed); `name` names the scene in
 /// [`Scene::name`] and in every error message.
