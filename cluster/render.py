@@ -136,6 +136,24 @@ def run(job: RenderJob, address: Optional[str] = None, local_cpus: Optional[int]
             raise ClusterError(f"{flag} is set by the driver; leave it out of the render options")
     check_out(job.out)
     t0 = time.monotonic()
+    wrote_root = not job.shared_storage and not job.shards_root().exists()
+    try:
+        render_all(job, t0, address, local_cpus)
+    except BaseException:
+        # Shards that came through the object store cannot be resumed: leave nothing behind.
+        # (Shards on shared storage stay, so a re-run resumes their finished views.)
+        if wrote_root:
+            shutil.rmtree(job.shards_root(), ignore_errors=True)
+        raise
+    merge(job)
+    if not job.keep_shards:
+        shutil.rmtree(job.shards_root(), ignore_errors=True)
+    log(f"dataset {job.out} from {job.shards} shards in {time.monotonic() - t0:.1f} s")
+    return job.out
+
+
+def render_all(job: RenderJob, t0: float, address: Optional[str], local_cpus: Optional[int]) -> None:
+    """Runs every shard task, writing the shards that come through the object store."""
     mode = "shared storage" if job.shared_storage else "Ray's object store"
     with ray_session(address, local_cpus) as ray:
         log(f"{job.shards} shard tasks ({job.num_cpus:g} CPU each, up to {job.max_retries} retries), shards through {mode} into {job.shards_root()}")
@@ -153,21 +171,16 @@ def run(job: RenderJob, address: Optional[str] = None, local_cpus: Optional[int]
                 k = pending.pop(ref)
                 try:
                     res = ray.get(ref)
-                except Exception as e:  # the task's error after its retries, or a lost node
+                except Exception as e:  # xtask's refusal, or the last retry's error
                     for other in pending:
                         ray.cancel(other, force=True)
-                    raise ClusterError(f"shard {k}/{job.shards} failed after up to {job.max_retries} retries: {task_error(e)}") from e
+                    raise ClusterError(shard_failure(job, k, e)) from e
                 if res["files"] is not None:
                     write_shard(job.shard_dir(k), res.pop("files"))
                 done_count += 1
                 last_note = time.monotonic()
                 log(f"shard {k}/{job.shards} done on {res['node']} in {res['seconds']:.1f} s ({done_count}/{job.shards} done, {last_note - t0:.1f} s)")
                 del res
-    merge(job)
-    if not job.keep_shards:
-        shutil.rmtree(job.shards_root(), ignore_errors=True)
-    log(f"dataset {job.out} from {job.shards} shards in {time.monotonic() - t0:.1f} s")
-    return job.out
 
 
 def merge(job: RenderJob) -> None:
@@ -177,13 +190,15 @@ def merge(job: RenderJob) -> None:
     log(" ".join(cmd))
     try:
         xt.run(cmd, "`xtask merge`", on_line=lambda line: print(line, flush=True))
-    except (xt.XtaskFailed, xt.XtaskUsageError) as e:
+    except (xt.XtaskFailed, xt.XtaskRefused) as e:
         raise ClusterError(f"{e}\n(the shards are kept in {job.shards_root()})") from e
 
 
-def task_error(e: BaseException) -> str:
-    """The message of a task's own exception, without Ray's wrapping traceback."""
+def shard_failure(job: RenderJob, k: int, e: BaseException) -> str:
+    """What went wrong with shard `k`: xtask's own message when it refused the shard (not
+    retried), else the last attempt's error, without Ray's wrapping traceback."""
     cause = getattr(e, "cause", None)
-    if isinstance(cause, BaseException):
+    if isinstance(cause, xt.XtaskRefused):
         return str(cause)
-    return f"{type(e).__name__}: {e}"
+    what = str(cause) if isinstance(cause, BaseException) else f"{type(e).__name__}: {e}"
+    return f"shard {k}/{job.shards} failed after up to {job.max_retries} retries: {what}"

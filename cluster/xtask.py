@@ -20,13 +20,16 @@ REPO_ROOT = Path(__file__).resolve().parent.parent
 #: Where the workspace builds put the binary, in order of preference.
 DEFAULT_BINARIES = ("target/release/xtask", "target/debug/xtask")
 
-#: Exit status of a command-line usage error (clap): retrying cannot help.
-USAGE_EXIT = 2
+#: Exit statuses with which `xtask` refuses its input: 1, its own error message (a missing
+#: scene, a bad option value, a dataset folder of other settings); 2, a command-line usage error
+#: (clap). Both come out the same on every node, so they are not retried. Anything else (killed
+#: by a signal, a panic's 101, a missing binary) may be the node's fault and is.
+REFUSED_EXITS = (1, 2)
 
 
 class XtaskFailed(Exception):
-    """`xtask` exited non-zero or was killed: worth a retry on a cluster (a node's disk, memory,
-    a killed process)."""
+    """`xtask` crashed or was killed: worth a retry on a cluster (a node's memory, a killed
+    process, a node without the binary)."""
 
     def __init__(self, what: str, returncode: int, tail: Sequence[str]):
         self.what, self.returncode, self.tail = what, returncode, list(tail)
@@ -36,8 +39,9 @@ class XtaskFailed(Exception):
         return (type(self), (self.what, self.returncode, self.tail))
 
 
-class XtaskUsageError(Exception):
-    """`xtask` refused its arguments (exit status 2): the same on every node, not retried."""
+class XtaskRefused(Exception):
+    """`xtask` refused its input with an error message (exit status 1 or 2): the same on every
+    node, not retried."""
 
     def __init__(self, what: str, returncode: int, tail: Sequence[str]):
         self.what, self.returncode, self.tail = what, returncode, list(tail)
@@ -45,6 +49,12 @@ class XtaskUsageError(Exception):
 
     def __reduce__(self):
         return (type(self), (self.what, self.returncode, self.tail))
+
+
+def failure(what: str, returncode: int, tail: Sequence[str]) -> Exception:
+    """The exception for `xtask` ending with `returncode` (non-zero)."""
+    cls = XtaskRefused if returncode in REFUSED_EXITS else XtaskFailed
+    return cls(what, returncode, tail)
 
 
 def describe_exit(what: str, returncode: int, tail: Sequence[str]) -> str:
@@ -93,8 +103,8 @@ def run(
     tail_lines: int = 20,
 ) -> list[str]:
     """Runs `cmd`, handing each line of its merged stdout/stderr to `on_line`; returns the lines.
-    Raises `XtaskUsageError` on exit status 2, `XtaskFailed` on any other failure. The child is
-    killed if this process dies or this call is interrupted."""
+    Raises `XtaskRefused` on exit status 1 or 2, `XtaskFailed` on any other failure. The child
+    is killed if this process dies or this call is interrupted."""
     if not Path(cmd[0]).is_file():
         raise XtaskFailed(what, 127, [f"no such binary on {os.uname().nodename}: {cmd[0]}"])
     proc = subprocess.Popen(
@@ -122,10 +132,8 @@ def run(
         rc = proc.wait()
     finally:
         stop(proc)
-    if rc == USAGE_EXIT:
-        raise XtaskUsageError(what, rc, tail)
     if rc != 0:
-        raise XtaskFailed(what, rc, tail)
+        raise failure(what, rc, tail)
     return lines
 
 
