@@ -145,7 +145,8 @@ impl Model {
     pub fn render_rays(&self, origins: &[[f32; 3]], dirs: &[[f32; 3]], background: [f32; 3]) -> RayOutputs {
         let chunk = match self {
             Model::Paper(_) => 1024,
-            Model::Fast(_) => 8192,
+            // It chunks and parallelises itself.
+            Model::Fast(m) => return m.render_rays(origins, dirs, background),
         };
         let mut out = RayOutputs::default();
         for (o, d) in origins.chunks(chunk).zip(dirs.chunks(chunk)) {
