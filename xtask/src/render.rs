@@ -21,7 +21,8 @@ pub struct RenderArgs {
     /// The dataset folder to write (created; an unfinished one with the same settings is resumed).
     #[arg(long)]
     pub out: PathBuf,
-    /// Starting settings: quick (64x64, 20/4/4 views, 16 spp) or standard (200x200, 100/10/20, 128 spp).
+    /// Starting settings: quick (64x64, 20/4/4 views, 16 spp), standard (200x200, 100/10/20, 128 spp)
+    /// or full (800x800, the Blender-synthetic size, 100/10/20, 128 spp).
     #[arg(long, default_value = "quick")]
     pub preset: Preset,
     /// Number of train views.

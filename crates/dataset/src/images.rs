@@ -84,6 +84,20 @@ pub fn write_png_rgba(path: &Path, image: &RgbaImage) -> Result<(), DatasetError
     atomic_write(path, &out)
 }
 
+/// Writes a single-channel 8-bit PNG: 255 where `keep`, 0 elsewhere (nerfstudio's mask
+/// convention: 0 = ignore the pixel). `keep` is row-major, `width × height`.
+pub fn write_png_mask(path: &Path, width: u32, height: u32, keep: &[bool]) -> Result<(), DatasetError> {
+    check_len(path, keep.len(), width, height, 1)?;
+    let bytes: Vec<u8> = keep.iter().map(|k| if *k { 255 } else { 0 }).collect();
+    let mut out = Vec::new();
+    {
+        use image::ImageEncoder;
+        let enc = image::codecs::png::PngEncoder::new(&mut out);
+        enc.write_image(&bytes, width, height, image::ExtendedColorType::L8).map_err(|e| DatasetError::image(path, e))?;
+    }
+    atomic_write(path, &out)
+}
+
 /// Reads a PNG (any bit depth, grey or colour, with or without alpha) as RGBA in [0, 1]
 /// (values as stored: sRGB-encoded, straight alpha; alpha 1 when the file has none).
 pub fn read_png_rgba(path: &Path) -> Result<RgbaImage, DatasetError> {

@@ -354,8 +354,13 @@ pub fn write_split_transforms(
 }
 
 /// Writes nerfstudio's `transforms.json`: every frame with its image file name (with
-/// extension) and depth file, plus `train_filenames` / `val_filenames` / `test_filenames`.
-/// `frames` carry Blender-layout paths (without extension); `.png` is appended.
+/// extension), plus `train_filenames` / `val_filenames` / `test_filenames`. `frames` carry
+/// Blender-layout paths (without extension); `.png` is appended. A frame with a depth file
+/// (`<stem>_depth.npy`, metres, our tools') points nerfstudio at `<stem>_depth_mm.npy` and
+/// `<stem>_mask.png` instead ([`nerfstudio_files`]): nerfstudio 1.1's dataparser multiplies
+/// depth by its `depth_unit_scale_factor` option (default 0.001, millimetres) and never reads
+/// that key from the file, so the depth it is given is z-depth in millimetres, and its masks
+/// are single-channel with 0 = ignore. The caller writes those files.
 pub fn write_nerfstudio_transforms(
     dir: &Path,
     intr: &Intrinsics,
@@ -371,8 +376,10 @@ pub fn write_nerfstudio_transforms(
                 "file_path": file,
                 "transform_matrix": rec.transform_matrix,
             });
-            if let Some(d) = &rec.depth_file_path {
-                entry["depth_file_path"] = serde_json::Value::String(d.clone());
+            if rec.depth_file_path.is_some() {
+                let [depth_mm, mask] = nerfstudio_files(rel);
+                entry["depth_file_path"] = serde_json::Value::String(depth_mm);
+                entry["mask_path"] = serde_json::Value::String(mask);
             }
             frames.push(entry);
             let idx = SplitKind::ALL.iter().position(|s| s == split).unwrap_or(0);
@@ -388,13 +395,20 @@ pub fn write_nerfstudio_transforms(
         "cx": intr.cx,
         "cy": intr.cy,
         "k1": 0.0, "k2": 0.0, "p1": 0.0, "p2": 0.0,
-        "depth_unit_scale_factor": 1.0,
         "frames": frames,
         "train_filenames": names[0],
         "val_filenames": names[1],
         "test_filenames": names[2],
     });
     atomic_write_json(&dir.join("transforms.json"), &json)
+}
+
+/// The files nerfstudio reads for the view whose image stem is `stem` (e.g. `train/r_3`):
+/// z-depth in millimetres (float32 `.npy`) and the coverage mask (8-bit PNG, 255 where the
+/// pixel-centre ray hits the scene).
+pub fn nerfstudio_files(stem: &str) -> [String; 2] {
+    let stem = stem.strip_prefix("./").unwrap_or(stem);
+    [format!("{stem}_depth_mm.npy"), format!("{stem}_mask.png")]
 }
 
 #[cfg(test)]
@@ -422,7 +436,10 @@ mod tests {
             });
         }
         write_split_transforms(&dir, SplitKind::Train, &intr, recs.clone(), None).unwrap();
-        write_nerfstudio_transforms(&dir, &intr, &[(SplitKind::Train, recs.clone())]).unwrap();
+        // nerfstudio's file: frame 1 with a depth file, the others without.
+        let mut ns_recs = recs.clone();
+        ns_recs[1].depth_file_path = Some("train/r_1_depth.npy".into());
+        write_nerfstudio_transforms(&dir, &intr, &[(SplitKind::Train, ns_recs.clone())]).unwrap();
         let ds = Dataset::load(&dir).unwrap();
         assert_eq!(ds.train.len(), 3);
         assert!(ds.val.is_empty());
@@ -434,6 +451,16 @@ mod tests {
         let ns: serde_json::Value =
             serde_json::from_slice(&std::fs::read(dir.join("transforms.json")).unwrap()).unwrap();
         assert_eq!(ns["train_filenames"][2], "train/r_2.png");
+        assert!(ns.get("depth_unit_scale_factor").is_none());
+        for (k, f) in ns["frames"].as_array().unwrap().iter().enumerate() {
+            // Frames with depth point at the millimetre file and the mask; the others at none.
+            if ns_recs[k].depth_file_path.is_some() {
+                assert_eq!(f["depth_file_path"], format!("train/r_{k}_depth_mm.npy"));
+                assert_eq!(f["mask_path"], format!("train/r_{k}_mask.png"));
+            } else {
+                assert!(f.get("depth_file_path").is_none() && f.get("mask_path").is_none());
+            }
+        }
         std::fs::remove_dir_all(&dir).unwrap();
     }
 

@@ -4,7 +4,8 @@
 //! For every view of the rig (see [`crate::rig`]) the driver writes, atomically:
 //! `<split>/r_<k>.png` (8-bit sRGB RGBA, straight alpha), `<split>/r_<k>.exr` (linear RGBA,
 //! premultiplied), `<split>/r_<k>_gt.exr` (z-depth, distance, world normal, alpha at the
-//! pixel-centre ray) and `<split>/r_<k>_depth.npy` (z-depth, nerfstudio). The resolved settings
+//! pixel-centre ray), `<split>/r_<k>_depth.npy` (z-depth in metres) and nerfstudio's
+//! `<split>/r_<k>_depth_mm.npy` and `<split>/r_<k>_mask.png`. The resolved settings
 //! go to `render_config.json` before the first view; the transforms files
 //! (`transforms_{train,val,test}.json` with the scene facts, nerfstudio's `transforms.json`) are
 //! written last.
@@ -32,19 +33,24 @@ use std::sync::atomic::{AtomicBool, Ordering};
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Preset {
-    /// 64×64, 20/4/4 views, 16 spp, 4 bounces: seconds, for tests and the demo. Both presets:
+    /// 64×64, 20/4/4 views, 16 spp, 4 bounces: seconds, for tests and the demo. Every preset:
     /// seed 0, rig `auto`, transparent background, a faint environment fill of radiance 0.1.
     Quick,
     /// 200×200, 100/10/20 views, 128 spp, 8 bounces: the Blender-synthetic-like dataset.
     Standard,
+    /// 800×800 (the Blender-synthetic image size), 100/10/20 views, 128 spp, 8 bounces: the
+    /// standard dataset at full resolution (16 times its render time; train with `--downscale`
+    /// 2 or 4 for speed, evaluation follows the run's downscale).
+    Full,
 }
 
 impl Preset {
-    /// `quick` or `standard`.
+    /// `quick`, `standard` or `full`.
     pub fn name(self) -> &'static str {
         match self {
             Preset::Quick => "quick",
             Preset::Standard => "standard",
+            Preset::Full => "full",
         }
     }
 }
@@ -55,7 +61,8 @@ impl std::str::FromStr for Preset {
         match s.to_ascii_lowercase().as_str() {
             "quick" => Ok(Preset::Quick),
             "standard" => Ok(Preset::Standard),
-            _ => Err(PathTracerError::Config(format!("unknown preset '{s}' (expected quick or standard)"))),
+            "full" => Ok(Preset::Full),
+            _ => Err(PathTracerError::Config(format!("unknown preset '{s}' (expected quick, standard or full)"))),
         }
     }
 }
@@ -147,6 +154,7 @@ impl DatasetRenderConfig {
         let (res, counts, spp, max_bounces) = match preset {
             Preset::Quick => (64, [20, 4, 4], 16, 4),
             Preset::Standard => (200, [100, 10, 20], 128, 8),
+            Preset::Full => (800, [100, 10, 20], 128, 8),
         };
         Self {
             preset,
@@ -385,11 +393,13 @@ impl RenderRecord {
 /// File name of the resolved settings inside a dataset folder.
 pub const RENDER_CONFIG_FILE: &str = "render_config.json";
 
-/// The four files of view `index` of `split`, relative to the dataset folder:
-/// PNG, linear EXR, ground-truth EXR, depth `.npy`.
-pub fn view_files(split: SplitKind, index: u32) -> [String; 4] {
+/// The files of view `index` of `split`, relative to the dataset folder: PNG, linear EXR,
+/// ground-truth EXR, z-depth `.npy` in metres, and for nerfstudio's `transforms.json` z-depth
+/// in millimetres and the coverage mask ([`dataset::nerfstudio_files`]).
+pub fn view_files(split: SplitKind, index: u32) -> [String; 6] {
     let stem = format!("{}/r_{index}", split.name());
-    [format!("{stem}.png"), format!("{stem}.exr"), format!("{stem}_gt.exr"), format!("{stem}_depth.npy")]
+    let [depth_mm, mask] = dataset::nerfstudio_files(&stem);
+    [format!("{stem}.png"), format!("{stem}.exr"), format!("{stem}_gt.exr"), format!("{stem}_depth.npy"), depth_mm, mask]
 }
 
 /// Loads the glTF scene at `scene_path`, places the cameras and renders the dataset into `out`
@@ -632,7 +642,7 @@ pub(crate) fn describe_difference(old: &RenderRecord, new: &RenderRecord) -> Str
 fn is_view_file(name: &str) -> bool {
     let Some(rest) = name.strip_prefix("r_") else { return false };
     let digits = rest.chars().take_while(char::is_ascii_digit).count();
-    digits > 0 && matches!(&rest[digits..], ".png" | ".exr" | "_gt.exr" | "_depth.npy")
+    digits > 0 && matches!(&rest[digits..], ".png" | ".exr" | "_gt.exr" | "_depth.npy" | "_depth_mm.npy" | "_mask.png")
 }
 
 fn dataset_top_files() -> Vec<String> {
@@ -748,11 +758,15 @@ fn display(linear: &RgbaImage) -> RgbaImage {
     out
 }
 
-fn write_view(files: &[PathBuf; 4], view: &ViewImages, background: Background) -> Result<(), PathTracerError> {
+fn write_view(files: &[PathBuf; 6], view: &ViewImages, background: Background) -> Result<(), PathTracerError> {
     let linear = composite(&view.color, background);
     let gt = &view.ground_truth;
     dataset::write_ground_truth(&files[2], gt)?;
     dataset::write_npy_f32(&files[3], gt.width, gt.height, &gt.depth)?;
+    let depth_mm: Vec<f32> = gt.depth.iter().map(|d| (*d as f64 * 1000.0) as f32).collect();
+    dataset::write_npy_f32(&files[4], gt.width, gt.height, &depth_mm)?;
+    let hit: Vec<bool> = gt.alpha.iter().map(|a| *a > 0.0).collect();
+    dataset::write_png_mask(&files[5], gt.width, gt.height, &hit)?;
     dataset::write_exr_rgba(&files[1], &linear)?;
     dataset::write_png_rgba(&files[0], &display(&linear))?;
     Ok(())
@@ -969,8 +983,8 @@ mod tests {
         assert_eq!((sum.views_total, sum.views_rendered, sum.views_reused), (7, 7, 0));
         run(&b, &cfg, 2, false).unwrap();
         let fa = files(&a);
-        // 7 views × 4 files + 3 split files + transforms.json + render_config.json.
-        assert_eq!(fa.len(), 7 * 4 + 5);
+        // 7 views × 6 files + 3 split files + transforms.json + render_config.json.
+        assert_eq!(fa.len(), 7 * 6 + 5);
         assert_eq!(fa, files(&b), "thread count changed the output");
 
         // Delete one view's PNG and another's GT: the rerun renders just those two.
@@ -1107,7 +1121,12 @@ mod tests {
         assert!("1,2".parse::<Background>().is_err());
         assert!("-1,0,0".parse::<Background>().is_err());
         assert_eq!("Quick".parse::<Preset>().unwrap(), Preset::Quick);
-        assert!(is_view_file("r_12_depth.npy") && is_view_file("r_0.png"));
+        for p in [Preset::Quick, Preset::Standard, Preset::Full] {
+            assert_eq!(p.name().parse::<Preset>().unwrap(), p);
+        }
+        let full = DatasetRenderConfig::preset(Preset::Full);
+        assert_eq!((full.width, full.height, full.spp), (800, 800, 128));
+        assert!(is_view_file("r_12_depth.npy") && is_view_file("r_0.png") && is_view_file("r_3_depth_mm.npy") && is_view_file("r_3_mask.png"));
         assert!(!is_view_file("r_.png") && !is_view_file("notes.png") && !is_view_file("r_1.txt"));
         assert!(is_stale_temporary(".r_3_gt.exr.1234.tmp") && is_stale_temporary(".transforms.json.7.tmp"));
         assert!(!is_stale_temporary(".r_3_gt.exr.tmp") && !is_stale_temporary(".notes.txt.12.tmp"));

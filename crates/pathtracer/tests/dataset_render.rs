@@ -83,7 +83,7 @@ fn tiny_dataset_is_complete_exact_deterministic_and_resumable() {
     ];
     for (split, n) in [("train", 3), ("val", 2), ("test", 2)] {
         for k in 0..n {
-            for suffix in [".png", ".exr", "_gt.exr", "_depth.npy"] {
+            for suffix in [".png", ".exr", "_gt.exr", "_depth.npy", "_depth_mm.npy", "_mask.png"] {
                 expected.push(format!("{split}/r_{k}{suffix}"));
             }
         }
@@ -141,6 +141,28 @@ fn tiny_dataset_is_complete_exact_deterministic_and_resumable() {
         }
     }
     assert!(hits > 7 * 16 * 16 / 10, "only {hits} pixel-centre hits");
+
+    // nerfstudio's transforms.json: every frame's depth is the z-depth in millimetres (its
+    // dataparser's default scale is 0.001) and its mask is 255 exactly where the ray hits; no
+    // scale key it would ignore.
+    let ns: serde_json::Value = serde_json::from_slice(&std::fs::read(a.join("transforms.json")).unwrap()).unwrap();
+    assert!(ns.get("depth_unit_scale_factor").is_none());
+    let frames = ns["frames"].as_array().unwrap();
+    assert_eq!(frames.len(), 7);
+    for fr in frames {
+        let stem = fr["file_path"].as_str().unwrap().trim_end_matches(".png").to_string();
+        let gt = dataset::read_ground_truth(&a.join(format!("{stem}_gt.exr"))).unwrap();
+        let mm = read_npy_f32(&a.join(fr["depth_file_path"].as_str().unwrap()));
+        assert_eq!(mm.len(), gt.depth.len());
+        for (m, d) in mm.iter().zip(&gt.depth) {
+            assert!((*m as f64 - 1000.0 * *d as f64).abs() <= 1e-6 * (1000.0 * *d as f64).max(1.0), "{m} mm vs {d} m");
+        }
+        let mask = dataset::read_png_rgba(&a.join(fr["mask_path"].as_str().unwrap())).unwrap();
+        let keep: Vec<bool> = mask.data.chunks_exact(4).map(|p| p[0] == 1.0).collect();
+        let hit: Vec<bool> = gt.alpha.iter().map(|a| *a > 0.0).collect();
+        assert_eq!(keep, hit, "{stem}: mask against the exact alpha");
+        assert!(mask.data.chunks_exact(4).all(|p| p[0] == 0.0 || p[0] == 1.0));
+    }
 
     // Resume: delete one view's files (and the transforms), re-run: identical to the full run.
     for f in ["val/r_1.png", "val/r_1.exr", "val/r_1_gt.exr", "val/r_1_depth.npy", "train/r_2.exr", "transforms.json"] {
@@ -255,4 +277,14 @@ fn editing_a_scene_buffer_refuses_a_resume() {
     let e = pathtracer::dataset_render::SceneSource::from_scene(&scene).unwrap_err().to_string();
     assert!(e.contains("cannot be read") && e.contains(".bin"), "{e}");
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The float32 values of a version-1 little-endian `.npy` file (test helper).
+fn read_npy_f32(path: &std::path::Path) -> Vec<f32> {
+    let b = std::fs::read(path).unwrap();
+    assert_eq!(&b[..6], b"\x93NUMPY", "{}", path.display());
+    let header_len = u16::from_le_bytes([b[8], b[9]]) as usize;
+    let header = std::str::from_utf8(&b[10..10 + header_len]).unwrap();
+    assert!(header.contains("'<f4'") && header.contains("'fortran_order': False"), "{header}");
+    b[10 + header_len..].chunks_exact(4).map(|c| f32::from_le_bytes(c.try_into().unwrap())).collect()
 }
