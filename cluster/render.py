@@ -31,6 +31,9 @@ from .raysession import ray_session
 #: Options of `xtask render` that the driver sets itself.
 OWN_FLAGS = ("--out", "--shard")
 
+#: A task's temporary shard folder is `<tmp>/nerf-gt-shard-<worker pid>-<k>-<random>`.
+TMP_PREFIX = "nerf-gt-shard-"
+
 
 @dataclass
 class RenderJob:
@@ -73,7 +76,8 @@ def render_shard(job: RenderJob, k: int) -> dict:
         out = job.shard_dir(k)
         out.parent.mkdir(parents=True, exist_ok=True)
     else:
-        tmp = Path(tempfile.mkdtemp(prefix=f"nerf-gt-shard{k}-"))
+        remove_dead_tmp(Path(tempfile.gettempdir()))
+        tmp = Path(tempfile.mkdtemp(prefix=f"{TMP_PREFIX}{os.getpid()}-{k}-"))
         out = tmp / "shard"
     cmd = [job.xtask, "render", job.scene, "--out", str(out), "--shard", f"{k}/{job.shards}", *job.render_args]
     if not xt.has_flag(job.render_args, "--threads"):
@@ -95,6 +99,15 @@ def render_shard(job: RenderJob, k: int) -> dict:
     finally:
         if tmp is not None:
             shutil.rmtree(tmp, ignore_errors=True)
+
+
+def remove_dead_tmp(tmp: Path) -> None:
+    """Removes the temporary shard folders whose worker is gone: a worker killed with its node
+    (the retry runs elsewhere) cannot clean up after itself."""
+    for d in tmp.glob(f"{TMP_PREFIX}*"):
+        pid = d.name[len(TMP_PREFIX) :].split("-", 1)[0]
+        if d.is_dir() and pid.isdigit() and not xt.pid_alive(int(pid)):
+            shutil.rmtree(d, ignore_errors=True)
 
 
 def write_shard(folder: Path, files: dict) -> None:

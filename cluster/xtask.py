@@ -81,7 +81,11 @@ def find_xtask(path: Optional[str]) -> tuple[str, str]:
 
 
 def _die_with_parent() -> None:
-    """In the child before exec: SIGKILL when the parent thread that started it goes (Linux)."""
+    """In the child before exec: SIGKILL when the parent thread that started it goes (Linux),
+    and the default Ctrl-C and SIGTERM dispositions (a Ray worker ignores SIGINT, which an exec
+    would pass on, and xtask could not install its Ctrl-C handler)."""
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, signal.SIG_DFL)
     try:
         libc = ctypes.CDLL("libc.so.6", use_errno=True)
         libc.prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
@@ -91,6 +95,17 @@ def _die_with_parent() -> None:
 
 def child_preexec() -> Optional[Callable[[], None]]:
     return _die_with_parent if sys.platform.startswith("linux") else None
+
+
+def pid_alive(pid: int) -> bool:
+    """Whether a process `pid` exists on this machine."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
 
 
 def run(

@@ -198,6 +198,13 @@ class RunningXtask(unittest.TestCase):
             os.kill(child, 9)
             self.fail("the child outlived its parent")
 
+    def test_child_gets_default_ctrl_c(self):
+        # A Ray worker ignores SIGINT; xtask must still be able to install its Ctrl-C handler.
+        code = "import signal; from cluster import xtask as xt; signal.signal(signal.SIGINT, signal.SIG_IGN); xt.run(['/bin/sh', '-c', 'grep SigIgn /proc/self/status'], 'sh', on_line=print)"
+        out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, check=True).stdout
+        ignored = int(out.split()[-1], 16)
+        self.assertFalse(ignored & (1 << (2 - 1)), f"SIGINT still ignored in the child: {out}")
+
     def test_find_xtask_takes_the_given_path(self):
         self.assertEqual(xt.find_xtask("/opt/nodes/xtask"), ("/opt/nodes/xtask", "--xtask"))
 
@@ -231,6 +238,17 @@ class Shards(unittest.TestCase):
         self.assertFalse(folder.with_name("0.part").exists())
         render.write_shard(folder, {"shard.json": b"[]"})
         self.assertEqual(sorted(p.name for p in folder.rglob("*")), ["shard.json"], "an older shard is replaced whole")
+
+    def test_dead_workers_tmp_folders_are_removed(self):
+        dead = subprocess.Popen(["true"])
+        dead.wait()
+        gone = self.root / f"{render.TMP_PREFIX}{dead.pid}-1-abc"
+        live = self.root / f"{render.TMP_PREFIX}{os.getpid()}-2-def"
+        other = self.root / "nerf-gt-shard-x"
+        for d in (gone, live, other):
+            (d / "shard").mkdir(parents=True)
+        render.remove_dead_tmp(self.root)
+        self.assertEqual(sorted(p.name for p in self.root.iterdir()), sorted([live.name, other.name]))
 
     def test_write_shard_refuses_paths_outside(self):
         with self.assertRaises(ClusterError):
