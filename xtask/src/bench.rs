@@ -4,30 +4,36 @@
 #[derive(clap::Args)]
 pub struct BenchArgs {
     /// What to measure.
-    #[arg(value_enum)]
+    #[command(subcommand)]
     pub what: BenchWhat,
-    /// Options of `bench auto`.
-    #[command(flatten)]
-    pub auto: crate::bench_auto::AutoBenchArgs,
 }
 
-/// Benchmarks.
-#[derive(Clone, Copy, clap::ValueEnum)]
+/// Benchmarks, each with its own options.
+#[derive(clap::Subcommand)]
 pub enum BenchWhat {
-    /// Path tracer: BVH build, primary rays, path samples per scene.
-    Render,
-    /// NeRF training throughput for both models.
-    Nerf,
+    /// Path tracer: BVH build, primary rays, path samples per scene, and Mitsuba 3 side by side.
+    Render(RenderBenchArgs),
+    /// NeRF training throughput for both models, and the time to render a full-size view from
+    /// a fast model.
+    Nerf(crate::bench_nerf::NerfBenchArgs),
     /// `--model auto` against fixed fast sizes and paper on every scene (train, eval, compare).
-    Auto,
+    Auto(crate::bench_auto::AutoBenchArgs),
+}
+
+/// Options of `bench render`.
+#[derive(clap::Args)]
+pub struct RenderBenchArgs {
+    /// Scenes (names in `scenes/`), comma-separated; default every scene.
+    #[arg(long)]
+    pub scenes: Option<String>,
 }
 
 /// Runs a benchmark.
 pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     match args.what {
-        BenchWhat::Render => bench_render(args.auto.scenes.as_deref()),
-        BenchWhat::Nerf => crate::bench_nerf::run(),
-        BenchWhat::Auto => crate::bench_auto::run(args.auto),
+        BenchWhat::Render(a) => bench_render(a.scenes.as_deref()),
+        BenchWhat::Nerf(a) => crate::bench_nerf::run(a),
+        BenchWhat::Auto(a) => crate::bench_auto::run(a),
     }
 }
 

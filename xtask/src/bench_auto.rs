@@ -26,39 +26,39 @@ use std::path::{Path, PathBuf};
 /// Options of `bench auto`.
 #[derive(clap::Args, Clone, Debug)]
 pub struct AutoBenchArgs {
-    /// Scenes (names in `scenes/`), comma-separated; default every scene (also for `bench render`).
-    #[arg(long, help_heading = "bench auto")]
+    /// Scenes (names in `scenes/`), comma-separated; default every scene.
+    #[arg(long)]
     pub scenes: Option<String>,
     /// Render preset of the datasets.
-    #[arg(long, default_value = "standard", help_heading = "bench auto")]
+    #[arg(long, default_value = "standard")]
     pub preset: Preset,
     /// Training budget of every run (wall-clock training time: 90s, 5m).
-    #[arg(long, default_value = "5m", help_heading = "bench auto")]
+    #[arg(long, default_value = "5m")]
     pub budget: String,
     /// Output folder: `<out>/<scene>/{dataset,<config>,compare.md}` and `<out>/bench-auto.md`.
-    #[arg(long, default_value = "out/bench-auto", help_heading = "bench auto")]
+    #[arg(long, default_value = "out/bench-auto")]
     pub out: PathBuf,
     /// Evaluate the first N test views of every run (default all). The paper
     /// model needs minutes per standard-preset view on a CPU.
-    #[arg(long, help_heading = "bench auto")]
+    #[arg(long)]
     pub max_views: Option<usize>,
     /// Evaluate the paper model's runs on the first N test views only (default: as
     /// `--max-views`): its render takes about a minute per standard-preset view on 2 CPU
     /// cores, a fast model's about a second.
-    #[arg(long, help_heading = "bench auto")]
+    #[arg(long)]
     pub paper_views: Option<usize>,
     /// Configurations, comma-separated (of auto, fast-small, fast-medium, fast-large, paper).
-    #[arg(long, default_value = "auto,fast-small,fast-medium,fast-large,paper", help_heading = "bench auto")]
+    #[arg(long, default_value = "auto,fast-small,fast-medium,fast-large,paper")]
     pub configs: String,
     /// Training seeds, comma-separated: every configuration is trained once per seed (run
     /// folder `<config>` for the first seed, `<config>-seed<S>` for the others), and the
     /// targets compare the means over the seeds and print their spread.
-    #[arg(long, default_value = "0", help_heading = "bench auto")]
+    #[arg(long, default_value = "0")]
     pub seeds: String,
     /// Configurations trained with the first seed only, comma-separated (e.g. the slow
     /// `fast-large,paper`, whose figures lie far from the others'): their single run stands
     /// for them in the targets, without a spread.
-    #[arg(long, default_value = "", help_heading = "bench auto")]
+    #[arg(long, default_value = "")]
     pub one_seed: String,
 }
 

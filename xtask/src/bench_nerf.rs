@@ -4,16 +4,65 @@
 //! which run inside its fused sweep), rendering and optimiser, and the MLP's achieved GFLOP/s
 //! against this machine's measured burn matmul peak; and the fast model's networks on one
 //! batch through the fused kernels ([`nerf::mlp`]) against the same networks through burn
-//! (forward, and forward + autodiff backward), measured in the same run.
+//! (forward, and forward + autodiff backward), measured in the same run. Then the time to
+//! render one full-size view (default 800×800, the Blender-synthetic size) from a fast model
+//! trained briefly on the same data, and with `--run RUN` from a trained run's checkpoint.
 
+use dataset::{Camera, Intrinsics};
+use nerf::models::Model;
 use nerf::train::{TrainConfig, Trainer};
+use std::path::PathBuf;
+use std::time::Instant;
 
-/// Prints training throughput figures for both models.
-pub fn run() -> anyhow::Result<()> {
-    let dir = std::env::temp_dir().join(format!("nerf-bench-{}", std::process::id()));
+/// Options of `bench nerf`.
+#[derive(clap::Args)]
+pub struct NerfBenchArgs {
+    /// Also time rendering the first test view of this trained run at its dataset's full
+    /// resolution (what `render-nerf --downscale 1` and `eval --downscale 1` do per view).
+    #[arg(long)]
+    pub run: Option<PathBuf>,
+    /// Side in pixels of the square view rendered from the benchmark's own fast model.
+    #[arg(long, default_value_t = 800, value_parser = clap::value_parser!(u32).range(1..=4096))]
+    pub view: u32,
+    /// Only the render times (skips the training figures, whose paper steps take minutes).
+    #[arg(long)]
+    pub render_only: bool,
+}
+
+/// Training steps of the fast model whose render is timed (past the occupancy grid's
+/// warm-up, so empty space is skipped as in a trained run).
+const RENDER_MODEL_STEPS: u64 = 300;
+
+/// Timed renders per view; the median is printed.
+const RENDER_REPS: usize = 3;
+
+/// Renders every pixel-centre ray of `camera` from `model` `RENDER_REPS` times: the median
+/// seconds and the samples evaluated per ray.
+fn time_view(model: &Model, camera: &Camera) -> (f64, f64) {
+    let n = camera.intrinsics.width as usize * camera.intrinsics.height as usize;
+    let mut times = Vec::new();
+    let mut per_ray = 0.0;
+    for _ in 0..RENDER_REPS {
+        let t0 = Instant::now();
+        let (o, d): (Vec<_>, Vec<_>) = (0..n).map(|p| nerf::data::pixel_ray(camera, p)).unzip();
+        let out = model.render_rays(&o, &d, [0.0; 3]);
+        times.push(t0.elapsed().as_secs_f64());
+        per_ray = out.t.len() as f64 / n as f64;
+    }
+    times.sort_by(f64::total_cmp);
+    (times[times.len() / 2], per_ray)
+}
+
+/// Prints training throughput figures for both models and full-size render times.
+pub fn run(args: NerfBenchArgs) -> anyhow::Result<()> {
+    let tmp = tempfile::Builder::new().prefix("nerf-bench-").tempdir()?;
+    let dir = tmp.path().to_path_buf();
     let data = dir.join("data");
     eprintln!("writing a synthetic 64x64 dataset (20 train views) to {}", data.display());
     nerf::data::synthetic::write(&data, 64, [20, 2, 2], false)?;
+    if args.render_only {
+        return render_times(&data, &dir, &args);
+    }
     let peak = nerf::backend::matmul_peak_gflops(2048);
     println!("backend {}; burn matmul 2048^3 peak: {peak:.1} GFLOP/s", nerf::backend::backend_name());
     networks_fused_vs_burn(peak);
@@ -55,7 +104,45 @@ pub fn run() -> anyhow::Result<()> {
             t.model.parameters(),
         );
     }
-    let _ = std::fs::remove_dir_all(&dir);
+    render_times(&data, &dir, &args)?;
+    Ok(())
+}
+
+/// The full-size render figures (see the module docs).
+fn render_times(data: &std::path::Path, dir: &std::path::Path, args: &NerfBenchArgs) -> anyhow::Result<()> {
+    let mut cfg = TrainConfig::preset("fast", data.to_path_buf()).map_err(anyhow::Error::msg)?;
+    cfg.steps = Some(RENDER_MODEL_STEPS);
+    cfg.val_max_views = 0;
+    let mut t = Trainer::new(cfg, &dir.join("fast-render"), false)?;
+    for _ in 0..RENDER_MODEL_STEPS {
+        t.step_once();
+    }
+    let ds = dataset::Dataset::load(data)?;
+    let first = ds.test.first().or(ds.train.first()).ok_or_else(|| anyhow::anyhow!("the synthetic dataset has no views"))?;
+    let i = first.camera.intrinsics;
+    let s = args.view as f64 / i.width as f64;
+    let intr = Intrinsics { width: args.view, height: args.view, fl_x: i.fl_x * s, fl_y: i.fl_y * s, cx: i.cx * s, cy: i.cy * s };
+    let camera = Camera::new(intr, first.camera.c2w).map_err(anyhow::Error::msg)?;
+    let (sec, per_ray) = time_view(&t.model, &camera);
+    let rays = (args.view as f64).powi(2);
+    println!(
+        " view: {v}x{v} from the fast model after {RENDER_MODEL_STEPS} steps: {sec:.2} s (median of {RENDER_REPS}), {:.2} M rays/s, {per_ray:.1} samples evaluated per ray",
+        rays / sec / 1e6,
+        v = args.view
+    );
+    if let Some(run) = &args.run {
+        let m = nerf::render::RunModel::load(run)?;
+        let ds = dataset::Dataset::load(m.dataset_dir())?;
+        let f = ds.test.first().or(ds.val.first()).ok_or_else(|| anyhow::anyhow!("{}: the dataset has no test or val view", m.dataset_dir().display()))?;
+        let (w, h) = (f.camera.intrinsics.width, f.camera.intrinsics.height);
+        let (sec, per_ray) = time_view(&m.model, &f.camera);
+        println!(
+            " view: {w}x{h} from {} (step {}): {sec:.2} s (median of {RENDER_REPS}), {:.2} M rays/s, {per_ray:.1} samples evaluated per ray",
+            run.display(),
+            m.train_steps(),
+            (w as f64 * h as f64) / sec / 1e6
+        );
+    }
     Ok(())
 }
 
