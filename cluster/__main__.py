@@ -19,6 +19,19 @@ def add_ray_options(p: argparse.ArgumentParser, per: str) -> None:
     )
 
 
+def check_numbers(args: argparse.Namespace) -> None:
+    """Refuses counts Ray would reject with a traceback, or read as "unlimited"."""
+    if not args.num_cpus > 0:
+        raise ClusterError(f"--num-cpus {args.num_cpus:g}: give a positive number of CPUs")
+    if args.local_cpus is not None and args.local_cpus < 1:
+        raise ClusterError(f"--local-cpus {args.local_cpus}: give at least 1")
+    for name in ("max_retries", "max_failures", "eval_max_views"):
+        v = getattr(args, name, None)
+        least = 1 if name == "eval_max_views" else 0
+        if v is not None and v < least:
+            raise ClusterError(f"--{name.replace('_', '-')} {v}: give at least {least}")
+
+
 def parser() -> argparse.ArgumentParser:
     top = argparse.ArgumentParser(prog="python -m cluster", description=__doc__)
     sub = top.add_subparsers(dest="command", required=True)
@@ -94,6 +107,7 @@ def main(argv=None) -> int:
         argv = ["render", *ours]
     args = top.parse_args(argv)
     try:
+        check_numbers(args)
         if args.command == "render":
             from . import render
             from .xtask import find_xtask

@@ -301,6 +301,21 @@ class CommandLine(unittest.TestCase):
             self.assertRegex(err, r"error: --shard")
         self.assertEqual(list(self.root.iterdir()), [])
 
+    def test_counts_ray_would_misread(self):
+        out = str(self.root / "ds")
+        for extra, msg in [
+            (["--num-cpus", "0"], "--num-cpus 0: give a positive"),
+            (["--num-cpus", "-1"], "--num-cpus -1"),
+            (["--local-cpus", "0"], "--local-cpus 0"),
+            (["--max-retries", "-1"], "--max-retries -1: give at least 0"),
+        ]:
+            rc, err = quiet_main(["render", "tabletop", "--out", out, "--shards", "2", "--xtask", "/no/xtask", *extra])
+            self.assertEqual(rc, 1, extra)
+            self.assertIn(msg, err)
+        rc, err = quiet_main(["sweep", str(self.root), "--steps", "5", "--eval-max-views", "0", "--xtask", "/no/xtask"])
+        self.assertEqual((rc, "--eval-max-views 0: give at least 1" in err), (1, True), err)
+        self.assertEqual(list(self.root.iterdir()), [])
+
     def test_render_unreachable_address(self):
         s = socket.socket()
         s.bind(("127.0.0.1", 0))
