@@ -634,6 +634,8 @@ impl Parts<'_> {
     }
 
     /// [`FastModel::render_rays`] of one chunk of rays.
+    // Sample indices address four parallel arrays at once.
+    #[allow(clippy::needless_range_loop)]
     fn render_chunk(&self, mlp: &HashMlp, origins: &[[f32; 3]], dirs: &[[f32; 3]], background: [f32; 3]) -> RayOutputs {
         let samples = self.march(origins, dirs, SampleMode::Deterministic);
         let rays = origins.len();
