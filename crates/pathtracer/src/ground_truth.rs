@@ -55,7 +55,7 @@ pub fn scene_of_dataset(dataset_dir: &Path, scene: Option<&Path>) -> Result<Scen
     let record: RenderRecord = serde_json::from_slice(&bytes).map_err(|e| PathTracerError::import(&config, e.to_string()))?;
     if let Some(p) = scene {
         let source = SceneSource::from_scene(p)?;
-        if source.hash != record.scene.hash {
+        if !same_content(p, &source, &record.scene.hash) {
             return Err(PathTracerError::Config(format!(
                 "{} is not the scene {} was rendered from (content hash {} vs the recorded {})",
                 p.display(),
@@ -80,7 +80,7 @@ pub fn scene_of_dataset(dataset_dir: &Path, scene: Option<&Path>) -> Result<Scen
             continue;
         }
         match SceneSource::from_scene(&c) {
-            Ok(s) if s.hash == record.scene.hash => return load(&c).map(|renderer| SceneLookup::Found { renderer: Box::new(renderer), path: c }),
+            Ok(s) if same_content(&c, &s, &record.scene.hash) => return load(&c).map(|renderer| SceneLookup::Found { renderer: Box::new(renderer), path: c }),
             Ok(_) => edited = edited.or(Some(c)),
             Err(_) => {}
         }
@@ -89,6 +89,14 @@ pub fn scene_of_dataset(dataset_dir: &Path, scene: Option<&Path>) -> Result<Scen
         Some(c) => format!("{} has changed since the dataset was rendered (content hash differs)", c.display()),
         None => format!("the scene it was rendered from ({}) is not found", record.scene.path),
     }))
+}
+
+/// Whether the scene at `path` (content `source`) is the one a dataset recorded as `recorded`:
+/// its content hash, or, for datasets rendered before buffers and images were hashed with the
+/// glTF, the hash of the glTF file alone (those datasets' views are still what this scene
+/// renders unless a buffer or image was edited, which they could not record).
+fn same_content(path: &Path, source: &SceneSource, recorded: &str) -> bool {
+    source.hash == recorded || SceneSource::from_file(path).is_ok_and(|f| f.hash == recorded)
 }
 
 fn load(path: &Path) -> Result<Renderer, PathTracerError> {
