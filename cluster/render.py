@@ -70,7 +70,7 @@ def render_shard(job: RenderJob, k: int) -> dict:
     """A Ray task: renders shard `k` with the node's xtask. Returns the node's name, seconds,
     and (without shared storage) the shard's files as {relative path: bytes}."""
     t0 = time.monotonic()
-    node = socket.gethostname()
+    node = node_name()
     tmp = None
     if job.shared_storage:
         out = job.shard_dir(k)
@@ -108,6 +108,16 @@ def remove_dead_tmp(tmp: Path) -> None:
         pid = d.name[len(TMP_PREFIX) :].split("-", 1)[0]
         if d.is_dir() and pid.isdigit() and not xt.pid_alive(int(pid)):
             shutil.rmtree(d, ignore_errors=True)
+
+
+def node_name() -> str:
+    """This host's name and, inside Ray, the start of its node id (two nodes may share a host)."""
+    try:
+        import ray
+
+        return f"{socket.gethostname()}/{ray.get_runtime_context().get_node_id()[:8]}"
+    except Exception:  # outside a Ray worker
+        return socket.gethostname()
 
 
 def write_shard(folder: Path, files: dict) -> None:
