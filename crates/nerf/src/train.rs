@@ -125,6 +125,11 @@ pub struct TrainConfig {
     /// Stop early when the val PSNR plateaus (see [`crate::auto::plateau_reached`]).
     #[config(default = "None")]
     pub plateau_stop: Option<PlateauStop>,
+    /// Content hash of the dataset the run trains on ([`dataset_hash`]: its transforms files and
+    /// every train and validation view's files), recorded when the run starts; resuming on a
+    /// dataset whose views or poses changed since is refused. `None` in configs written before.
+    #[config(default = "None")]
+    pub dataset_hash: Option<String>,
     /// `--model auto`: the sizing rules' settings; the model, bounds and stopping rule are
     /// resolved from the dataset before step 0 ([`crate::auto::resolve`]).
     #[config(default = "None")]
@@ -439,19 +444,30 @@ impl Trainer {
             timings: StepTimings::default(),
         };
         let have_ckpt = checkpoint::latest(run_dir).is_some();
+        let hash = dataset_hash(&ds, val_frames)?;
         if resume && have_ckpt {
+            if let Some(recorded) = &t.config.dataset_hash
+                && *recorded != hash
+            {
+                return Err(TrainError::Invalid(format!(
+                    "{}: the dataset changed since this run started (content hash {hash}, recorded {recorded}): its views or poses are not the ones the checkpoint learned; train into a new --out, or without --resume to start over",
+                    t.config.dataset.display()
+                )));
+            }
             let s = checkpoint::load_latest(run_dir)?;
             t.load_state(&s)?;
             t.truncate_metrics()?;
             t.reload_val_history();
         } else {
+            t.config.dataset_hash = Some(hash);
             dataset::io::atomic_write_json(&run_dir.join(CONFIG_FILE), &t.config)?;
             dataset::io::atomic_write(&run_dir.join(METRICS_FILE), b"")?;
         }
         Ok(t)
     }
 
-    /// Continues the run in `run_dir` from its latest checkpoint with the config it recorded.
+    /// Continues the run in `run_dir` from its latest checkpoint with the config it recorded
+    /// (refused when the dataset's content changed since, see [`TrainConfig::dataset_hash`]).
     pub fn resume(run_dir: &Path) -> Result<Self, TrainError> {
         let config = TrainConfig::read(&run_dir.join(CONFIG_FILE))?;
         Self::new(config, run_dir, true)
@@ -766,4 +782,35 @@ impl Trainer {
 /// PSNR of a mean squared error with peak 1.
 pub fn psnr(mse: f64) -> f64 {
     -10.0 * mse.max(1e-12).log10()
+}
+
+/// FNV-1a 64 (hex) over the dataset's `transforms_*.json` files and every file of the train
+/// views and of `val` (image, linear EXR, ground truth), each preceded by its name: what a run
+/// learns from and validates on, so that editing a view, a pose or the split is noticed.
+pub fn dataset_hash(ds: &dataset::Dataset, val: &[dataset::Frame]) -> Result<String, TrainError> {
+    fn fnv(h: u64, bytes: &[u8]) -> u64 {
+        bytes.iter().fold(h, |h, b| (h ^ *b as u64).wrapping_mul(0x0100_0000_01b3))
+    }
+    let mut h = 0xcbf2_9ce4_8422_2325u64;
+    let mut add = |path: &Path| -> Result<(), TrainError> {
+        let bytes = std::fs::read(path).map_err(|e| TrainError::File { path: path.into(), source: e })?;
+        let name = path.strip_prefix(&ds.root).unwrap_or(path).to_string_lossy().into_owned();
+        h = fnv(fnv(h, name.as_bytes()), &bytes);
+        Ok(())
+    };
+    for split in dataset::SplitKind::ALL {
+        let p = ds.root.join(split.file_name());
+        if p.is_file() {
+            add(&p)?;
+        }
+    }
+    for f in ds.train.iter().chain(val) {
+        add(&f.image_path)?;
+        for p in f.exr_path.iter().chain(&f.gt_path) {
+            if p.is_file() {
+                add(p)?;
+            }
+        }
+    }
+    Ok(format!("{h:016x}"))
 }

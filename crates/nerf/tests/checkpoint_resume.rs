@@ -76,3 +76,45 @@ fn checkpoint_round_trip_and_exact_resume() {
     assert_eq!(v1.opacity, v2.opacity);
     assert_eq!(v1.samples.offsets.len(), 24 * 24 + 1);
 }
+
+/// A run records its dataset's content hash; resuming after a train view's image, a pose, or
+/// a val view changed is refused with a message naming the dataset, and an unchanged dataset
+/// resumes.
+#[test]
+fn resume_refuses_a_dataset_whose_views_changed() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    nerf::data::synthetic::write(&data, 16, [4, 1, 1], false).unwrap();
+    let run = tmp.path().join("run");
+    let mut t = Trainer::new(config(&data, 20), &run, false).unwrap();
+    t.run(&AtomicBool::new(false), &mut |_| {}).unwrap();
+    drop(t);
+    let recorded = TrainConfig::read(&run.join(nerf::train::CONFIG_FILE)).unwrap().dataset_hash;
+    assert!(recorded.as_deref().is_some_and(|h| h.len() == 16), "{recorded:?}");
+    assert!(Trainer::resume(&run).is_ok(), "an unchanged dataset resumes");
+
+    let ds = dataset::Dataset::load(&data).unwrap();
+    let edits: Vec<(std::path::PathBuf, Box<dyn Fn(&mut Vec<u8>)>)> = vec![
+        // One train image, one byte.
+        (ds.train[1].image_path.clone(), Box::new(|b: &mut Vec<u8>| *b.last_mut().unwrap() ^= 1)),
+        // The val view's image.
+        (ds.val[0].image_path.clone(), Box::new(|b: &mut Vec<u8>| *b.last_mut().unwrap() ^= 1)),
+        // A pose: the first train camera moved 1 cm along x.
+        (data.join("transforms_train.json"), Box::new(|b: &mut Vec<u8>| {
+            let mut v: serde_json::Value = serde_json::from_slice(b).unwrap();
+            let x = &mut v["frames"][0]["transform_matrix"][0][3];
+            *x = serde_json::json!(x.as_f64().unwrap() + 0.01);
+            *b = serde_json::to_vec_pretty(&v).unwrap();
+        })),
+    ];
+    for (path, edit) in edits {
+        let before = std::fs::read(&path).unwrap();
+        let mut after = before.clone();
+        edit(&mut after);
+        std::fs::write(&path, &after).unwrap();
+        let e = Trainer::resume(&run).err().map(|e| e.to_string()).unwrap_or_default();
+        assert!(e.contains("the dataset changed since this run started") && e.contains(&data.display().to_string()), "{}: {e}", path.display());
+        std::fs::write(&path, &before).unwrap();
+        assert!(Trainer::resume(&run).is_ok(), "restored {}", path.display());
+    }
+}
