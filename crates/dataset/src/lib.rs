@@ -35,6 +35,7 @@ pub use images::{
     srgb_to_linear, write_exr_rgba, write_ground_truth, write_npy_f32, write_png_mask, write_png_rgba,
 };
 pub use transforms::{
-    Dataset, Frame, FrameRecord, SceneFacts, SplitKind, TransformsFile, nerfstudio_files, write_nerfstudio_transforms,
+    Dataset, Frame, FrameRecord, SceneFacts, SplitKind, TransformsFile, instant_ngp_fit, nerfstudio_files,
+    write_nerfstudio_transforms,
     write_split_transforms,
 };

@@ -107,11 +107,35 @@ pub struct TransformsFile {
     /// Scene facts (our datasets only).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub scene_facts: Option<SceneFacts>,
+    /// instant-ngp's world-to-unit-cube scale ([`instant_ngp_fit`]; its default 0.33 clips
+    /// scenes wider than about 3 m), written with the scene facts; other readers ignore it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub scale: Option<f64>,
+    /// instant-ngp's offset, in our (not its cycled) axis order.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub offset: Option<[f64; 3]>,
+    /// instant-ngp's `aabb_scale`: 1, a bounded scene inside its unit cube.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub aabb_scale: Option<u32>,
+}
+
+/// instant-ngp's `scale` and `offset` for a scene box: it maps a position `p` to
+/// `p · scale + offset` (then cycles the axes) and, with `aabb_scale` 1, renders the unit cube,
+/// so the box goes centred into the cube with a 10 % margin: `scale = 1 / (1.1 · largest
+/// side)`, `offset = 0.5 − scale · centre` (from its `nerf_loader.cu`).
+pub fn instant_ngp_fit(aabb_min: [f64; 3], aabb_max: [f64; 3]) -> Option<(f64, [f64; 3])> {
+    let side = (0..3).map(|a| aabb_max[a] - aabb_min[a]).fold(0.0f64, f64::max);
+    if !(side.is_finite() && side > 0.0) {
+        return None;
+    }
+    let scale = 1.0 / (1.1 * side);
+    Some((scale, [0, 1, 2].map(|a| 0.5 - scale * 0.5 * (aabb_min[a] + aabb_max[a]))))
 }
 
 impl TransformsFile {
     /// A file with full intrinsics for `intr`.
     pub fn new(intr: &Intrinsics, frames: Vec<FrameRecord>, scene_facts: Option<SceneFacts>) -> Self {
+        let fit = scene_facts.as_ref().and_then(|f| instant_ngp_fit(f.aabb_min, f.aabb_max));
         Self {
             camera_angle_x: intr.camera_angle_x(),
             camera_angle_y: Some(intr.camera_angle_y()),
@@ -122,6 +146,9 @@ impl TransformsFile {
             cx: Some(intr.cx),
             cy: Some(intr.cy),
             frames,
+            scale: fit.map(|f| f.0),
+            offset: fit.map(|f| f.1),
+            aabb_scale: fit.map(|_| 1),
             scene_facts,
         }
     }
@@ -462,6 +489,19 @@ mod tests {
             }
         }
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// The instant-ngp fit puts the scene box, centred, inside the unit cube with a margin.
+    #[test]
+    fn instant_ngp_fit_maps_the_box_into_the_unit_cube() {
+        let (lo, hi) = ([-1.0, 0.0, -3.0], [1.0, 0.66, 5.0]);
+        let (scale, offset) = instant_ngp_fit(lo, hi).unwrap();
+        for a in 0..3 {
+            let (p, q) = (lo[a] * scale + offset[a], hi[a] * scale + offset[a]);
+            assert!(p > 0.0 && q < 1.0 && ((p + q) / 2.0 - 0.5).abs() < 1e-12, "axis {a}: {p}..{q}");
+        }
+        assert!(((hi[2] - lo[2]) * scale - 1.0 / 1.1).abs() < 1e-12, "the largest side fills 1/1.1");
+        assert!(instant_ngp_fit([0.0; 3], [0.0; 3]).is_none());
     }
 
     #[test]
