@@ -23,24 +23,7 @@ fn render_cmd(out: &Path) -> Command {
     c
 }
 
-/// Every file under `dir` with its bytes, sorted by relative path.
-fn files(dir: &Path) -> Vec<(String, Vec<u8>)> {
-    let mut out = Vec::new();
-    let mut stack = vec![dir.to_path_buf()];
-    while let Some(d) = stack.pop() {
-        let Ok(entries) = std::fs::read_dir(&d) else { continue };
-        for e in entries.flatten() {
-            let p = e.path();
-            if p.is_dir() {
-                stack.push(p);
-            } else {
-                out.push((p.strip_prefix(dir).unwrap().display().to_string(), std::fs::read(&p).unwrap()));
-            }
-        }
-    }
-    out.sort();
-    out
-}
+use test_support::files;
 
 fn is_temporary(rel: &str) -> bool {
     let name = Path::new(rel).file_name().unwrap().to_string_lossy().into_owned();

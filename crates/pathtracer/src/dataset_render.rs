@@ -958,22 +958,7 @@ mod tests {
         render_dataset_with(&s, &src, &r, out, cfg, &opts, &mut |_| {}, &AtomicBool::new(false))
     }
 
-    fn files(dir: &Path) -> Vec<(String, Vec<u8>)> {
-        let mut out = Vec::new();
-        let mut stack = vec![dir.to_path_buf()];
-        while let Some(d) = stack.pop() {
-            for e in std::fs::read_dir(&d).unwrap().flatten() {
-                let p = e.path();
-                if p.is_dir() {
-                    stack.push(p);
-                } else {
-                    out.push((p.strip_prefix(dir).unwrap().display().to_string(), std::fs::read(&p).unwrap()));
-                }
-            }
-        }
-        out.sort();
-        out
-    }
+    use test_support::files;
 
     #[test]
     fn writes_the_layout_resumes_identically_and_loads_back() {

@@ -43,23 +43,7 @@ fn render(scene: &Path, out: &Path, cfg: &DatasetRenderConfig, threads: usize) -
     render_dataset(scene, out, cfg, &opts, &mut |_| {}, &AtomicBool::new(false))
 }
 
-/// Every file under `dir` with its bytes, sorted by relative path.
-fn files(dir: &Path) -> Vec<(String, Vec<u8>)> {
-    let mut out = Vec::new();
-    let mut stack = vec![dir.to_path_buf()];
-    while let Some(d) = stack.pop() {
-        for e in std::fs::read_dir(&d).unwrap().flatten() {
-            let p = e.path();
-            if p.is_dir() {
-                stack.push(p);
-            } else {
-                out.push((p.strip_prefix(dir).unwrap().display().to_string(), std::fs::read(&p).unwrap()));
-            }
-        }
-    }
-    out.sort();
-    out
-}
+use test_support::files;
 
 #[test]
 fn tiny_dataset_is_complete_exact_deterministic_and_resumable() {

@@ -4,7 +4,6 @@
 
 use pathtracer::dataset_render::{DatasetRenderConfig, Preset, RunOptions, render_dataset};
 use pathtracer::shard::{Shard, merge_shards, render_shard};
-use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 
@@ -16,22 +15,7 @@ fn config() -> DatasetRenderConfig {
     DatasetRenderConfig { width: 16, height: 12, train: 5, val: 2, test: 2, spp: 2, ..DatasetRenderConfig::preset(Preset::Quick) }
 }
 
-/// Every file under `dir` (relative path → bytes).
-fn files(dir: &Path) -> BTreeMap<String, Vec<u8>> {
-    let mut out = BTreeMap::new();
-    let mut stack = vec![dir.to_path_buf()];
-    while let Some(d) = stack.pop() {
-        for e in std::fs::read_dir(&d).unwrap().flatten() {
-            let p = e.path();
-            if p.is_dir() {
-                stack.push(p);
-            } else {
-                out.insert(p.strip_prefix(dir).unwrap().display().to_string(), std::fs::read(&p).unwrap());
-            }
-        }
-    }
-    out
-}
+use test_support::file_map as files;
 
 fn shard(cfg: &DatasetRenderConfig, out: &Path, s: &str) {
     let opts = RunOptions { threads: Some(1), force: false };
