@@ -35,6 +35,8 @@ pub mod grid;
 pub mod io;
 pub mod marching_cubes;
 pub mod mesh;
+pub mod mesh_eval;
+pub mod mesh_extract;
 pub mod mesh_metrics;
 pub mod metrics;
 pub mod plot;

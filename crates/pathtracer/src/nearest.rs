@@ -76,7 +76,8 @@ impl NearestTriangles {
             return Ok(Self { bvh: None, tris: Vec::new() });
         }
         let prims: Vec<Triangle> = tris.iter().map(|[a, b, c]| Triangle { v0: (*a).into(), v1: (*b).into(), v2: (*c).into() }).collect();
-        let bvh = build_bvh2(&prims, config, &mut Duration::ZERO);
+        let mut build_time = Duration::ZERO;
+        let bvh = build_bvh2(&prims, config, &mut build_time);
         Ok(Self { bvh: Some(bvh), tris: tris.iter().map(|t| t.map(|v| v.as_dvec3())).collect() })
     }
 
