@@ -52,7 +52,7 @@ pub fn scene_reference(dataset: &Dataset, scene: Option<&Path>) -> Result<Result
         SceneLookup::Found { renderer, path } => (renderer, path),
         SceneLookup::Missing(why) => return Ok(Err(why)),
     };
-    let cameras: Vec<dataset::Camera> = dataset.train.iter().chain(&dataset.test).map(|f| f.camera.clone()).collect();
+    let cameras: Vec<dataset::Camera> = dataset.train.iter().chain(&dataset.test).map(|f| f.camera).collect();
     let r = pathtracer::reference::visible_surface(&renderer, &cameras);
     let mesh = TriMesh::new(r.positions.iter().map(|p| p.to_array()).collect(), r.visible_mesh());
     let diagonal = match &dataset.facts {

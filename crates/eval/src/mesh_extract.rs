@@ -229,7 +229,7 @@ pub fn choose_level(model: &RunModel, cameras: &[Camera], rays_per_view: usize, 
 /// Up to `n` cameras spread evenly over `frames`.
 pub fn spread_cameras(frames: &[dataset::Frame], n: usize) -> Vec<Camera> {
     let n = n.min(frames.len()).max(1).min(frames.len());
-    (0..n).map(|k| frames[k * frames.len() / n].camera.clone()).collect()
+    (0..n).map(|k| frames[k * frames.len() / n].camera).collect()
 }
 
 /// Extracts the mesh of the run (see the module docs). `level_cameras` are the train views the

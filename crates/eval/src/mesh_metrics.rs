@@ -225,7 +225,7 @@ pub fn mesh_metrics(predicted: &TriMesh, reference: &TriMesh, opts: &MeshMetrics
     reference.validate()?;
     let metric = |what: &'static str| move |e: MetricError| EvalError::Metric { view: what.into(), source: e };
     let ps = sample_surface(predicted, opts.samples, opts.seed).map_err(metric("predicted mesh"))?;
-    let rs = sample_surface(reference, opts.samples, opts.seed ^ 0x5eed_0f_2ef).map_err(metric("reference mesh"))?;
+    let rs = sample_surface(reference, opts.samples, opts.seed ^ 0x05ee_d0f2_ef00).map_err(metric("reference mesh"))?;
     let to_ref = SurfaceIndex::new(reference)?.query(&ps.points, &ps.normals);
     let to_pred = SurfaceIndex::new(predicted)?.query(&rs.points, &rs.normals);
     let mean = |v: &[(f64, f64)], f: fn(&(f64, f64)) -> f64| v.iter().map(f).sum::<f64>() / v.len() as f64;

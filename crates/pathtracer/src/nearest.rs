@@ -189,7 +189,7 @@ pub fn closest_point_on_triangle(p: DVec3, t: [DVec3; 3]) -> DVec3 {
 fn closest_point_on_segment(p: DVec3, a: DVec3, b: DVec3) -> DVec3 {
     let ab = b - a;
     let l2 = ab.length_squared();
-    if !(l2 > 0.0) {
+    if l2.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
         return a;
     }
     a + ab * ((p - a).dot(ab) / l2).clamp(0.0, 1.0)
