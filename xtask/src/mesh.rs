@@ -83,9 +83,10 @@ pub fn run(args: MeshArgs) -> anyhow::Result<()> {
     } else {
         match scene_reference(&dataset, args.scene.as_deref())? {
             Ok(reference) => {
-                let m = compare_with_reference(&extracted.mesh, &reference, args.samples)?;
+                let (m, fraction) = compare_with_reference(&extracted.mesh, &reference, args.samples)?;
                 Some(MeshBlock {
                     metrics: m,
+                    predicted_visible_area_fraction: fraction,
                     reference: reference.info,
                     resolution: args.resolution,
                     level: extracted.level.clone(),
@@ -116,12 +117,13 @@ pub fn run(args: MeshArgs) -> anyhow::Result<()> {
 pub fn print_metrics(b: &MeshBlock) {
     let m = &b.metrics;
     println!(
-        "reference: {} ({} of {} triangles seen by {} cameras, {:.1} % of the area)",
+        "reference: {} ({} of {} triangles seen by {} cameras, {:.1} % of the area); the cameras see {:.1} % of the mesh's area, which is measured",
         b.reference.scene,
         b.reference.visible_triangles,
         b.reference.triangles,
         b.reference.cameras,
-        100.0 * b.reference.visible_area_fraction
+        100.0 * b.reference.visible_area_fraction,
+        100.0 * b.predicted_visible_area_fraction
     );
     let f: Vec<String> = m.f_scores.iter().map(|f| format!("F@{:.1}% {:.3} (P {:.3} R {:.3})", 100.0 * f.fraction, f.f_score, f.precision, f.recall)).collect();
     println!(

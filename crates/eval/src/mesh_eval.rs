@@ -23,6 +23,8 @@ pub struct SceneReference {
     pub info: ReferenceInfo,
     /// The scene box's diagonal, m.
     pub diagonal: f64,
+    /// The cameras that decided visibility (train and test, full resolution).
+    pub cameras: Vec<dataset::Camera>,
 }
 
 /// What the reference is, as written into `eval.json` and the mesh sidecar.
@@ -68,15 +70,18 @@ pub fn scene_reference(dataset: &Dataset, scene: Option<&Path>) -> Result<Result
         cameras: cameras.len(),
         rays: r.rays,
     };
-    Ok(Ok(SceneReference { mesh, info, diagonal }))
+    Ok(Ok(SceneReference { mesh, info, diagonal, cameras }))
 }
 
 /// The `mesh` block of `eval.json` (and of the mesh sidecar): the metrics of the extracted
 /// mesh against the visible reference surface, and how both were obtained.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct MeshBlock {
-    /// The metrics.
+    /// The metrics (of the part of the mesh the cameras see).
     pub metrics: MeshMetrics,
+    /// The share of the extracted mesh's area that the train and test cameras see (the part
+    /// measured).
+    pub predicted_visible_area_fraction: f64,
     /// The reference.
     pub reference: ReferenceInfo,
     /// Grid cells along the longest side of the scene box.
@@ -89,22 +94,20 @@ pub struct MeshBlock {
     pub picture: Option<String>,
 }
 
-/// The metrics of `mesh` against `reference` with `samples` points per mesh (seed 0).
-pub fn compare_with_reference(mesh: &TriMesh, reference: &SceneReference, samples: usize) -> Result<MeshMetrics, EvalError> {
+/// The metrics of the part of `mesh` the reference's cameras see ([`visible_part`]) against
+/// `reference`, with `samples` points per mesh (seed 0), and that part's share of the mesh's
+/// area.
+pub fn compare_with_reference(mesh: &TriMesh, reference: &SceneReference, samples: usize) -> Result<(MeshMetrics, f64), EvalError> {
+    let (visible, fraction) = visible_part(mesh, &reference.cameras)?;
     let opts = MeshMetricsOptions { samples, ..MeshMetricsOptions::for_diagonal(reference.diagonal) };
-    mesh_metrics(mesh, &reference.mesh, &opts)
+    Ok((mesh_metrics(&visible, &reference.mesh, &opts)?, fraction))
 }
 
-/// A picture of `mesh` seen by `camera`, each pixel coloured by the exact distance of the mesh
-/// point it sees to the reference surface (`index`), on the viridis scale from 0 to
-/// `max_error` (clamped), shaded by the angle between the view ray and the surface so that the
-/// shape reads; pixels that see no mesh are dark grey. Returns 8-bit RGB, row 0 on top.
-///
-/// # Shapes
-/// Returns `[height * width * 3]`.
-pub fn error_picture(mesh: &TriMesh, index: &crate::mesh_metrics::SurfaceIndex, camera: &dataset::Camera, max_error: f64) -> Result<Vec<u8>, EvalError> {
+/// `mesh` as a path-tracer scene (one double-sided default material, world = local) behind a
+/// BVH, for ray casting.
+fn mesh_renderer(mesh: &TriMesh) -> Result<pathtracer::render::Renderer, EvalError> {
     use glam::Vec3;
-    use pathtracer::accel::{Accel, AccelParams};
+    use pathtracer::accel::AccelParams;
     use pathtracer::scene::{Aabb, Material, Mesh, Scene};
     let n = mesh.positions.len();
     let positions: Vec<Vec3> = mesh.positions.iter().map(|p| Vec3::from(*p)).collect();
@@ -130,7 +133,32 @@ pub fn error_picture(mesh: &TriMesh, index: &crate::mesh_metrics::SurfaceIndex, 
         bounds: positions.iter().fold(Aabb::EMPTY, |b, &p| b.union_point(p)),
         warnings: Vec::new(),
     };
-    let accel = Accel::build(&scene, &AccelParams::fast_build()).map_err(|e| EvalError::Input(format!("mesh picture: {e}")))?;
+    pathtracer::render::Renderer::new(scene, &AccelParams::fast_build()).map_err(|e| EvalError::Input(format!("mesh: {e}")))
+}
+
+/// The part of `mesh` that `cameras` see: the triangles hit first by at least one pixel-centre
+/// ray (either side counts), the same rule as the reference's. Surfaces the field hides behind
+/// its own visible surface (the underside of the dense slab a floor becomes, the inside of a
+/// solid) never show in a render and are left out, as the scene's hidden triangles are; floaters
+/// in front of the surface are seen and stay. Returns the visible mesh and its share of the area.
+pub fn visible_part(mesh: &TriMesh, cameras: &[dataset::Camera]) -> Result<(TriMesh, f64), EvalError> {
+    let renderer = mesh_renderer(mesh)?;
+    let r = pathtracer::reference::visible_surface(&renderer, cameras);
+    let visible = TriMesh { positions: mesh.positions.clone(), triangles: r.visible_mesh(), colors: mesh.colors.clone() };
+    Ok((visible, r.visible_area_fraction))
+}
+
+/// A picture of `mesh` seen by `camera`, each pixel coloured by the exact distance of the mesh
+/// point it sees to the reference surface (`index`), on the viridis scale from 0 to
+/// `max_error` (clamped), shaded by the angle between the view ray and the surface so that the
+/// shape reads; pixels that see no mesh are dark grey. Returns 8-bit RGB, row 0 on top.
+///
+/// # Shapes
+/// Returns `[height * width * 3]`.
+pub fn error_picture(mesh: &TriMesh, index: &crate::mesh_metrics::SurfaceIndex, camera: &dataset::Camera, max_error: f64) -> Result<Vec<u8>, EvalError> {
+    use glam::Vec3;
+    let renderer = mesh_renderer(mesh)?;
+    let accel = renderer.accel();
     let (w, h) = (camera.intrinsics.width, camera.intrinsics.height);
     let mut hits = Vec::with_capacity((w * h) as usize);
     for j in 0..h {
@@ -211,17 +239,47 @@ pub fn evaluate_run_mesh(
     let cameras = spread_cameras(&dataset.train, extract.level_views);
     let m = extract_mesh(model, &cameras, &extract, progress)?;
     m.mesh.write_ply(&run_dir.join("mesh.ply"))?;
-    let metrics = compare_with_reference(&m.mesh, &reference, opts.samples)?;
+    let (metrics, predicted_visible_area_fraction) = compare_with_reference(&m.mesh, &reference, opts.samples)?;
     let index = crate::mesh_metrics::SurfaceIndex::new(&reference.mesh)?;
     let camera = picture_camera(camera);
     let rgb = error_picture(&m.mesh, &index, &camera, 0.02 * reference.diagonal)?;
     crate::io::write_png_atomic(&run_dir.join("mesh_error.png"), camera.intrinsics.width, camera.intrinsics.height, rgb)?;
     Ok(MeshBlock {
         metrics,
+        predicted_visible_area_fraction,
         reference: reference.info,
         resolution: opts.resolution,
         level: m.level,
         mesh_file: Some("mesh.ply".into()),
         picture: Some("mesh_error.png".into()),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use dataset::{Camera, Intrinsics};
+    use glam::DVec3;
+
+    #[test]
+    fn visible_part_keeps_what_a_camera_sees() {
+        // The unit cube seen straight on from +z: only the front face's two triangles.
+        let p: Vec<[f32; 3]> = (0..8).map(|c| [(c & 1) as f32, ((c >> 1) & 1) as f32, ((c >> 2) & 1) as f32]).collect();
+        let quads = [[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]];
+        let t = quads.iter().flat_map(|q| [[q[0], q[1], q[2]], [q[0], q[2], q[3]]]).collect();
+        let cube = TriMesh::new(p, t);
+        let eye = DVec3::new(0.5, 0.5, 6.0);
+        let camera = Camera::new(Intrinsics::from_fov_y(64, 64, 30f64.to_radians()), Camera::look_at(eye, DVec3::new(0.5, 0.5, 0.5), DVec3::Y)).unwrap();
+        let (visible, fraction) = visible_part(&cube, &[camera]).unwrap();
+        assert_eq!(visible.triangles, vec![[4, 5, 7], [4, 7, 6]]);
+        assert!((fraction - 1.0 / 6.0).abs() < 1e-12);
+        // The error picture: the front face at distance 0 from itself, the rest background.
+        let index = crate::mesh_metrics::SurfaceIndex::new(&cube).unwrap();
+        let rgb = error_picture(&cube, &index, &camera, 0.1).unwrap();
+        assert_eq!(rgb.len(), 64 * 64 * 3);
+        assert_eq!(&rgb[..3], &[40, 40, 40]);
+        let centre = (32 * 64 + 32) * 3;
+        let zero = crate::colormap::Colormap::Viridis.at(0.0);
+        assert_eq!(&rgb[centre..centre + 3], &zero);
+    }
 }
