@@ -26,8 +26,9 @@ fn render_train_eval_writes_a_complete_report() {
     assert_eq!(summary.steps, 40);
     assert_eq!(summary.skipped_nonfinite, 0);
 
-    let out = eval::evaluate_run(&run, &eval::EvalRunOptions::split(SplitKind::Test), &mut |_, _| {})
-        .expect("eval");
+    let small_mesh = eval::mesh_eval::MeshEvalOptions { resolution: 48, samples: 5_000 };
+    let opts = eval::EvalRunOptions { mesh: Some(small_mesh), ..eval::EvalRunOptions::split(SplitKind::Test) };
+    let out = eval::evaluate_run(&run, &opts, &mut |_, _| {}).expect("eval");
     let json: serde_json::Value =
         serde_json::from_slice(&std::fs::read(run.join("eval.json")).unwrap()).unwrap();
     let mean = &json["mean"];
@@ -63,6 +64,23 @@ fn render_train_eval_writes_a_complete_report() {
     for f in ["report.md", "report.json", "speed_vs_error.png", "grid_r_0.png", "metrics.jsonl", "config.json"] {
         assert!(run.join(f).is_file(), "{f} missing");
     }
+    // The mesh against the scene's triangles, or (40 steps may leave no opaque surface) a note
+    // saying why there is none.
+    match &out.report.mesh {
+        Some(b) => {
+            let m = &b.metrics;
+            assert!(m.accuracy >= 0.0 && m.completeness >= 0.0 && (m.chamfer_l1 - 0.5 * (m.accuracy + m.completeness)).abs() < 1e-12);
+            assert_eq!(m.f_scores.len(), 3);
+            assert!(m.f_scores.iter().all(|f| (0.0..=1.0).contains(&f.f_score)));
+            assert!(b.reference.visible_area_fraction > 0.5 && b.reference.visible_area_fraction <= 1.0, "{:?}", b.reference);
+            assert!(json["mesh"]["metrics"]["chamfer_l1"].is_number());
+            for f in ["mesh.ply", "mesh_error.png"] {
+                assert!(run.join(f).is_file(), "{f} missing");
+            }
+            assert!(std::fs::read_to_string(run.join("report.md")).unwrap().contains("## Geometry"));
+        }
+        None => assert!(out.report.notes.iter().any(|n| n.contains("no mesh metrics")), "{:?}", out.report.notes),
+    }
 
     // The same dataset without its scene facts (a third-party dataset with depth): the
     // off-surface tolerance comes from the box around the true surface points the test views
@@ -74,7 +92,7 @@ fn render_train_eval_writes_a_complete_report() {
         v.as_object_mut().unwrap().remove("scene_facts");
         std::fs::write(&p, serde_json::to_vec(&v).unwrap()).unwrap();
     }
-    let bare = eval::evaluate_run(&run, &eval::EvalRunOptions::split(SplitKind::Test), &mut |_, _| {}).expect("eval without facts");
+    let bare = eval::evaluate_run(&run, &eval::EvalRunOptions { mesh: None, ..eval::EvalRunOptions::split(SplitKind::Test) }, &mut |_, _| {}).expect("eval without facts");
     let (tol, facts_tol) = (bare.report.surface_tol, out.report.surface_tol);
     eprintln!("surface tolerance {tol} (facts: {facts_tol}), off-surface mass {:?} (facts: {:?})", bare.report.mean.off_surface_mass, m.off_surface_mass);
     assert!(tol > 0.25 * facts_tol && tol <= facts_tol * 1.001, "{tol} vs {facts_tol}");
@@ -109,7 +127,7 @@ fn eval_measures_at_the_training_resolution() {
 
     // Default: the training downscale. The trainer's val PSNR pools the squared error of every
     // pixel of the three equal-sized views; eval reports per-view PSNRs.
-    let opts = eval::EvalRunOptions::split(SplitKind::Val);
+    let opts = eval::EvalRunOptions { mesh: None, ..eval::EvalRunOptions::split(SplitKind::Val) };
     let out = eval::evaluate_run(&run, &opts, &mut |_, _| {}).expect("eval");
     let res = out.report.resolution.expect("resolution recorded");
     assert_eq!((res.width, res.height, res.downscale, res.train_downscale), (24, 24, 2, 2));

@@ -247,6 +247,8 @@ fn mean_summary(runs: &[eval::RunSummary]) -> eval::RunSummary {
     m.off_surface_mass = mean_opt(&|r| r.off_surface_mass);
     m.off_surface_front = mean_opt(&|r| r.off_surface_front);
     m.time_to_30db_s = mean_opt(&|r| r.time_to_30db_s);
+    m.chamfer_l1 = mean_opt(&|r| r.chamfer_l1);
+    m.f_score_1pct = mean_opt(&|r| r.f_score_1pct);
     m
 }
 
@@ -483,6 +485,8 @@ mod tests {
             render_s_per_view: 1.0,
             val_psnr_curve: Vec::new(),
             resolution: None,
+            chamfer_l1: None,
+            f_score_1pct: None,
         }
     }
 

@@ -27,12 +27,19 @@ pub struct EvalArgs {
     /// downscale factors (default: found through the dataset's render_config.json).
     #[arg(long)]
     pub scene: Option<PathBuf>,
+    /// Grid cells along the scene box's longest side of the mesh measured against the scene's
+    /// triangles (1..=2048).
+    #[arg(long, default_value_t = 256)]
+    pub mesh_resolution: usize,
+    /// Skip the mesh and its metrics.
+    #[arg(long)]
+    pub no_mesh: bool,
 }
 
 impl EvalArgs {
     /// Every view of `split` at the run's training resolution, with `grids` picture grids.
     pub fn at_training_resolution(run: PathBuf, split: &str, grids: usize, max_views: Option<usize>) -> Self {
-        Self { run, split: split.into(), grids, max_views, downscale: None, scene: None }
+        Self { run, split: split.into(), grids, max_views, downscale: None, scene: None, mesh_resolution: 256, no_mesh: false }
     }
 }
 
@@ -107,7 +114,14 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         max_views: args.max_views,
         downscale: args.downscale,
         scene: args.scene.clone(),
+        mesh: (!args.no_mesh).then_some(eval::mesh_eval::MeshEvalOptions { resolution: args.mesh_resolution, ..eval::mesh_eval::MeshEvalOptions::standard() }),
     };
+    anyhow::ensure!(
+        args.no_mesh || (1..=eval::mesh_extract::MAX_RESOLUTION).contains(&args.mesh_resolution),
+        "--mesh-resolution must be 1..={}, not {}",
+        eval::mesh_extract::MAX_RESOLUTION,
+        args.mesh_resolution
+    );
     let bar = indicatif::ProgressBar::new(0);
     bar.set_style(
         indicatif::ProgressStyle::with_template("evaluating {pos}/{len} views {bar:30} {elapsed}")
@@ -145,6 +159,9 @@ fn print_summary(out: &eval::EvalRunOutput) {
         fmt_opt(s.time_to_25db_s, 1),
         fmt_opt(s.time_to_30db_s, 1),
     );
+    if let Some(b) = &out.report.mesh {
+        crate::mesh::print_metrics(b);
+    }
     for note in &out.report.notes {
         println!("note: {note}");
     }

@@ -11,6 +11,7 @@ mod bench_nerf;
 mod crosscheck;
 mod evaluate;
 mod gen_scenes;
+mod mesh;
 mod render;
 mod train;
 
@@ -43,6 +44,8 @@ enum Command {
     RenderNerf(train::RenderNerfArgs),
     /// Evaluate a run against the dataset's ground truth and write its report.
     Eval(evaluate::EvalArgs),
+    /// Extract a mesh (binary PLY) from a trained run's density, and measure it against the scene's triangles.
+    Mesh(mesh::MeshArgs),
     /// Compare several runs: one table and overlaid speed-versus-error curves.
     Compare(evaluate::CompareArgs),
     /// The main job on the built-in default scene: render, train, evaluate, report.
@@ -84,6 +87,7 @@ fn main() -> std::process::ExitCode {
         Command::Train(a) => train::run(a),
         Command::RenderNerf(a) => train::run_render(a),
         Command::Eval(a) => evaluate::run(a),
+        Command::Mesh(a) => mesh::run(a),
         Command::Compare(a) => evaluate::run_compare(a),
         Command::Demo(a) => evaluate::run_demo(a),
         Command::Bench(a) => bench::run(a),

@@ -289,3 +289,27 @@ fn render_nerf_and_eval_with_no_views_exit_1_and_write_nothing() {
     let report: serde_json::Value = serde_json::from_slice(&std::fs::read(run.join("eval.json")).unwrap()).unwrap();
     assert_eq!((report["resolution"]["width"].as_u64(), report["resolution"]["downscale"].as_u64()), (Some(8), Some(2)));
 }
+
+#[test]
+fn mesh_on_bad_input_exits_1_and_writes_nothing() {
+    let tmp = tempfile::tempdir().unwrap();
+    let run = train_valid_blender(tmp.path(), "run");
+    let out = tmp.path().join("mesh.ply");
+    let r = run.to_str().unwrap();
+    let o = out.to_str().unwrap();
+    for (res, what) in [("0", "--resolution must be 1..=2048, not 0"), ("2049", "--resolution must be 1..=2048, not 2049")] {
+        assert_refused(&["mesh", r, "--out", o, "--resolution", res], what, &out);
+    }
+    assert_refused(&["mesh", r, "--out", o, "--level=-1"], "--level must be a positive density", &out);
+    // Two training steps leave no surface: none at an absurd level, and none (or no level to
+    // choose) from the data.
+    assert_refused(&["mesh", r, "--out", o, "--resolution", "16", "--level", "1e30"], "no surface at density level", &out);
+    let stderr = assert_refused(&["mesh", r, "--out", o, "--resolution", "16"], "", &out);
+    assert!(stderr.contains("no surface") || stderr.contains("cannot choose a density level"), "{stderr}");
+    // A run folder without a checkpoint.
+    let bare = tmp.path().join("bare");
+    std::fs::create_dir_all(&bare).unwrap();
+    std::fs::copy(run.join("config.json"), bare.join("config.json")).unwrap();
+    assert_refused(&["mesh", bare.to_str().unwrap(), "--out", o], "checkpoint", &out);
+    assert!(!tmp.path().join("mesh.json").exists());
+}

@@ -54,6 +54,13 @@ pub struct RunSummary {
     /// was recorded).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub resolution: Option<crate::evaluate::EvalResolution>,
+    /// Chamfer-L1 of the extracted mesh against the scene's visible triangles, m (absent
+    /// without the scene or the mesh).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub chamfer_l1: Option<f64>,
+    /// Its F-score at 1 % of the scene box's diagonal.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub f_score_1pct: Option<f64>,
 }
 
 impl RunSummary {
@@ -75,6 +82,8 @@ impl RunSummary {
             render_s_per_view: report.mean.render_s_per_view,
             val_psnr_curve: val_psnr_points(curve).into_iter().map(|(t, p)| [t, p]).collect(),
             resolution: report.resolution,
+            chamfer_l1: report.mesh.as_ref().map(|m| m.metrics.chamfer_l1),
+            f_score_1pct: report.mesh.as_ref().and_then(|m| m.metrics.f_scores.iter().find(|f| (f.fraction - 0.01).abs() < 1e-12).map(|f| f.f_score)),
         }
     }
 }
@@ -142,12 +151,12 @@ pub fn off_surface(r: &RunSummary) -> String {
 pub fn compare_table(runs: &[RunSummary]) -> String {
     let (axis, front) = pareto_runs(runs);
     let mut s = String::new();
-    s.push_str("| run | evaluated at | time to 25 dB (s) | time to 30 dB (s) | final PSNR (dB) | SSIM | depth MAE (m) | off-surface mass (in front) | parameters | train time (s) | Pareto |\n");
-    s.push_str("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|:---:|\n");
+    s.push_str("| run | evaluated at | time to 25 dB (s) | time to 30 dB (s) | final PSNR (dB) | SSIM | depth MAE (m) | off-surface mass (in front) | mesh Chamfer-L1 (m) | mesh F@1 % | parameters | train time (s) | Pareto |\n");
+    s.push_str("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|:---:|\n");
     for (r, on) in runs.iter().zip(&front) {
         let never = |t: Option<f64>| t.map_or("never".to_string(), |t| format!("{t:.1}"));
         s.push_str(&format!(
-            "| {} | {} | {} | {} | {:.2} | {:.4} | {} | {} | {} | {:.1} | {} |\n",
+            "| {} | {} | {} | {} | {:.2} | {:.4} | {} | {} | {} | {} | {} | {:.1} | {} |\n",
             r.name.replace('|', "\\|"),
             r.resolution.map_or("-".to_string(), |e| format!("{}x{} (/{})", e.width, e.height, e.downscale)),
             never(r.time_to_25db_s),
@@ -156,6 +165,8 @@ pub fn compare_table(runs: &[RunSummary]) -> String {
             r.ssim,
             opt(r.depth_mae, 4),
             off_surface(r),
+            opt(r.chamfer_l1, 4),
+            opt(r.f_score_1pct, 3),
             r.parameters,
             r.train_wall_s,
             if *on { "★" } else { "" },
@@ -208,6 +219,8 @@ mod tests {
             render_s_per_view: 0.5,
             val_psnr_curve: vec![[1.0, 20.0], [wall, psnr]],
             resolution: None,
+            chamfer_l1: None,
+            f_score_1pct: None,
         }
     }
 

@@ -177,6 +177,10 @@ pub struct EvalReport {
     /// Why metrics are absent or averaged over fewer views.
     #[serde(default)]
     pub notes: Vec<String>,
+    /// The extracted mesh against the scene's visible triangles (absent without the scene,
+    /// when not asked for, and in reports written before it existed).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mesh: Option<crate::mesh_eval::MeshBlock>,
 }
 
 fn metric_err(view: &str) -> impl Fn(MetricError) -> EvalError + '_ {
@@ -388,6 +392,7 @@ impl EvalReport {
             surface_tol: opts.surface_tol,
             resolution: None,
             notes,
+            mesh: None,
         })
     }
 }

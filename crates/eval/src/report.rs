@@ -49,6 +49,26 @@ pub fn metrics_line(name: &str, m: &ViewMetrics) -> String {
     s
 }
 
+/// The report's geometry section: the extracted mesh against the scene's visible triangles.
+pub fn mesh_section(b: &crate::mesh_eval::MeshBlock) -> String {
+    let m = &b.metrics;
+    let mut s = format!(
+        "\n## Geometry\n\nThe mesh extracted at density level {:.3} /m ({}) on a grid of {} cells along the box's longest side, against the scene's triangles seen by the {} train and test cameras ({:.1} % of the scene's area), {} points sampled on each:\n\n",
+        b.level.level, b.level.source, b.resolution, b.reference.cameras, 100.0 * b.reference.visible_area_fraction, m.samples
+    );
+    s.push_str("| metric | value |\n|---|---:|\n");
+    s.push_str(&format!("| accuracy (m) | {:.4} |\n| completeness (m) | {:.4} |\n| Chamfer-L1 (m) | {:.4} |\n", m.accuracy, m.completeness, m.chamfer_l1));
+    for f in &m.f_scores {
+        s.push_str(&format!("| F-score at {:.1} % of the diagonal ({:.4} m) | {:.3} (P {:.3}, R {:.3}) |\n", 100.0 * f.fraction, f.threshold, f.f_score, f.precision, f.recall));
+    }
+    s.push_str(&format!("| normal consistency | {:.3} |\n", m.normal_consistency));
+    s.push_str(&format!("\nLevel: {}.\n", b.level.reason));
+    if let Some(p) = &b.picture {
+        s.push_str(&format!("\n![the mesh from the first test camera, coloured by its distance to the scene (0 to 2 % of the diagonal, {:.4} m)]({p})\n", 0.02 * m.diagonal));
+    }
+    s
+}
+
 /// The Markdown report (summary table, notes, pictures linked relatively).
 pub fn report_markdown(name: &str, report: &EvalReport, summary: &RunSummary, grids: &[String]) -> String {
     let mut s = format!("# Evaluation: {name}\n\n");
@@ -72,6 +92,9 @@ pub fn report_markdown(name: &str, report: &EvalReport, summary: &RunSummary, gr
         report.views.len(),
         report.surface_tol
     ));
+    if let Some(m) = &report.mesh {
+        s.push_str(&mesh_section(m));
+    }
     if !report.notes.is_empty() {
         s.push_str("\n## Notes\n\n");
         for n in &report.notes {

@@ -45,14 +45,18 @@ pub struct EvalRunOptions {
     /// size ([`dataset::check_downscale`]).
     pub downscale: Option<u32>,
     /// The scene file the dataset was rendered from, for exact ground truth at even downscale
-    /// factors (`None`: found through the dataset's `render_config.json`).
+    /// factors and the mesh reference (`None`: found through the dataset's `render_config.json`).
     pub scene: Option<PathBuf>,
+    /// Extract the run's mesh and measure it against the scene's visible triangles (when the
+    /// scene is found); `None`: no mesh.
+    pub mesh: Option<crate::mesh_eval::MeshEvalOptions>,
 }
 
 impl EvalRunOptions {
-    /// All views of `split` at the run's training resolution, with grids for the first three.
+    /// All views of `split` at the run's training resolution, with grids for the first three,
+    /// and the mesh at [`crate::mesh_eval::MeshEvalOptions::standard`].
     pub fn split(split: SplitKind) -> Self {
-        Self { split, grid_views: 3, max_views: None, downscale: None, scene: None }
+        Self { split, grid_views: 3, max_views: None, downscale: None, scene: None, mesh: Some(crate::mesh_eval::MeshEvalOptions::standard()) }
     }
 }
 
@@ -320,6 +324,20 @@ pub fn evaluate_run(
     report.resolution = resolution;
     report.notes.extend(note);
     report.notes.extend(gt_note);
+    if let Some(mesh_opts) = &opts.mesh {
+        match crate::mesh_eval::scene_reference(&dataset, opts.scene.as_deref())? {
+            Ok(reference) => {
+                let camera = frames[0].camera.downscaled(downscale);
+                match crate::mesh_eval::evaluate_run_mesh(run_dir, &model, &dataset, reference, &camera, mesh_opts, &mut |_, _, _| {}) {
+                    Ok(block) => report.mesh = Some(block),
+                    // A field without a surface is a finding, not a failed evaluation.
+                    Err(EvalError::Input(why)) => report.notes.push(format!("no mesh metrics: {why}")),
+                    Err(e) => return Err(e),
+                }
+            }
+            Err(why) => report.notes.push(format!("no mesh metrics: {why}")),
+        }
+    }
     let metrics_path = run_dir.join("metrics.jsonl");
     let curve = if metrics_path.exists() { read_metrics_jsonl(&metrics_path)? } else { Vec::new() };
     let name = run_name(run_dir);

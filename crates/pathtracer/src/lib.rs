@@ -6,7 +6,9 @@
 //! watertight ray-triangle test in [`geometry`]), [`sampler`] (counter-based randomness),
 //! [`texture`], [`material`], [`light`], [`integrator`] (radiance of one ray), [`render`]
 //! (the shared per-view driver), [`rig`] (camera placement) and [`dataset_render`] (writing a
-//! dataset folder with resume and progress).
+//! dataset folder with resume and progress). For geometry metrics, [`reference`] gives the
+//! scene's camera-visible triangles in world space and [`nearest`] exact closest-point queries
+//! on a triangle set (the BVH's point-query counterpart).
 //!
 //! ```no_run
 //! use pathtracer::import::{load_gltf, ImportOptions};
@@ -24,6 +26,8 @@ pub mod import;
 pub mod integrator;
 pub mod light;
 pub mod material;
+pub mod nearest;
+pub mod reference;
 pub mod render;
 pub mod rig;
 pub mod sampler;

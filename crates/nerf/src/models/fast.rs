@@ -286,6 +286,26 @@ impl FastModel {
         points.chunks(65536).flat_map(|c| density_at(&self.grid, &mlp, &self.bounds, c)).collect()
     }
 
+    /// Density and display colour at world points, each seen along its unit direction
+    /// (inference; what a sample at that point of a ray with that direction evaluates to).
+    ///
+    /// # Shapes
+    /// `points`, `dirs`: n; returns n densities and n colours.
+    pub fn query(&self, points: &[[f32; 3]], dirs: &[[f32; 3]]) -> (Vec<f32>, Vec<[f32; 3]>) {
+        let mlp = self.mlp();
+        let shd = self.config.dir_dims();
+        let (mut sigma, mut rgb) = (Vec::with_capacity(points.len()), Vec::with_capacity(points.len()));
+        for (p, d) in points.chunks(65536).zip(dirs.chunks(65536)) {
+            let unit: Vec<[f32; 3]> = p.iter().map(|p| self.bounds.to_unit(*p)).collect();
+            let enc = self.hash_encode(&unit);
+            let sh: Vec<f32> = if shd == 0 { Vec::new() } else { d.iter().flat_map(|d| sh_encode(*d)[..shd].to_vec()).collect() };
+            let (raw, c) = mlp.forward(&enc, &sh);
+            sigma.extend(raw.into_iter().map(|x| ACT.forward(x)));
+            rgb.extend(c);
+        }
+        (sigma, rgb)
+    }
+
     /// One training step.
     pub fn train_step(&mut self, batch: &RayBatch, step: u64, seed: u64) -> StepStats {
         let mut tm = StepTimings::default();

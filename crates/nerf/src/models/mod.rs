@@ -162,6 +162,44 @@ impl Model {
         out
     }
 
+    /// Density σ (1/m) at world points (the fine network for `paper`).
+    pub fn density(&self, points: &[[f32; 3]]) -> Vec<f32> {
+        match self {
+            Model::Paper(m) => m.query(points, &vec![[0.0, 0.0, -1.0]; points.len()]).0,
+            Model::Fast(m) => m.density(points),
+        }
+    }
+
+    /// Density and display (sRGB) colour at world points, each seen along its unit direction.
+    ///
+    /// # Shapes
+    /// `points`, `dirs`: n; returns n densities and n colours.
+    pub fn query(&self, points: &[[f32; 3]], dirs: &[[f32; 3]]) -> (Vec<f32>, Vec<[f32; 3]>) {
+        match self {
+            Model::Paper(m) => m.query(points, dirs),
+            Model::Fast(m) => m.query(points, dirs),
+        }
+    }
+
+    /// The scene bounds the model covers.
+    pub fn bounds(&self) -> &SceneBounds {
+        match self {
+            Model::Paper(m) => &m.bounds,
+            Model::Fast(m) => &m.bounds,
+        }
+    }
+
+    /// The occupancy grid (`fast` only) and the density below which it marks a cell empty:
+    /// a cell is empty when its running density (the decayed maximum of the densities sampled
+    /// in it) times the marching step is at most the grid threshold, so every density sampled
+    /// there was at most `threshold / step` (1/m).
+    pub fn occupancy(&self) -> Option<(&crate::occupancy::OccupancyGrid, f32)> {
+        match self {
+            Model::Paper(_) => None,
+            Model::Fast(m) => Some((&m.occupancy, m.config.grid_threshold / m.step_size())),
+        }
+    }
+
     /// Number of trainable parameters.
     pub fn parameters(&self) -> usize {
         match self {

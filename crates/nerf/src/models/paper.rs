@@ -229,6 +229,31 @@ impl PaperModel {
         RayOutputs { rgb: comp.rgb, opacity: comp.opacity, distance, t, offsets: fine.offsets, w: comp.weights }
     }
 
+    /// Density and display colour of the fine network at world points, each seen along its
+    /// unit direction (inference).
+    ///
+    /// # Shapes
+    /// `points`, `dirs`: n; returns n densities and n colours.
+    pub fn query(&self, points: &[[f32; 3]], dirs: &[[f32; 3]]) -> (Vec<f32>, Vec<[f32; 3]>) {
+        let act = self.config.density_activation;
+        let nets = self.nets.valid();
+        let dev = backend::inference_device();
+        let f = &self.config.field;
+        let (c, h) = (self.bounds.center(), self.bounds.half_extent());
+        let (mut sigma, mut rgb) = (Vec::with_capacity(points.len()), Vec::with_capacity(points.len()));
+        for (p, d) in points.chunks(65536).zip(dirs.chunks(65536)) {
+            let pts: Vec<[f32; 3]> = p.iter().map(|p| [0, 1, 2].map(|i| (p[i] - c[i]) / h)).collect();
+            let mut pos = vec![0.0; pts.len() * f.pos_dims()];
+            frequency_encode(&pts, f.pos_freqs, &mut pos);
+            let mut dir = vec![0.0; pts.len() * f.dir_dims()];
+            frequency_encode(d, f.dir_freqs, &mut dir);
+            let (raw, col) = self.forward(&nets.fine, Encoded { pos, dir }, pts.len(), &dev);
+            sigma.extend(to_vec(raw).iter().map(|x| act.forward(*x)));
+            rgb.extend(ops::rgb3(&to_vec(col)));
+        }
+        (sigma, rgb)
+    }
+
     /// Trainable parameters (coarse + fine).
     pub fn parameters(&self) -> usize {
         self.nets.num_params()
