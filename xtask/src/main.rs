@@ -68,7 +68,15 @@ pub fn stop_flag() -> Arc<AtomicBool> {
             f.store(true, Ordering::SeqCst);
             eprintln!("\ninterrupt: finishing the current unit of work, then stopping (re-run to resume)");
         }) {
-            tracing::warn!("cannot install the Ctrl-C handler ({e}); Ctrl-C will stop without saving");
+            match e {
+                // SIGINT already has a disposition other than the default: the usual cause is a
+                // shell that started this process in the background (`cmd &` in a script sets
+                // SIGINT to ignored), where no Ctrl-C reaches it anyway.
+                ctrlc::Error::MultipleHandlers => {
+                    tracing::debug!("SIGINT is already ignored or handled; no Ctrl-C handler installed")
+                }
+                e => tracing::warn!("cannot install the Ctrl-C handler ({e}); Ctrl-C will stop without saving"),
+            }
         }
         flag
     })

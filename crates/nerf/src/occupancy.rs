@@ -73,6 +73,28 @@ pub struct MarchOptions {
     pub cone_angle: f32,
 }
 
+/// A ray's place in its march ([`OccupancyGrid::march_start`], [`OccupancyGrid::march_more`]),
+/// so that rendering can march only as far as the ray stays transparent.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MarchState {
+    lo: f32,
+    hi: f32,
+    u: f32,
+    /// Next constant-step interval index.
+    k: u64,
+    /// Next cone-march interval start.
+    t: f32,
+    emitted: usize,
+    done: bool,
+}
+
+impl MarchState {
+    /// No interval is left to emit.
+    pub fn is_done(&self) -> bool {
+        self.done
+    }
+}
+
 /// The grid: running densities and the occupancy bitfield.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct OccupancyGrid {
@@ -271,29 +293,102 @@ impl OccupancyGrid {
         ts: &mut Vec<f32>,
         te: &mut Vec<f32>,
     ) {
+        let mut state = self.march_start(r, o, d, near, far, opt);
+        self.march_more(&mut state, o, d, opt, usize::MAX, ts, te);
+    }
+
+    /// Where ray `r` (`o + t d`) starts its march, for [`Self::march_more`]: its clipped
+    /// `[near, far]` and its jitter. `march_start` then `march_more` with no limit emits
+    /// exactly the intervals [`Self::march`] gives the ray; resumed in pieces, the same
+    /// intervals in the same order.
+    pub fn march_start(&self, r: usize, o: [f32; 3], d: [f32; 3], near: f32, far: f32, opt: &MarchOptions) -> MarchState {
+        let done = MarchState { lo: 0.0, hi: 0.0, u: 0.0, k: 0, t: 0.0, emitted: 0, done: true };
         if !(near.is_finite() && far.is_finite() && far > near) {
-            return;
+            return done;
         }
-        let Some((t_in, t_out)) = ray_aabb(o, d, &self.config.aabb) else { return };
+        let Some((t_in, t_out)) = ray_aabb(o, d, &self.config.aabb) else { return done };
         let (lo, hi) = (near.max(t_in), far.min(t_out));
         if !(hi > lo) {
-            return;
+            return done;
         }
         let u = match opt.jitter {
             SampleMode::Deterministic => 0.0,
             SampleMode::Random { seed, step } => rng::uniform_f32(rng::key(&[seed, step, r as u64])),
         };
-        let dt = opt.step_size;
-        let size: [f32; 3] = [0, 1, 2].map(|a| (self.config.aabb.max[a] - self.config.aabb.min[a]) / self.config.resolution as f32);
-        if opt.cone_angle > 0.0 {
-            self.march_cone(o, d, lo, hi, u, opt, size, ts, te);
-            return;
+        let t = if opt.cone_angle > 0.0 { lo + u * self.cone_step(opt, lo) } else { 0.0 };
+        MarchState { lo, hi, u, k: 0, t, emitted: 0, done: false }
+    }
+
+    /// Emits the ray's next intervals (at most `limit` of them, and none past
+    /// `max_samples_per_ray` in all) into `ts`/`te`; returns how many. `state` moves on, and is
+    /// marked done when the ray has left the box or reached its cap.
+    #[allow(clippy::too_many_arguments)]
+    pub fn march_more(
+        &self,
+        state: &mut MarchState,
+        o: [f32; 3],
+        d: [f32; 3],
+        opt: &MarchOptions,
+        limit: usize,
+        ts: &mut Vec<f32>,
+        te: &mut Vec<f32>,
+    ) -> usize {
+        if state.done {
+            return 0;
         }
-        let mut k: u64 = 0;
-        let mut emitted = 0;
-        while emitted < opt.max_samples_per_ray {
+        let size = self.cell_size();
+        let (lo, hi, u) = (state.lo, state.hi, state.u);
+        let mut now = 0;
+        if opt.cone_angle > 0.0 {
+            // Cone marching: contiguous intervals of length `clamp(t · cone_angle, step_size,
+            // one cell)` from `lo + u · step(lo)`; an interval whose midpoint lies in an empty
+            // cell is dropped and the walk resumes `u · step` past that cell's exit (the same
+            // jitter `u` as the first interval).
+            let mut t = state.t;
+            loop {
+                if !(state.emitted < opt.max_samples_per_ray && t < hi) {
+                    state.done = true;
+                    break;
+                }
+                if now >= limit {
+                    break;
+                }
+                let t1 = (t + self.cone_step(opt, t)).min(hi);
+                let tm = 0.5 * (t + t1);
+                let p = [o[0] + tm * d[0], o[1] + tm * d[1], o[2] + tm * d[2]];
+                let c = self.cell_clamped(p);
+                if self.is_occupied(c) {
+                    ts.push(t);
+                    te.push(t1);
+                    state.emitted += 1;
+                    now += 1;
+                    t = t1;
+                    continue;
+                }
+                let t_exit = self.cell_exit(o, d, c, size);
+                if !(t_exit < hi) {
+                    state.done = true;
+                    break;
+                }
+                // Always advance (rounding can put the exit at or before t).
+                t = (t_exit + u * self.cone_step(opt, t_exit)).max(t1);
+            }
+            state.t = t;
+            return now;
+        }
+        let dt = opt.step_size;
+        let mut k = state.k;
+        loop {
+            if state.emitted >= opt.max_samples_per_ray {
+                state.done = true;
+                break;
+            }
             let t0 = lo + (k as f32 + u) * dt;
             if !(t0 < hi) {
+                state.done = true;
+                break;
+            }
+            if now >= limit {
                 break;
             }
             let t1 = (t0 + dt).min(hi);
@@ -303,18 +398,35 @@ impl OccupancyGrid {
             if self.is_occupied(c) {
                 ts.push(t0);
                 te.push(t1);
-                emitted += 1;
+                state.emitted += 1;
+                now += 1;
                 k += 1;
                 continue;
             }
             // DDA skip: the first interval whose midpoint lies past this cell's exit
             let t_exit = self.cell_exit(o, d, c, size);
             if !(t_exit < hi) {
+                state.done = true;
                 break;
             }
             let k_next = ((t_exit - lo) / dt - u - 0.5).floor() + 1.0;
             k = if k_next > k as f32 { (k_next as u64).max(k + 1) } else { k + 1 };
         }
+        state.k = k;
+        now
+    }
+
+    /// One cell's size per axis (world units).
+    fn cell_size(&self) -> [f32; 3] {
+        [0, 1, 2].map(|a| (self.config.aabb.max[a] - self.config.aabb.min[a]) / self.config.resolution as f32)
+    }
+
+    /// The cone march's step at distance `t`: `clamp(t · cone_angle, step_size, one cell)`.
+    #[inline]
+    fn cone_step(&self, opt: &MarchOptions, t: f32) -> f32 {
+        let size = self.cell_size();
+        let max_step = size[0].min(size[1]).min(size[2]).max(opt.step_size);
+        (t * opt.cone_angle).clamp(opt.step_size, max_step)
     }
 
     /// The cell holding `p`; a point just outside the box (a midpoint of an interval clipped
@@ -342,47 +454,6 @@ impl OccupancyGrid {
         t_exit
     }
 
-    /// [`Self::march_ray`] with cone marching: contiguous intervals of length
-    /// `clamp(t · cone_angle, step_size, one cell)` from `lo + u · step(lo)`; an interval whose
-    /// midpoint lies in an empty cell is dropped and the walk resumes `u · step` past that
-    /// cell's exit (the same jitter `u` as the first interval).
-    #[allow(clippy::too_many_arguments)]
-    fn march_cone(
-        &self,
-        o: [f32; 3],
-        d: [f32; 3],
-        lo: f32,
-        hi: f32,
-        u: f32,
-        opt: &MarchOptions,
-        size: [f32; 3],
-        ts: &mut Vec<f32>,
-        te: &mut Vec<f32>,
-    ) {
-        let max_step = size[0].min(size[1]).min(size[2]).max(opt.step_size);
-        let step_at = |t: f32| (t * opt.cone_angle).clamp(opt.step_size, max_step);
-        let mut t = lo + u * step_at(lo);
-        let mut emitted = 0;
-        while emitted < opt.max_samples_per_ray && t < hi {
-            let t1 = (t + step_at(t)).min(hi);
-            let tm = 0.5 * (t + t1);
-            let p = [o[0] + tm * d[0], o[1] + tm * d[1], o[2] + tm * d[2]];
-            let c = self.cell_clamped(p);
-            if self.is_occupied(c) {
-                ts.push(t);
-                te.push(t1);
-                emitted += 1;
-                t = t1;
-                continue;
-            }
-            let t_exit = self.cell_exit(o, d, c, size);
-            if !(t_exit < hi) {
-                break;
-            }
-            // Always advance (rounding can put the exit at or before t).
-            t = (t_exit + u * step_at(t_exit)).max(t1);
-        }
-    }
 }
 
 #[cfg(test)]
@@ -504,6 +575,55 @@ mod tests {
         // the cap
         let s = g.march(&[[0.0, 0.5, 0.5]], &[[1.0, 0.0, 0.0]], &[0.0], &[1.0], &MarchOptions { step_size: 0.001, max_samples_per_ray: 17, jitter: SampleMode::Deterministic, cone_angle: 0.0 });
         assert_eq!(s.len(), 17);
+    }
+
+    /// Marching resumed a few intervals at a time (as rendering does) emits exactly the
+    /// intervals of one march, for constant steps and cone marching, jittered or not, through
+    /// a grid with empty cells to skip and a cap to hit.
+    #[test]
+    fn resumed_marching_emits_exactly_the_whole_march() {
+        let mut g = OccupancyGrid::new(cfg(8));
+        for x in 0..8u32 {
+            for y in 0..8u32 {
+                for z in 0..8u32 {
+                    g.set_occupied([x, y, z], (x * 7 + y * 3 + z * 5) % 4 == 0);
+                }
+            }
+        }
+        let n = 64;
+        let origins: Vec<[f32; 3]> = (0..n).map(|i| [-0.5 + 0.01 * i as f32, 0.3 + 0.005 * i as f32, -0.7]).collect();
+        let dirs: Vec<[f32; 3]> = (0..n)
+            .map(|i| {
+                let a = 0.1 * i as f32;
+                let v = [0.3 * a.cos(), 0.2 * a.sin(), 1.0];
+                let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+                v.map(|c| c / l)
+            })
+            .collect();
+        let (near, far) = (vec![0.1; n], vec![4.0; n]);
+        for cone_angle in [0.0, 0.004] {
+            for jitter in [SampleMode::Deterministic, SampleMode::Random { seed: 5, step: 2 }] {
+                for cap in [1024, 9] {
+                    let opt = MarchOptions { step_size: 0.013, max_samples_per_ray: cap, jitter, cone_angle };
+                    let whole = g.march(&origins, &dirs, &near, &far, &opt);
+                    for limit in [1, 3, 4] {
+                        let (mut ts, mut te, mut offsets) = (Vec::new(), Vec::new(), vec![0u32]);
+                        for r in 0..n {
+                            let mut st = g.march_start(r, origins[r], dirs[r], near[r], far[r], &opt);
+                            while !st.is_done() {
+                                let k = g.march_more(&mut st, origins[r], dirs[r], &opt, limit, &mut ts, &mut te);
+                                assert!(k <= limit);
+                            }
+                            offsets.push(ts.len() as u32);
+                        }
+                        assert_eq!(offsets, whole.offsets, "cone {cone_angle} {jitter:?} cap {cap} limit {limit}");
+                        assert_eq!(ts, whole.t_start);
+                        assert_eq!(te, whole.t_end);
+                    }
+                    assert!(whole.len() > n, "the test rays must sample something ({})", whole.len());
+                }
+            }
+        }
     }
 
     #[test]

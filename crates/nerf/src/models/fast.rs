@@ -590,16 +590,19 @@ impl Parts<'_> {
         2.0 * self.bounds.half_extent() * 3f32.sqrt() / self.config.steps_per_diagonal.max(1) as f32
     }
 
-    fn march(&self, origins: &[[f32; 3]], dirs: &[[f32; 3]], jitter: SampleMode) -> RaySamples {
-        let n = origins.len();
-        let (near, far) = (vec![self.bounds.near; n], vec![self.bounds.far; n]);
-        let opt = MarchOptions {
+    fn march_options(&self, jitter: SampleMode) -> MarchOptions {
+        MarchOptions {
             step_size: self.step_size(),
             max_samples_per_ray: self.config.max_samples_per_ray,
             jitter,
             cone_angle: self.config.cone_angle.unwrap_or(0.0),
-        };
-        self.occupancy.march(origins, dirs, &near, &far, &opt)
+        }
+    }
+
+    fn march(&self, origins: &[[f32; 3]], dirs: &[[f32; 3]], jitter: SampleMode) -> RaySamples {
+        let n = origins.len();
+        let (near, far) = (vec![self.bounds.near; n], vec![self.bounds.far; n]);
+        self.occupancy.march(origins, dirs, &near, &far, &self.march_options(jitter))
     }
 
     /// Unit-cube points of samples (all, or those listed in `idx`).
@@ -625,11 +628,19 @@ impl Parts<'_> {
     /// SH `[n][deg²]` of each sample's ray direction (`ray_of[k]` is sample `k`'s ray), computed
     /// once per ray.
     fn sh_of(&self, ray_of: impl Iterator<Item = usize>, n: usize, dirs: &[[f32; 3]]) -> Vec<f32> {
+        if self.config.dir_dims() == 0 {
+            return Vec::new();
+        }
+        let per_ray: Vec<[f32; 16]> = dirs.iter().map(|d| sh_encode(*d)).collect();
+        self.sh_gather(ray_of, n, &per_ray)
+    }
+
+    /// [`Self::sh_of`] from each ray's SH vector `per_ray` (computed once per ray).
+    fn sh_gather(&self, ray_of: impl Iterator<Item = usize>, n: usize, per_ray: &[[f32; 16]]) -> Vec<f32> {
         let shd = self.config.dir_dims();
         if shd == 0 {
             return Vec::new();
         }
-        let per_ray: Vec<[f32; 16]> = dirs.iter().map(|d| sh_encode(*d)).collect();
         let mut sh = vec![0.0; n * shd];
         for (o, r) in sh.chunks_exact_mut(shd).zip(ray_of) {
             o.copy_from_slice(&per_ray[r][..shd]);
@@ -653,91 +664,113 @@ impl Parts<'_> {
         out
     }
 
-    /// [`FastModel::render_rays`] of one chunk of rays.
-    // Sample indices address four parallel arrays at once.
+    /// [`FastModel::render_rays`] of one chunk of rays. Each ray is marched lazily: a round
+    /// marches [`INFERENCE_ROUND`] more intervals of every ray still live (transmittance above
+    /// the inference threshold and not past the box), evaluates them, and stops the ray once
+    /// opaque, so intervals behind a surface are never generated. The evaluated samples are
+    /// exactly those of marching each ray whole and evaluating it in rounds.
+    // Sample indices address several parallel arrays at once.
     #[allow(clippy::needless_range_loop)]
     fn render_chunk(&self, mlp: &HashMlp, origins: &[[f32; 3]], dirs: &[[f32; 3]], background: [f32; 3]) -> RayOutputs {
-        let samples = self.march(origins, dirs, SampleMode::Deterministic);
         let rays = origins.len();
-        let n = samples.len();
-        let mut sigma = vec![0.0f32; n];
-        let mut rgb = vec![[0.0f32; 3]; n];
-        let mut evaluated = vec![false; n];
+        let opt = self.march_options(SampleMode::Deterministic);
+        let (near, far) = (self.bounds.near, self.bounds.far);
+        let mut state: Vec<_> = (0..rays).map(|r| self.occupancy.march_start(r, origins[r], dirs[r], near, far, &opt)).collect();
         let mut tau = vec![0.0f32; rays];
-        let mut next: Vec<usize> = samples.offsets[..rays].iter().map(|&o| o as usize).collect();
         let tau_stop = -volrend::CompositeOptions::INFERENCE.min_transmittance.ln();
         let gd = mlp.geometry_dims();
+        let per_ray_sh: Vec<[f32; 16]> = if self.config.dir_dims() == 0 { Vec::new() } else { dirs.iter().map(|d| sh_encode(*d)).collect() };
+        // Every evaluated sample in evaluation order (a ray's samples in order along it).
+        let (mut e_ray, mut e_t0, mut e_t1, mut e_sigma, mut e_rgb) = (Vec::<u32>::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        let (mut ts, mut te, mut live) = (Vec::new(), Vec::new(), Vec::new());
         loop {
-            let mut idx = Vec::new();
-            let mut live = Vec::new();
+            ts.clear();
+            te.clear();
+            live.clear();
             for r in 0..rays {
-                let end = samples.offsets[r + 1] as usize;
-                if tau[r] <= tau_stop && next[r] < end {
-                    let e = (next[r] + INFERENCE_ROUND).min(end);
-                    idx.extend(next[r]..e);
-                    live.push((r, e));
+                if tau[r] <= tau_stop && !state[r].is_done() {
+                    let b = ts.len();
+                    let k = self.occupancy.march_more(&mut state[r], origins[r], dirs[r], &opt, INFERENCE_ROUND, &mut ts, &mut te);
+                    if k > 0 {
+                        live.push((r, b, b + k));
+                    }
                 }
             }
-            if idx.is_empty() {
+            if ts.is_empty() {
                 break;
             }
-            let unit = self.unit_points(&samples, Some(&idx), origins, dirs);
+            let mut unit = Vec::with_capacity(ts.len());
+            for &(r, b, e) in &live {
+                let (o, d) = (origins[r], dirs[r]);
+                for s in b..e {
+                    let t = 0.5 * ts[s] + 0.5 * te[s];
+                    unit.push(self.bounds.to_unit([o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]]));
+                }
+            }
             let enc = self.hash_encode(&unit);
             let geo = mlp.geometry(&enc);
-            for (k, &s) in idx.iter().enumerate() {
-                sigma[s] = ACT.forward(geo[k * gd]);
-                evaluated[s] = true;
-            }
+            let sigma: Vec<f32> = (0..ts.len()).map(|k| ACT.forward(geo[k * gd])).collect();
             // Colour only where it can show: a sample whose weight is below COLOR_MIN_WEIGHT
             // keeps colour 0 (the composite's colour moves by less than that weight).
             let mut shade = Vec::new();
-            let mut k = 0;
-            for (r, e) in live {
+            let mut shade_ray = Vec::new();
+            for &(r, b, e) in &live {
                 let mut acc = tau[r];
-                for s in next[r]..e {
-                    let od = sigma[s] * (samples.t_end[s] - samples.t_start[s]);
+                for s in b..e {
+                    let od = sigma[s] * (te[s] - ts[s]);
                     let w = (-acc).exp() * (1.0 - (-od).exp());
                     if w >= COLOR_MIN_WEIGHT {
-                        shade.push(k);
+                        shade.push(s);
+                        shade_ray.push(r);
                     }
                     acc += od;
-                    k += 1;
                 }
                 tau[r] = acc;
-                next[r] = e;
             }
+            let mut rgb = vec![[0.0f32; 3]; ts.len()];
             if !shade.is_empty() {
                 let geo_s: Vec<f32> = shade.iter().flat_map(|&k| geo[k * gd..(k + 1) * gd].iter().copied()).collect();
-                let sh = self.sh_of(shade.iter().map(|&k| samples.ray_index[idx[k]] as usize), shade.len(), dirs);
+                let sh = self.sh_gather(shade_ray.iter().copied(), shade.len(), &per_ray_sh);
                 for (&k, c) in shade.iter().zip(mlp.color_of(&geo_s, &sh)) {
-                    rgb[idx[k]] = c;
+                    rgb[k] = c;
                 }
             }
+            for &(r, b, e) in &live {
+                e_ray.extend(std::iter::repeat_n(r as u32, e - b));
+            }
+            e_t0.extend_from_slice(&ts);
+            e_t1.extend_from_slice(&te);
+            e_sigma.extend_from_slice(&sigma);
+            e_rgb.extend_from_slice(&rgb);
+        }
+        // Ray order (a stable counting sort keeps each ray's samples in order along it).
+        let mut offsets = vec![0u32; rays + 1];
+        for &r in &e_ray {
+            offsets[r as usize + 1] += 1;
+        }
+        for r in 0..rays {
+            offsets[r + 1] += offsets[r];
+        }
+        let n = e_ray.len();
+        let mut at: Vec<usize> = offsets[..rays].iter().map(|&o| o as usize).collect();
+        let (mut t_start, mut t_end, mut sigma, mut rgb) = (vec![0.0f32; n], vec![0.0f32; n], vec![0.0f32; n], vec![[0.0f32; 3]; n]);
+        for k in 0..n {
+            let r = e_ray[k] as usize;
+            let s = at[r];
+            at[r] += 1;
+            (t_start[s], t_end[s], sigma[s], rgb[s]) = (e_t0[k], e_t1[k], e_sigma[k], e_rgb[k]);
         }
         let bg = vec![background; rays];
-        let comp = volrend::composite_forward_with(
-            &samples.offsets,
-            &sigma,
-            &rgb,
-            &samples.t_start,
-            &samples.t_end,
-            &bg,
-            volrend::CompositeOptions::INFERENCE,
-        );
-        let mut out = RayOutputs { offsets: vec![0], ..Default::default() };
-        for r in 0..rays {
-            for s in samples.offsets[r] as usize..samples.offsets[r + 1] as usize {
-                if evaluated[s] {
-                    out.t.push(volrend::termination_distance(sigma[s], samples.t_start[s], samples.t_end[s]));
-                    out.w.push(comp.weights[s]);
-                }
-            }
-            out.offsets.push(out.t.len() as u32);
+        let comp = volrend::composite_forward_with(&offsets, &sigma, &rgb, &t_start, &t_end, &bg, volrend::CompositeOptions::INFERENCE);
+        let out_t = (0..n).map(|s| volrend::termination_distance(sigma[s], t_start[s], t_end[s])).collect();
+        RayOutputs {
+            distance: comp.distance.iter().zip(&comp.opacity).map(|(d, o)| expected_distance(*d, *o)).collect(),
+            rgb: comp.rgb,
+            opacity: comp.opacity,
+            t: out_t,
+            w: comp.weights,
+            offsets,
         }
-        out.distance = comp.distance.iter().zip(&comp.opacity).map(|(d, o)| expected_distance(*d, *o)).collect();
-        out.rgb = comp.rgb;
-        out.opacity = comp.opacity;
-        out
     }
 }
 
