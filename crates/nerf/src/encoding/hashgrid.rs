@@ -346,7 +346,25 @@ impl HashGrid {
 
 /// One level of the forward: `out[k · stride + j] = enc_l(pts[k])[j]`.
 #[inline(always)]
-fn encode_level<const F: usize, const DENSE: bool>(pts: &[[f32; 3]], lv: &Level, table: &[f32], out: &mut [f32], stride: usize) {
+fn encode_level<const F: usize, const DENSE: bool>(pts: &[[f32; 3]], lv: &Level, table: &[f32], mut out: &mut [f32], stride: usize) {
+    #[cfg(target_arch = "x86_64")]
+    let pts = if F == 2 && simd::avx2() {
+        // SAFETY: AVX2 is present (checked at run time).
+        #[allow(unsafe_code)]
+        let done = unsafe { simd::encode_level_f2_avx2::<DENSE>(pts, lv, table, out, stride) };
+        // (`out` may end right after the last point's features, short of a whole stride)
+        let from = (done * stride).min(out.len());
+        out = &mut out[from..];
+        &pts[done..]
+    } else {
+        pts
+    };
+    encode_level_scalar::<F, DENSE>(pts, lv, table, out, stride);
+}
+
+/// [`encode_level`] one point at a time (the reference the SIMD kernel reproduces bit for bit).
+#[inline(always)]
+fn encode_level_scalar<const F: usize, const DENSE: bool>(pts: &[[f32; 3]], lv: &Level, table: &[f32], out: &mut [f32], stride: usize) {
     for (k, &p) in pts.iter().enumerate() {
         let (idx, w) = corners::<DENSE>(p, lv);
         let mut acc = [0f32; F];
@@ -357,6 +375,115 @@ fn encode_level<const F: usize, const DENSE: bool>(pts: &[[f32; 3]], lv: &Level,
             }
         }
         out[k * stride..k * stride + F].copy_from_slice(&acc);
+    }
+}
+
+/// The forward of two-feature levels eight points at a time with AVX2 (gathers for the
+/// table reads). Every lane does exactly the scalar [`corners`] / [`encode_level_scalar`]
+/// arithmetic in the same order (f64 cell coordinates, no fused multiply-add), so the output is
+/// bit-identical to the scalar path on any machine.
+#[cfg(target_arch = "x86_64")]
+#[allow(unsafe_code)]
+mod simd {
+    use super::{Level, PRIMES};
+    use std::arch::x86_64::*;
+    use std::sync::OnceLock;
+
+    /// Whether the AVX2 kernel can run here (checked once).
+    pub(super) fn avx2() -> bool {
+        static HAS: OnceLock<bool> = OnceLock::new();
+        *HAS.get_or_init(|| std::arch::is_x86_feature_detected!("avx2"))
+    }
+
+    /// Cell index (`c`) and fraction (`f`) of eight coordinates along one axis, as
+    /// `clamp01(v) as f64 · N`, `min(floor, N − 1)`, `(x − c) as f32`.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn axis(v: __m256, res_f: __m256d, res_m1: __m256i) -> (__m256i, __m256) {
+        // clamp01: NaN and negatives to +0 (maxps returns its second operand for NaN), then ≤ 1.
+        // (-0.0 becomes +0.0 where the scalar path keeps -0.0: the fraction's sign only reaches
+        // zero weights, whose products add nothing to the sums.)
+        let v = _mm256_min_ps(_mm256_max_ps(v, _mm256_setzero_ps()), _mm256_set1_ps(1.0));
+        let lo = _mm256_mul_pd(_mm256_cvtps_pd(_mm256_castps256_ps128(v)), res_f);
+        let hi = _mm256_mul_pd(_mm256_cvtps_pd(_mm256_extractf128_ps::<1>(v)), res_f);
+        let (ilo, ihi) = (_mm256_cvttpd_epi32(lo), _mm256_cvttpd_epi32(hi));
+        let i = _mm256_min_epi32(_mm256_set_m128i(ihi, ilo), res_m1);
+        let flo = _mm256_sub_pd(lo, _mm256_cvtepi32_pd(_mm256_castsi256_si128(i)));
+        let fhi = _mm256_sub_pd(hi, _mm256_cvtepi32_pd(_mm256_extracti128_si256::<1>(i)));
+        (i, _mm256_set_m128(_mm256_cvtpd_ps(fhi), _mm256_cvtpd_ps(flo)))
+    }
+
+    /// Encodes the first `8 · floor(n / 8)` points of `pts` at level `lv` (two features);
+    /// returns how many it did.
+    ///
+    /// # Safety
+    /// AVX2 must be available; `table` must hold the level's `T · 2` floats with every index
+    /// the level can produce inside it (as the scalar path requires).
+    #[target_feature(enable = "avx2")]
+    pub(super) unsafe fn encode_level_f2_avx2<const DENSE: bool>(pts: &[[f32; 3]], lv: &Level, table: &[f32], out: &mut [f32], stride: usize) -> usize {
+        let n8 = pts.len() / 8 * 8;
+        assert!(table.len() < i32::MAX as usize, "table too large for 32-bit gathers");
+        assert!(n8 == 0 || out.len() >= (n8 - 1) * stride + 2, "output too short");
+        let res_f = _mm256_set1_pd(lv.res_f);
+        let res_m1 = _mm256_set1_epi32((lv.res - 1) as i32);
+        let one = _mm256_set1_epi32(1);
+        let onef = _mm256_set1_ps(1.0);
+        let (s1, s2) = (_mm256_set1_epi32(lv.s1 as i32), _mm256_set1_epi32(lv.s2 as i32));
+        let primes = [_mm256_set1_epi32(PRIMES[0] as i32), _mm256_set1_epi32(PRIMES[1] as i32), _mm256_set1_epi32(PRIMES[2] as i32)];
+        let mask = _mm256_set1_epi32(lv.mask as i32);
+        let base = table.as_ptr();
+        let mut coord = [[0f32; 8]; 3];
+        for k0 in (0..n8).step_by(8) {
+            for (j, p) in pts[k0..k0 + 8].iter().enumerate() {
+                coord[0][j] = p[0];
+                coord[1][j] = p[1];
+                coord[2][j] = p[2];
+            }
+            // SAFETY: the arrays hold 8 floats each.
+            let (cx, fx) = axis(unsafe { _mm256_loadu_ps(coord[0].as_ptr()) }, res_f, res_m1);
+            let (cy, fy) = axis(unsafe { _mm256_loadu_ps(coord[1].as_ptr()) }, res_f, res_m1);
+            let (cz, fz) = axis(unsafe { _mm256_loadu_ps(coord[2].as_ptr()) }, res_f, res_m1);
+            let (cx1, cy1, cz1) = (_mm256_add_epi32(cx, one), _mm256_add_epi32(cy, one), _mm256_add_epi32(cz, one));
+            let (ix, iy, iz) = if DENSE {
+                ([cx, cx1], [_mm256_mullo_epi32(cy, s1), _mm256_mullo_epi32(cy1, s1)], [_mm256_mullo_epi32(cz, s2), _mm256_mullo_epi32(cz1, s2)])
+            } else {
+                (
+                    [_mm256_mullo_epi32(cx, primes[0]), _mm256_mullo_epi32(cx1, primes[0])],
+                    [_mm256_mullo_epi32(cy, primes[1]), _mm256_mullo_epi32(cy1, primes[1])],
+                    [_mm256_mullo_epi32(cz, primes[2]), _mm256_mullo_epi32(cz1, primes[2])],
+                )
+            };
+            let wx = [_mm256_sub_ps(onef, fx), fx];
+            let wy = [_mm256_sub_ps(onef, fy), fy];
+            let wz = [_mm256_sub_ps(onef, fz), fz];
+            let (mut a0, mut a1) = (_mm256_setzero_ps(), _mm256_setzero_ps());
+            for c in 0..8 {
+                let (i, j, l) = (c & 1, (c >> 1) & 1, c >> 2);
+                let idx = if DENSE {
+                    _mm256_add_epi32(_mm256_add_epi32(ix[i], iy[j]), iz[l])
+                } else {
+                    _mm256_and_si256(_mm256_xor_si256(_mm256_xor_si256(ix[i], iy[j]), iz[l]), mask)
+                };
+                let w = _mm256_mul_ps(_mm256_mul_ps(wx[i], wy[j]), wz[l]);
+                let e = _mm256_slli_epi32::<1>(idx);
+                // SAFETY: every index is a table entry of this level (as in the scalar path).
+                let (e0, e1) = unsafe { (_mm256_i32gather_ps::<4>(base, e), _mm256_i32gather_ps::<4>(base.add(1), e)) };
+                a0 = _mm256_add_ps(a0, _mm256_mul_ps(w, e0));
+                a1 = _mm256_add_ps(a1, _mm256_mul_ps(w, e1));
+            }
+            let (mut r0, mut r1) = ([0f32; 8], [0f32; 8]);
+            // SAFETY: the arrays hold 8 floats each.
+            unsafe {
+                _mm256_storeu_ps(r0.as_mut_ptr(), a0);
+                _mm256_storeu_ps(r1.as_mut_ptr(), a1);
+            }
+            for j in 0..8 {
+                let o = (k0 + j) * stride;
+                out[o] = r0[j];
+                out[o + 1] = r1[j];
+            }
+        }
+        n8
     }
 }
 
@@ -621,6 +748,43 @@ mod tests {
                 for (j, &rv) in r.iter().enumerate() {
                     let v = out[k * c.output_dim() + j] as f64;
                     assert!((v - rv).abs() < 2e-6, "config {c:?} point {p:?} feature {j}: {v} vs {rv}");
+                }
+            }
+        }
+    }
+
+    /// The AVX2 kernel gives the scalar path's bits (two features, dense and hashed levels,
+    /// a table of 2^19 entries and a tiny one with collisions), including points on vertices,
+    /// on the box's faces, outside it, NaN, infinite and -0.0, at every offset of the 8-point
+    /// blocks (so lane position cannot matter).
+    #[test]
+    fn simd_forward_is_bit_identical_to_scalar() {
+        for c in [cfg(16, 2, 19, 16, 2048), cfg(6, 2, 4, 2, 300), cfg(4, 2, 14, 3, 17)] {
+            let g = grid(c.clone(), 4, 1.0);
+            let mut pts = random_points(1000, 9);
+            let special = [0.0, -0.0, 1.0, 0.5, 0.25, 1.0 / 3.0, -0.25, 1.5, f32::NAN, f32::INFINITY, f32::NEG_INFINITY, 1e-30, 1.0 - 1e-7];
+            for (i, &a) in special.iter().enumerate() {
+                for &b in &special {
+                    pts.push([a, b, special[(i * 7 + 3) % special.len()]]);
+                }
+            }
+            let lvs = levels(&c);
+            let tf = c.table_size() * 2;
+            for skip in 0..8 {
+                let p = &pts[skip..];
+                for (l, lv) in lvs.iter().enumerate() {
+                    let table = &g.params[l * tf..(l + 1) * tf];
+                    let (mut fast, mut slow) = (vec![0.0f32; p.len() * 3], vec![0.0f32; p.len() * 3]);
+                    if lv.dense {
+                        encode_level::<2, true>(p, lv, table, &mut fast, 3);
+                        encode_level_scalar::<2, true>(p, lv, table, &mut slow, 3);
+                    } else {
+                        encode_level::<2, false>(p, lv, table, &mut fast, 3);
+                        encode_level_scalar::<2, false>(p, lv, table, &mut slow, 3);
+                    }
+                    for (k, (a, b)) in fast.iter().zip(&slow).enumerate() {
+                        assert_eq!(a.to_bits(), b.to_bits(), "config {c:?} level {l} point {:?} value {k}: {a} vs {b}", p[k / 3]);
+                    }
                 }
             }
         }

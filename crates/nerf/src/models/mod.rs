@@ -107,6 +107,26 @@ pub struct RayOutputs {
 }
 
 impl RayOutputs {
+    /// The chunks' outputs one after another, allocated once (growing by appends copied the
+    /// per-sample arrays of an 800x800 view into fresh pages again and again).
+    pub fn concat(parts: Vec<RayOutputs>) -> RayOutputs {
+        let rays: usize = parts.iter().map(|p| p.rgb.len()).sum();
+        let samples: usize = parts.iter().map(|p| p.t.len()).sum();
+        let mut out = RayOutputs {
+            rgb: Vec::with_capacity(rays),
+            opacity: Vec::with_capacity(rays),
+            distance: Vec::with_capacity(rays),
+            offsets: Vec::with_capacity(rays + 1),
+            t: Vec::with_capacity(samples),
+            w: Vec::with_capacity(samples),
+        };
+        out.offsets.push(0);
+        for p in parts {
+            out.append(p);
+        }
+        out
+    }
+
     /// Appends another chunk's outputs.
     pub fn append(&mut self, o: RayOutputs) {
         let base = self.t.len() as u32;
