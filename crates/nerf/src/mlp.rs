@@ -532,7 +532,7 @@ mod mm {
 
         /// One kernel per vector width: `$rb` rows × `$nv` vectors of `$w` lanes of columns.
         macro_rules! kernels {
-            ($name:ident, $feat:literal, $w:literal, $vt:ty, $load:ident, $store:ident, $set1:ident, $fma:ident, $max:ident, $zero:ident) => {
+            ($name:ident, $feat:literal, $w:literal, $nvw:literal, $vt:ty, $load:ident, $store:ident, $set1:ident, $fma:ident, $max:ident, $zero:ident) => {
                 /// See [`super::dense`]; the caller checked the shapes and the CPU's features.
                 #[target_feature(enable = $feat)]
                 #[allow(clippy::too_many_arguments)]
@@ -572,6 +572,20 @@ mod mm {
                     let mut c0 = 0;
                     // SAFETY (all blocks): rows < m and columns < n, within the checked lengths.
                     unsafe {
+                        // `$nvw` vectors wide where the registers allow (AVX-512: 4 rows × 4
+                        // vectors, 16 FMAs per 4 weight loads and 4 broadcasts, FMA-bound
+                        // rather than load-bound as 4 × 2 is).
+                        while c0 + $nvw * $w <= n {
+                            let mut r0 = 0;
+                            while r0 + 4 <= m {
+                                block::<4, $nvw>(yp, xp, wp, bp, r0, c0, k, n, relu);
+                                r0 += 4;
+                            }
+                            for r in r0..m {
+                                block::<1, $nvw>(yp, xp, wp, bp, r, c0, k, n, relu);
+                            }
+                            c0 += $nvw * $w;
+                        }
                         while c0 + 2 * $w <= n {
                             let mut r0 = 0;
                             while r0 + 4 <= m {
@@ -631,8 +645,8 @@ mod mm {
             };
         }
 
-        kernels!(dense_avx512, "avx512f,fma", 16, __m512, _mm512_loadu_ps, _mm512_storeu_ps, _mm512_set1_ps, _mm512_fmadd_ps, _mm512_max_ps, _mm512_setzero_ps);
-        kernels!(dense_avx2, "avx2,fma", 8, __m256, _mm256_loadu_ps, _mm256_storeu_ps, _mm256_set1_ps, _mm256_fmadd_ps, _mm256_max_ps, _mm256_setzero_ps);
+        kernels!(dense_avx512, "avx512f,fma", 16, 4, __m512, _mm512_loadu_ps, _mm512_storeu_ps, _mm512_set1_ps, _mm512_fmadd_ps, _mm512_max_ps, _mm512_setzero_ps);
+        kernels!(dense_avx2, "avx2,fma", 8, 2, __m256, _mm256_loadu_ps, _mm256_storeu_ps, _mm256_set1_ps, _mm256_fmadd_ps, _mm256_max_ps, _mm256_setzero_ps);
     }
 
     /// `c[k][n] += a[m][k]ᵀ · b[m][n]` (a weight gradient: inputs transposed times output
