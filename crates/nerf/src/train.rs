@@ -131,7 +131,7 @@ pub struct TrainConfig {
     #[config(default = "None")]
     pub dataset_hash: Option<String>,
     /// `--model auto`: the sizing rules' settings; the model, bounds and stopping rule are
-    /// resolved from the dataset before step 0 ([`crate::auto::resolve`]).
+    /// resolved from the dataset before step 0 ([`crate::auto::decide`]).
     #[config(default = "None")]
     pub auto: Option<AutoConfig>,
     /// One line per decision `auto` made, with its reason (`None` until resolved; a resolved
@@ -395,6 +395,38 @@ pub const CONFIG_FILE: &str = "config.json";
 /// The file name of the metrics log inside a run folder.
 pub const METRICS_FILE: &str = "metrics.jsonl";
 
+/// Decides `auto` for `config` (whose model must be `fast`) with [`crate::auto::decide`] and
+/// writes the decisions and their reasons into it. Does nothing when `config.auto` is `None`
+/// or already resolved (`auto_reasons` set, e.g. a resumed run).
+fn apply_auto(config: &mut TrainConfig, ds: &dataset::Dataset, data: &mut TrainData) -> Result<(), String> {
+    let Some(auto) = config.auto.clone() else { return Ok(()) };
+    if config.auto_reasons.is_some() {
+        return Ok(());
+    }
+    let ModelConfig::Fast(fast) = config.model.clone() else {
+        return Err("auto sizes the fast model; the config's model is not fast".into());
+    };
+    let run = crate::auto::RunSettings {
+        bounds: config.bounds.clone(),
+        bounds_padding: config.bounds_padding,
+        assumed_scene_radius: config.assumed_scene_radius,
+        downscale: config.downscale,
+        seed: config.seed,
+        time_budget_s: config.time_budget_s,
+        val_interval_s: config.val_interval_s,
+    };
+    let d = crate::auto::decide(&auto, fast, &run, ds, data)?;
+    config.model = ModelConfig::Fast(d.fast);
+    config.bounds = Some(d.bounds);
+    if d.view_test_at.is_some() {
+        config.view_test_at = d.view_test_at;
+    }
+    config.val_interval_s = Some(d.val_interval_s);
+    config.plateau_stop = Some(d.plateau_stop);
+    config.auto_reasons = Some(d.reasons);
+    Ok(())
+}
+
 impl Trainer {
     /// Prepares a run: loads the data, resolves the bounds and writes `config.json` (fresh
     /// runs), or reads the latest checkpoint (`resume`).
@@ -403,7 +435,7 @@ impl Trainer {
         let ds = crate::data::load_dataset(&config.dataset)?;
         config.check_image_sizes(&ds).map_err(TrainError::Invalid)?;
         let mut data = TrainData::load(&ds.train, config.downscale, config.background, false)?;
-        crate::auto::resolve(&mut config, &ds, &mut data).map_err(TrainError::Invalid)?;
+        apply_auto(&mut config, &ds, &mut data).map_err(TrainError::Invalid)?;
         // Mixed-pixel masks, unless a fresh `auto` run's resolve built them already.
         if let ModelConfig::Fast(f) = &config.model
             && let (Some(_), Some(k)) = (f.distortion_weight.filter(|w| *w > 0.0), f.distortion_mixed_footprints)
