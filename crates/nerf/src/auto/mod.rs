@@ -12,7 +12,7 @@
 //! - [`bounds`]: the scene box (scene facts, else the visual hull of the masks);
 //! - [`resolution`]: the hash grid's finest and coarsest resolutions, levels and table size;
 //! - [`view_dependence`]: whether colour depends on the view direction;
-//! - [`sampling`]: occupancy grid, marching step, cone marching;
+//! - [`sampling`](mod@sampling): occupancy grid, marching step, cone marching;
 //! - [`distortion`]: whether the distortion loss is on, and on which rays;
 //! - [`plateau`]: when training stops early.
 

@@ -1,13 +1,13 @@
 //! **Samples.** Occupancy cell = 8 smallest pixel footprints (16³…64³ cells); marching step =
 //! 2 finest hash cells (between one footprint and instant-ngp's 2√3), at most
-//! `max_samples_per_ray` per cube diagonal ([`sampling`]); optionally growing with distance as
+//! `max_samples_per_ray` per cube diagonal ([`sampling()`]); optionally growing with distance as
 //! the footprint does, up to one occupancy cell ([`cone`], `cone_marching`, off by default).
 
 use super::*;
 
 /// Cone marching angle: the marching step at distance `t` is the pixel footprint there,
 /// `t × pixel angle / cells_per_footprint` (from the camera with the smallest footprint),
-/// between the constant step of [`sampling`] and one occupancy cell. Returns the angle and
+/// between the constant step of [`sampling()`] and one occupancy cell. Returns the angle and
 /// its reason line.
 pub fn cone(footprint: &Footprint, cfg: &AutoConfig, cube_side: f64, grid: usize, steps_per_diagonal: usize) -> (f32, String) {
     let angle = footprint.pixel_angle / cfg.cells_per_footprint.max(1e-3);
