@@ -142,6 +142,8 @@ impl ViewRenderer for AlreadyRendered {
     }
 }
 
+// Long by design: one pass of checks in the order a user would want them reported (manifests,
+// settings, scene, coverage), then one atomic write; splitting it would scatter the error texts.
 /// Merges the shard folders `shards` into the dataset folder `out` (see the module docs).
 /// `scene` overrides where the scene file is looked for (default: the path recorded in the
 /// shards' `render_config.json`, as given or relative to a shard folder's ancestors); its

@@ -576,6 +576,8 @@ impl SceneBuilder {
         Ok(path.to_path_buf())
     }
 
+    // Long by design: it writes the glTF document section by section (accessors, meshes,
+    // materials, textures, nodes, lights) into one buffer whose offsets the sections share.
     /// Build the glTF JSON (without `buffers`) and the binary buffer. Images in
     /// `embedded` are appended to the buffer and referenced through bufferViews.
     fn document(&self, embedded: &[(String, Vec<u8>)]) -> Result<(Value, Vec<u8>), SceneGenError> {

@@ -305,6 +305,8 @@ fn thin_radius(name: &str) -> f32 {
         .map_or(0.01, |(_, r)| *r)
 }
 
+// Long by design: the scene is a flat list of its materials and objects (base, wire cube,
+// leaves, lights), each a few lines, read top to bottom like the scene description it is.
 fn thin() -> Result<SceneBuilder, SceneGenError> {
     let mut s = SceneBuilder::new("thin");
     let base = s.add_material(Material::diffuse("base", [0.7, 0.7, 0.7]))?;

@@ -264,6 +264,9 @@ pub struct Decisions {
     pub reasons: Vec<String>,
 }
 
+// Long by design: one short section per decision, in the order the decisions depend on each
+// other (bounds → resolutions → view dependence → samples → distortion → stopping); each calls
+// the rule of its module and records the reason.
 /// Decides bounds, hash sizes, view dependence, sampling, the distortion loss and the stopping
 /// rule for the fast model `fast` from the dataset `ds` and its loaded train views `train`
 /// (which get the mixed-pixel masks when the distortion rule uses them).

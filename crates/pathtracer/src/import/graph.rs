@@ -182,6 +182,9 @@ impl Importer<'_> {
         Ok(Some(data))
     }
 
+    // Long by design: one glTF primitive is read attribute by attribute (mode, indices,
+    // positions, normals, tangents, UVs, colours, material), each with its own validation
+    // message naming the JSON path; the steps share the primitive's counts and transforms.
     /// Bakes one primitive into world-space triangles.
     fn add_primitive(&mut self, mesh: &gltf::Mesh<'_>, prim: &gltf::Primitive<'_>, world: &DMat4) -> Result<(), PathTracerError> {
         let what = format!("mesh {}{} primitive {}", mesh.index(), name_suffix(mesh.name()), prim.index());
