@@ -157,23 +157,21 @@ impl NerfField {
 /// The fast model's two small networks (instant-ngp's): hash features → `density_width` ReLU →
 /// `geo_features` (the first is the raw density); [geo features, SH(d)] → `color_width` ×
 /// `color_depth` ReLU → RGB (sigmoid).
-#[derive(Config, Debug)]
+/// The widths' defaults live in one place, [`crate::models::fast::FastConfig`], which builds this
+/// ([`HashFieldConfig::new`] for other inputs with its default widths).
+#[derive(Clone, Debug, PartialEq)]
 pub struct HashFieldConfig {
     /// Width of the hash encoding (levels × features per level).
     pub encoding_dims: usize,
     /// Width of the direction encoding (SH coefficients).
     pub dir_dims: usize,
     /// Hidden width of the density network.
-    #[config(default = 64)]
     pub density_width: usize,
     /// Geometry features passed to the colour network (the first is the raw density).
-    #[config(default = 16)]
     pub geo_features: usize,
     /// Hidden width of the colour network.
-    #[config(default = 64)]
     pub color_width: usize,
     /// Hidden layers of the colour network.
-    #[config(default = 2)]
     pub color_depth: usize,
 }
 
@@ -187,6 +185,20 @@ pub struct HashField {
 }
 
 impl HashFieldConfig {
+    /// `encoding_dims` and `dir_dims` inputs with the network widths of a default
+    /// [`crate::models::fast::FastConfig`].
+    pub fn new(encoding_dims: usize, dir_dims: usize) -> Self {
+        let f = crate::models::fast::FastConfig::new();
+        Self {
+            encoding_dims,
+            dir_dims,
+            density_width: f.density_width,
+            geo_features: f.geo_features,
+            color_width: f.color_width,
+            color_depth: f.color_depth,
+        }
+    }
+
     /// Builds the networks.
     pub fn init(&self, device: &Device) -> HashField {
         HashField {

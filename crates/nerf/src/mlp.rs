@@ -840,7 +840,7 @@ mod tests {
     fn matches_burn_forward_and_autodiff() {
         for (sd, n) in [(16usize, 2 * TILE + 77), (0, 300)] {
             let ed = 24;
-            let cfg = HashFieldConfig::new(ed, sd).with_color_depth(2);
+            let cfg = HashFieldConfig { color_depth: 2, ..HashFieldConfig::new(ed, sd) };
             let field = seeded_init(cfg.init(&crate::backend::train_device()), 3);
             let Batch { enc, sh, d_raw, d_rgb } = batch(n, ed, sd);
             let (raw_b, rgb_b, d_enc_b, mut grads_b) = burn_grads(&field, &enc, &sh, &d_raw, &d_rgb);

@@ -155,11 +155,14 @@ impl FastConfig {
         self.view_dependent.unwrap_or(true)
     }
     fn field_config(&self) -> HashFieldConfig {
-        HashFieldConfig::new(self.levels * self.features_per_level, self.dir_dims())
-            .with_density_width(self.density_width)
-            .with_geo_features(self.geo_features)
-            .with_color_width(self.color_width)
-            .with_color_depth(self.color_depth)
+        HashFieldConfig {
+            encoding_dims: self.levels * self.features_per_level,
+            dir_dims: self.dir_dims(),
+            density_width: self.density_width,
+            geo_features: self.geo_features,
+            color_width: self.color_width,
+            color_depth: self.color_depth,
+        }
     }
 }
 
