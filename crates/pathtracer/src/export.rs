@@ -580,7 +580,7 @@ mod tests {
     fn export_writes_corner_tangents_and_the_environment_map() {
         let mut scene = one_triangle_scene();
         // Normal map, no TANGENT attribute: every corner gets the per-triangle tangent.
-        scene.materials[0].normal_texture = Some((TextureRef { texture: 0, tex_coord: 0, wrap_s: Wrap::Repeat, wrap_t: Wrap::Repeat, filter: Filter::Nearest }, 1.0));
+        scene.materials[0].normal_texture = Some((TextureRef { texture: 0, tex_coord: 0, wrap_s: Wrap::Repeat, wrap_t: Wrap::Repeat, filter: Filter::Nearest, transform: None }, 1.0));
         let dir = std::env::temp_dir().join(format!("pathtracer_export_env_test_{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let map = dir.join("sky.exr");

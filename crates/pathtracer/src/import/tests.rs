@@ -84,16 +84,20 @@ fn rigid_pose_removes_scale_and_shear() {
 #[test]
 fn extension_policy() {
     let mut root: gltf::json::Root = gltf::json::deserialize::from_str(r#"{"asset":{"version":"2.0"},
-        "extensionsUsed":["KHR_materials_ior","KHR_texture_transform","KHR_lights_punctual"],
-        "extensionsRequired":["KHR_materials_ior","KHR_lights_punctual"]}"#)
+        "extensionsUsed":["KHR_materials_ior","KHR_materials_specular","KHR_texture_transform","KHR_materials_sheen","EXT_texture_webp","KHR_lights_punctual"],
+        "extensionsRequired":["KHR_materials_ior","KHR_materials_specular","KHR_texture_transform","KHR_materials_sheen","KHR_lights_punctual"]}"#)
     .unwrap();
     let mut w = Vec::new();
     check_extensions(&root, &mut w).unwrap();
+    // Supported ones (required or not) say nothing; an ignorable required one and an unknown
+    // optional one are warnings naming them.
     assert_eq!(w.len(), 2, "{w:?}");
-    assert!(w[0].contains("KHR_materials_ior") && w[1].contains("KHR_texture_transform"));
-    root.extensions_required.push("KHR_texture_transform".into());
+    assert!(w[0].contains("required extension KHR_materials_sheen only adds optional material data"), "{w:?}");
+    assert!(w[1].contains("extension EXT_texture_webp is used but not supported"), "{w:?}");
+    root.extensions_required.push("EXT_texture_webp".into());
     let e = check_extensions(&root, &mut w).unwrap_err();
-    assert!(e.contains("required extension KHR_texture_transform is not supported"), "{e}");
+    assert!(e.contains("required extension EXT_texture_webp is not supported"), "{e}");
+    assert!(e.contains("KHR_texture_transform") && e.contains("KHR_materials_specular"), "lists the supported: {e}");
 }
 
 #[test]
