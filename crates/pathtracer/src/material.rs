@@ -1053,6 +1053,12 @@ mod tests {
         assert!(is_view_dependent(&m));
         m.specular_factor = 0.0;
         assert!(!is_view_dependent(&m));
+        // A brighter F0 raises the roughness threshold: ior 0 (F0 = 1) → 0.6 · 25^¼ ≈ 1.34.
+        m.specular_factor = 1.0;
+        m.roughness_factor = 1.0;
+        assert!(!is_view_dependent(&m));
+        m.ior = 0.0;
+        assert!(is_view_dependent(&m));
         // A metallic-roughness texture can lower the roughness or zero the metal.
         let mut d = Material::gltf_default();
         d.metallic_factor = 0.0;
@@ -1101,5 +1107,89 @@ mod tests {
         let (ng, f) = facing_frame(Vec3::Z, Vec3::new(0.1, 0.0, 1.0), Vec3::new(0.0, 0.0, 1.0));
         assert_eq!(ng, -Vec3::Z);
         assert!(f.n.z < 0.0);
+    }
+
+    #[test]
+    fn dielectric_f0_and_f90_follow_the_extensions_formulas() {
+        // ior 1.5 is plain glTF's 0.04 exactly (so plain materials render bit-identically).
+        assert_eq!(f0_from_ior(1.5), DIELECTRIC_F0);
+        assert_eq!(DielectricFresnel::new(1.5, Vec3::ONE, 1.0), DielectricFresnel::GLTF);
+        assert_eq!(f0_from_ior(0.0), 1.0);
+        assert_eq!(f0_from_ior(1.0), 0.0);
+        assert!((f0_from_ior(2.0) - 1.0 / 9.0).abs() < 1e-7);
+        // F0 = min(f0(ior) · colour, 1) · specular; F90 = specular.
+        let f = DielectricFresnel::new(2.0, Vec3::new(1.0, 0.5, 12.0), 0.5);
+        assert!((f.f0 - Vec3::new(0.5 / 9.0, 0.25 / 9.0, 0.5)).abs().max_element() < 1e-7, "{f:?}");
+        assert_eq!(f.f90, 0.5);
+        assert_eq!(DielectricFresnel::new(0.0, Vec3::new(0.2, 0.4, 0.6), 1.0).f0, Vec3::new(0.2, 0.4, 0.6));
+    }
+
+    #[test]
+    fn fresnel_at_normal_incidence_is_f0_and_diffuse_takes_the_rest() {
+        // At V = L = N, V·H = 1 and w5 = 0: f = (1 − max F0) ρ/π + F0 D(N) Vis(1, 1).
+        for (ior, color, s) in [(1.5, Vec3::ONE, 1.0), (1.33, Vec3::new(1.0, 0.3, 0.0), 0.7), (0.0, Vec3::new(0.9, 0.6, 0.1), 1.0), (2.4, Vec3::splat(20.0), 0.25)] {
+            let fr = DielectricFresnel::new(ior, color, s);
+            let r = ((ior - 1.0) / (ior + 1.0)) as f64;
+            let expect_f0 = (color.as_dvec3() * r * r).min(glam::DVec3::ONE) * s as f64;
+            assert!((fr.f0.as_dvec3() - expect_f0).abs().max_element() < 1e-6, "{ior} {color}: {:?}", fr.f0);
+            for rho in [Vec3::ZERO, Vec3::new(0.8, 0.5, 0.2)] {
+                let b = MetallicRoughness::with_fresnel(rho, 0.0, 0.5, fr);
+                let spec = b.d(Vec3::Z) * b.vis(1.0, 1.0);
+                let expect = rho * ((1.0 - fr.f0.max_element()) * FRAC_1_PI) + fr.f0 * spec;
+                assert!((b.f(Vec3::Z, Vec3::Z) - expect).abs().max_element() < 1e-6 * expect.max_element().max(1.0));
+            }
+        }
+    }
+
+    #[test]
+    fn specular_only_dielectric_mirror_in_a_furnace_reflects_f0() {
+        // Base colour 0, metallic 0, roughness 0 (α = 10⁻³): under unit radiance from every
+        // direction, the radiance reflected at normal incidence is ∫ f cos dω = F0 (the lobe
+        // is a near-delta around N where V·H ≈ 1; the GGX energy loss at α = 10⁻³ is ~10⁻⁴).
+        for (ior, color, s) in [(1.5, Vec3::ONE, 1.0), (1.8, Vec3::new(1.0, 0.5, 0.25), 1.0), (0.0, Vec3::new(0.9, 0.6, 0.3), 0.8)] {
+            let fr = DielectricFresnel::new(ior, color, s);
+            let b = Bsdf::MetallicRoughness(MetallicRoughness::with_fresnel(Vec3::ZERO, 0.0, 0.0, fr));
+            let n = 20_000u64;
+            let mut sum = Vec3::ZERO;
+            for p in 0..n {
+                if let Some(smp) = b.sample(Vec3::Z, Sampler::new(77, 0, p, 0).next_2d()) {
+                    sum += smp.weight;
+                }
+            }
+            let albedo = sum / n as f32;
+            assert!((albedo - fr.f0).abs().max_element() < 1e-3 * fr.f0.max_element().max(0.04), "{ior} {color} {s}: {albedo} vs F0 {}", fr.f0);
+        }
+    }
+
+    #[test]
+    fn resolve_reads_specular_texture_alpha_colour_texture_and_ior() {
+        let mut m = Material::gltf_default();
+        m.metallic_factor = 0.0;
+        m.base_color_factor = Vec4::new(0.5, 0.5, 0.5, 1.0);
+        m.specular_factor = 0.5;
+        m.specular_color_factor = Vec3::new(1.0, 0.5, 2.0);
+        m.ior = 2.0;
+        let r = |t| TextureRef { texture: t, tex_coord: 0, wrap_s: Wrap::Repeat, wrap_t: Wrap::Repeat, filter: Filter::Nearest, transform: None };
+        m.specular_texture = Some(r(0));
+        m.specular_color_texture = Some(r(1));
+        let tex = vec![
+            Texture { width: 1, height: 1, texels: vec![Vec4::new(0.1, 0.2, 0.3, 0.5)] },
+            Texture { width: 1, height: 1, texels: vec![Vec4::new(1.0, 0.5, 0.25, 0.1)] },
+        ];
+        let attr = SurfaceAttributes { uv: [Vec2::ZERO; 2], color: Vec4::ONE };
+        // Weight = 0.5 × A(0.5); colour = (1, 0.5, 2) × RGB (1, 0.5, 0.25).
+        let expect = DielectricFresnel::new(2.0, Vec3::new(1.0, 0.25, 0.5), 0.25);
+        assert_eq!(dielectric_fresnel(&m, &tex, &attr), expect);
+        let Bsdf::MetallicRoughness(b) = resolve(&m, &tex, &attr).bsdf else { panic!() };
+        assert_eq!(b.fresnel, expect);
+        // A zero specular texture alpha makes the dielectric exactly Lambertian.
+        let tex0 = vec![Texture { width: 1, height: 1, texels: vec![Vec4::new(1.0, 1.0, 1.0, 0.0)] }, tex[1].clone()];
+        assert_eq!(resolve(&m, &tex0, &attr).bsdf, Bsdf::Diffuse { albedo: Vec3::splat(0.5) });
+        // Specular colour 0 keeps F90: still a (grazing) specular layer, not Lambertian.
+        m.specular_color_factor = Vec3::ZERO;
+        assert!(matches!(resolve(&m, &tex, &attr).bsdf, Bsdf::MetallicRoughness(_)));
+        // Default material: plain glTF's Fresnel.
+        let Bsdf::MetallicRoughness(d) = resolve(&Material::gltf_default(), &[], &attr).bsdf else { panic!() };
+        assert_eq!(d.fresnel, DielectricFresnel::GLTF);
     }
 }
