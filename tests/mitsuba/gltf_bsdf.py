@@ -9,8 +9,9 @@ Naming: Mitsuba's `si.wi` (towards the viewer) is glTF's V (our `wo`); the `wo` 
     sd(c)  = c + sqrt(a2 + (1 - a2) c^2)
     Vis    = 1 / (sd(N.L) sd(N.V))
     w5     = (1 - V.H)^5
-    F_d    = s (0.04 + 0.96 w5);  F_m = rho + (1 - rho) w5
-    f      = (1 - m) ((1 - F_d) rho / pi + F_d D Vis) + m F_m D Vis
+    F0     = min(((ior - 1)/(ior + 1))^2 specular_color, 1) s;  F90 = s      (RGB F0)
+    F_d    = F0 + (F90 - F0) w5;  F_m = rho + (1 - rho) w5
+    f      = (1 - m) ((1 - max(F_d)) rho / pi + F_d D Vis) + m F_m D Vis
     eval   = f N.L  (0 unless N.V > 0 and N.L > 0)
 
 Shading frame (integrator.rs / material.rs `normal_mapped`, `shading_frame`), in world space:
@@ -24,7 +25,10 @@ both sides of a surface shade alike (no `twosided` wrapper; ours never hits a si
 back face, so the difference cannot show).
 
 Textures: base colour = clamp(factor x texture x COLOR_0, 0, 1); metallic = factor x
-texture B, roughness = factor x texture G (`metallic_roughness` bitmap, raw, same filter).
+texture B, roughness = factor x texture G (`metallic_roughness` bitmap, raw, same filter);
+s = specular x specular texture A (`specular_texture`, its A channel as a grey bitmap),
+specular_color = factor x specular colour texture RGB (`specular_color_texture`). Every
+bitmap carries the KHR_texture_transform matrix as its `to_uv` (scene_loader.bitmap_texture).
 
 Sampling: specular lobe (GGX visible normals, Heitz 2018) with probability P_s, cosine lobe
 otherwise; pdf = P_s D / (2 sd(N.V)) + (1 - P_s) N.L / pi, with P_s as in the Rust docs
@@ -37,9 +41,9 @@ import math
 
 import drjit as dr
 import mitsuba as mi
+import numpy as np
 
 MIN_ALPHA = 1e-3
-F0 = 0.04
 INV_PI = 1.0 / math.pi
 
 
@@ -60,6 +64,13 @@ class GltfBSDF(mi.BSDF):
         self.metallic = min(max(float(props["metallic"]), 0.0), 1.0)
         self.roughness = min(max(float(props["roughness"]), 0.0), 1.0)
         self.specular = min(max(float(props["specular"]), 0.0), 1.0)
+        sc = props["specular_color"] if props.has_property("specular_color") else [1.0, 1.0, 1.0]
+        self.specular_color = mi.Color3f(max(sc[0], 0.0), max(sc[1], 0.0), max(sc[2], 0.0))
+        ior = float(props["ior"]) if props.has_property("ior") else 1.5
+        r = (ior - 1.0) / (ior + 1.0) if math.isfinite(ior) and ior >= 0.0 else 0.2
+        self.f0_ior = r * r
+        self.specular_texture = props["specular_texture"] if props.has_property("specular_texture") else None
+        self.specular_color_texture = props["specular_color_texture"] if props.has_property("specular_color_texture") else None
         self.mr_texture = props["metallic_roughness"] if props.has_property("metallic_roughness") else None
         self.normal_texture = props["normal_texture"] if props.has_property("normal_texture") else None
         self.normal_scale = float(props["normal_scale"]) if props.has_property("normal_scale") else 1.0
@@ -71,7 +82,7 @@ class GltfBSDF(mi.BSDF):
 
     # --- parameters at a hit -------------------------------------------------------------
     def params(self, si, active):
-        """(rho, metallic, alpha) at the hit."""
+        """(rho, metallic, alpha, (F0, F90)) at the hit."""
         if self.base_color is None:
             rho = dr.clip(self.base_color_const, 0.0, 1.0)
         else:
@@ -84,7 +95,14 @@ class GltfBSDF(mi.BSDF):
             m = dr.clip(self.metallic_factor * t[2], 0.0, 1.0)
             r = dr.clip(self.roughness_factor * t[1], 0.0, 1.0)
         a = dr.maximum(r * r, MIN_ALPHA)
-        return rho, m, a
+        s = mi.Float(self.specular)
+        if self.specular_texture is not None:
+            s = dr.clip(s * self.specular_texture.eval(si, active)[0], 0.0, 1.0)
+        color = self.specular_color
+        if self.specular_color_texture is not None:
+            color = color * self.specular_color_texture.eval(si, active)
+        f0 = dr.minimum(self.f0_ior * color, 1.0) * s
+        return rho, m, a, (f0, s)
 
     def frame(self, si, active):
         """(our shading frame, the geometric normal on the viewer's side, V) in world space."""
@@ -130,21 +148,26 @@ class GltfBSDF(mi.BSDF):
         a2 = a * a
         return c + dr.sqrt(a2 + (1.0 - a2) * c * c)
 
-    def f(self, rho, m, a, v, l):
+    @staticmethod
+    def fresnel_dielectric(fr, w5):
+        f0, f90 = fr
+        return f0 + (f90 - f0) * w5
+
+    def f(self, rho, m, a, fr, v, l):
         h = dr.normalize(v + l)
         vh = dr.clip(dr.dot(v, h), 0.0, 1.0)
         w5 = dr.power(1.0 - vh, 5.0)
         spec = self.d(a, h) / (self.sd(a, l.z) * self.sd(a, v.z))
-        fd = self.specular * (F0 + (1.0 - F0) * w5)
-        dielectric = rho * ((1.0 - fd) * INV_PI) + fd * spec
+        fd = self.fresnel_dielectric(fr, w5)
+        dielectric = rho * ((1.0 - dr.max(fd)) * INV_PI) + fd * spec
         metal = (rho + (1.0 - rho) * w5) * spec
         val = dielectric * (1.0 - m) + metal * m
         return dr.select((v.z > 0) & (l.z > 0), val, 0.0)
 
-    def p_spec(self, rho, m, v):
-        s = self.specular
+    def p_spec(self, rho, m, fr, v):
+        s = fr[1]
         w5 = dr.power(1.0 - dr.clip(v.z, 0.0, 1.0), 5.0)
-        fd = s * (F0 + (1.0 - F0) * w5)
+        fd = dr.max(self.fresnel_dielectric(fr, w5))
         es = (1.0 - m) * fd + m * luminance(rho + (1.0 - rho) * w5)
         ed = (1.0 - m) * (1.0 - fd) * luminance(rho)
         p = dr.clip(es / (es + ed), 0.1, 0.9)
@@ -153,8 +176,8 @@ class GltfBSDF(mi.BSDF):
         has_specular = (m > 0.0) | (s > 0.0)
         return dr.select(has_specular, dr.select(has_diffuse, p, 1.0), 0.0)
 
-    def pdf_l(self, rho, m, a, v, l):
-        ps = self.p_spec(rho, m, v)
+    def pdf_l(self, rho, m, a, fr, v, l):
+        ps = self.p_spec(rho, m, fr, v)
         h = dr.normalize(v + l)
         pdf = ps * self.d(a, h) / (2.0 * self.sd(a, v.z)) + (1.0 - ps) * l.z * INV_PI
         return dr.select((v.z > 0) & (l.z > 0), pdf, 0.0)
@@ -175,18 +198,18 @@ class GltfBSDF(mi.BSDF):
 
     # --- Mitsuba's interface -----------------------------------------------------------
     def sample(self, ctx, si, sample1, sample2, active=True):
-        rho, m, a = self.params(si, active)
+        rho, m, a, fres = self.params(si, active)
         fr, ng_f, v_w = self.frame(si, active)
         v = fr.to_local(v_w)
-        ps = self.p_spec(rho, m, v)
+        ps = self.p_spec(rho, m, fres, v)
         spec = sample1 < ps
         h = self.sample_visible_normal(a, v, sample2)
         l_spec = dr.normalize(2.0 * dr.dot(v, h) * h - v)
         l_diff = mi.warp.square_to_cosine_hemisphere(sample2)
         l = dr.select(spec, l_spec, l_diff)
         l_w = fr.to_world(l)
-        pdf = self.pdf_l(rho, m, a, v, l)
-        val = self.f(rho, m, a, v, l) * l.z
+        pdf = self.pdf_l(rho, m, a, fres, v, l)
+        val = self.f(rho, m, a, fres, v, l) * l.z
         ok = active & (v.z > 0) & (l.z > 0) & (pdf > 0) & (dr.dot(l_w, ng_f) > 0)
         bs = dr.zeros(mi.BSDFSample3f)
         bs.wo = si.to_local(l_w)
@@ -198,13 +221,13 @@ class GltfBSDF(mi.BSDF):
         return bs, mi.Color3f(weight)
 
     def eval_pdf(self, ctx, si, wo, active=True):
-        rho, m, a = self.params(si, active)
+        rho, m, a, fres = self.params(si, active)
         fr, ng_f, v_w = self.frame(si, active)
         l_w = si.to_world(wo)
         v, l = fr.to_local(v_w), fr.to_local(l_w)
         ok = active & (dr.dot(l_w, ng_f) > 0)
-        val = dr.select(ok, self.f(rho, m, a, v, l) * l.z, 0.0)
-        pdf = dr.select(ok, self.pdf_l(rho, m, a, v, l), 0.0)
+        val = dr.select(ok, self.f(rho, m, a, fres, v, l) * l.z, 0.0)
+        pdf = dr.select(ok, self.pdf_l(rho, m, a, fres, v, l), 0.0)
         return mi.Color3f(val), pdf
 
     def eval(self, ctx, si, wo, active=True):
@@ -241,7 +264,16 @@ def bsdf_dict(mi_module, mat, textures, has_vertex_colors):
         "metallic": float(mat["metallic"]),
         "roughness": float(mat["roughness"]),
         "specular": float(mat.get("specular", 1.0)),
+        "specular_color": [float(x) for x in mat.get("specular_color", [1.0, 1.0, 1.0])],
+        "ior": float(mat.get("ior", 1.5)),
     }
+    st = mat.get("specular_texture")
+    if st is not None:
+        alpha = textures[st["texture"]][..., 3:4]
+        d["specular_texture"] = scene_loader.bitmap_texture(mi_module, np.repeat(alpha, 3, axis=2), st, [1.0, 1.0, 1.0])
+    sct = mat.get("specular_color_texture")
+    if sct is not None:
+        d["specular_color_texture"] = scene_loader.bitmap_texture(mi_module, textures[sct["texture"]], sct, [1.0, 1.0, 1.0])
     mr = mat["metallic_roughness_texture"]
     if mr is not None:
         d["metallic_roughness"] = scene_loader.bitmap_texture(mi_module, textures[mr["texture"]], mr, [1.0, 1.0, 1.0])

@@ -68,13 +68,19 @@ def bitmap_texture(mi, texels, ref, scale):
     if ref["tex_coord"] != 0:
         raise Unsupported(f"texture {ref['texture']}: TEXCOORD_1")
     data = np.ascontiguousarray(texels[..., :3] * np.asarray(scale[:3], np.float32)[None, None, :], dtype=np.float32)
-    return {
+    d = {
         "type": "bitmap",
         "bitmap": mi.Bitmap(data),
         "raw": True,
         "filter_type": FILTER[ref["filter"]],
         "wrap_mode": WRAP[ref["wrap_s"]],
     }
+    t = ref.get("transform")
+    if t is not None:
+        # KHR_texture_transform: uv' = [[a, b, c], [d, e, f]] (u, v, 1), applied by Mitsuba's
+        # `to_uv` before the lookup, as ours does.
+        d["to_uv"] = mi.ScalarTransform3f([[float(x) for x in t[0]], [float(x) for x in t[1]], [0.0, 0.0, 1.0]])
+    return d
 
 
 def lambert_reflectance(mi, mat, textures, has_vertex_colors):

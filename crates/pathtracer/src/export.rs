@@ -39,7 +39,7 @@ use serde::{Deserialize, Serialize};
 use std::path::Path;
 
 /// Version of the export folder layout, written into `scene.json`.
-pub const EXPORT_FORMAT_VERSION: u32 = 2;
+pub const EXPORT_FORMAT_VERSION: u32 = 3;
 
 /// The manifest file's name inside an export folder.
 pub const MANIFEST_FILE: &str = "scene.json";
@@ -74,7 +74,8 @@ impl From<&Camera> for ExportCamera {
 
 /// A material's texture reference: `texture_<texture>.npy`, sampled with `tex_coord`'s UV
 /// set, glTF wrap modes (`repeat`, `mirrored_repeat`, `clamp_to_edge`) and filter
-/// (`nearest` or `linear`, bilinear with texel centres at half-integers, no mipmaps).
+/// (`nearest` or `linear`, bilinear with texel centres at half-integers, no mipmaps), after
+/// the `KHR_texture_transform` `transform` if any.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ExportTextureRef {
     /// Texture index.
@@ -87,6 +88,12 @@ pub struct ExportTextureRef {
     pub wrap_t: String,
     /// Filter.
     pub filter: String,
+    /// `KHR_texture_transform` as the 2×3 matrix `[[a, b, c], [d, e, f]]` (row by row):
+    /// `u' = a u + b v + c`, `v' = d u + e v + f` (`T · R · S`, see
+    /// [`crate::scene::UvTransform`]); `None`: identity. `tex_coord` already holds the
+    /// extension's `texCoord` override.
+    #[serde(default)]
+    pub transform: Option<[[f32; 3]; 2]>,
 }
 
 impl From<&TextureRef> for ExportTextureRef {
@@ -106,6 +113,10 @@ impl From<&TextureRef> for ExportTextureRef {
                 Filter::Linear => "linear",
             }
             .into(),
+            transform: r.transform.map(|t| {
+                let (m, o) = (t.matrix.matrix2, t.matrix.translation);
+                [[m.x_axis.x, m.y_axis.x, o.x], [m.x_axis.y, m.y_axis.y, o.y]]
+            }),
         }
     }
 }
@@ -128,6 +139,20 @@ pub struct ExportMaterial {
     /// `KHR_materials_specular` specular weight (1 for plain glTF; with metallic 0 and
     /// specular 0 the renderer shades exactly Lambertian).
     pub specular: f32,
+    /// `KHR_materials_specular` specularTexture (its A multiplies `specular`).
+    #[serde(default)]
+    pub specular_texture: Option<ExportTextureRef>,
+    /// `KHR_materials_specular` specularColorFactor (linear RGB).
+    #[serde(default = "ones3")]
+    pub specular_color: [f32; 3],
+    /// `KHR_materials_specular` specularColorTexture (linear texels; RGB multiplies
+    /// `specular_color`).
+    #[serde(default)]
+    pub specular_color_texture: Option<ExportTextureRef>,
+    /// `KHR_materials_ior` ior: the dielectric's `F0 = min(((ior − 1)/(ior + 1))² ·
+    /// specular colour, 1) · specular`, `F90 = specular` ([`crate::material::DielectricFresnel`]).
+    #[serde(default = "default_ior")]
+    pub ior: f32,
     /// Metallic (B) / roughness (G) texture.
     pub metallic_roughness_texture: Option<ExportTextureRef>,
     /// Tangent-space normal map.
@@ -148,6 +173,14 @@ pub struct ExportMaterial {
     /// ([`crate::material::is_view_dependent`]); informative only: every material is shaded
     /// with the glTF BRDF unless metallic and specular are both 0.
     pub view_dependent: bool,
+}
+
+fn ones3() -> [f32; 3] {
+    [1.0; 3]
+}
+
+fn default_ior() -> f32 {
+    1.5
 }
 
 /// A punctual light in world coordinates and physical units.
@@ -302,6 +335,10 @@ pub fn manifest(scene: &Scene, cameras: &[Camera], settings: &RenderSettings) ->
                 metallic: m.metallic_factor,
                 roughness: m.roughness_factor,
                 specular: m.specular_factor,
+                specular_texture: m.specular_texture.as_ref().map(Into::into),
+                specular_color: m.specular_color_factor.to_array(),
+                specular_color_texture: m.specular_color_texture.as_ref().map(Into::into),
+                ior: m.ior,
                 metallic_roughness_texture: m.metallic_roughness_texture.as_ref().map(Into::into),
                 normal_texture: m.normal_texture.as_ref().map(|(r, _)| r.into()),
                 normal_scale: m.normal_texture.map(|(_, s)| s).unwrap_or(1.0),
@@ -580,7 +617,7 @@ mod tests {
     fn export_writes_corner_tangents_and_the_environment_map() {
         let mut scene = one_triangle_scene();
         // Normal map, no TANGENT attribute: every corner gets the per-triangle tangent.
-        scene.materials[0].normal_texture = Some((TextureRef { texture: 0, tex_coord: 0, wrap_s: Wrap::Repeat, wrap_t: Wrap::Repeat, filter: Filter::Nearest }, 1.0));
+        scene.materials[0].normal_texture = Some((TextureRef { texture: 0, tex_coord: 0, wrap_s: Wrap::Repeat, wrap_t: Wrap::Repeat, filter: Filter::Nearest, transform: None }, 1.0));
         let dir = std::env::temp_dir().join(format!("pathtracer_export_env_test_{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let map = dir.join("sky.exr");

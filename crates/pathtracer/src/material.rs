@@ -15,8 +15,12 @@
 //! (metallic 0 and `KHR_materials_specular` `specular` 0, see [`Material::specular_factor`]).
 //!
 //! Textures: base colour = factor × texture × COLOR_0; metallic = factor × texture B,
-//! roughness = factor × texture G (glTF §3.9.2); normal maps perturb the shading normal in
-//! [`normal_mapped`] (tangents from the asset, or generated per triangle from the UVs).
+//! roughness = factor × texture G (glTF §3.9.2); specular weight = factor × texture A,
+//! specular colour = factor × texture RGB (`KHR_materials_specular`); normal maps perturb
+//! the shading normal in [`normal_mapped`] (tangents from the asset, or generated per
+//! triangle from the UVs, untransformed: a `KHR_texture_transform` moves where the normal
+//! map is read, not the tangent frame). Every lookup goes through the reference's UV set and
+//! `KHR_texture_transform` ([`crate::texture::ref_uv`]).
 //!
 //! Alpha: `Mask` keeps a surface where alpha ≥ cutoff; `Blend` is stochastic coverage, a
 //! surface present with probability alpha decided by a hash of (ray, triangle)
@@ -44,15 +48,62 @@ pub const MIN_ALPHA: f32 = 1e-3;
 /// Normal-incidence reflectance of glTF's dielectric, `((1 − ior)/(1 + ior))²` with ior 1.5.
 pub const DIELECTRIC_F0: f32 = 0.04;
 
+/// The dielectric layer's Fresnel endpoints (`KHR_materials_specular` with
+/// `KHR_materials_ior`, as the extensions' READMEs write them):
+///
+/// ```text
+/// F0  = min(((ior − 1)/(ior + 1))² · specularColorFactor · specularColorTexture.rgb, 1)
+///         · specularFactor · specularTexture.a
+/// F90 = specularFactor · specularTexture.a
+/// ```
+///
+/// `ior` 1.5 (glTF's default) gives exactly [`DIELECTRIC_F0`]; `ior` 0 gives `F0 = 1`
+/// (`KHR_materials_ior`'s specular-glossiness conversion). Plain glTF is
+/// `F0 = (0.04, 0.04, 0.04)`, `F90 = 1`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DielectricFresnel {
+    /// F0 per channel, in [0, 1].
+    pub f0: Vec3,
+    /// F90 (the specular weight), in [0, 1].
+    pub f90: f32,
+}
+
+impl DielectricFresnel {
+    /// Plain glTF's dielectric: ior 1.5, specular 1, specular colour 1.
+    pub const GLTF: Self = Self { f0: Vec3::splat(DIELECTRIC_F0), f90: 1.0 };
+
+    /// The endpoints for `ior`, the specular colour (factor × texture RGB) and the specular
+    /// weight (factor × texture A); see the type docs. Out-of-range inputs are clamped
+    /// (weight and colour to [0, 1] and ≥ 0, a non-finite `ior` is taken as 1.5).
+    pub fn new(ior: f32, specular_color: Vec3, specular: f32) -> Self {
+        let weight = if specular.is_finite() { specular.clamp(0.0, 1.0) } else { 1.0 };
+        let color = if specular_color.is_finite() { specular_color.max(Vec3::ZERO) } else { Vec3::ONE };
+        Self { f0: (f0_from_ior(ior) * color).min(Vec3::ONE) * weight, f90: weight }
+    }
+}
+
+/// `((ior − 1)/(ior + 1))²`, computed in `f64` (so that 1.5 rounds to exactly
+/// [`DIELECTRIC_F0`]); 1 for ior 0, [`DIELECTRIC_F0`] for a non-finite or negative ior.
+pub fn f0_from_ior(ior: f32) -> f32 {
+    if !(ior >= 0.0) || !ior.is_finite() {
+        return DIELECTRIC_F0;
+    }
+    let r = (f64::from(ior) - 1.0) / (f64::from(ior) + 1.0);
+    (r * r) as f32
+}
+
 /// Smallest `cos` between `wo` and a shading normal: [`shading_frame`] bends shading normals
 /// (interpolated or normal-mapped) that face away from the viewer to this value.
 pub const MIN_SHADING_COS: f32 = 1e-3;
 
-/// The glTF 2.0 metallic-roughness BRDF (glTF 2.0 specification, Appendix B), with the
-/// `KHR_materials_specular` `specular` weight (specularColor 1).
+/// The glTF 2.0 metallic-roughness BRDF (glTF 2.0 specification, Appendix B), with
+/// `KHR_materials_specular` and `KHR_materials_ior` (the dielectric's Fresnel endpoints
+/// `F0`, `F90` of [`DielectricFresnel`]; `fresnel_mix` of `KHR_materials_specular`'s
+/// Implementation section).
 ///
 /// Parameters: `ρ` = `base_color` (linear RGB, in [0, 1]), `m` = `metallic` ∈ [0, 1],
-/// `α = max(roughness², MIN_ALPHA)` = `alpha`, `s` = `specular` ∈ [0, 1] (1 for plain glTF).
+/// `α = max(roughness², MIN_ALPHA)` = `alpha`, `F0` = `fresnel.f0` (RGB), `F90` =
+/// `fresnel.f90` (plain glTF: `F0 = 0.04`, `F90 = 1`).
 /// With `V = wo`, `L = wi`, `N = z`, `H = normalize(V + L)`, all cosines taken in the local
 /// frame, and `f = 0` unless `N·V > 0` and `N·L > 0`:
 ///
@@ -62,15 +113,16 @@ pub const MIN_SHADING_COS: f32 = 1e-3;
 ///                     (the spec's V_GGX: separable Smith, Vis = G / (4 N·L N·V))
 /// spec      = D · Vis                                                  specular_brdf(α)
 /// w5        = (1 − V·H)⁵
-/// F_d       = s (0.04 + 0.96 w5)                                       dielectric Schlick
+/// F_d       = F0 + (F90 − F0) w5           (RGB)                       dielectric Schlick
 /// F_m       = ρ + (1 − ρ) w5                                           conductor Schlick
-/// dielectric = (1 − F_d) ρ/π + F_d spec                                fresnel_mix(1.5, …)
+/// dielectric = (1 − max(F_d)) ρ/π + F_d spec                           fresnel_mix(…)
 /// metal      = F_m spec                                                conductor_fresnel(ρ, …)
 /// f(V, L)    = (1 − m) dielectric + m metal
 /// ```
 ///
 /// `evaluate` returns `f · N·L`. The BRDF is reciprocal (D, Vis and `V·H = L·H` are
-/// symmetric). `s = 0, m = 0` is exactly Lambertian (`resolve` then uses [`Bsdf::Diffuse`]).
+/// symmetric). `F90 = 0` (so `F0 = 0`), `m = 0` is exactly Lambertian (`resolve` then uses
+/// [`Bsdf::Diffuse`]). `max(F_d)` is the largest channel (`max_value` in the extension).
 ///
 /// Sampling: a two-lobe mixture chosen with `u.x` (re-scaled for reuse):
 /// - specular with probability `P_s`: the GGX distribution of visible normals (Heitz 2018,
@@ -81,10 +133,10 @@ pub const MIN_SHADING_COS: f32 = 1e-3;
 ///
 /// `pdf = P_s p_s + (1 − P_s) p_d` and the sample weight is `f · N·L / pdf` (one-sample MIS
 /// over the two lobes). `P_s` is the Fresnel-weighted albedo estimate at `V`, with
-/// `w5ᵥ = (1 − N·V)⁵`: `E_s = (1 − m) s (0.04 + 0.96 w5ᵥ) + m Y(ρ + (1 − ρ) w5ᵥ)`,
-/// `E_d = (1 − m)(1 − s (0.04 + 0.96 w5ᵥ)) Y(ρ)` (Y = Rec. 709 luminance),
-/// `P_s = clamp(E_s / (E_s + E_d), 0.1, 0.9)`; `P_s = 1` when the diffuse lobe vanishes
-/// (`m = 1` or `ρ = 0`) and `0` when the specular one does (`m = 0`, `s = 0`). VNDF samples
+/// `w5ᵥ = (1 − N·V)⁵` and `Fᵥ = max(F0 + (F90 − F0) w5ᵥ)` (largest channel):
+/// `E_s = (1 − m) Fᵥ + m Y(ρ + (1 − ρ) w5ᵥ)`, `E_d = (1 − m)(1 − Fᵥ) Y(ρ)` (Y = Rec. 709
+/// luminance), `P_s = clamp(E_s / (E_s + E_d), 0.1, 0.9)`; `P_s = 1` when the diffuse lobe
+/// vanishes (`m = 1` or `ρ = 0`) and `0` when the specular one does (`m = 0`, `F90 = 0`). VNDF samples
 /// reflected below the horizon return `None` (their `f` is 0), so the pdf integrates over the
 /// upper hemisphere to the probability that `sample` returns `Some`.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -95,18 +147,32 @@ pub struct MetallicRoughness {
     pub metallic: f32,
     /// GGX α = max(roughness², [`MIN_ALPHA`]).
     pub alpha: f32,
-    /// `KHR_materials_specular` specular weight s ∈ [0, 1] (1: plain glTF).
-    pub specular: f32,
+    /// The dielectric's Fresnel endpoints ([`DielectricFresnel::GLTF`] for plain glTF).
+    pub fresnel: DielectricFresnel,
 }
 
 impl MetallicRoughness {
-    /// The BRDF for base colour, metallic, perceptual roughness and specular weight
-    /// (each clamped to its range; non-finite values take glTF's defaults 1).
+    /// The BRDF for base colour, metallic, perceptual roughness and specular weight, with
+    /// ior 1.5 and specular colour 1 (each clamped to its range; non-finite values take
+    /// glTF's defaults 1).
     pub fn new(base_color: Vec3, metallic: f32, roughness: f32, specular: f32) -> Self {
+        Self::with_fresnel(base_color, metallic, roughness, DielectricFresnel::new(1.5, Vec3::ONE, specular))
+    }
+
+    /// The BRDF for base colour, metallic, perceptual roughness and the dielectric's Fresnel
+    /// endpoints (clamped as in [`MetallicRoughness::new`]).
+    pub fn with_fresnel(base_color: Vec3, metallic: f32, roughness: f32, fresnel: DielectricFresnel) -> Self {
         let unit = |x: f32| if x.is_finite() { x.clamp(0.0, 1.0) } else { 1.0 };
         let base_color = if base_color.is_finite() { base_color.clamp(Vec3::ZERO, Vec3::ONE) } else { Vec3::ZERO };
         let r = unit(roughness);
-        Self { base_color, metallic: unit(metallic), alpha: (r * r).max(MIN_ALPHA), specular: unit(specular) }
+        Self { base_color, metallic: unit(metallic), alpha: (r * r).max(MIN_ALPHA), fresnel }
+    }
+
+    /// The dielectric's Fresnel term `F_d = F0 + (F90 − F0) w5` (RGB).
+    #[inline(always)]
+    fn fresnel_dielectric(&self, w5: f32) -> Vec3 {
+        let DielectricFresnel { f0, f90 } = self.fresnel;
+        f0 + (Vec3::splat(f90) - f0) * w5
     }
 
     /// GGX `D(h)` for a unit half vector; `(N·H)²(α² − 1) + 1` is computed as
@@ -151,8 +217,8 @@ impl MetallicRoughness {
         let w5 = (1.0 - vh).powi(5);
         let spec = self.d(h) * self.vis(wi.z, wo.z);
         let rho = self.base_color;
-        let fd = self.specular * (DIELECTRIC_F0 + (1.0 - DIELECTRIC_F0) * w5);
-        let dielectric = rho * ((1.0 - fd) * FRAC_1_PI) + Vec3::splat(fd * spec);
+        let fd = self.fresnel_dielectric(w5);
+        let dielectric = rho * ((1.0 - fd.max_element()) * FRAC_1_PI) + fd * spec;
         let metal = (rho + (Vec3::ONE - rho) * w5) * spec;
         dielectric * (1.0 - self.metallic) + metal * self.metallic
     }
@@ -169,8 +235,8 @@ impl MetallicRoughness {
         let d = self.d(h);
         let spec = d * (1.0 / (self.smith_den(wi.z) * sd_wo));
         let rho = self.base_color;
-        let fd = self.specular * (DIELECTRIC_F0 + (1.0 - DIELECTRIC_F0) * w5);
-        let dielectric = rho * ((1.0 - fd) * FRAC_1_PI) + Vec3::splat(fd * spec);
+        let fd = self.fresnel_dielectric(w5);
+        let dielectric = rho * ((1.0 - fd.max_element()) * FRAC_1_PI) + fd * spec;
         let metal = (rho + (Vec3::ONE - rho) * w5) * spec;
         ((dielectric * (1.0 - self.metallic) + metal * self.metallic) * wi.z, d)
     }
@@ -178,15 +244,15 @@ impl MetallicRoughness {
     /// Probability `P_s` of sampling the specular lobe at `wo` (see the type docs).
     #[inline]
     pub fn specular_probability(&self, wo: Vec3) -> f32 {
-        let (m, s, rho) = (self.metallic, self.specular, self.base_color);
+        let (m, rho) = (self.metallic, self.base_color);
         let has_diffuse = m < 1.0 && rho.max_element() > 0.0;
-        let has_specular = m > 0.0 || s > 0.0;
+        let has_specular = m > 0.0 || self.fresnel.f90 > 0.0;
         match (has_specular, has_diffuse) {
             (false, _) => 0.0,
             (true, false) => 1.0,
             (true, true) => {
                 let w5 = (1.0 - wo.z.clamp(0.0, 1.0)).powi(5);
-                let fd = s * (DIELECTRIC_F0 + (1.0 - DIELECTRIC_F0) * w5);
+                let fd = self.fresnel_dielectric(w5).max_element();
                 let es = (1.0 - m) * fd + m * luminance(rho + (Vec3::ONE - rho) * w5);
                 let ed = (1.0 - m) * (1.0 - fd) * luminance(rho);
                 let p = es / (es + ed);
@@ -444,20 +510,37 @@ pub fn metallic_roughness(material: &Material, textures: &[Texture], attr: &Surf
     (unit(m), unit(r))
 }
 
+/// The dielectric's Fresnel endpoints at a point ([`DielectricFresnel::new`]): specular
+/// weight = `specular_factor × specularTexture.A`, specular colour =
+/// `specular_color_factor × specularColorTexture.RGB`, and `ior`.
+#[inline]
+pub fn dielectric_fresnel(material: &Material, textures: &[Texture], attr: &SurfaceAttributes) -> DielectricFresnel {
+    let mut weight = material.specular_factor;
+    if let Some(t) = &material.specular_texture {
+        weight *= sample_ref(textures, t, attr.uv).w;
+    }
+    let mut color = material.specular_color_factor;
+    if let Some(t) = &material.specular_color_texture {
+        color *= sample_ref(textures, t, attr.uv).truncate();
+    }
+    DielectricFresnel::new(material.ior, color, weight)
+}
+
 /// Resolves a glTF material at a surface point into its BSDF and emission:
 /// [`Bsdf::MetallicRoughness`] with base colour, metallic, roughness (factors × textures) and
-/// `specular_factor`, or [`Bsdf::Diffuse`] with the base colour when metallic and specular
-/// are both 0 (where the two are identical).
+/// the dielectric's Fresnel endpoints ([`dielectric_fresnel`]), or [`Bsdf::Diffuse`] with the
+/// base colour when metallic and the specular weight (`F90`) are both 0 (where the two are
+/// identical).
 #[inline]
 pub fn resolve(material: &Material, textures: &[Texture], attr: &SurfaceAttributes) -> SurfaceMaterial {
     let albedo = base_color(material, textures, attr).truncate().clamp(Vec3::ZERO, Vec3::ONE);
     let albedo = if albedo.is_finite() { albedo } else { Vec3::ZERO };
     let (metallic, roughness) = metallic_roughness(material, textures, attr);
-    let specular = if material.specular_factor.is_finite() { material.specular_factor.clamp(0.0, 1.0) } else { 1.0 };
-    let bsdf = if metallic <= 0.0 && specular <= 0.0 {
+    let fresnel = dielectric_fresnel(material, textures, attr);
+    let bsdf = if metallic <= 0.0 && fresnel.f90 <= 0.0 {
         Bsdf::Diffuse { albedo }
     } else {
-        Bsdf::MetallicRoughness(MetallicRoughness::new(albedo, metallic, roughness, specular))
+        Bsdf::MetallicRoughness(MetallicRoughness::with_fresnel(albedo, metallic, roughness, fresnel))
     };
     SurfaceMaterial { bsdf, emission: emission(material, textures, attr) }
 }
@@ -477,7 +560,10 @@ pub const VIEW_DEPENDENT_ROUGHNESS: f32 = 0.6;
 /// 2 % of the diffuse term of a mid-grey (ρ = 0.5, ρ/π = 0.16) surface, below the noise of a
 /// dataset render; at roughness 0.6 (α = 0.36) it is 0.025 sr⁻¹, about 15 %, and it grows as
 /// `1/α²` below. A rougher dielectric is treated as Lambertian for the scene facts (the
-/// renderer still shades it with the full BRDF).
+/// renderer still shades it with the full BRDF). A dielectric whose largest possible F0
+/// (`((ior − 1)/(ior + 1))² × max(specular_color_factor)`, capped at 1) exceeds 0.04 has a
+/// brighter highlight, `F0 / (4 π α²)`, so the threshold rises to keep the same peak:
+/// `0.6 · (F0 / 0.04)^¼` (never below 0.6).
 ///
 /// Without the textures ([`is_view_dependent`]) the rule reads the factors only (metallic
 /// factor > 0, or specular > 0 and roughness factor < 0.6); with them
@@ -508,7 +594,13 @@ pub fn is_view_dependent_textured(material: &Material, textures: &[Texture]) -> 
         .map(|t| t.texels.iter().map(|x| x.y).fold(f32::INFINITY, f32::min))
         .filter(|g| g.is_finite())
         .unwrap_or(1.0);
-    material.roughness_factor * min_g.clamp(0.0, 1.0) < VIEW_DEPENDENT_ROUGHNESS
+    let f0_max = (f0_from_ior(material.ior) * material.specular_color_factor.max_element()).min(1.0);
+    let threshold = if f0_max > DIELECTRIC_F0 {
+        VIEW_DEPENDENT_ROUGHNESS * (f0_max / DIELECTRIC_F0).powf(0.25)
+    } else {
+        VIEW_DEPENDENT_ROUGHNESS
+    };
+    material.roughness_factor * min_g.clamp(0.0, 1.0) < threshold
 }
 
 /// Whether any material used by some triangle of `scene` is view-dependent
@@ -925,7 +1017,7 @@ mod tests {
     fn base_color_metallic_roughness_and_resolve() {
         let mut m = Material::gltf_default();
         m.base_color_factor = Vec4::new(0.5, 1.0, 1.0, 1.0);
-        m.base_color_texture = Some(TextureRef { texture: 0, tex_coord: 1, wrap_s: Wrap::Repeat, wrap_t: Wrap::Repeat, filter: Filter::Nearest });
+        m.base_color_texture = Some(TextureRef { texture: 0, tex_coord: 1, wrap_s: Wrap::Repeat, wrap_t: Wrap::Repeat, filter: Filter::Nearest, transform: None });
         m.emissive = Vec3::new(2.0, 0.0, 1.0);
         let tex = vec![
             Texture { width: 1, height: 1, texels: vec![Vec4::new(1.0, 0.5, 1.0, 0.25)] },
@@ -940,7 +1032,7 @@ mod tests {
         // Factor × texture: metallic from B, roughness from G.
         m.metallic_factor = 0.8;
         m.roughness_factor = 0.6;
-        m.metallic_roughness_texture = Some(TextureRef { texture: 1, tex_coord: 0, wrap_s: Wrap::Repeat, wrap_t: Wrap::Repeat, filter: Filter::Nearest });
+        m.metallic_roughness_texture = Some(TextureRef { texture: 1, tex_coord: 0, wrap_s: Wrap::Repeat, wrap_t: Wrap::Repeat, filter: Filter::Nearest, transform: None });
         assert_eq!(metallic_roughness(&m, &tex, &attr), (0.2, 0.3));
         let Bsdf::MetallicRoughness(b) = resolve(&m, &tex, &attr).bsdf else { panic!() };
         assert!((b.alpha - 0.09).abs() < 1e-7 && b.metallic == 0.2);
@@ -961,10 +1053,16 @@ mod tests {
         assert!(is_view_dependent(&m));
         m.specular_factor = 0.0;
         assert!(!is_view_dependent(&m));
+        // A brighter F0 raises the roughness threshold: ior 0 (F0 = 1) → 0.6 · 25^¼ ≈ 1.34.
+        m.specular_factor = 1.0;
+        m.roughness_factor = 1.0;
+        assert!(!is_view_dependent(&m));
+        m.ior = 0.0;
+        assert!(is_view_dependent(&m));
         // A metallic-roughness texture can lower the roughness or zero the metal.
         let mut d = Material::gltf_default();
         d.metallic_factor = 0.0;
-        d.metallic_roughness_texture = Some(TextureRef { texture: 0, tex_coord: 0, wrap_s: Wrap::Repeat, wrap_t: Wrap::Repeat, filter: Filter::Nearest });
+        d.metallic_roughness_texture = Some(TextureRef { texture: 0, tex_coord: 0, wrap_s: Wrap::Repeat, wrap_t: Wrap::Repeat, filter: Filter::Nearest, transform: None });
         let tex = vec![Texture { width: 2, height: 1, texels: vec![Vec4::new(0.0, 1.0, 0.0, 1.0), Vec4::new(0.0, 0.3, 0.0, 1.0)] }];
         assert!(is_view_dependent_textured(&d, &tex));
         d.metallic_factor = 1.0;
@@ -987,7 +1085,7 @@ mod tests {
         assert!(triangle_tangent(p, [Vec2::ZERO; 3], Vec3::Z).is_none());
         // Texel (1, 0.5, 1) tilts the normal 45° to +T; (0.5, 1, 1) 45° to +B = image up.
         let mut m = Material::gltf_default();
-        m.normal_texture = Some((TextureRef { texture: 0, tex_coord: 0, wrap_s: Wrap::Repeat, wrap_t: Wrap::Repeat, filter: Filter::Nearest }, 1.0));
+        m.normal_texture = Some((TextureRef { texture: 0, tex_coord: 0, wrap_s: Wrap::Repeat, wrap_t: Wrap::Repeat, filter: Filter::Nearest, transform: None }, 1.0));
         let attr = SurfaceAttributes { uv: [Vec2::splat(0.5); 2], color: Vec4::ONE };
         for (texel, expect) in [(Vec4::new(1.0, 0.5, 1.0, 1.0), Vec3::new(1.0, 0.0, 1.0)), (Vec4::new(0.5, 1.0, 1.0, 1.0), Vec3::new(0.0, 1.0, 1.0))] {
             let tex = vec![Texture { width: 1, height: 1, texels: vec![texel] }];
@@ -1009,5 +1107,89 @@ mod tests {
         let (ng, f) = facing_frame(Vec3::Z, Vec3::new(0.1, 0.0, 1.0), Vec3::new(0.0, 0.0, 1.0));
         assert_eq!(ng, -Vec3::Z);
         assert!(f.n.z < 0.0);
+    }
+
+    #[test]
+    fn dielectric_f0_and_f90_follow_the_extensions_formulas() {
+        // ior 1.5 is plain glTF's 0.04 exactly (so plain materials render bit-identically).
+        assert_eq!(f0_from_ior(1.5), DIELECTRIC_F0);
+        assert_eq!(DielectricFresnel::new(1.5, Vec3::ONE, 1.0), DielectricFresnel::GLTF);
+        assert_eq!(f0_from_ior(0.0), 1.0);
+        assert_eq!(f0_from_ior(1.0), 0.0);
+        assert!((f0_from_ior(2.0) - 1.0 / 9.0).abs() < 1e-7);
+        // F0 = min(f0(ior) · colour, 1) · specular; F90 = specular.
+        let f = DielectricFresnel::new(2.0, Vec3::new(1.0, 0.5, 12.0), 0.5);
+        assert!((f.f0 - Vec3::new(0.5 / 9.0, 0.25 / 9.0, 0.5)).abs().max_element() < 1e-7, "{f:?}");
+        assert_eq!(f.f90, 0.5);
+        assert_eq!(DielectricFresnel::new(0.0, Vec3::new(0.2, 0.4, 0.6), 1.0).f0, Vec3::new(0.2, 0.4, 0.6));
+    }
+
+    #[test]
+    fn fresnel_at_normal_incidence_is_f0_and_diffuse_takes_the_rest() {
+        // At V = L = N, V·H = 1 and w5 = 0: f = (1 − max F0) ρ/π + F0 D(N) Vis(1, 1).
+        for (ior, color, s) in [(1.5, Vec3::ONE, 1.0), (1.33, Vec3::new(1.0, 0.3, 0.0), 0.7), (0.0, Vec3::new(0.9, 0.6, 0.1), 1.0), (2.4, Vec3::splat(20.0), 0.25)] {
+            let fr = DielectricFresnel::new(ior, color, s);
+            let r = ((ior - 1.0) / (ior + 1.0)) as f64;
+            let expect_f0 = (color.as_dvec3() * r * r).min(glam::DVec3::ONE) * s as f64;
+            assert!((fr.f0.as_dvec3() - expect_f0).abs().max_element() < 1e-6, "{ior} {color}: {:?}", fr.f0);
+            for rho in [Vec3::ZERO, Vec3::new(0.8, 0.5, 0.2)] {
+                let b = MetallicRoughness::with_fresnel(rho, 0.0, 0.5, fr);
+                let spec = b.d(Vec3::Z) * b.vis(1.0, 1.0);
+                let expect = rho * ((1.0 - fr.f0.max_element()) * FRAC_1_PI) + fr.f0 * spec;
+                assert!((b.f(Vec3::Z, Vec3::Z) - expect).abs().max_element() < 1e-6 * expect.max_element().max(1.0));
+            }
+        }
+    }
+
+    #[test]
+    fn specular_only_dielectric_mirror_in_a_furnace_reflects_f0() {
+        // Base colour 0, metallic 0, roughness 0 (α = 10⁻³): under unit radiance from every
+        // direction, the radiance reflected at normal incidence is ∫ f cos dω = F0 (the lobe
+        // is a near-delta around N where V·H ≈ 1; the GGX energy loss at α = 10⁻³ is ~10⁻⁴).
+        for (ior, color, s) in [(1.5, Vec3::ONE, 1.0), (1.8, Vec3::new(1.0, 0.5, 0.25), 1.0), (0.0, Vec3::new(0.9, 0.6, 0.3), 0.8)] {
+            let fr = DielectricFresnel::new(ior, color, s);
+            let b = Bsdf::MetallicRoughness(MetallicRoughness::with_fresnel(Vec3::ZERO, 0.0, 0.0, fr));
+            let n = 20_000u64;
+            let mut sum = Vec3::ZERO;
+            for p in 0..n {
+                if let Some(smp) = b.sample(Vec3::Z, Sampler::new(77, 0, p, 0).next_2d()) {
+                    sum += smp.weight;
+                }
+            }
+            let albedo = sum / n as f32;
+            assert!((albedo - fr.f0).abs().max_element() < 1e-3 * fr.f0.max_element().max(0.04), "{ior} {color} {s}: {albedo} vs F0 {}", fr.f0);
+        }
+    }
+
+    #[test]
+    fn resolve_reads_specular_texture_alpha_colour_texture_and_ior() {
+        let mut m = Material::gltf_default();
+        m.metallic_factor = 0.0;
+        m.base_color_factor = Vec4::new(0.5, 0.5, 0.5, 1.0);
+        m.specular_factor = 0.5;
+        m.specular_color_factor = Vec3::new(1.0, 0.5, 2.0);
+        m.ior = 2.0;
+        let r = |t| TextureRef { texture: t, tex_coord: 0, wrap_s: Wrap::Repeat, wrap_t: Wrap::Repeat, filter: Filter::Nearest, transform: None };
+        m.specular_texture = Some(r(0));
+        m.specular_color_texture = Some(r(1));
+        let tex = vec![
+            Texture { width: 1, height: 1, texels: vec![Vec4::new(0.1, 0.2, 0.3, 0.5)] },
+            Texture { width: 1, height: 1, texels: vec![Vec4::new(1.0, 0.5, 0.25, 0.1)] },
+        ];
+        let attr = SurfaceAttributes { uv: [Vec2::ZERO; 2], color: Vec4::ONE };
+        // Weight = 0.5 × A(0.5); colour = (1, 0.5, 2) × RGB (1, 0.5, 0.25).
+        let expect = DielectricFresnel::new(2.0, Vec3::new(1.0, 0.25, 0.5), 0.25);
+        assert_eq!(dielectric_fresnel(&m, &tex, &attr), expect);
+        let Bsdf::MetallicRoughness(b) = resolve(&m, &tex, &attr).bsdf else { panic!() };
+        assert_eq!(b.fresnel, expect);
+        // A zero specular texture alpha makes the dielectric exactly Lambertian.
+        let tex0 = vec![Texture { width: 1, height: 1, texels: vec![Vec4::new(1.0, 1.0, 1.0, 0.0)] }, tex[1].clone()];
+        assert_eq!(resolve(&m, &tex0, &attr).bsdf, Bsdf::Diffuse { albedo: Vec3::splat(0.5) });
+        // Specular colour 0 keeps F90: still a (grazing) specular layer, not Lambertian.
+        m.specular_color_factor = Vec3::ZERO;
+        assert!(matches!(resolve(&m, &tex, &attr).bsdf, Bsdf::MetallicRoughness(_)));
+        // Default material: plain glTF's Fresnel.
+        let Bsdf::MetallicRoughness(d) = resolve(&Material::gltf_default(), &[], &attr).bsdf else { panic!() };
+        assert_eq!(d.fresnel, DielectricFresnel::GLTF);
     }
 }

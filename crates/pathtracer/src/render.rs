@@ -884,7 +884,7 @@ mod tests {
         // Floor: glTF default metal with a bumpy normal map (generated tangents).
         b.materials[floor as usize] = Material::gltf_default();
         b.materials[floor as usize].roughness_factor = 0.0;
-        b.materials[floor as usize].normal_texture = Some((TextureRef { texture: 0, tex_coord: 0, wrap_s: Wrap::Repeat, wrap_t: Wrap::Repeat, filter: Filter::Linear }, 1.0));
+        b.materials[floor as usize].normal_texture = Some((TextureRef { texture: 0, tex_coord: 0, wrap_s: Wrap::Repeat, wrap_t: Wrap::Repeat, filter: Filter::Linear, transform: None }, 1.0));
         b.quad([Vec3::new(-5.0, 0.0, 5.0), Vec3::new(5.0, 0.0, 5.0), Vec3::new(5.0, 0.0, -5.0), Vec3::new(-5.0, 0.0, -5.0)], 4, floor);
         b.quad([Vec3::new(-5.0, 1.0, 5.0), Vec3::new(5.0, 1.0, 5.0), Vec3::new(5.0, 1.0, -5.0), Vec3::new(-5.0, 1.0, -5.0)], 1, glass);
         let mut scene = b.build(DVec3::ZERO);
@@ -1226,7 +1226,7 @@ mod tests {
         let masked = b.material(0.5, 0.0, true);
         b.materials[masked as usize].alpha_mode = AlphaMode::Mask { cutoff: 0.5 };
         // Left half of the texture has alpha 0.2 (cut out), right half alpha 0.9 (kept).
-        b.materials[masked as usize].base_color_texture = Some(TextureRef { texture: 0, tex_coord: 0, wrap_s: Wrap::ClampToEdge, wrap_t: Wrap::ClampToEdge, filter: Filter::Nearest });
+        b.materials[masked as usize].base_color_texture = Some(TextureRef { texture: 0, tex_coord: 0, wrap_s: Wrap::ClampToEdge, wrap_t: Wrap::ClampToEdge, filter: Filter::Nearest, transform: None });
         b.quad([Vec3::new(-5.0, 0.0, 5.0), Vec3::new(5.0, 0.0, 5.0), Vec3::new(5.0, 0.0, -5.0), Vec3::new(-5.0, 0.0, -5.0)], 1, floor);
         // Three horizontal quads at y = 1 whose fronts face down (seen from above: back faces).
         let down = |x0: f32| [Vec3::new(x0, 1.0, -0.5), Vec3::new(x0 + 1.0, 1.0, -0.5), Vec3::new(x0 + 1.0, 1.0, 0.5), Vec3::new(x0, 1.0, 0.5)];

@@ -7,7 +7,7 @@
 //! `f32` precision. Everything in this struct except `origin` and [`SceneCamera::c2w`] is
 //! in this local frame: `world = local + origin`.
 
-use glam::{DMat4, DVec3, Vec2, Vec3, Vec4};
+use glam::{Affine2, DMat4, DVec3, Mat2, Vec2, Vec3, Vec4};
 
 /// Axis-aligned bounding box.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -85,6 +85,50 @@ pub struct TextureRef {
     pub wrap_t: Wrap,
     /// Filter.
     pub filter: Filter,
+    /// `KHR_texture_transform` applied to the UV before the lookup (`None`: identity). The
+    /// extension's `texCoord` override is already resolved into [`TextureRef::tex_coord`].
+    pub transform: Option<UvTransform>,
+}
+
+/// A `KHR_texture_transform`: `uv' = T · R · S · uv` with (the extension's README, column
+/// vectors `(u, v, 1)`)
+///
+/// ```text
+/// T = | 1 0 offset.u |   R = |  cos r  sin r  0 |   S = | scale.u 0       0 |
+///     | 0 1 offset.v |       | -sin r  cos r  0 |       | 0       scale.v 0 |
+///     | 0 0 1        |       |  0      0      1 |       | 0       0       1 |
+/// ```
+///
+/// so `u' = cos r · scale.u · u + sin r · scale.v · v + offset.u` and
+/// `v' = −sin r · scale.u · u + cos r · scale.v · v + offset.v`. UV (0, 0) is the image's
+/// top-left and v grows downwards, so a positive `rotation` r turns the image
+/// counter-clockwise as displayed (the extension's wording).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct UvTransform {
+    /// `offset` (default (0, 0)).
+    pub offset: Vec2,
+    /// `rotation` in radians (default 0).
+    pub rotation: f32,
+    /// `scale` (default (1, 1)).
+    pub scale: Vec2,
+    /// `T · R · S`, precomputed.
+    pub matrix: Affine2,
+}
+
+impl UvTransform {
+    /// The transform with the extension's three parameters.
+    pub fn new(offset: Vec2, rotation: f32, scale: Vec2) -> Self {
+        let (s, c) = rotation.sin_cos();
+        // Columns of R · S: the images of (1, 0) and (0, 1).
+        let linear = Mat2::from_cols(Vec2::new(c * scale.x, -s * scale.x), Vec2::new(s * scale.y, c * scale.y));
+        Self { offset, rotation, scale, matrix: Affine2::from_mat2_translation(linear, offset) }
+    }
+
+    /// `T · R · S · uv`.
+    #[inline]
+    pub fn apply(&self, uv: Vec2) -> Vec2 {
+        self.matrix.transform_point2(uv)
+    }
 }
 
 /// glTF alpha mode.
@@ -129,10 +173,22 @@ pub struct Material {
     pub alpha_mode: AlphaMode,
     /// Whether back faces are rendered (single-sided back faces are invisible).
     pub double_sided: bool,
-    /// `KHR_materials_specular` `specularFactor` (specularColor taken as 1): the strength of
+    /// `KHR_materials_specular` `specularFactor` (default 1): the strength of
     /// the dielectric's specular layer, 1 for plain glTF. 0 with metallic 0 makes the BRDF
     /// exactly Lambertian (the extension's "pure diffuse material").
     pub specular_factor: f32,
+    /// `KHR_materials_specular` `specularTexture`: its A channel multiplies `specular_factor`.
+    pub specular_texture: Option<TextureRef>,
+    /// `KHR_materials_specular` `specularColorFactor` (linear RGB, default (1, 1, 1)): scales
+    /// the dielectric's normal-incidence reflectance F0.
+    pub specular_color_factor: Vec3,
+    /// `KHR_materials_specular` `specularColorTexture` (sRGB decoded to linear at import): its
+    /// RGB multiplies `specular_color_factor`.
+    pub specular_color_texture: Option<TextureRef>,
+    /// `KHR_materials_ior` `ior` (default 1.5): the dielectric's F0 is
+    /// `((ior − 1)/(ior + 1))²` (0.04 at 1.5; ior 0 gives F0 = 1). See
+    /// [`crate::material::DielectricFresnel`].
+    pub ior: f32,
 }
 
 impl Material {
@@ -152,6 +208,10 @@ impl Material {
             alpha_mode: AlphaMode::Opaque,
             double_sided: false,
             specular_factor: 1.0,
+            specular_texture: None,
+            specular_color_factor: Vec3::ONE,
+            specular_color_texture: None,
+            ior: 1.5,
         }
     }
     /// Whether the material emits light.

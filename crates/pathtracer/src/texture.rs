@@ -77,12 +77,22 @@ impl Texture {
     }
 }
 
-/// Samples a material's texture reference with the right UV set. `uv` holds
-/// `[TEXCOORD_0, TEXCOORD_1]`; a reference to a missing texture yields opaque white.
+/// The UV a texture reference looks up: its UV set (`uv` holds `[TEXCOORD_0, TEXCOORD_1]`),
+/// then its `KHR_texture_transform` if any ([`crate::scene::UvTransform`]).
+#[inline]
+pub fn ref_uv(r: &TextureRef, uv: [Vec2; 2]) -> Vec2 {
+    let uv = if r.tex_coord == 1 { uv[1] } else { uv[0] };
+    match &r.transform {
+        Some(t) => t.apply(uv),
+        None => uv,
+    }
+}
+
+/// Samples a material's texture reference at [`ref_uv`]; a reference to a missing texture
+/// yields opaque white.
 pub fn sample_ref(textures: &[Texture], r: &TextureRef, uv: [Vec2; 2]) -> Vec4 {
     let Some(tex) = textures.get(r.texture as usize) else { return Vec4::ONE };
-    let uv = if r.tex_coord == 1 { uv[1] } else { uv[0] };
-    tex.sample(uv, r.wrap_s, r.wrap_t, r.filter)
+    tex.sample(ref_uv(r, uv), r.wrap_s, r.wrap_t, r.filter)
 }
 
 #[cfg(test)]
@@ -142,5 +152,32 @@ mod tests {
         let empty = Texture { width: 0, height: 0, texels: vec![] };
         assert_eq!(empty.sample(Vec2::ZERO, Wrap::Repeat, Wrap::Repeat, Filter::Linear), Vec4::ONE);
         assert_eq!(t.sample(Vec2::NAN, Wrap::Repeat, Wrap::Repeat, Filter::Linear), Vec4::ONE);
+    }
+
+    #[test]
+    fn texture_transform_samples_the_hand_computed_texel() {
+        use crate::scene::UvTransform;
+        // 4×4 texture whose texel (x, y) stores (x, y) in R, G.
+        let t = Texture {
+            width: 4,
+            height: 4,
+            texels: (0..16).map(|i| Vec4::new((i % 4) as f32, (i / 4) as f32, 0.0, 1.0)).collect(),
+        };
+        let xf = UvTransform::new(Vec2::new(0.5, 0.25), std::f32::consts::FRAC_PI_2, Vec2::new(2.0, 0.5));
+        // The spec's T·R·S by hand at uv = (0.3, 0.1): u' = 0·2·0.3 + 1·0.5·0.1 + 0.5 = 0.55,
+        // v' = −1·2·0.3 + 0·0.5·0.1 + 0.25 = −0.35 (repeat: 0.65) → texel (2, 2).
+        let uv = xf.apply(Vec2::new(0.3, 0.1));
+        assert!((uv - Vec2::new(0.55, -0.35)).length() < 1e-6, "{uv}");
+        // Pure rotation by +90°: (1, 0) → (0, −1), (0, 1) → (1, 0).
+        let r = UvTransform::new(Vec2::ZERO, std::f32::consts::FRAC_PI_2, Vec2::ONE);
+        assert!((r.apply(Vec2::X) - Vec2::new(0.0, -1.0)).length() < 1e-6);
+        assert!((r.apply(Vec2::Y) - Vec2::X).length() < 1e-6);
+        // The reference reads TEXCOORD_1 (the extension's texCoord override resolved at import).
+        let r1 = TextureRef { texture: 0, tex_coord: 1, wrap_s: Wrap::Repeat, wrap_t: Wrap::Repeat, filter: Filter::Nearest, transform: Some(xf) };
+        let uvs = [Vec2::new(0.9, 0.9), Vec2::new(0.3, 0.1)];
+        assert_eq!(sample_ref(std::slice::from_ref(&t), &r1, uvs), Vec4::new(2.0, 2.0, 0.0, 1.0));
+        // Without the transform: TEXCOORD_1 as is, texel (1, 0); with set 0: texel (3, 3).
+        assert_eq!(sample_ref(std::slice::from_ref(&t), &TextureRef { transform: None, ..r1 }, uvs), Vec4::new(1.0, 0.0, 0.0, 1.0));
+        assert_eq!(sample_ref(std::slice::from_ref(&t), &TextureRef { transform: None, tex_coord: 0, ..r1 }, uvs), Vec4::new(3.0, 3.0, 0.0, 1.0));
     }
 }

@@ -12,7 +12,8 @@
 //!   bounds-checked reader of our own;
 //! - flat normals computed when NORMAL is absent (the spec's requirement);
 //! - metallic-roughness materials with their textures (colour textures decoded from sRGB to
-//!   linear), `KHR_materials_emissive_strength`;
+//!   linear), `KHR_materials_emissive_strength`, `KHR_materials_specular`,
+//!   `KHR_materials_ior` and `KHR_texture_transform` on every texture read;
 //! - perspective cameras and `KHR_lights_punctual` lights.
 //!
 //! Every problem in the file is an [`PathTracerError::Import`] naming the file and the
@@ -69,14 +70,12 @@ impl Default for ImportOptions {
 
 /// Extensions whose data we import completely.
 const SUPPORTED_EXTENSIONS: &[&str] =
-    &["KHR_lights_punctual", "KHR_materials_emissive_strength", "KHR_mesh_quantization"];
+    &["KHR_lights_punctual", "KHR_materials_emissive_strength", "KHR_materials_ior", "KHR_materials_specular", "KHR_mesh_quantization", "KHR_texture_transform"];
 
 /// Extensions that only add optional material data (or metadata): the asset renders correctly,
 /// if less richly, without them, so they are accepted even when listed as required (with a
 /// warning that they are ignored).
 const IGNORABLE_EXTENSIONS: &[&str] = &[
-    "KHR_materials_ior",
-    "KHR_materials_specular",
     "KHR_materials_clearcoat",
     "KHR_materials_sheen",
     "KHR_materials_transmission",

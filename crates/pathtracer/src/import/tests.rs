@@ -84,16 +84,20 @@ fn rigid_pose_removes_scale_and_shear() {
 #[test]
 fn extension_policy() {
     let mut root: gltf::json::Root = gltf::json::deserialize::from_str(r#"{"asset":{"version":"2.0"},
-        "extensionsUsed":["KHR_materials_ior","KHR_texture_transform","KHR_lights_punctual"],
-        "extensionsRequired":["KHR_materials_ior","KHR_lights_punctual"]}"#)
+        "extensionsUsed":["KHR_materials_ior","KHR_materials_specular","KHR_texture_transform","KHR_materials_sheen","EXT_texture_webp","KHR_lights_punctual"],
+        "extensionsRequired":["KHR_materials_ior","KHR_materials_specular","KHR_texture_transform","KHR_materials_sheen","KHR_lights_punctual"]}"#)
     .unwrap();
     let mut w = Vec::new();
     check_extensions(&root, &mut w).unwrap();
+    // Supported ones (required or not) say nothing; an ignorable required one and an unknown
+    // optional one are warnings naming them.
     assert_eq!(w.len(), 2, "{w:?}");
-    assert!(w[0].contains("KHR_materials_ior") && w[1].contains("KHR_texture_transform"));
-    root.extensions_required.push("KHR_texture_transform".into());
+    assert!(w[0].contains("required extension KHR_materials_sheen only adds optional material data"), "{w:?}");
+    assert!(w[1].contains("extension EXT_texture_webp is used but not supported"), "{w:?}");
+    root.extensions_required.push("EXT_texture_webp".into());
     let e = check_extensions(&root, &mut w).unwrap_err();
-    assert!(e.contains("required extension KHR_texture_transform is not supported"), "{e}");
+    assert!(e.contains("required extension EXT_texture_webp is not supported"), "{e}");
+    assert!(e.contains("KHR_texture_transform") && e.contains("KHR_materials_specular"), "lists the supported: {e}");
 }
 
 #[test]
@@ -287,4 +291,97 @@ fn default_material_is_appended_last() {
     assert_eq!(s.materials[0].name.as_deref(), Some("red"));
     assert_eq!(s.materials[1].base_color_factor, Vec4::ONE);
     assert_eq!((s.materials[1].metallic_factor, s.materials[1].double_sided), (1.0, false));
+}
+
+/// A body with one triangle, two 2×1 PNG images (image 0: texels (255,128,0,51), (0,0,0,0);
+/// image 1: (188,188,188,255) twice) as textures 0 and 1, and `materials`.
+fn materials_body(materials: Value) -> Vec<u8> {
+    let png = |px: [[u8; 4]; 2]| {
+        let mut img = image::RgbaImage::new(2, 1);
+        img.put_pixel(0, 0, image::Rgba(px[0]));
+        img.put_pixel(1, 0, image::Rgba(px[1]));
+        let mut out = std::io::Cursor::new(Vec::new());
+        img.write_to(&mut out, image::ImageFormat::Png).unwrap();
+        format!("data:image/png;base64,{}", b64(&out.into_inner()))
+    };
+    let mut body = triangle_body(json!([]), &[]);
+    body["images"] = json!([{"uri": png([[255, 128, 0, 51], [0, 0, 0, 0]])}, {"uri": png([[188, 188, 188, 255]; 2])}]);
+    body["textures"] = json!([{"source": 0}, {"source": 1}]);
+    body["materials"] = materials;
+    file(&f32_bytes(&TRI), body)
+}
+
+#[test]
+fn reads_khr_materials_specular_ior_and_texture_transform() {
+    let bytes = materials_body(json!([
+        {"name": "full",
+         "pbrMetallicRoughness": {"baseColorTexture": {"index": 1, "extensions": {"KHR_texture_transform": {"offset": [0.5, 0.25], "rotation": 1.5, "scale": [2, 3], "texCoord": 1}}}},
+         "emissiveTexture": {"index": 1, "texCoord": 1, "extensions": {"KHR_texture_transform": {"rotation": -0.5}}},
+         "extensions": {
+            "KHR_materials_specular": {"specularFactor": 0.25, "specularColorFactor": [0.5, 1.5, 2],
+                "specularTexture": {"index": 0, "extensions": {"KHR_texture_transform": {"scale": [4, 4], "texCoord": 1}}},
+                "specularColorTexture": {"index": 1, "texCoord": 1}},
+            "KHR_materials_ior": {"ior": 1.33}}},
+        {"name": "defaults", "extensions": {"KHR_materials_specular": {}, "KHR_materials_ior": {}}},
+        {"name": "ior zero", "extensions": {"KHR_materials_ior": {"ior": 0}}},
+        {"name": "plain"}
+    ]));
+    let s = load(&bytes).unwrap();
+    assert!(s.warnings.is_empty(), "{:?}", s.warnings);
+    let m = &s.materials[0];
+    assert_eq!((m.specular_factor, m.specular_color_factor, m.ior), (0.25, Vec3::new(0.5, 1.5, 2.0), 1.33));
+    let base = m.base_color_texture.unwrap();
+    assert_eq!(base.tex_coord, 1, "texCoord override");
+    let t = base.transform.unwrap();
+    assert_eq!((t.offset, t.rotation, t.scale), (glam::Vec2::new(0.5, 0.25), 1.5, glam::Vec2::new(2.0, 3.0)));
+    let e = m.emissive_texture.unwrap();
+    assert_eq!((e.tex_coord, e.transform.unwrap().rotation, e.transform.unwrap().scale), (1, -0.5, glam::Vec2::ONE));
+    let spec = m.specular_texture.unwrap();
+    assert_eq!((spec.tex_coord, spec.transform.unwrap().scale), (1, glam::Vec2::splat(4.0)));
+    let col = m.specular_color_texture.unwrap();
+    assert_eq!((col.tex_coord, col.transform), (1, None));
+    // specularTexture is data (A kept as stored); specularColorTexture is sRGB → linear.
+    let st = &s.textures[spec.texture as usize];
+    assert!((st.texels[0].w - 0.2).abs() < 1e-6 && (st.texels[0].y - 128.0 / 255.0).abs() < 1e-6);
+    assert!((s.textures[col.texture as usize].texels[0].x - 0.502_886).abs() < 1e-5);
+    assert_eq!(col.texture, base.texture, "both colour reads of image 1 share one decoded texture");
+    // Defaults: every field of both extensions, and plain glTF.
+    for m in [&s.materials[1], &s.materials[3]] {
+        assert_eq!((m.specular_factor, m.specular_color_factor, m.ior), (1.0, Vec3::ONE, 1.5), "{:?}", m.name);
+        assert!(m.specular_texture.is_none() && m.specular_color_texture.is_none());
+    }
+    assert_eq!(s.materials[2].ior, 0.0);
+    assert!(s.materials[3].base_color_texture.is_none());
+}
+
+#[test]
+fn malformed_extension_values_name_the_file_material_and_field() {
+    let cases = [
+        (json!({"KHR_materials_specular": {"specularFactor": "high"}}), "KHR_materials_specular.specularFactor"),
+        (json!({"KHR_materials_specular": {"specularFactor": 1.5}}), "KHR_materials_specular.specularFactor"),
+        (json!({"KHR_materials_specular": {"specularColorFactor": [1, 1]}}), "KHR_materials_specular.specularColorFactor"),
+        (json!({"KHR_materials_specular": {"specularColorFactor": [1, -1, 1]}}), "KHR_materials_specular.specularColorFactor"),
+        (json!({"KHR_materials_specular": {"specularTexture": {"index": 9}}}), "KHR_materials_specular.specularTexture.index: texture 9 does not exist"),
+        (json!({"KHR_materials_specular": {"specularColorTexture": {"texCoord": 0}}}), "KHR_materials_specular.specularColorTexture.index"),
+        (json!({"KHR_materials_specular": 3}), "KHR_materials_specular must be an object"),
+        (json!({"KHR_materials_ior": {"ior": 0.5}}), "KHR_materials_ior.ior must be a finite number ≥ 1 or exactly 0"),
+        (json!({"KHR_materials_ior": {"ior": -2}}), "KHR_materials_ior.ior"),
+        (json!({"KHR_materials_specular": {"specularTexture": {"index": 0, "extensions": {"KHR_texture_transform": {"offset": [0, "x"]}}}}}),
+            "KHR_materials_specular.specularTexture.extensions.KHR_texture_transform: offset must be two finite numbers"),
+    ];
+    for (ext, expect) in cases {
+        let e = load(&materials_body(json!([{"name": "m"}, {"name": "bad", "extensions": ext}]))).unwrap_err().to_string();
+        assert!(e.contains("unit.gltf") && e.contains("material 1 ('bad')") && e.contains(expect), "{e}");
+    }
+    let transform_cases = [
+        (json!({"rotation": "1"}), "rotation must be a finite number"),
+        (json!({"scale": [1, 2, 3]}), "scale must be two finite numbers"),
+        (json!({"texCoord": -1}), "texCoord must be a non-negative integer"),
+        (json!([1]), "must be an object"),
+    ];
+    for (t, expect) in transform_cases {
+        let body = materials_body(json!([{"normalTexture": {"index": 0, "extensions": {"KHR_texture_transform": t}}}]));
+        let e = load(&body).unwrap_err().to_string();
+        assert!(e.contains("material 0: normalTexture.extensions.KHR_texture_transform: ") && e.contains(expect), "{e}");
+    }
 }
