@@ -23,6 +23,7 @@
 mod camera;
 mod downscale;
 mod error;
+pub mod folder;
 mod images;
 mod transforms;
 pub mod io;

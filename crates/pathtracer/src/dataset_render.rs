@@ -16,6 +16,10 @@
 //! rendered with different settings (or another environment map: its bytes are hashed into
 //! `render_config.json`) is refused unless [`RunOptions::force`] is set.
 //!
+//! The folder's life cycle (which files a view has, refusing or replacing another dataset,
+//! stale temporaries, writing a view's files) is the dataset crate's ([`dataset::folder`]);
+//! this module decides what to render and records the renderer's identity.
+//!
 //! The renderer enters through the [`ViewRenderer`] trait: [`render_dataset`] loads the glTF and
 //! uses the path tracer; [`render_dataset_with`] takes any implementation (tests use an
 //! analytic one).
@@ -390,17 +394,7 @@ impl RenderRecord {
     }
 }
 
-/// File name of the resolved settings inside a dataset folder.
-pub const RENDER_CONFIG_FILE: &str = "render_config.json";
-
-/// The files of view `index` of `split`, relative to the dataset folder: PNG, linear EXR,
-/// ground-truth EXR, z-depth `.npy` in metres, and for nerfstudio's `transforms.json` z-depth
-/// in millimetres and the coverage mask ([`dataset::nerfstudio_files`]).
-pub fn view_files(split: SplitKind, index: u32) -> [String; 6] {
-    let stem = format!("{}/r_{index}", split.name());
-    let [depth_mm, mask] = dataset::nerfstudio_files(&stem);
-    [format!("{stem}.png"), format!("{stem}.exr"), format!("{stem}_gt.exr"), format!("{stem}_depth.npy"), depth_mm, mask]
-}
+pub use dataset::folder::{RENDER_CONFIG_FILE, view_files};
 
 /// Loads the glTF scene at `scene_path`, places the cameras and renders the dataset into `out`
 /// with the path tracer (see the module documentation). Nothing is written when the options
@@ -523,7 +517,7 @@ pub(crate) fn render_dataset_part(
     dataset::io::atomic_write_json(&out.join(RENDER_CONFIG_FILE), &record)?;
 
     let start = std::time::Instant::now();
-    let finished = |split, k| view_files(split, k).iter().all(|f| out.join(f).is_file());
+    let finished = |split, k| dataset::folder::view_complete(out, split, k);
     let mine = |p: usize| shard.is_none_or(|s| s.owns(p as u64));
     let reused = rig.views().enumerate().filter(|(p, (s, k, _))| mine(*p) && finished(*s, *k)).count() as u64;
     let total = rig.views().enumerate().filter(|(p, _)| mine(*p)).count() as u64;
@@ -558,7 +552,7 @@ pub(crate) fn render_dataset_part(
         Some(s) => crate::shard::write_manifest(out, cfg, s)?,
         None => {
             write_transforms(out, &rig, &facts)?;
-            let manifest = out.join(crate::shard::SHARD_MANIFEST_FILE);
+            let manifest = out.join(dataset::folder::SHARD_MANIFEST_FILE);
             if manifest.is_file() {
                 // A former shard folder now holds the whole dataset.
                 std::fs::remove_file(&manifest).map_err(|e| dataset::DatasetError::Io { path: manifest.clone(), source: e })?;
@@ -577,37 +571,12 @@ pub(crate) fn render_dataset_part(
     })
 }
 
-/// Checks `out` can receive this dataset: empty, missing, or holding the same settings' dataset.
-/// With `force`, a different dataset's files are removed first.
+/// Checks `out` can receive this dataset ([`dataset::folder::prepare`]): empty, missing, or
+/// holding a dataset with the same [`RenderRecord`]. With `force`, a different dataset's files
+/// are removed first.
 fn prepare_folder(out: &Path, record: &RenderRecord, force: bool) -> Result<(), PathTracerError> {
-    if out.exists() && !out.is_dir() {
-        return Err(PathTracerError::Config(format!("--out {}: exists and is not a folder", out.display())));
-    }
-    let config_path = out.join(RENDER_CONFIG_FILE);
-    let conflict = if config_path.is_file() {
-        let bytes = dataset::io::read(&config_path)?;
-        match serde_json::from_slice::<RenderRecord>(&bytes) {
-            Ok(old) if old.same_output(record) => None,
-            Ok(old) => Some(describe_difference(&old, record)),
-            Err(e) => Some(format!("its {RENDER_CONFIG_FILE} cannot be read ({e})")),
-        }
-    } else if has_dataset_files(out) {
-        Some(format!("it holds dataset files but no {RENDER_CONFIG_FILE}"))
-    } else {
-        None
-    };
-    match conflict {
-        None => remove_stale_temporaries(out),
-        Some(why) if !force => Err(PathTracerError::Config(format!(
-            "{} holds a dataset rendered with different settings: {why}; choose a new --out folder, \
-             or pass --force to replace it",
-            out.display()
-        ))),
-        Some(_) => {
-            remove_dataset_files(out)?;
-            remove_stale_temporaries(out)
-        }
-    }
+    let difference = |old: &RenderRecord| (!old.same_output(record)).then(|| describe_difference(old, record));
+    Ok(dataset::folder::prepare(out, difference, force)?)
 }
 
 pub(crate) fn describe_difference(old: &RenderRecord, new: &RenderRecord) -> String {
@@ -638,74 +607,6 @@ pub(crate) fn describe_difference(old: &RenderRecord, new: &RenderRecord) -> Str
     diffs.join(", ")
 }
 
-/// Whether `name` is one of the files a dataset render writes inside a split folder.
-fn is_view_file(name: &str) -> bool {
-    let Some(rest) = name.strip_prefix("r_") else { return false };
-    let digits = rest.chars().take_while(char::is_ascii_digit).count();
-    digits > 0 && matches!(&rest[digits..], ".png" | ".exr" | "_gt.exr" | "_depth.npy" | "_depth_mm.npy" | "_mask.png")
-}
-
-fn dataset_top_files() -> Vec<String> {
-    let mut v: Vec<String> = SplitKind::ALL.iter().map(|s| s.file_name()).collect();
-    v.push("transforms.json".into());
-    v.push(crate::shard::SHARD_MANIFEST_FILE.into());
-    v
-}
-
-fn has_dataset_files(out: &Path) -> bool {
-    dataset_top_files().iter().any(|f| out.join(f).exists())
-        || SplitKind::ALL.iter().any(|s| {
-            std::fs::read_dir(out.join(s.name()))
-                .map(|d| d.flatten().any(|e| is_view_file(&e.file_name().to_string_lossy())))
-                .unwrap_or(false)
-        })
-}
-
-/// Whether `name` is the temporary name (`.<file>.<pid>.tmp`, see
-/// [`dataset::io::temp_path_for`]) of a dataset file, left behind by a killed run.
-fn is_stale_temporary(name: &str) -> bool {
-    let Some(inner) = name.strip_prefix('.').and_then(|n| n.strip_suffix(".tmp")) else { return false };
-    let Some((file, pid)) = inner.rsplit_once('.') else { return false };
-    !pid.is_empty()
-        && pid.chars().all(|c| c.is_ascii_digit())
-        && (is_view_file(file) || file == RENDER_CONFIG_FILE || dataset_top_files().iter().any(|f| f == file))
-}
-
-/// Removes temporaries of dataset files that a killed run left behind.
-fn remove_stale_temporaries(out: &Path) -> Result<(), PathTracerError> {
-    for dir in std::iter::once(out.to_path_buf()).chain(SplitKind::ALL.iter().map(|s| out.join(s.name()))) {
-        let Ok(entries) = std::fs::read_dir(&dir) else { continue };
-        for e in entries.flatten() {
-            if is_stale_temporary(&e.file_name().to_string_lossy()) {
-                let p = e.path();
-                std::fs::remove_file(&p).map_err(|e| dataset::DatasetError::Io { path: p.clone(), source: e })?;
-            }
-        }
-    }
-    Ok(())
-}
-
-/// Removes only the files a dataset render writes (never the folder or other files).
-fn remove_dataset_files(out: &Path) -> Result<(), PathTracerError> {
-    let rm = |p: &Path| std::fs::remove_file(p).map_err(|e| dataset::DatasetError::Io { path: p.to_path_buf(), source: e });
-    for f in dataset_top_files().into_iter().chain([RENDER_CONFIG_FILE.to_string()]) {
-        let p = out.join(f);
-        if p.is_file() {
-            rm(&p)?;
-        }
-    }
-    for s in SplitKind::ALL {
-        let dir = out.join(s.name());
-        let Ok(entries) = std::fs::read_dir(&dir) else { continue };
-        for e in entries.flatten() {
-            if is_view_file(&e.file_name().to_string_lossy()) {
-                rm(&e.path())?;
-            }
-        }
-    }
-    Ok(())
-}
-
 /// Checks a renderer's output has the camera's size (a broken renderer must not write files
 /// the dataset loader then rejects).
 fn check_view(view: &ViewImages, camera: &Camera, path: &Path) -> Result<(), PathTracerError> {
@@ -730,46 +631,12 @@ fn check_view(view: &ViewImages, camera: &Camera, path: &Path) -> Result<(), Pat
     }
 }
 
-/// The linear image as written to the EXR: premultiplied, with a colour background composited.
-fn composite(color: &RgbaImage, background: Background) -> RgbaImage {
-    let mut out = color.clone();
-    if let Background::Color(bg) = background {
-        for px in out.data.chunks_exact_mut(4) {
-            let a = px[3].clamp(0.0, 1.0);
-            for (v, b) in px[..3].iter_mut().zip(bg) {
-                *v += (1.0 - a) * b;
-            }
-            px[3] = 1.0;
-        }
-    }
-    out
-}
-
-/// Display colour: straight-alpha sRGB, `rgb = srgb(premultiplied / alpha)`, 0 where alpha is 0.
-fn display(linear: &RgbaImage) -> RgbaImage {
-    let mut out = linear.clone();
-    for px in out.data.chunks_exact_mut(4) {
-        let a = px[3].clamp(0.0, 1.0);
-        for v in &mut px[..3] {
-            *v = if a > 0.0 { dataset::linear_to_srgb(*v / a) } else { 0.0 };
-        }
-        px[3] = a;
-    }
-    out
-}
-
 fn write_view(files: &[PathBuf; 6], view: &ViewImages, background: Background) -> Result<(), PathTracerError> {
-    let linear = composite(&view.color, background);
-    let gt = &view.ground_truth;
-    dataset::write_ground_truth(&files[2], gt)?;
-    dataset::write_npy_f32(&files[3], gt.width, gt.height, &gt.depth)?;
-    let depth_mm: Vec<f32> = gt.depth.iter().map(|d| (*d as f64 * 1000.0) as f32).collect();
-    dataset::write_npy_f32(&files[4], gt.width, gt.height, &depth_mm)?;
-    let hit: Vec<bool> = gt.alpha.iter().map(|a| *a > 0.0).collect();
-    dataset::write_png_mask(&files[5], gt.width, gt.height, &hit)?;
-    dataset::write_exr_rgba(&files[1], &linear)?;
-    dataset::write_png_rgba(&files[0], &display(&linear))?;
-    Ok(())
+    let bg = match background {
+        Background::Color(c) => Some(c),
+        Background::Transparent | Background::Environment => None,
+    };
+    Ok(dataset::folder::write_view(files, &view.color, &view.ground_truth, bg)?)
 }
 
 /// Smallest and largest hit distance over all views.
@@ -1111,10 +978,6 @@ mod tests {
         }
         let full = DatasetRenderConfig::preset(Preset::Full);
         assert_eq!((full.width, full.height, full.spp), (800, 800, 128));
-        assert!(is_view_file("r_12_depth.npy") && is_view_file("r_0.png") && is_view_file("r_3_depth_mm.npy") && is_view_file("r_3_mask.png"));
-        assert!(!is_view_file("r_.png") && !is_view_file("notes.png") && !is_view_file("r_1.txt"));
-        assert!(is_stale_temporary(".r_3_gt.exr.1234.tmp") && is_stale_temporary(".transforms.json.7.tmp"));
-        assert!(!is_stale_temporary(".r_3_gt.exr.tmp") && !is_stale_temporary(".notes.txt.12.tmp"));
         assert_eq!(view_key(SplitKind::Test, 5), (2 << 24) | 5);
         assert_eq!(view_files(SplitKind::Val, 3)[2], "val/r_3_gt.exr");
     }

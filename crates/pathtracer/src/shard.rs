@@ -35,8 +35,7 @@ use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 
-/// File name of a shard's manifest inside its folder.
-pub const SHARD_MANIFEST_FILE: &str = "shard.json";
+pub use dataset::folder::SHARD_MANIFEST_FILE;
 
 /// Shard `index` of `count` (zero-based): the views at positions `p` with `p % count == index`
 /// in the rig's order over all splits.
