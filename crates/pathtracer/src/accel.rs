@@ -405,6 +405,14 @@ impl Accel {
         self.tris.len()
     }
 
+    /// Bytes the traversal reads from: the CWBVH nodes, their `f32` child boxes, the packed
+    /// triangles and obvhs's primitive index list (allocation slack left out).
+    pub fn memory_bytes(&self) -> usize {
+        use std::mem::size_of;
+        let bvh = self.bvh.as_ref().map_or(0, |b| b.nodes.len() * size_of::<CwBvhNode>() + b.primitive_indices.len() * size_of::<u32>());
+        bvh + self.boxes.len() * size_of::<ChildBoxes>() + self.tris.len() * size_of::<PackedTriangle>()
+    }
+
     #[inline(always)]
     fn obvhs_ray(ray: &Ray, t_max: f32) -> Option<obvhs::ray::Ray> {
         if !ray.origin.is_finite() || !ray.direction.is_finite() || ray.direction == Vec3::ZERO || !(t_max > 0.0) {

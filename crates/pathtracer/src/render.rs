@@ -520,6 +520,69 @@ impl Renderer {
         let rays = w as u64 * h as u64;
         PrimaryRayStats { rays, hits, seconds, rays_per_second: if seconds > 0.0 { rays as f64 / seconds } else { 0.0 } }
     }
+
+    /// The shadow rays the integrator would trace at the first vertex of every pixel-centre
+    /// ray of `camera` that hits: one towards each punctual light (as far as the light) and one
+    /// towards a point on the emissive triangles (drawn with the pixel's first sampler
+    /// numbers); in a scene with neither, one cosine-distributed direction to infinity (an
+    /// environment sample). Each ray starts at the offset origin and comes with its `t_max`.
+    /// The set for [`Renderer::shadow_ray_throughput`].
+    pub fn shadow_rays(&self, camera: &Camera) -> Vec<(Ray, f32)> {
+        use crate::geometry::offset_ray_origin;
+        use crate::integrator::SHADOW_EPSILON;
+        let (w, h) = (camera.intrinsics.width, camera.intrinsics.height);
+        let integ = self.integrator(&RenderSettings::preview(0));
+        let rows: Vec<Vec<(Ray, f32)>> = (0..h)
+            .into_par_iter()
+            .map(|j| {
+                let mut out = Vec::new();
+                for i in 0..w {
+                    let ray = self.local_ray(&camera.pixel_center_ray(i, j));
+                    let Some(hit) = integ.intersect(&ray) else { continue };
+                    let si = interaction(&self.scene, &ray, &hit);
+                    let origin = offset_ray_origin(si.p, si.p_err, si.ng, si.ng);
+                    let mut sampler = Sampler::new(0, 0, j as u64 * w as u64 + i as u64, 0);
+                    for light in &self.scene.lights {
+                        let Some(inc) = crate::light::punctual_incidence(light, si.p) else { continue };
+                        let t_max = match *light {
+                            Light::Point { position, .. } | Light::Spot { position, .. } => (position - origin).length() * (1.0 - SHADOW_EPSILON),
+                            Light::Directional { .. } => f32::INFINITY,
+                        };
+                        out.push((Ray::new(origin, inc.wi), t_max));
+                    }
+                    let (u_sel, u_pt) = (sampler.next_1d(), sampler.next_2d());
+                    if let Some(es) = self.emitters.sample(u_sel, u_pt) {
+                        let m = &self.scene.mesh;
+                        let p = m.indices[es.prim as usize].map(|k| m.positions[k as usize]);
+                        let (q, _) = crate::geometry::hit_point_error(p, es.b);
+                        let seg = q - origin;
+                        let len = seg.length();
+                        if len > 0.0 {
+                            out.push((Ray::new(origin, seg / len), len * (1.0 - SHADOW_EPSILON)));
+                        }
+                    } else if self.scene.lights.is_empty() {
+                        let d = crate::sampler::sample_cosine_hemisphere(sampler.next_2d());
+                        out.push((Ray::new(origin, si.frame.to_world(d).normalize()), f32::INFINITY));
+                    }
+                }
+                out
+            })
+            .collect();
+        rows.into_iter().flatten().collect()
+    }
+
+    /// Traces [`Renderer::shadow_rays`] of `camera` (any-hit queries only, in parallel; the
+    /// rays are made before the clock starts) and times them: a shadow-ray throughput figure
+    /// for benchmarks. `hits` counts the occluded rays.
+    pub fn shadow_ray_throughput(&self, camera: &Camera) -> PrimaryRayStats {
+        let rays = self.shadow_rays(camera);
+        let integ = self.integrator(&RenderSettings::preview(0));
+        let start = std::time::Instant::now();
+        let hits: u64 = rays.par_chunks(256).map(|c| c.iter().filter(|(r, t)| integ.occluded(r, *t)).count() as u64).sum();
+        let seconds = start.elapsed().as_secs_f64();
+        let n = rays.len() as u64;
+        PrimaryRayStats { rays: n, hits, seconds, rays_per_second: if seconds > 0.0 { n as f64 / seconds } else { 0.0 } }
+    }
 }
 
 #[cfg(test)]
