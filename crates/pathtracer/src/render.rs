@@ -1253,7 +1253,7 @@ mod tests {
     }
 
     #[test]
-    fn renders_are_bit_identical_across_thread_counts() {
+    fn renders_are_bit_identical_across_thread_counts_and_simd_widths() {
         let mut b = Builder::new();
         let m = b.material(0.7, 0.0, false);
         let e = b.material(0.0, 4.0, true);
@@ -1277,6 +1277,12 @@ mod tests {
         // A different view index or seed changes the noise.
         let c = r.render_view(&cam, 4, &s);
         assert_ne!(bits(&a.color.data), bits(&c.color.data));
+        // The four-wide child-box test (a CPU without AVX2) renders the same bits.
+        let mut r = r;
+        r.accel.set_avx2(false);
+        let d = r.render_view(&cam, 3, &s);
+        assert_eq!(bits(&a.color.data), bits(&d.color.data));
+        assert_eq!(a.ground_truth, d.ground_truth);
     }
 
     #[test]
