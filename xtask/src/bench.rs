@@ -264,6 +264,7 @@ fn bench_render(args: &RenderBenchArgs) -> anyhow::Result<()> {
     let export_root = crate::render::repo_root().join("out/bench/mitsuba");
     let mut ours_quick: Vec<OursQuick> = Vec::new();
     let mut figures: Vec<SceneFigures> = Vec::new();
+    let mut simd = "";
     for path in scenes {
         let name = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
         let scene = pathtracer::import::load_gltf(&path, &pathtracer::import::ImportOptions::default())?;
@@ -276,6 +277,7 @@ fn bench_render(args: &RenderBenchArgs) -> anyhow::Result<()> {
         );
         let triangles = scene.mesh.indices.len();
         let renderer = Renderer::new(scene, &params)?;
+        simd = renderer.accel().simd_level();
         let bytes_per_tri = renderer.accel().memory_bytes() as f64 / triangles.max(1) as f64;
         let quick = DatasetRenderConfig::preset(Preset::Quick);
         let rig = pathtracer::rig::build_rig(renderer.scene(), &quick.rig_config())?;
@@ -360,10 +362,12 @@ fn bench_render(args: &RenderBenchArgs) -> anyhow::Result<()> {
             std_spp_msamples_per_s: std_rate,
         });
     }
+    report.line(format!("child-box test: {simd}"));
     let comparisons = bench_render_mitsuba(&ours_quick, cmp_runs, &mut report)?;
     let json = serde_json::json!({
         "profile": build_profile(),
         "threads": threads,
+        "child_box_test": simd,
         "runs": RENDER_RUNS,
         "comparison_settings": { "width": CMP_WIDTH, "spp": CMP_SPP, "reference_spp": CMP_REF_SPP, "runs": cmp_runs, "excluded_pixel_share": CMP_EXCLUDED },
         "scenes": figures,

@@ -1286,6 +1286,31 @@ mod tests {
     }
 
     #[test]
+    fn shadow_rays_go_to_every_punctual_light_and_one_emitter_point() {
+        let mut b = Builder::new();
+        let m = b.material(0.7, 0.0, false);
+        let e = b.material(0.0, 4.0, true);
+        b.quad([Vec3::new(-3.0, 0.0, 3.0), Vec3::new(3.0, 0.0, 3.0), Vec3::new(3.0, 0.0, -3.0), Vec3::new(-3.0, 0.0, -3.0)], 2, m);
+        b.aabox(Vec3::new(-0.5, 0.0, -0.5), Vec3::new(0.5, 1.0, 0.5), false, m);
+        b.quad([Vec3::new(-0.3, 2.0, -0.3), Vec3::new(0.3, 2.0, -0.3), Vec3::new(0.3, 2.0, 0.3), Vec3::new(-0.3, 2.0, 0.3)], 1, e);
+        b.lights.push(Light::Point { position: Vec3::new(2.0, 3.0, 1.0), intensity: Vec3::splat(10.0), range: None });
+        b.lights.push(Light::Directional { direction: Vec3::new(0.3, -1.0, 0.2).normalize(), illuminance: Vec3::ONE });
+        let r = Renderer::new(b.build(DVec3::ZERO), &AccelParams::medium_build()).unwrap();
+        let cam = camera(16, 12, 55.0, DVec3::new(3.0, 2.5, 3.5), DVec3::new(0.0, 0.5, 0.0));
+        let hits = (0..12).flat_map(|j| (0..16).map(move |i| (i, j))).filter(|&(i, j)| r.trace_primary(&cam.pixel_center_ray(i, j)).is_some()).count();
+        let rays = r.shadow_rays(&cam);
+        // Two punctual lights and one emitter point per pixel-centre hit.
+        assert!(hits > 100, "{hits} of 192 pixels hit");
+        assert_eq!(rays.len(), 3 * hits);
+        assert!(rays.iter().all(|(ray, t)| (ray.direction.length() - 1.0).abs() < 1e-5 && *t > 0.0));
+        let stats = r.shadow_ray_throughput(&cam);
+        let occluded = rays.iter().filter(|(ray, t)| r.integrator(&RenderSettings::preview(0)).occluded(ray, *t)).count() as u64;
+        assert_eq!((stats.rays, stats.hits), (rays.len() as u64, occluded));
+        // The box shadows some of the floor from some light.
+        assert!(occluded > 0 && occluded < stats.rays);
+    }
+
+    #[test]
     fn back_faces_of_single_sided_triangles_and_masked_texels_are_transparent() {
         use crate::scene::{AlphaMode, Filter, Texture, TextureRef, Wrap};
         let mut b = Builder::new();
