@@ -705,7 +705,9 @@ fn bench_render_mitsuba(ours: &[OursQuick], runs: usize, report: &mut Report) ->
         "scene", "model", "ours Ms/s", "IQR", "ours MSE", "variant", "Mi sampler", "Mi Ms/s", "Mi MSE", "Mi bias²", "speed", "range", "eq-err"
     ));
     let mut rows = Vec::new();
-    let (mut worst_speed, mut worst_eq): (Option<(f64, String)>, Option<(f64, String)>) = (None, None);
+    // The lowest ratio of each kind and its row.
+    let mut worst_speed: Option<(f64, String)> = None;
+    let mut worst_eq: Option<(f64, String)> = None;
     for o in ours {
         let dir = o.export.display().to_string();
         let secs = Spread::of(&o.cmp.seconds);
