@@ -21,12 +21,14 @@ default 5 would never terminate a path early at max_depth 5 and make its samples
 
 Timing: `mi.render` plus evaluation of the image (dr.eval + sync); the first render of each
 scene and mode (scene upload, JIT compilation, kernel caching) is reported separately as
-`first_seconds`; `seconds` is the median of `--runs` further renders with new seeds.
+`first_seconds`; `seconds` is the median of `--runs` further renders with new seeds, `times`
+lists them all (in render order).
 Scene building is not timed. Samples are camera samples: width x height x spp.
 
 Error: when the export folder holds `reference.npy` (our high-spp RGB image of the same camera)
 and `reference_noise.json` (that image's own mean squared noise), `mse` is the mean squared RGB
-error of the timed renders against it, less the reference's noise, the median over the renders,
+error of the timed renders against it, less the reference's noise, the median over the renders
+(`errors` lists them all, in the order of `times`),
 and `bias2` the part of it that does not fall with more samples (mean of the renders against the
 reference): near zero when both renderers converge to the same image. With `reference_mask.npy`
 (1 = a pixel to measure), both are taken over those pixels only (our side leaves out the few
@@ -135,7 +137,8 @@ def main():
                 rec["rr_depth"] = args.rr_depth
                 rec["first_seconds"] = timed_render(mi, dr, scene, spp, 0)[0]
                 runs = [timed_render(mi, dr, scene, spp, 1 + k) for k in range(max(1, args.runs))]
-                times = sorted(t for t, _ in runs)
+                rec["times"] = [t for t, _ in runs]
+                times = sorted(rec["times"])
                 rec["seconds"] = times[len(times) // 2]
                 rec["samples_per_second"] = samples / rec["seconds"]
                 reference, noise, mask = load_reference(folder)
@@ -144,6 +147,7 @@ def main():
 
                     imgs = [np.array(img, dtype=np.float64)[..., :3] for _, img in runs]
                     errs = [float(np.mean(((i - reference) ** 2)[mask])) - noise for i in imgs]
+                    rec["errors"] = errs
                     # The median, as on our side: a rare caustic firefly decides a mean of a few.
                     rec["mse"] = float(np.median(errs))
                     rec["mse_mean"] = sum(errs) / len(errs)

@@ -1,4 +1,9 @@
-//! `cargo xtask bench render|nerf`: performance figures, printed.
+//! `cargo xtask bench render|scaling|nerf|auto`: performance figures, printed (the render
+//! benchmarks also write them as JSON).
+
+use anyhow::Context;
+use serde::Serialize;
+use std::path::{Path, PathBuf};
 
 /// Arguments of `bench`.
 #[derive(clap::Args)]
@@ -11,8 +16,10 @@ pub struct BenchArgs {
 /// Benchmarks, each with its own options.
 #[derive(clap::Subcommand)]
 pub enum BenchWhat {
-    /// Path tracer: BVH build, primary rays, path samples per scene, and Mitsuba 3 side by side.
+    /// Path tracer (release profile): BVH build, primary and shadow rays, path samples per scene, and Mitsuba 3 side by side.
     Render(RenderBenchArgs),
+    /// Path tracer (release profile): samples/s, BVH build time and memory against the triangle count (generated stress scenes).
+    Scaling(ScalingBenchArgs),
     /// NeRF training throughput for both models, and the time to render a full-size view from
     /// a fast model.
     Nerf(crate::bench_nerf::NerfBenchArgs),
@@ -26,15 +33,85 @@ pub struct RenderBenchArgs {
     /// Scenes (names in `scenes/`), comma-separated; default every scene.
     #[arg(long)]
     pub scenes: Option<String>,
+    /// Folder for `bench-render.json` and `bench-render.txt` (the printed tables).
+    #[arg(long, default_value = "out/bench")]
+    pub out: PathBuf,
+    /// Timed renders per renderer, scene, model and sampler in the comparison with Mitsuba.
+    #[arg(long, default_value_t = CMP_RUNS)]
+    pub runs: usize,
+    /// Measure in the profile this xtask was built with instead of re-running it in release.
+    #[arg(long)]
+    pub no_release: bool,
+}
+
+/// Options of `bench scaling`.
+#[derive(clap::Args)]
+pub struct ScalingBenchArgs {
+    /// Approximate triangle counts of the generated stress scenes, comma-separated.
+    #[arg(long, default_value = "1000,10000,100000,1000000")]
+    pub triangles: String,
+    /// Folder for `bench-scaling.json`, `bench-scaling.txt` and the generated scenes (`stress/`).
+    #[arg(long, default_value = "out/bench")]
+    pub out: PathBuf,
+    /// Measure in the profile this xtask was built with instead of re-running it in release.
+    #[arg(long)]
+    pub no_release: bool,
 }
 
 /// Runs a benchmark.
 pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     match args.what {
-        BenchWhat::Render(a) => bench_render(a.scenes.as_deref()),
+        BenchWhat::Render(a) => {
+            if a.no_release || !rerun_in_release()? {
+                bench_render(&a)?;
+            }
+            Ok(())
+        }
+        BenchWhat::Scaling(a) => {
+            if a.no_release || !rerun_in_release()? {
+                bench_scaling(&a)?;
+            }
+            Ok(())
+        }
         BenchWhat::Nerf(a) => crate::bench_nerf::run(a),
         BenchWhat::Auto(a) => crate::bench_auto::run(a),
     }
+}
+
+/// The cargo profile this binary was built with, as far as it can tell: `dev` keeps debug
+/// assertions on (see the workspace `Cargo.toml`), `release` turns them off.
+pub fn build_profile() -> &'static str {
+    if cfg!(debug_assertions) { "dev" } else { "release" }
+}
+
+/// In a dev build, builds the workspace in the release profile (`cargo build --release
+/// --workspace --locked` from the repository root: the same features as every other build, so
+/// nothing is rebuilt twice) and runs this same command line with the release `xtask`, returning
+/// `true` once it succeeded; in a release build returns `false` at once (the caller measures).
+/// Path tracing is measured in release: the dev profile keeps overflow checks and debug
+/// assertions and compiles our crates incrementally.
+fn rerun_in_release() -> anyhow::Result<bool> {
+    if !cfg!(debug_assertions) {
+        return Ok(false);
+    }
+    let root = crate::render::repo_root();
+    let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
+    eprintln!("bench: this xtask is a dev build; building the release profile (cargo build --release --workspace; the first build takes minutes)");
+    let status = std::process::Command::new(&cargo)
+        .current_dir(&root)
+        .args(["build", "--release", "--workspace", "--locked"])
+        .status()
+        .context("running cargo build --release")?;
+    anyhow::ensure!(status.success(), "cargo build --release failed ({status})");
+    let target = std::env::var_os("CARGO_TARGET_DIR").map(PathBuf::from).unwrap_or_else(|| root.join("target"));
+    let exe = target.join("release").join(format!("xtask{}", std::env::consts::EXE_SUFFIX));
+    let status = std::process::Command::new(&exe)
+        .current_dir(&root)
+        .args(std::env::args_os().skip(1))
+        .status()
+        .with_context(|| format!("running {}", exe.display()))?;
+    anyhow::ensure!(status.success(), "the release run of the benchmark failed ({status})");
+    Ok(true)
 }
 
 /// Repetitions per figure; the median is reported.
@@ -47,37 +124,109 @@ const RENDER_RUNS: usize = 5;
 /// number of renders.
 const CMP_RUNS: usize = 15;
 
-/// Median of a non-empty list.
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    if n == 0 {
-        0.0
-    } else if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
+/// A measured figure over repeated runs: its median and spread.
+#[derive(Clone, Copy, Debug, Serialize)]
+struct Spread {
+    median: f64,
+    /// First and third quartiles (linear interpolation between order statistics).
+    q1: f64,
+    q3: f64,
+    min: f64,
+    max: f64,
+    /// Number of runs.
+    n: usize,
+}
+
+impl Spread {
+    /// The figures of `v` (all zero for an empty list).
+    fn of(v: &[f64]) -> Spread {
+        let mut v = v.to_vec();
+        v.sort_by(f64::total_cmp);
+        let n = v.len();
+        if n == 0 {
+            return Spread { median: 0.0, q1: 0.0, q3: 0.0, min: 0.0, max: 0.0, n };
+        }
+        let at = |q: f64| {
+            let x = q * (n - 1) as f64;
+            let (i, f) = (x.floor() as usize, x.fract());
+            if i + 1 < n { v[i] + f * (v[i + 1] - v[i]) } else { v[i] }
+        };
+        Spread { median: at(0.5), q1: at(0.25), q3: at(0.75), min: v[0], max: v[n - 1], n }
+    }
+    /// `x ↦ s·x` applied to every figure (`s > 0`).
+    fn scaled(self, s: f64) -> Spread {
+        Spread { median: self.median * s, q1: self.q1 * s, q3: self.q3 * s, min: self.min * s, max: self.max * s, n: self.n }
+    }
+    /// The interquartile range as `[q1, q3]` in text with `digits` decimals.
+    fn iqr(&self, digits: usize) -> String {
+        format!("{:.digits$}-{:.digits$}", self.q1, self.q3)
     }
 }
 
+/// The printed tables, kept to be written next to the JSON.
+#[derive(Default)]
+struct Report(String);
+
+impl Report {
+    /// Prints `line` and keeps it.
+    fn line(&mut self, line: impl AsRef<str>) {
+        println!("{}", line.as_ref());
+        self.0.push_str(line.as_ref());
+        self.0.push('\n');
+    }
+    /// Writes the tables to `<out>/<stem>.txt` and `json` to `<out>/<stem>.json`, and says where.
+    fn write(&self, out: &Path, stem: &str, json: &serde_json::Value) -> anyhow::Result<()> {
+        std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+        let (txt, js) = (out.join(format!("{stem}.txt")), out.join(format!("{stem}.json")));
+        dataset::io::atomic_write(&txt, self.0.as_bytes())?;
+        dataset::io::atomic_write_json(&js, json)?;
+        println!("wrote {} and {}", js.display(), txt.display());
+        Ok(())
+    }
+}
+
+/// A relative `--out` folder is taken from the repository root (the release re-run starts there).
+fn out_dir(out: &Path) -> PathBuf {
+    if out.is_absolute() { out.to_path_buf() } else { crate::render::repo_root().join(out) }
+}
+
+/// One scene's figures from our renderer alone.
+#[derive(Serialize)]
+struct SceneFigures {
+    scene: String,
+    triangles: usize,
+    rig: String,
+    bvh_build_ms: Spread,
+    bvh_bytes_per_triangle: f64,
+    primary_mrays_per_s: Spread,
+    shadow_mrays_per_s: Spread,
+    shadow_rays_occluded: f64,
+    quick_msamples_per_s: Spread,
+    std_spp_msamples_per_s: Spread,
+}
+
 /// `cargo xtask bench render`: per scene in `scenes/`, the BVH build time (obvhs medium
-/// preset), primary-ray throughput (pixel-centre closest hits, 256×256 from the quick rig's
-/// first train camera) and path-tracing throughput at the quick preset (64×64, 16 spp, 4
-/// bounces) and at the standard preset's 128 spp and 8 bounces at 32×32; medians over
-/// [`RENDER_RUNS`] runs, all cores. Then both renderers on one image of each scene (the quick
-/// camera at [`CMP_WIDTH`] px, [`CMP_SPP`] spp, quick bounces; Mitsuba 3 through
+/// preset) and memory, primary-ray throughput (pixel-centre closest hits, 256×256 from the
+/// quick rig's first train camera), shadow-ray throughput (any-hit queries of the shadow rays
+/// of those pixels' first vertices, [`pathtracer::render::Renderer::shadow_rays`]) and
+/// path-tracing throughput at the quick preset (64×64, 16 spp, 4 bounces) and at the standard
+/// preset's 128 spp and 8 bounces at 32×32; medians and quartiles over [`RENDER_RUNS`] runs,
+/// all cores. Then both renderers on one image of each scene (the quick camera at
+/// [`CMP_WIDTH`] px, [`CMP_SPP`] spp, quick bounces; Mitsuba 3 through
 /// `tests/mitsuba/bench.py` from an export of the scene with that camera and settings,
 /// `llvm_ad_rgb` where LLVM works, else `scalar_rgb`): samples/s, the mean squared error against
 /// our [`CMP_REF_SPP`]-spp reference, our samples/s divided by Mitsuba's and the speed at equal
 /// error; for each scene twice: as authored (Mitsuba runs our glTF BRDF as its Python BSDF
 /// plugin) and with every material made exactly Lambertian (ours `Diffuse`, Mitsuba's native
-/// `diffuse`); without the Python environment a note says how to create it.
-fn bench_render(only: Option<&str>) -> anyhow::Result<()> {
-    use anyhow::Context;
+/// `diffuse`); without the Python environment a note says how to create it. The tables go to
+/// `<out>/bench-render.txt`, every figure with its spread to `<out>/bench-render.json`.
+fn bench_render(args: &RenderBenchArgs) -> anyhow::Result<()> {
     use pathtracer::accel::{Accel, AccelParams};
     use pathtracer::dataset_render::{DatasetRenderConfig, Preset};
     use pathtracer::render::{RenderSettings, Renderer};
 
+    let only = args.scenes.as_deref();
+    let cmp_runs = args.runs.max(1);
     let dir = crate::render::repo_root().join("scenes");
     let mut scenes: Vec<std::path::PathBuf> = std::fs::read_dir(&dir)
         .with_context(|| format!("reading {}", dir.display()))?
@@ -100,44 +249,54 @@ fn bench_render(only: Option<&str>) -> anyhow::Result<()> {
     if scenes.is_empty() {
         anyhow::bail!("no scenes in {} (`cargo xtask gen-scenes` writes them)", dir.display());
     }
-    println!(
-        "bench render: medians of {RENDER_RUNS} runs, {} threads; BVH = obvhs medium_build; primary = 256x256 \
-         pixel-centre closest hits; quick = 64x64 16 spp 4 bounces; std-spp = 32x32 128 spp 8 bounces",
-        std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1)
-    );
-    println!(
-        "{:<12} {:>9} {:>10} {:>9} {:>15} {:>16} {:>18}",
-        "scene", "triangles", "rig", "BVH ms", "primary Mray/s", "quick Msample/s", "std-spp Msample/s"
-    );
+    let threads = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1);
+    let mut report = Report::default();
+    report.line(format!(
+        "bench render: profile {}, {threads} threads; medians of {RENDER_RUNS} runs (IQR = quartiles); BVH = obvhs medium_build; \
+         primary = 256x256 pixel-centre closest hits; shadow = any-hit rays from those hits to every punctual light and one emitter \
+         point; quick = 64x64 16 spp 4 bounces; std-spp = 32x32 128 spp 8 bounces",
+        build_profile()
+    ));
+    report.line(format!(
+        "{:<12} {:>9} {:>10} {:>8} {:>8} {:>15} {:>11} {:>14} {:>11} {:>16} {:>18}",
+        "scene", "triangles", "rig", "BVH ms", "B/tri", "primary Mray/s", "IQR", "shadow Mray/s", "IQR", "quick Msample/s", "std-spp Msample/s"
+    ));
     let export_root = crate::render::repo_root().join("out/bench/mitsuba");
     let mut ours_quick: Vec<OursQuick> = Vec::new();
+    let mut figures: Vec<SceneFigures> = Vec::new();
+    let mut simd = "";
     for path in scenes {
         let name = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
         let scene = pathtracer::import::load_gltf(&path, &pathtracer::import::ImportOptions::default())?;
         let scene_for_export = scene.clone();
         let params = AccelParams::medium_build();
-        let build_ms = median(
-            (0..RENDER_RUNS)
+        let build_ms = Spread::of(
+            &(0..RENDER_RUNS)
                 .map(|_| Accel::build(&scene, &params).map(|a| a.build_time().as_secs_f64() * 1e3))
                 .collect::<Result<Vec<_>, _>>()?,
         );
         let triangles = scene.mesh.indices.len();
         let renderer = Renderer::new(scene, &params)?;
+        simd = renderer.accel().simd_level();
+        let bytes_per_tri = renderer.accel().memory_bytes() as f64 / triangles.max(1) as f64;
         let quick = DatasetRenderConfig::preset(Preset::Quick);
         let rig = pathtracer::rig::build_rig(renderer.scene(), &quick.rig_config())?;
         let cameras = rig.split(dataset::SplitKind::Train);
         let cam = cameras[0];
         let big = scaled_camera(&cam, 256);
-        let primary = median((0..RENDER_RUNS).map(|_| renderer.primary_ray_throughput(&big).rays_per_second).collect());
+        let primary = Spread::of(&(0..RENDER_RUNS).map(|_| renderer.primary_ray_throughput(&big).rays_per_second * 1e-6).collect::<Vec<_>>());
+        let shadow_runs: Vec<_> = (0..RENDER_RUNS).map(|_| renderer.shadow_ray_throughput(&big)).collect();
+        let shadow = Spread::of(&shadow_runs.iter().map(|s| s.rays_per_second * 1e-6).collect::<Vec<_>>());
+        let occluded = shadow_runs.first().map_or(0.0, |s| s.hits as f64 / s.rays.max(1) as f64);
         let path_rate_of = |renderer: &Renderer, settings: &RenderSettings, camera: &dataset::Camera| {
-            median(
-                (0..RENDER_RUNS)
+            Spread::of(
+                &(0..RENDER_RUNS)
                     .map(|k| {
                         let t = std::time::Instant::now();
                         let out = renderer.render_view(camera, k as u32, settings);
-                        out.samples as f64 / t.elapsed().as_secs_f64().max(1e-9)
+                        out.samples as f64 / t.elapsed().as_secs_f64().max(1e-9) * 1e-6
                     })
-                    .collect(),
+                    .collect::<Vec<_>>(),
             )
         };
         let path_rate = |settings: &RenderSettings, camera: &dataset::Camera| path_rate_of(&renderer, settings, camera);
@@ -171,23 +330,191 @@ fn bench_render(only: Option<&str>) -> anyhow::Result<()> {
             let export_dir = export_root.join(dir);
             pathtracer::export::export_scene(scene, &[cmp_cam], &cmp_settings, &export_dir)
                 .with_context(|| format!("exporting {name} for Mitsuba to {}", export_dir.display()))?;
-            let cmp = compare_run(renderer, &cmp_cam, &cmp_settings, &export_dir)?;
+            let cmp = compare_run(renderer, &cmp_cam, &cmp_settings, &export_dir, cmp_runs)?;
             ours_quick.push(OursQuick { scene: name.clone(), model, cmp, export: export_dir });
         }
         let small = cam.downscaled(2);
         let std_rate = path_rate(&std_settings, &small);
-        println!(
-            "{:<12} {:>9} {:>10} {:>9.2} {:>15.2} {:>16.3} {:>18.3}",
+        report.line(format!(
+            "{:<12} {:>9} {:>10} {:>8.2} {:>8.0} {:>15.2} {:>11} {:>14.2} {:>11} {:>16.3} {:>18.3}",
             name,
             triangles,
             rig.kind.name(),
-            build_ms,
-            primary * 1e-6,
-            quick_rate * 1e-6,
-            std_rate * 1e-6
-        );
+            build_ms.median,
+            bytes_per_tri,
+            primary.median,
+            primary.iqr(2),
+            shadow.median,
+            shadow.iqr(2),
+            quick_rate.median,
+            std_rate.median
+        ));
+        figures.push(SceneFigures {
+            scene: name.clone(),
+            triangles,
+            rig: rig.kind.name().to_string(),
+            bvh_build_ms: build_ms,
+            bvh_bytes_per_triangle: bytes_per_tri,
+            primary_mrays_per_s: primary,
+            shadow_mrays_per_s: shadow,
+            shadow_rays_occluded: occluded,
+            quick_msamples_per_s: quick_rate,
+            std_spp_msamples_per_s: std_rate,
+        });
     }
-    bench_render_mitsuba(&ours_quick)
+    report.line(format!("child-box test: {simd}"));
+    let comparisons = bench_render_mitsuba(&ours_quick, cmp_runs, &mut report)?;
+    let json = serde_json::json!({
+        "profile": build_profile(),
+        "threads": threads,
+        "child_box_test": simd,
+        "runs": RENDER_RUNS,
+        "comparison_settings": { "width": CMP_WIDTH, "spp": CMP_SPP, "reference_spp": CMP_REF_SPP, "runs": cmp_runs, "excluded_pixel_share": CMP_EXCLUDED },
+        "scenes": figures,
+        "comparisons": comparisons,
+    });
+    report.write(&out_dir(&args.out), "bench-render", &json)
+}
+
+/// One stress scene's figures in `bench scaling`.
+#[derive(Serialize)]
+struct ScalingFigures {
+    requested_triangles: u32,
+    triangles: usize,
+    bvh_build_ms: Spread,
+    bvh_bytes: usize,
+    bvh_bytes_per_triangle: f64,
+    primary_mrays_per_s: Spread,
+    shadow_mrays_per_s: Spread,
+    msamples_per_s: Spread,
+    us_per_sample: f64,
+}
+
+/// Width of the `bench scaling` renders (the quick rig's first train camera scaled to it).
+const SCALING_WIDTH: u32 = 128;
+
+/// `cargo xtask bench scaling`: for each requested triangle count, the generated stress scene
+/// ([`scenegen::stress`], written to `<out>/stress/` as `.glb` and imported like any scene):
+/// BVH build time (medium preset, medians of 3) and the bytes the traversal reads per triangle,
+/// primary and shadow Mrays/s (256 px wide, as `bench render`), and path samples/s of the quick
+/// settings (16 spp, 4 bounces) at [`SCALING_WIDTH`] px; then the least-squares slope of the
+/// time per sample against log10(triangles) and how far that line explains the points, which
+/// is what "grows logarithmically" means here. Writes `<out>/bench-scaling.{txt,json}`.
+fn bench_scaling(args: &ScalingBenchArgs) -> anyhow::Result<()> {
+    use pathtracer::accel::{Accel, AccelParams};
+    use pathtracer::dataset_render::{DatasetRenderConfig, Preset};
+    use pathtracer::render::{RenderSettings, Renderer};
+
+    let counts: Vec<u32> = args
+        .triangles
+        .split(',')
+        .map(|t| t.trim().parse::<u32>().with_context(|| format!("--triangles: '{t}' is not a count")))
+        .collect::<Result<_, _>>()?;
+    anyhow::ensure!(counts.iter().all(|&n| (100..=50_000_000).contains(&n)), "--triangles: counts must be 100 to 5e7");
+    let out = out_dir(&args.out);
+    let stress_dir = out.join("stress");
+    std::fs::create_dir_all(&stress_dir).with_context(|| format!("creating {}", stress_dir.display()))?;
+    let threads = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1);
+    let mut report = Report::default();
+    report.line(format!(
+        "bench scaling: profile {}, {threads} threads; generated stress scenes (scenegen::stress: a floor and 16 UV spheres \
+         tessellated to the count); BVH = obvhs medium_build, medians of 3 builds; B/tri = bytes of nodes, child boxes and packed \
+         triangles per triangle; primary/shadow as in bench render (256 px); path = {SCALING_WIDTH} px, 16 spp, 4 bounces; medians of {RENDER_RUNS}",
+        build_profile()
+    ));
+    report.line(format!(
+        "{:>10} {:>9} {:>8} {:>15} {:>14} {:>11} {:>10}",
+        "triangles", "BVH ms", "B/tri", "primary Mray/s", "shadow Mray/s", "Msample/s", "us/sample"
+    ));
+    let quick = DatasetRenderConfig::preset(Preset::Quick);
+    let settings = RenderSettings {
+        spp: quick.spp,
+        max_bounces: quick.max_bounces,
+        seed: 0,
+        environment: quick.environment,
+        transparent_background: true,
+        environment_map: None,
+    };
+    let mut rows: Vec<ScalingFigures> = Vec::new();
+    for &n in &counts {
+        let path = stress_dir.join(format!("stress_{n}.glb"));
+        scenegen::stress(n)?.write_glb(&path)?;
+        let scene = pathtracer::import::load_gltf(&path, &pathtracer::import::ImportOptions::default())?;
+        let params = AccelParams::medium_build();
+        let build_ms = Spread::of(
+            &(0..3).map(|_| Accel::build(&scene, &params).map(|a| a.build_time().as_secs_f64() * 1e3)).collect::<Result<Vec<_>, _>>()?,
+        );
+        let triangles = scene.mesh.indices.len();
+        let renderer = Renderer::new(scene, &params)?;
+        let bytes = renderer.accel().memory_bytes();
+        let rig = pathtracer::rig::build_rig(renderer.scene(), &quick.rig_config())?;
+        let cam = rig.split(dataset::SplitKind::Train)[0];
+        let big = scaled_camera(&cam, 256);
+        let primary = Spread::of(&(0..RENDER_RUNS).map(|_| renderer.primary_ray_throughput(&big).rays_per_second * 1e-6).collect::<Vec<_>>());
+        let shadow = Spread::of(&(0..RENDER_RUNS).map(|_| renderer.shadow_ray_throughput(&big).rays_per_second * 1e-6).collect::<Vec<_>>());
+        let cam = scaled_camera(&cam, SCALING_WIDTH);
+        let rate = Spread::of(
+            &(0..RENDER_RUNS)
+                .map(|k| {
+                    let t = std::time::Instant::now();
+                    let out = renderer.render_view(&cam, k as u32, &settings);
+                    out.samples as f64 / t.elapsed().as_secs_f64().max(1e-9) * 1e-6
+                })
+                .collect::<Vec<_>>(),
+        );
+        let row = ScalingFigures {
+            requested_triangles: n,
+            triangles,
+            bvh_build_ms: build_ms,
+            bvh_bytes: bytes,
+            bvh_bytes_per_triangle: bytes as f64 / triangles.max(1) as f64,
+            primary_mrays_per_s: primary,
+            shadow_mrays_per_s: shadow,
+            msamples_per_s: rate,
+            us_per_sample: 1.0 / rate.median.max(1e-12),
+        };
+        report.line(format!(
+            "{:>10} {:>9.1} {:>8.0} {:>15.2} {:>14.2} {:>11.3} {:>10.3}",
+            row.triangles,
+            row.bvh_build_ms.median,
+            row.bvh_bytes_per_triangle,
+            row.primary_mrays_per_s.median,
+            row.shadow_mrays_per_s.median,
+            row.msamples_per_s.median,
+            row.us_per_sample
+        ));
+        rows.push(row);
+    }
+    // Time per sample against log10(triangles): least-squares line and its R².
+    let pts: Vec<(f64, f64)> = rows.iter().map(|r| ((r.triangles.max(1) as f64).log10(), r.us_per_sample)).collect();
+    let fit = (pts.len() >= 2).then(|| {
+        let n = pts.len() as f64;
+        let (mx, my) = (pts.iter().map(|p| p.0).sum::<f64>() / n, pts.iter().map(|p| p.1).sum::<f64>() / n);
+        let sxx: f64 = pts.iter().map(|p| (p.0 - mx).powi(2)).sum();
+        let sxy: f64 = pts.iter().map(|p| (p.0 - mx) * (p.1 - my)).sum();
+        let syy: f64 = pts.iter().map(|p| (p.1 - my).powi(2)).sum();
+        let slope = sxy / sxx.max(1e-12);
+        let r2 = if syy > 0.0 { sxy * sxy / (sxx * syy) } else { 1.0 };
+        (slope, my - slope * mx, r2)
+    });
+    if let (Some((slope, icpt, r2)), Some(first), Some(last)) = (fit, rows.first(), rows.last()) {
+        let growth = last.us_per_sample / first.us_per_sample;
+        let tri_growth = last.triangles as f64 / first.triangles.max(1) as f64;
+        report.line(format!(
+            "time per sample = {icpt:.3} + {slope:.3} us x log10(triangles) (R² {r2:.3}): {growth:.2}x the time for {tri_growth:.0}x the triangles"
+        ));
+    }
+    let json = serde_json::json!({
+        "profile": build_profile(),
+        "threads": threads,
+        "runs": RENDER_RUNS,
+        "width": SCALING_WIDTH,
+        "spp": settings.spp,
+        "max_bounces": settings.max_bounces,
+        "rows": rows,
+        "fit_us_per_sample_vs_log10_triangles": fit.map(|(slope, intercept, r2)| serde_json::json!({ "slope": slope, "intercept": intercept, "r2": r2 })),
+    });
+    report.write(&out, "bench-scaling", &json)
 }
 
 /// Width of the image rendered by both renderers for the side-by-side comparison (the quick
@@ -256,25 +583,26 @@ fn reliable_pixels(r1: &[f64], r2: &[f64]) -> Vec<bool> {
 
 /// Our side of the comparison for one scene and material model.
 struct CmpRun {
-    /// Median seconds of one render of the compared image.
-    seconds: f64,
-    /// Camera samples of that render.
+    /// Seconds of each timed render of the compared image.
+    seconds: Vec<f64>,
+    /// Camera samples of one render.
     samples: u64,
-    /// Median over the timed renders of the mean squared RGB error against the reference, less
-    /// the reference's own noise (the median: in a scene with caustics one render in several
-    /// catches a firefly of 10^4 in one sample, for either renderer, and the mean of a few
-    /// renders is then decided by luck).
-    mse: f64,
+    /// Per timed render, the mean squared RGB error against the reference, less the
+    /// reference's own noise (compared as the median: in a scene with caustics one render in
+    /// several catches a firefly of 10^4 in one sample, for either renderer, and the mean of a
+    /// few renders is then decided by luck).
+    mse: Vec<f64>,
 }
 
 /// Renders our reference (`reference.npy`, RGB, two independent halves of [`CMP_REF_SPP`]; its
 /// noise, the mean squared half-difference / 4, goes to `reference_noise.json`) into the
-/// export folder and times [`CMP_RUNS`] renders of `settings` against it.
+/// export folder and times `runs` renders of `settings` against it.
 fn compare_run(
     renderer: &pathtracer::render::Renderer,
     cam: &dataset::Camera,
     settings: &pathtracer::render::RenderSettings,
     export_dir: &std::path::Path,
+    runs: usize,
 ) -> anyhow::Result<CmpRun> {
     let half = pathtracer::render::RenderSettings { spp: CMP_REF_SPP / 2, seed: 1_000_003, ..settings.clone() };
     let r1 = rgb_of(&renderer.render_view(cam, 0, &half).color);
@@ -294,14 +622,14 @@ fn compare_run(
     let mut times = Vec::new();
     let mut errors = Vec::new();
     let mut samples = 0;
-    for k in 0..CMP_RUNS {
+    for k in 0..runs {
         let t = std::time::Instant::now();
         let out = renderer.render_view(cam, 10 + k as u32, settings);
         times.push(t.elapsed().as_secs_f64());
         samples = out.samples;
         errors.push(mse(&rgb_of(&out.color), &reference, Some(&keep)) - ref_noise);
     }
-    Ok(CmpRun { seconds: median(times), samples, mse: median(errors) })
+    Ok(CmpRun { seconds: times, samples, mse: errors })
 }
 
 /// Our figures for one scene and material model, with its export for Mitsuba.
@@ -314,29 +642,40 @@ struct OursQuick {
     export: std::path::PathBuf,
 }
 
-/// Runs `tests/mitsuba/bench.py` on the exports in `ours` and prints the side-by-side table.
-fn bench_render_mitsuba(ours: &[OursQuick]) -> anyhow::Result<()> {
-    use anyhow::Context;
+/// Runs `tests/mitsuba/bench.py` on the exports in `ours` (with `runs` timed renders each),
+/// prints the side-by-side table with a line per target of issue 25 (raw samples/s at least
+/// Mitsuba's, at least 2x at equal error), and returns the rows for the JSON.
+fn bench_render_mitsuba(ours: &[OursQuick], runs: usize, report: &mut Report) -> anyhow::Result<Vec<serde_json::Value>> {
     let root = crate::render::repo_root();
     let python = root.join(".venv/bin/python");
     let quick = pathtracer::dataset_render::DatasetRenderConfig::preset(pathtracer::dataset_render::Preset::Quick);
-    println!();
+    report.line("");
+    let ours_json = |o: &OursQuick| {
+        let rate: Vec<f64> = o.cmp.seconds.iter().map(|s| o.cmp.samples as f64 / s.max(1e-9)).collect();
+        serde_json::json!({
+            "samples": o.cmp.samples,
+            "seconds": Spread::of(&o.cmp.seconds),
+            "samples_per_s": Spread::of(&rate),
+            "mse": Spread::of(&o.cmp.mse),
+        })
+    };
+    let only_ours = || ours.iter().map(|o| serde_json::json!({ "scene": o.scene, "model": o.model, "ours": ours_json(o) })).collect();
     if !python.is_file() {
-        println!(
+        report.line(format!(
             "Mitsuba comparison skipped: {} not found (python3 -m venv .venv && .venv/bin/pip install -r tests/mitsuba/requirements.txt)",
             python.display()
-        );
-        return Ok(());
+        ));
+        return Ok(only_ours());
     }
     let mut cmd = std::process::Command::new(&python);
-    cmd.arg(root.join("tests/mitsuba/bench.py")).arg("--runs").arg(CMP_RUNS.to_string());
+    cmd.arg(root.join("tests/mitsuba/bench.py")).arg("--runs").arg(runs.to_string());
     for o in ours {
         cmd.arg("--export").arg(&o.export);
     }
     let out = cmd.stderr(std::process::Stdio::inherit()).output().with_context(|| format!("running {}", python.display()))?;
     if !out.status.success() {
-        println!("Mitsuba comparison failed ({}); our figures above stand", out.status);
-        return Ok(());
+        report.line(format!("Mitsuba comparison failed ({}); our figures above stand", out.status));
+        return Ok(only_ours());
     }
     let lines: Vec<serde_json::Value> = String::from_utf8_lossy(&out.stdout)
         .lines()
@@ -344,63 +683,113 @@ fn bench_render_mitsuba(ours: &[OursQuick]) -> anyhow::Result<()> {
         .map(serde_json::from_str)
         .collect::<Result<_, _>>()
         .context("reading bench.py's output")?;
-    println!(
+    report.line(format!(
         "vs Mitsuba 3: same camera (the quick rig's first train view) at {CMP_WIDTH} px wide, {CMP_SPP} spp, our max_bounces {} = \
          Mitsuba max_depth {} (Russian roulette from the third vertex on both: rr_depth 2), environment {:?} as an opaque \
-         background (both show it and the emitters the camera sees); medians of {CMP_RUNS} timed renders (Mitsuba's after a first one for \
+         background (both show it and the emitters the camera sees); medians of {runs} timed renders (Mitsuba's after a first one for \
          JIT compilation; Mitsuba with its default `independent` sampler, with `ldsampler`, its counterpart of our padded \
          Owen-scrambled Sobol' sampler, and with `multijitter`). MSE = mean squared RGB error of one render against our {CMP_REF_SPP}-spp reference, less that \
          reference's own noise, over the pixels but the {}% where that noise is largest (a few unconverged highlight or caustic \
          pixels of the reference would otherwise decide it), median over the timed renders (a rare caustic firefly would \
          decide a mean of a few); Mi bias² = the part of Mitsuba's MSE that more samples would not remove (≈ 0: both \
-         converge to the same image). Equal-error speed = (MSE x seconds of Mitsuba) / (MSE x seconds of ours): how much less time we need \
-         for the same error (Monte Carlo error falls as 1/time).",
+         converge to the same image). speed = our samples/s over Mitsuba's (medians; range = quartile against quartile). \
+         eq-err = (MSE x seconds of Mitsuba) / (MSE x seconds of ours): how much less time we need for the same error (Monte \
+         Carlo error falls as 1/time).",
         quick.max_bounces,
         quick.max_bounces + 1,
         quick.environment,
         CMP_EXCLUDED * 100.0
-    );
-    println!(
-        "{:<10} {:<9} {:>8} {:>10} {:<11} {:<11} {:>8} {:>10} {:>10} {:>8} {:>8}  Mitsuba BSDF",
-        "scene", "model", "ours Ms/s", "ours MSE", "variant", "Mi sampler", "Mi Ms/s", "Mi MSE", "Mi bias²", "speed", "eq-err"
-    );
+    ));
+    report.line(format!(
+        "{:<10} {:<9} {:>9} {:>11} {:>10} {:<11} {:<11} {:>8} {:>11} {:>10} {:>8} {:>11} {:>8}  Mitsuba BSDF",
+        "scene", "model", "ours Ms/s", "IQR", "ours MSE", "variant", "Mi sampler", "Mi Ms/s", "Mi MSE", "Mi bias²", "speed", "range", "eq-err"
+    ));
+    let mut rows = Vec::new();
+    // The lowest ratio of each kind and its row.
+    let mut worst_speed: Option<(f64, String)> = None;
+    let mut worst_eq: Option<(f64, String)> = None;
     for o in ours {
         let dir = o.export.display().to_string();
-        let ours_rate = o.cmp.samples as f64 / o.cmp.seconds.max(1e-9);
+        let secs = Spread::of(&o.cmp.seconds);
+        let rate = Spread::of(&o.cmp.seconds.iter().map(|s| o.cmp.samples as f64 / s.max(1e-9)).collect::<Vec<_>>());
+        let our_mse = Spread::of(&o.cmp.mse);
+        let mut mitsuba = Vec::new();
         for t in lines.iter().filter(|t| t["export"].as_str() == Some(dir.as_str())) {
             let text = |k: &str| t[k].as_str().unwrap_or("").to_string();
-            match (t["samples_per_second"].as_f64(), t["seconds"].as_f64()) {
-                (Some(mr), Some(ms)) => {
-                    let mi_mse = t["mse"].as_f64().unwrap_or(f64::NAN);
-                    println!(
-                        "{:<10} {:<9} {:>8.3} {:>10.3e} {:<11} {:<11} {:>8.3} {:>10.3e} {:>10.1e} {:>7.2}x {:>7.2}x  {}",
-                        o.scene,
-                        o.model,
-                        ours_rate * 1e-6,
-                        o.cmp.mse,
-                        text("variant"),
-                        text("sampler"),
-                        mr * 1e-6,
-                        mi_mse,
-                        t["bias2"].as_f64().unwrap_or(f64::NAN),
-                        ours_rate / mr,
-                        (mi_mse * ms) / (o.cmp.mse * o.cmp.seconds),
-                        text("bsdf")
-                    )
-                }
-                _ => println!(
-                    "{:<10} {:<9} {:>8.3} {:>10.3e} {:<11} {}",
+            let list = |k: &str| t[k].as_array().map(|a| a.iter().filter_map(|v| v.as_f64()).collect::<Vec<_>>()).unwrap_or_default();
+            let (mi_secs, mi_err) = (list("times"), list("errors"));
+            if mi_secs.is_empty() {
+                report.line(format!(
+                    "{:<10} {:<9} {:>9.3} {:>11} {:>10.3e} {:<11} {}",
                     o.scene,
                     o.model,
-                    ours_rate * 1e-6,
-                    o.cmp.mse,
+                    rate.median * 1e-6,
+                    rate.scaled(1e-6).iqr(2),
+                    our_mse.median,
                     text("variant"),
                     text("error")
-                ),
+                ));
+                mitsuba.push(t.clone());
+                continue;
             }
+            let mi_samples = t["samples"].as_f64().unwrap_or(0.0);
+            let mi_rate = Spread::of(&mi_secs.iter().map(|s| mi_samples / s.max(1e-9)).collect::<Vec<_>>());
+            let mi_s = Spread::of(&mi_secs);
+            let mi_mse = if mi_err.is_empty() { None } else { Some(Spread::of(&mi_err)) };
+            let speed = rate.median / mi_rate.median;
+            let speed_range = [rate.q1 / mi_rate.q3, rate.q3 / mi_rate.q1];
+            let eq = mi_mse.map(|m| (m.median * mi_s.median) / (our_mse.median * secs.median));
+            let eq_range = mi_mse.map(|m| [(m.q1 * mi_s.q1) / (our_mse.q3 * secs.q3), (m.q3 * mi_s.q3) / (our_mse.q1 * secs.q1)]);
+            let row_name = format!("{} {} vs {}", o.scene, o.model, text("sampler"));
+            if worst_speed.as_ref().is_none_or(|(w, _)| speed < *w) {
+                worst_speed = Some((speed, row_name.clone()));
+            }
+            if let Some(e) = eq
+                && worst_eq.as_ref().is_none_or(|(w, _)| e < *w)
+            {
+                worst_eq = Some((e, row_name));
+            }
+            report.line(format!(
+                "{:<10} {:<9} {:>9.3} {:>11} {:>10.3e} {:<11} {:<11} {:>8.3} {:>11.3e} {:>10.1e} {:>7.2}x {:>11} {:>7.2}x  {}",
+                o.scene,
+                o.model,
+                rate.median * 1e-6,
+                rate.scaled(1e-6).iqr(2),
+                our_mse.median,
+                text("variant"),
+                text("sampler"),
+                mi_rate.median * 1e-6,
+                mi_mse.map_or(f64::NAN, |m| m.median),
+                t["bias2"].as_f64().unwrap_or(f64::NAN),
+                speed,
+                format!("{:.2}-{:.2}", speed_range[0], speed_range[1]),
+                eq.unwrap_or(f64::NAN),
+                text("bsdf")
+            ));
+            mitsuba.push(serde_json::json!({
+                "variant": text("variant"),
+                "sampler": text("sampler"),
+                "bsdf": text("bsdf"),
+                "first_seconds": t["first_seconds"],
+                "seconds": mi_s,
+                "samples_per_s": mi_rate,
+                "mse": mi_mse,
+                "bias2": t["bias2"],
+                "ratio": speed,
+                "ratio_range": speed_range,
+                "equal_error_speedup": eq,
+                "equal_error_speedup_range": eq_range,
+            }));
         }
+        rows.push(serde_json::json!({ "scene": o.scene, "model": o.model, "ours": ours_json(o), "mitsuba": mitsuba }));
     }
-    Ok(())
+    if let Some((w, row)) = worst_speed {
+        report.line(format!("target raw samples/s >= 1.0x Mitsuba on every row: {} (lowest {w:.2}x, {row})", if w >= 1.0 { "met" } else { "missed" }));
+    }
+    if let Some((w, row)) = worst_eq {
+        report.line(format!("target >= 2x at equal error on every row: {} (lowest {w:.2}x, {row})", if w >= 2.0 { "met" } else { "missed" }));
+    }
+    Ok(rows)
 }
 
 #[cfg(test)]

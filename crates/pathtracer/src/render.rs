@@ -520,6 +520,69 @@ impl Renderer {
         let rays = w as u64 * h as u64;
         PrimaryRayStats { rays, hits, seconds, rays_per_second: if seconds > 0.0 { rays as f64 / seconds } else { 0.0 } }
     }
+
+    /// The shadow rays the integrator would trace at the first vertex of every pixel-centre
+    /// ray of `camera` that hits: one towards each punctual light (as far as the light) and one
+    /// towards a point on the emissive triangles (drawn with the pixel's first sampler
+    /// numbers); in a scene with neither, one cosine-distributed direction to infinity (an
+    /// environment sample). Each ray starts at the offset origin and comes with its `t_max`.
+    /// The set for [`Renderer::shadow_ray_throughput`].
+    pub fn shadow_rays(&self, camera: &Camera) -> Vec<(Ray, f32)> {
+        use crate::geometry::offset_ray_origin;
+        use crate::integrator::SHADOW_EPSILON;
+        let (w, h) = (camera.intrinsics.width, camera.intrinsics.height);
+        let integ = self.integrator(&RenderSettings::preview(0));
+        let rows: Vec<Vec<(Ray, f32)>> = (0..h)
+            .into_par_iter()
+            .map(|j| {
+                let mut out = Vec::new();
+                for i in 0..w {
+                    let ray = self.local_ray(&camera.pixel_center_ray(i, j));
+                    let Some(hit) = integ.intersect(&ray) else { continue };
+                    let si = interaction(&self.scene, &ray, &hit);
+                    let origin = offset_ray_origin(si.p, si.p_err, si.ng, si.ng);
+                    let mut sampler = Sampler::new(0, 0, j as u64 * w as u64 + i as u64, 0);
+                    for light in &self.scene.lights {
+                        let Some(inc) = crate::light::punctual_incidence(light, si.p) else { continue };
+                        let t_max = match *light {
+                            Light::Point { position, .. } | Light::Spot { position, .. } => (position - origin).length() * (1.0 - SHADOW_EPSILON),
+                            Light::Directional { .. } => f32::INFINITY,
+                        };
+                        out.push((Ray::new(origin, inc.wi), t_max));
+                    }
+                    let (u_sel, u_pt) = (sampler.next_1d(), sampler.next_2d());
+                    if let Some(es) = self.emitters.sample(u_sel, u_pt) {
+                        let m = &self.scene.mesh;
+                        let p = m.indices[es.prim as usize].map(|k| m.positions[k as usize]);
+                        let (q, _) = crate::geometry::hit_point_error(p, es.b);
+                        let seg = q - origin;
+                        let len = seg.length();
+                        if len > 0.0 {
+                            out.push((Ray::new(origin, seg / len), len * (1.0 - SHADOW_EPSILON)));
+                        }
+                    } else if self.scene.lights.is_empty() {
+                        let d = crate::sampler::sample_cosine_hemisphere(sampler.next_2d());
+                        out.push((Ray::new(origin, si.frame.to_world(d).normalize()), f32::INFINITY));
+                    }
+                }
+                out
+            })
+            .collect();
+        rows.into_iter().flatten().collect()
+    }
+
+    /// Traces [`Renderer::shadow_rays`] of `camera` (any-hit queries only, in parallel; the
+    /// rays are made before the clock starts) and times them: a shadow-ray throughput figure
+    /// for benchmarks. `hits` counts the occluded rays.
+    pub fn shadow_ray_throughput(&self, camera: &Camera) -> PrimaryRayStats {
+        let rays = self.shadow_rays(camera);
+        let integ = self.integrator(&RenderSettings::preview(0));
+        let start = std::time::Instant::now();
+        let hits: u64 = rays.par_chunks(256).map(|c| c.iter().filter(|(r, t)| integ.occluded(r, *t)).count() as u64).sum();
+        let seconds = start.elapsed().as_secs_f64();
+        let n = rays.len() as u64;
+        PrimaryRayStats { rays: n, hits, seconds, rays_per_second: if seconds > 0.0 { n as f64 / seconds } else { 0.0 } }
+    }
 }
 
 #[cfg(test)]
@@ -1190,7 +1253,7 @@ mod tests {
     }
 
     #[test]
-    fn renders_are_bit_identical_across_thread_counts() {
+    fn renders_are_bit_identical_across_thread_counts_and_simd_widths() {
         let mut b = Builder::new();
         let m = b.material(0.7, 0.0, false);
         let e = b.material(0.0, 4.0, true);
@@ -1214,6 +1277,37 @@ mod tests {
         // A different view index or seed changes the noise.
         let c = r.render_view(&cam, 4, &s);
         assert_ne!(bits(&a.color.data), bits(&c.color.data));
+        // The four-wide child-box test (a CPU without AVX2) renders the same bits.
+        let mut r = r;
+        r.accel.set_avx2(false);
+        let d = r.render_view(&cam, 3, &s);
+        assert_eq!(bits(&a.color.data), bits(&d.color.data));
+        assert_eq!(a.ground_truth, d.ground_truth);
+    }
+
+    #[test]
+    fn shadow_rays_go_to_every_punctual_light_and_one_emitter_point() {
+        let mut b = Builder::new();
+        let m = b.material(0.7, 0.0, false);
+        let e = b.material(0.0, 4.0, true);
+        b.quad([Vec3::new(-3.0, 0.0, 3.0), Vec3::new(3.0, 0.0, 3.0), Vec3::new(3.0, 0.0, -3.0), Vec3::new(-3.0, 0.0, -3.0)], 2, m);
+        b.aabox(Vec3::new(-0.5, 0.0, -0.5), Vec3::new(0.5, 1.0, 0.5), false, m);
+        b.quad([Vec3::new(-0.3, 2.0, -0.3), Vec3::new(0.3, 2.0, -0.3), Vec3::new(0.3, 2.0, 0.3), Vec3::new(-0.3, 2.0, 0.3)], 1, e);
+        b.lights.push(Light::Point { position: Vec3::new(2.0, 3.0, 1.0), intensity: Vec3::splat(10.0), range: None });
+        b.lights.push(Light::Directional { direction: Vec3::new(0.3, -1.0, 0.2).normalize(), illuminance: Vec3::ONE });
+        let r = Renderer::new(b.build(DVec3::ZERO), &AccelParams::medium_build()).unwrap();
+        let cam = camera(16, 12, 55.0, DVec3::new(3.0, 2.5, 3.5), DVec3::new(0.0, 0.5, 0.0));
+        let hits = (0..12).flat_map(|j| (0..16).map(move |i| (i, j))).filter(|&(i, j)| r.trace_primary(&cam.pixel_center_ray(i, j)).is_some()).count();
+        let rays = r.shadow_rays(&cam);
+        // Two punctual lights and one emitter point per pixel-centre hit.
+        assert!(hits > 100, "{hits} of 192 pixels hit");
+        assert_eq!(rays.len(), 3 * hits);
+        assert!(rays.iter().all(|(ray, t)| (ray.direction.length() - 1.0).abs() < 1e-5 && *t > 0.0));
+        let stats = r.shadow_ray_throughput(&cam);
+        let occluded = rays.iter().filter(|(ray, t)| r.integrator(&RenderSettings::preview(0)).occluded(ray, *t)).count() as u64;
+        assert_eq!((stats.rays, stats.hits), (rays.len() as u64, occluded));
+        // The box shadows some of the floor from some light.
+        assert!(occluded > 0 && occluded < stats.rays);
     }
 
     #[test]

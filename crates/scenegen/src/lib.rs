@@ -31,7 +31,7 @@ pub use builder::{
     Transform,
 };
 pub use mesh::Mesh;
-pub use scenes::{build_scene, scene_description, scene_names};
+pub use scenes::{build_scene, scene_description, scene_names, stress};
 
 /// Errors from building or writing scenes. Each names the file, scene or
 /// object concerned and the problem.

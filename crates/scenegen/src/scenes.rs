@@ -100,6 +100,53 @@ pub fn build_scene(name: &str) -> Result<SceneBuilder, SceneGenError> {
     (def.build)()
 }
 
+/// Spheres per side of the [`stress`] scene's grid.
+const STRESS_GRID: u32 = 4;
+
+/// A stress scene for the renderer's scaling benchmark (not one of the committed scenes: at a
+/// million triangles its buffer is tens of megabytes): a 4 m square floor under a 4 × 4 grid of
+/// UV spheres (radius 0.2 m, 0.6 m apart; grey, roughness 0.5), each tessellated with
+/// `2r` segments and `r` rings, `r` chosen so that the scene has about `triangles` triangles in
+/// all (at least 16 × 12). Lights: a 2.5 lux sun and a 5 cd point light. The picture hardly
+/// changes with the tessellation, so what a render costs against `triangles` is what the
+/// acceleration structure costs.
+pub fn stress(triangles: u32) -> Result<SceneBuilder, SceneGenError> {
+    let mut s = SceneBuilder::new(&format!("stress_{triangles}"));
+    let floor = s.add_material(Material::diffuse("floor", [0.6, 0.6, 0.6]))?;
+    let grey = s.add_material(
+        Material::diffuse("spheres", [0.7, 0.5, 0.3]).with_metallic_roughness(0.0, 0.5),
+    )?;
+    s.add_mesh("floor", Mesh::quad(Vec2::splat(4.0), 1.0), floor, Transform::IDENTITY)?;
+    // A sphere of `2r` segments and `r` rings has 2r·(2r − 2) = 4r² − 4r triangles.
+    let per_sphere = (triangles.saturating_sub(2) / (STRESS_GRID * STRESS_GRID)) as f64;
+    let rings = ((1.0 + (1.0 + per_sphere).sqrt()) / 2.0).round().max(2.0) as u32;
+    let sphere = s.add_geometry("sphere", Mesh::uv_sphere(0.2, 2 * rings, rings))?;
+    for i in 0..STRESS_GRID {
+        for j in 0..STRESS_GRID {
+            let at = |k: u32| (k as f32 - (STRESS_GRID - 1) as f32 / 2.0) * 0.6;
+            let t = Transform::from_translation(Vec3::new(at(i), 0.2, at(j)));
+            s.add_instance(&format!("sphere_{i}_{j}"), sphere, grey, t)?;
+        }
+    }
+    s.add_light(
+        "sun",
+        Light::Directional {
+            color: [1.0, 0.97, 0.92],
+            illuminance: 2.5,
+        },
+        sun_from(Vec3::new(2.0, 4.0, 3.0)),
+    )?;
+    s.add_light(
+        "fill",
+        Light::Point {
+            color: [0.9, 0.95, 1.0],
+            intensity: 5.0,
+        },
+        Transform::from_translation(Vec3::new(-1.2, 1.8, 1.0)),
+    )?;
+    Ok(s)
+}
+
 /// The text of `scenes/README.md`.
 pub(crate) fn readme() -> String {
     let mut s = String::from(
