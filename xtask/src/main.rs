@@ -87,7 +87,19 @@ fn main() -> std::process::ExitCode {
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
     tracing_subscriber::fmt().with_env_filter(filter).with_target(false).with_writer(std::io::stderr).init();
-    let cli = Cli::parse();
+    // A malformed command line is bad input like any other: one message naming the option,
+    // exit code 1 (clap's own is 2); help and version still print and exit 0.
+    let cli = match Cli::try_parse() {
+        Ok(cli) => cli,
+        Err(e) => {
+            use clap::error::ErrorKind;
+            if matches!(e.kind(), ErrorKind::DisplayHelp | ErrorKind::DisplayVersion) {
+                e.exit();
+            }
+            let _ = e.print();
+            return std::process::ExitCode::from(1);
+        }
+    };
     let result = match cli.command {
         Command::Render(a) => render::run(a).map(|_| ()),
         Command::Merge(a) => render::run_merge(a),

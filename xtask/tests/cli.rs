@@ -254,6 +254,34 @@ fn impossible_render_options_exit_1_and_write_nothing() {
     }
 }
 
+/// Values the command-line parser itself rejects (a malformed `--shard`, a number that is not
+/// one, an unknown option) are bad input too: exit code 1 (not clap's 2), the option named,
+/// nothing written; `--help` still exits 0.
+#[test]
+fn unparsable_options_exit_1_naming_the_option() {
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = corpus().join("valid_triangle.gltf");
+    let valid = dataset_corpus().join("valid_blender");
+    let out = tmp.path().join("out");
+    let (o, s, v) = (out.to_str().unwrap(), scene.to_str().unwrap(), valid.to_str().unwrap());
+    let cases: [(&[&str], &str); 9] = [
+        (&["render", s, "--out", o, "--res", "8", "--shard", "3/3"], "--shard '3/3'"),
+        (&["render", s, "--out", o, "--res", "8", "--shard", "0/0"], "--shard '0/0'"),
+        (&["render", s, "--out", o, "--res", "8", "--shard", "x"], "--shard 'x'"),
+        (&["render", s, "--out", o, "--res", "8", "--shard=-1/2"], "--shard"),
+        (&["render", s, "--out", o, "--spp", "many"], "--spp"),
+        (&["render", s, "--out", o, "--no-such-option"], "--no-such-option"),
+        (&["train", v, "--out", o, "--steps", "abc"], "--steps"),
+        (&["train", v, "--out", o, "--time", "nan"], "nan"),
+        (&["eval", o, "--downscale=-2"], "--downscale"),
+    ];
+    for (args, what) in cases {
+        assert_refused(args, what, &out);
+    }
+    let (code, stdout_or_err) = xtask(&["render", "--help"]);
+    assert_eq!(code, 0, "render --help: {stdout_or_err}");
+}
+
 #[test]
 fn render_nerf_and_eval_with_no_views_exit_1_and_write_nothing() {
     let tmp = tempfile::tempdir().unwrap();
