@@ -17,6 +17,11 @@
 //! Randomness is counter-based on (seed, step): batches, jitter and grid updates do not depend
 //! on what ran before, and a checkpoint holds the whole optimiser and grid state, so a resumed
 //! run reproduces an uninterrupted one exactly (when both stop on a step count).
+//!
+//! (Over 800 lines by choice: the config, the validation set and the [`Trainer`]'s step,
+//! validate, checkpoint and resume cycle share private state and read best top to bottom;
+//! the model-specific work lives in [`crate::models`] and `--model auto`'s decisions in
+//! [`crate::auto`].)
 
 use crate::auto::{AutoConfig, PlateauStop};
 use crate::checkpoint::{self, CheckpointError, StateDict};

@@ -21,6 +21,7 @@
 
 use std::path::{Path, PathBuf};
 
+mod bin_writer;
 pub mod builder;
 pub mod mesh;
 pub mod scenes;
