@@ -44,7 +44,7 @@ fn time_view(model: &Model, camera: &Camera) -> (f64, f64) {
     let mut per_ray = 0.0;
     for _ in 0..RENDER_REPS {
         let t0 = Instant::now();
-        let (o, d): (Vec<_>, Vec<_>) = (0..n).map(|p| nerf::data::pixel_ray(camera, p)).unzip();
+        let (o, d) = nerf::data::pixel_rays(camera);
         let out = model.render_rays(&o, &d, [0.0; 3]);
         times.push(t0.elapsed().as_secs_f64());
         per_ray = out.t.len() as f64 / n as f64;

@@ -132,6 +132,15 @@ pub fn pixel_ray(camera: &Camera, p: usize) -> ([f32; 3], [f32; 3]) {
     (r.origin.as_vec3().to_array(), r.direction.as_vec3().to_array())
 }
 
+/// Every pixel's centre ray of a camera ([`pixel_ray`]), in pixel order: origins and
+/// directions, built in parallel (for a full view, one pass over freshly faulted pages per
+/// core instead of a serial, growing `unzip`).
+pub fn pixel_rays(camera: &Camera) -> (Vec<[f32; 3]>, Vec<[f32; 3]>) {
+    use rayon::prelude::*;
+    let n = camera.intrinsics.width as usize * camera.intrinsics.height as usize;
+    (0..n).into_par_iter().map(|p| pixel_ray(camera, p)).unzip()
+}
+
 /// A batch of training rays.
 ///
 /// # Shapes

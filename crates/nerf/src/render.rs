@@ -2,6 +2,7 @@
 //! checkpoint; [`RunModel::render_view`] gives colour (display sRGB, the space the models are
 //! trained in), opacity, expected z-depth and distance, and every ray's samples and weights.
 
+use rayon::prelude::*;
 use crate::checkpoint;
 use crate::data::SceneBounds;
 use crate::models::Model;
@@ -106,9 +107,10 @@ impl RunModel {
     pub fn render_view(&self, camera: &Camera, background: [f32; 3]) -> RenderedView {
         let (w, h) = (camera.intrinsics.width, camera.intrinsics.height);
         let n = w as usize * h as usize;
-        let (origins, dirs): (Vec<_>, Vec<_>) = (0..n).map(|p| crate::data::pixel_ray(camera, p)).unzip();
+        let (origins, dirs) = crate::data::pixel_rays(camera);
         let out = self.model.render_rays(&origins, &dirs, background);
         let depth = (0..n)
+            .into_par_iter()
             .map(|p| {
                 let (px, py) = ((p % w as usize) as f64 + 0.5, (p / w as usize) as f64 + 0.5);
                 camera.z_depth_from_distance(px, py, out.distance[p] as f64) as f32
