@@ -20,8 +20,7 @@ pub enum BenchWhat {
     Render(RenderBenchArgs),
     /// Path tracer (release profile): samples/s, BVH build time and memory against the triangle count (generated stress scenes).
     Scaling(ScalingBenchArgs),
-    /// NeRF training throughput for both models, and the time to render a full-size view from
-    /// a fast model.
+    /// NeRF training (release profile): throughput of both models, the fast model's roofline, and the time to render a full-size view from a fast model.
     Nerf(crate::bench_nerf::NerfBenchArgs),
     /// `--model auto` against fixed fast sizes and paper on every scene (train, eval, compare).
     Auto(crate::bench_auto::AutoBenchArgs),
@@ -73,7 +72,12 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
             }
             Ok(())
         }
-        BenchWhat::Nerf(a) => crate::bench_nerf::run(a),
+        BenchWhat::Nerf(a) => {
+            if a.no_release || !rerun_in_release()? {
+                crate::bench_nerf::run(a)?;
+            }
+            Ok(())
+        }
         BenchWhat::Auto(a) => crate::bench_auto::run(a),
     }
 }

@@ -1,16 +1,19 @@
 //! `cargo xtask bench nerf`: training throughput of both models on a synthetic 64×64 dataset
-//! (written to a temporary folder, so no prior step is needed): rays/s, samples/s, the time of
-//! a step split into encoding, MLP (forward + backward; for `fast` with compositing and loss,
-//! which run inside its fused sweep), rendering and optimiser, and the MLP's achieved GFLOP/s
-//! against this machine's measured burn matmul peak; and the fast model's networks on one
-//! batch through the fused kernels ([`nerf::mlp`]) against the same networks through burn
-//! (forward, and forward + autodiff backward), measured in the same run. Then the time to
-//! render one full-size view (default 800×800, the Blender-synthetic size) from a fast model
-//! trained briefly on the same data, and with `--run RUN` from a trained run's checkpoint.
+//! (written to a temporary folder, so no prior step is needed; `--dataset DS` trains on a
+//! dataset folder instead), in the release profile (a dev xtask rebuilds and re-runs itself):
+//! the machine's limits measured in the same run (fp32 matmul peak through `gemm`, burn's
+//! matmul for comparison, stream-triad memory bandwidth); rays/s, samples/s and the fast
+//! model's roofline (each phase's time per step, its work — FLOPs for the networks, bytes for
+//! the hash tables and optimisers, [`nerf::roofline`] — and the fraction of the limit it
+//! reaches); the fast model's networks on one batch through the fused kernels ([`nerf::mlp`])
+//! against the same networks through burn; then the time to render one full-size view
+//! (default 800×800, the Blender-synthetic size) from a fast model trained briefly on the same
+//! data, and with `--run RUN` from a trained run's checkpoint. Writes `bench-nerf.json`.
 
 use dataset::{Camera, Intrinsics};
 use nerf::models::Model;
 use nerf::train::{TrainConfig, Trainer};
+use anyhow::Context;
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -27,6 +30,18 @@ pub struct NerfBenchArgs {
     /// Only the render times (skips the training figures, whose paper steps take minutes).
     #[arg(long)]
     pub render_only: bool,
+    /// Train on this dataset folder instead of the benchmark's synthetic 64x64 one.
+    #[arg(long)]
+    pub dataset: Option<PathBuf>,
+    /// Timed training steps of the fast model (after 5 warm-up steps).
+    #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u64).range(1..=100000))]
+    pub steps: u64,
+    /// Folder for `bench-nerf.json`.
+    #[arg(long, default_value = "out/bench")]
+    pub out: PathBuf,
+    /// Measure in the profile this xtask was built with instead of re-running it in release.
+    #[arg(long)]
+    pub no_release: bool,
 }
 
 /// Training steps of the fast model whose render is timed (past the occupancy grid's
@@ -53,20 +68,92 @@ fn time_view(model: &Model, camera: &Camera) -> (f64, f64) {
     (times[times.len() / 2], per_ray)
 }
 
-/// Prints training throughput figures for both models and full-size render times.
+/// One phase's line of the roofline.
+#[derive(serde::Serialize)]
+struct PhaseRow {
+    phase: &'static str,
+    ms_per_step: f64,
+    /// "flops", "bytes" or "" (not modelled).
+    work_unit: &'static str,
+    work_per_step: f64,
+    /// GFLOP/s or GB/s achieved.
+    rate: f64,
+    /// Fraction of the machine's limit for that unit (matmul peak or stream bandwidth).
+    fraction_of_limit: f64,
+}
+
+/// What `bench-nerf.json` holds.
+#[derive(serde::Serialize)]
+struct NerfBenchJson {
+    profile: &'static str,
+    dataset: String,
+    gemm_peak_gflops: f64,
+    burn_matmul_gflops: f64,
+    stream_bandwidth_gbs: f64,
+    steps: u64,
+    rays_per_s: f64,
+    samples_per_s: f64,
+    marched_per_ray: f64,
+    trained_per_ray: f64,
+    ms_per_step: f64,
+    phases: Vec<PhaseRow>,
+    paper: Option<ModelLine>,
+}
+
+/// A model's overall throughput.
+#[derive(serde::Serialize)]
+struct ModelLine {
+    rays_per_s: f64,
+    samples_per_s: f64,
+    ms_per_step: f64,
+    mlp_gflops: f64,
+}
+
+/// Prints training throughput figures for both models (the fast model as a roofline: each
+/// phase's time, work and fraction of this machine's limits, [`nerf::roofline`]) and
+/// full-size render times; writes `bench-nerf.json` into `--out`.
 pub fn run(args: NerfBenchArgs) -> anyhow::Result<()> {
+    println!("profile: {}", crate::bench::build_profile());
     let tmp = tempfile::Builder::new().prefix("nerf-bench-").tempdir()?;
     let dir = tmp.path().to_path_buf();
-    let data = dir.join("data");
-    eprintln!("writing a synthetic 64x64 dataset (20 train views) to {}", data.display());
-    nerf::data::synthetic::write(&data, 64, [20, 2, 2], false)?;
+    let data = match &args.dataset {
+        Some(d) => d.clone(),
+        None => {
+            let data = dir.join("data");
+            eprintln!("writing a synthetic 64x64 dataset (20 train views) to {}", data.display());
+            nerf::data::synthetic::write(&data, 64, [20, 2, 2], false)?;
+            data
+        }
+    };
     if args.render_only {
         return render_times(&data, &dir, &args);
     }
-    let peak = nerf::backend::matmul_peak_gflops(2048);
-    println!("backend {}; burn matmul 2048^3 peak: {peak:.1} GFLOP/s", nerf::backend::backend_name());
+    // The machine's limits, measured in this run.
+    let peak = nerf::mlp::gemm_peak_gflops(2048, 3);
+    let burn_peak = nerf::backend::matmul_peak_gflops(2048);
+    let bw = nerf::roofline::stream_bandwidth_gbs(1 << 25, 5);
+    println!(
+        "machine: gemm fp32 2048^3 peak {peak:.1} GFLOP/s ({} threads); burn matmul 2048^3 {burn_peak:.1} GFLOP/s (backend {}); stream triad bandwidth {bw:.1} GB/s",
+        rayon_threads(),
+        nerf::backend::backend_name()
+    );
     networks_fused_vs_burn(peak);
-    for (kind, warmup, steps) in [("fast", 3u64, 20u64), ("paper", 1, 3)] {
+    let mut json = NerfBenchJson {
+        profile: crate::bench::build_profile(),
+        dataset: data.display().to_string(),
+        gemm_peak_gflops: peak,
+        burn_matmul_gflops: burn_peak,
+        stream_bandwidth_gbs: bw,
+        steps: args.steps,
+        rays_per_s: 0.0,
+        samples_per_s: 0.0,
+        marched_per_ray: 0.0,
+        trained_per_ray: 0.0,
+        ms_per_step: 0.0,
+        phases: Vec::new(),
+        paper: None,
+    };
+    for (kind, warmup, steps) in [("fast", 5u64, args.steps), ("paper", 1, 3)] {
         let mut cfg = TrainConfig::preset(kind, data.clone()).map_err(anyhow::Error::msg)?;
         cfg.steps = Some(warmup + steps);
         cfg.val_max_views = 0;
@@ -77,9 +164,14 @@ pub fn run(args: NerfBenchArgs) -> anyhow::Result<()> {
         }
         t.timings = Default::default();
         let (wall0, mut samples, mut rays) = (t.wall_s, 0usize, 0usize);
+        let mut counts = nerf::roofline::StepCounts::default();
         for _ in 0..steps {
             rays += t.config.rays_for(t.samples_per_ray);
-            samples += t.step_once().samples;
+            let st = t.step_once();
+            samples += st.samples;
+            counts.marched += st.marched as f64;
+            counts.trained += st.samples as f64;
+            counts.touched += st.touched as f64;
         }
         let wall = t.wall_s - wall0;
         let tm = t.timings;
@@ -88,7 +180,7 @@ pub fn run(args: NerfBenchArgs) -> anyhow::Result<()> {
         let flops = samples as f64 * t.model.macs_per_sample() * 2.0 * 3.0;
         let per = |x: f64| 1e3 * x / steps as f64;
         println!(
-            "{kind:>5}: {:.0} rays/step, {:.0} samples/ray | {:.0} rays/s, {:.0} samples/s | step {:.0} ms = encoding {:.0} + MLP fwd+bwd {:.0} + rendering {:.0} + optimizer {:.0} (+ {:.0} other) ms | MLP {:.1} GFLOP/s = {:.0}% of peak | {} parameters",
+            "{kind:>5}: {:.0} rays/step, {:.0} samples/ray | {:.0} rays/s, {:.0} samples/s | step {:.0} ms = encoding {:.0} + MLP fwd+bwd {:.0} + rendering {:.0} + optimizer {:.0} (+ {:.0} other) ms | MLP {:.1} GFLOP/s = {:.0}% of the gemm peak | {} parameters",
             rays / steps as f64,
             samples as f64 / rays,
             rays / wall,
@@ -103,9 +195,89 @@ pub fn run(args: NerfBenchArgs) -> anyhow::Result<()> {
             100.0 * flops / tm.mlp / 1e9 / peak,
             t.model.parameters(),
         );
+        match &t.model {
+            nerf::models::Model::Fast(m) => {
+                let n = steps as f64;
+                let avg = nerf::roofline::StepCounts { marched: counts.marched / n, trained: counts.trained / n, touched: counts.touched / n };
+                let work = nerf::roofline::StepWork::of(&m.config, m.parameters() - m.grid.params.len(), avg);
+                json.phases = roofline_rows(&tm, wall / n, steps, &work, peak, bw);
+                print_roofline(&json.phases, avg, rays / n);
+                json.rays_per_s = rays / wall;
+                json.samples_per_s = samples as f64 / wall;
+                json.marched_per_ray = counts.marched / rays;
+                json.trained_per_ray = counts.trained / rays;
+                json.ms_per_step = per(wall);
+            }
+            nerf::models::Model::Paper(_) => {
+                json.paper = Some(ModelLine { rays_per_s: rays / wall, samples_per_s: samples as f64 / wall, ms_per_step: per(wall), mlp_gflops: flops / tm.mlp / 1e9 });
+            }
+        }
     }
+    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
+    let path = args.out.join("bench-nerf.json");
+    dataset::io::atomic_write_json(&path, &json)?;
+    println!("wrote {}", path.display());
     render_times(&data, &dir, &args)?;
     Ok(())
+}
+
+/// Threads of rayon's global pool (the trainer's and the limits' parallelism).
+fn rayon_threads() -> usize {
+    std::thread::available_parallelism().map_or(1, |n| n.get())
+}
+
+/// The fast model's phases over `steps` steps (`tm` summed over them; `step_s` the mean
+/// wall seconds of a step) against `work` (per step) and the machine's limits.
+fn roofline_rows(tm: &nerf::models::StepTimings, step_s: f64, steps: u64, work: &nerf::roofline::StepWork, peak: f64, bw: f64) -> Vec<PhaseRow> {
+    let p = &tm.phases;
+    let n = steps as f64;
+    let threads = rayon_threads() as f64;
+    // The sweep's compositing runs inside its parallel groups: its share of the sweep's wall
+    // time is taken as its CPU time over the threads.
+    let composite = (p.composite_cpu / threads).min(p.mlp_sweep);
+    let row = |phase, secs: f64, unit, work: f64| {
+        let s = secs / n;
+        let rate = if unit == "" || s <= 0.0 { 0.0 } else { work / s / 1e9 };
+        let limit = match unit {
+            "flops" => peak,
+            "bytes" => bw,
+            _ => f64::NAN,
+        };
+        PhaseRow { phase, ms_per_step: s * 1e3, work_unit: unit, work_per_step: work, rate, fraction_of_limit: if unit == "" { f64::NAN } else { rate / limit } }
+    };
+    let mut rows = vec![
+        row("ray batch", p.batch, "", 0.0),
+        row("marching", p.march, "", 0.0),
+        row("hash forward", p.hash_forward, "bytes", work.hash_forward_bytes),
+        row("density pass (compaction)", p.density_pass, "flops", work.density_pass_flops),
+        row("gather kept samples", p.gather, "", 0.0),
+        row("MLP fwd+bwd (sweep less compositing)", p.mlp_sweep - composite, "flops", work.mlp_flops),
+        row("compositing + loss (in the sweep)", composite, "", 0.0),
+        row("hash backward", p.hash_backward, "bytes", work.hash_backward_bytes),
+        row("Adam networks", p.adam_mlp, "bytes", work.adam_mlp_bytes),
+        row("Adam hash (sparse)", p.adam_hash, "bytes", work.adam_hash_bytes),
+        row("occupancy update", p.occupancy, "", 0.0),
+    ];
+    let known: f64 = rows.iter().map(|r| r.ms_per_step).sum::<f64>() / 1e3;
+    rows.push(row("other", (step_s - known).max(0.0) * n, "", 0.0));
+    rows
+}
+
+/// Prints the roofline table.
+fn print_roofline(rows: &[PhaseRow], c: nerf::roofline::StepCounts, rays: f64) {
+    println!(
+        " fast roofline per step ({rays:.0} rays, {:.0} samples marched, {:.0} trained, {:.0} hash entries updated; work model in nerf::roofline):",
+        c.marched, c.trained, c.touched
+    );
+    println!("  {:<38} {:>9} {:>14} {:>12} {:>9}", "phase", "ms/step", "work/step", "rate", "of limit");
+    for r in rows {
+        let (work, rate, frac) = match r.work_unit {
+            "flops" => (format!("{:.2} GFLOP", r.work_per_step / 1e9), format!("{:.1} GFLOP/s", r.rate), format!("{:.1} %", 100.0 * r.fraction_of_limit)),
+            "bytes" => (format!("{:.1} MB", r.work_per_step / 1e6), format!("{:.1} GB/s", r.rate), format!("{:.1} %", 100.0 * r.fraction_of_limit)),
+            _ => ("-".into(), "-".into(), "-".into()),
+        };
+        println!("  {:<38} {:>9.2} {:>14} {:>12} {:>9}", r.phase, r.ms_per_step, work, rate, frac);
+    }
 }
 
 /// The full-size render figures (see the module docs).

@@ -17,6 +17,7 @@ pub mod mlp;
 pub mod models;
 pub mod occupancy;
 pub mod render;
+pub mod roofline;
 pub mod sampling;
 pub mod train;
 pub mod volrend;

@@ -477,6 +477,31 @@ fn backward_stack(stack: &Stack, x: &[f32], outs: &[Vec<f32>], d_last: Vec<f32>,
 mod mm {
     use gemm::{Parallelism, gemm};
 
+    /// `c = a · b` for square `n × n` matrices through `gemm` on every rayon thread: the
+    /// machine's practical fp32 matmul peak, in GFLOP/s (the best of `reps` timed runs after
+    /// one warm-up).
+    pub fn gemm_peak_gflops(n: usize, reps: usize) -> f64 {
+        let a: Vec<f32> = (0..n * n).map(|k| ((k * 7919) % 1000) as f32 * 1e-3 - 0.5).collect();
+        let b: Vec<f32> = (0..n * n).map(|k| ((k * 104729) % 1000) as f32 * 1e-3 - 0.5).collect();
+        let mut c = vec![0.0f32; n * n];
+        let mut best = f64::INFINITY;
+        for rep in 0..=reps {
+            let t = std::time::Instant::now();
+            // SAFETY: a, b and c hold n × n values each, row-major with the strides given; c is exclusive.
+            unsafe {
+                gemm(
+                    n, n, n, c.as_mut_ptr(), 1, n as isize, false, a.as_ptr(), 1, n as isize, b.as_ptr(), 1, n as isize, 0.0, 1.0,
+                    false, false, false, Parallelism::Rayon(0),
+                )
+            }
+            if rep > 0 {
+                best = best.min(t.elapsed().as_secs_f64());
+            }
+        }
+        std::hint::black_box(&c);
+        2.0 * (n as f64).powi(3) / best / 1e9
+    }
+
     /// `c[m][n] += a[m][k] · b[k][n]`.
     pub fn matmul_acc(c: &mut [f32], a: &[f32], b: &[f32], m: usize, k: usize, n: usize) {
         assert!(c.len() == m * n && a.len() == m * k && b.len() == k * n, "matmul_acc shapes");
@@ -684,6 +709,14 @@ mod mm {
             )
         }
     }
+}
+
+
+/// This machine's fp32 matmul peak in GFLOP/s: `gemm` (the fastest fp32 GEMM in our
+/// dependencies, runtime-dispatched to AVX-512 or AVX2) on an `n × n` square problem with
+/// every rayon thread, best of `reps` runs.
+pub fn gemm_peak_gflops(n: usize, reps: usize) -> f64 {
+    mm::gemm_peak_gflops(n, reps.max(1))
 }
 
 /// The same networks through burn, the reference these kernels are tested and measured

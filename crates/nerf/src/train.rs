@@ -554,7 +554,9 @@ impl Trainer {
         }
         let rays = self.config.rays_for(self.samples_per_ray);
         let batch = self.data.batch(self.config.seed, self.step, rays);
-        let stats = self.model.train_step(&batch, self.step, self.config.seed);
+        let batch_s = t0.elapsed().as_secs_f64();
+        let mut stats = self.model.train_step(&batch, self.step, self.config.seed);
+        stats.timings.phases.batch = batch_s;
         if stats.samples > 0 {
             let spr = stats.samples as f64 / rays as f64;
             self.samples_per_ray = if self.samples_per_ray > 0.0 { 0.8 * self.samples_per_ray + 0.2 * spr } else { spr };

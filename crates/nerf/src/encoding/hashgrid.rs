@@ -595,8 +595,8 @@ impl Adam {
     /// Example: with every flag set this is exactly [`Self::step_with_lr`] (then clears `grads`).
     ///
     /// # Shapes
-    /// `params`, `grads`: `[n]`; `touched`: `[n / group]`
-    pub fn step_sparse(&mut self, params: &mut [f32], grads: &mut [f32], touched: &mut [bool], group: usize, lr: f32) {
+    /// `params`, `grads`: `[n]`; `touched`: `[n / group]`. Returns how many entries it updated.
+    pub fn step_sparse(&mut self, params: &mut [f32], grads: &mut [f32], touched: &mut [bool], group: usize, lr: f32) -> usize {
         assert!(params.len() == self.m.len() && grads.len() == self.m.len(), "Adam: length mismatch");
         assert_eq!(touched.len() * group, params.len(), "one flag per group of parameters");
         self.step += 1;
@@ -612,12 +612,14 @@ impl Adam {
             .zip(self.m.par_chunks_mut(chunk))
             .zip(self.v.par_chunks_mut(chunk))
             .zip(touched.par_chunks_mut(ENTRIES))
-            .for_each(|((((p, g), m), v), tch)| {
+            .map(|((((p, g), m), v), tch)| {
+                let mut updated = 0;
                 for (e, hit) in tch.iter_mut().enumerate() {
                     if !*hit {
                         continue;
                     }
                     *hit = false;
+                    updated += 1;
                     for i in e * group..(e + 1) * group {
                         let gi = if g[i].is_finite() { g[i] } else { 0.0 };
                         g[i] = 0.0;
@@ -626,7 +628,9 @@ impl Adam {
                         p[i] -= lr * (m[i] / c1) / ((v[i] / c2).sqrt() + eps);
                     }
                 }
-            });
+                updated
+            })
+            .sum()
     }
 }
 
@@ -934,7 +938,7 @@ mod tests {
         let (mut pd, mut ps) = (g.params.clone(), g.params.clone());
         dense.step(&mut pd, &grad);
         let flags = touched.clone();
-        sparse.step_sparse(&mut ps, &mut grad, &mut touched, 2, 0.01);
+        assert_eq!(sparse.step_sparse(&mut ps, &mut grad, &mut touched, 2, 0.01), n_touched, "updated entries");
         for (e, hit) in flags.iter().enumerate() {
             for i in 2 * e..2 * e + 2 {
                 assert_eq!(ps[i], if *hit { pd[i] } else { g.params[i] }, "entry {e}");

@@ -319,14 +319,19 @@ impl FastModel {
         // The networks' weights, read once for the step (they change only in its Adam step).
         let mlp = self.mlp();
         self.maybe_update_occupancy(step, &mlp);
-        tm.optimizer += t0.elapsed().as_secs_f64();
+        tm.phases.occupancy = t0.elapsed().as_secs_f64();
+        tm.optimizer += tm.phases.occupancy;
 
         let t0 = Instant::now();
         let dims = self.grid.output_dim();
         let marched = self.march(&batch.origins, &batch.dirs, SampleMode::Random { seed: stream_seed(seed, stream::MARCH), step });
         let unit_all = self.unit_points(&marched, None, &batch.origins, &batch.dirs);
+        tm.phases.march = t0.elapsed().as_secs_f64();
+        let t1 = Instant::now();
         let enc_all = self.hash_encode(&unit_all);
+        tm.phases.hash_forward = t1.elapsed().as_secs_f64();
         tm.encoding += t0.elapsed().as_secs_f64();
+        let n_marched = marched.len();
 
         // Compaction (instant-ngp, nerfacc): a density-only pass without gradients over every
         // marched sample finds where each ray's transmittance falls below
@@ -337,7 +342,8 @@ impl FastModel {
             let tau_stop = -self.config.train_min_transmittance.ln();
             keep_until_opaque(&marched, &sigma, tau_stop)
         });
-        tm.mlp += t0.elapsed().as_secs_f64();
+        tm.phases.density_pass = t0.elapsed().as_secs_f64();
+        tm.mlp += tm.phases.density_pass;
         let t0 = Instant::now();
         let (samples, unit, enc) = match keep {
             Some((kept, idx)) if idx.len() < marched.len() => {
@@ -352,11 +358,12 @@ impl FastModel {
         };
         let n = samples.len();
         let sh = self.sh_of(samples.ray_index.iter().map(|&r| r as usize), n, &batch.dirs);
-        tm.encoding += t0.elapsed().as_secs_f64();
+        tm.phases.gather = t0.elapsed().as_secs_f64();
+        tm.encoding += tm.phases.gather;
         if n == 0 {
             // Nothing to learn from: every ray missed the occupied cells.
             let (mse, _) = mse_and_grad(&batch.background, &batch.target);
-            return StepStats { loss: mse, mse, samples: 0, skipped_nonfinite: false, timings: tm };
+            return StepStats { loss: mse, mse, samples: 0, marched: n_marched, skipped_nonfinite: false, timings: tm, ..Default::default() };
         }
 
         // Networks, compositing, loss and backward in one sweep over groups of whole rays
@@ -369,7 +376,10 @@ impl FastModel {
         let norm = (3 * n_rays).max(1) as f32;
         let lambda = self.config.distortion_weight.filter(|l| *l > 0.0 && l.is_finite());
         let scale = 1.0 / (self.bounds.far - self.bounds.near).max(1e-6);
+        // CPU nanoseconds of the groups' compositing, loss and compositing backward.
+        let composite_ns = std::sync::atomic::AtomicU64::new(0);
         let (d_enc, grads, parts) = mlp.train_groups(&enc, &sh, &sample_ranges, |gi, raw, rgb| {
+            let tc = Instant::now();
             let (rays, smp) = (groups[gi].0.clone(), groups[gi].1.clone());
             let base = samples.offsets[rays.start];
             let o: Vec<u32> = samples.offsets[rays.start..=rays.end].iter().map(|v| v - base).collect();
@@ -391,30 +401,37 @@ impl FastModel {
             let zeros = vec![0.0; rays.len()];
             let g = volrend::composite_backward_with_weights(&o, &sigma, rgb, ts, te, bg, &comp, &d_out, &zeros, &zeros, d_weights.as_deref());
             let d_raw = g.d_sigma.iter().zip(raw).map(|(g, x)| ACT.backward(*x, *g)).collect();
+            composite_ns.fetch_add(tc.elapsed().as_nanos() as u64, std::sync::atomic::Ordering::Relaxed);
             GroupGrads { d_raw, d_rgb: g.d_rgb, value: (sq, dist) }
         });
+        tm.phases.composite_cpu = composite_ns.into_inner() as f64 * 1e-9;
         let mse = (parts.iter().map(|p| p.0).sum::<f64>() / norm as f64) as f32;
         let loss = match lambda {
             Some(l) => mse + l * (parts.iter().map(|p| p.1).sum::<f64>() / n_rays.max(1) as f64) as f32,
             None => mse,
         };
-        tm.mlp += t0.elapsed().as_secs_f64();
-        let stats = |skipped, tm| StepStats { loss, mse, samples: n, skipped_nonfinite: skipped, timings: tm };
+        tm.phases.mlp_sweep = t0.elapsed().as_secs_f64();
+        tm.mlp += tm.phases.mlp_sweep;
+        let stats = |skipped, tm, touched| StepStats { loss, mse, samples: n, marched: n_marched, touched, skipped_nonfinite: skipped, timings: tm };
         if !loss.is_finite() || d_enc.len() != n * dims || !all_finite(&d_enc) || !grads.is_finite() {
-            return stats(true, tm);
+            return stats(true, tm, 0);
         }
         let mut gp = grads.into_params(&self.field);
 
         let t0 = Instant::now();
         self.grid.backward_touched(&unit, &d_enc, &mut self.grad, &mut self.touched);
-        tm.encoding += t0.elapsed().as_secs_f64();
+        tm.phases.hash_backward = t0.elapsed().as_secs_f64();
+        tm.encoding += tm.phases.hash_backward;
 
         let t0 = Instant::now();
         self.field = self.adam.step(self.lr, self.field.clone(), &mut gp);
+        tm.phases.adam_mlp = t0.elapsed().as_secs_f64();
+        let t1 = Instant::now();
         let f = self.config.features_per_level;
-        self.grid_adam.step_sparse(&mut self.grid.params, &mut self.grad, &mut self.touched, f, self.lr as f32);
+        let touched = self.grid_adam.step_sparse(&mut self.grid.params, &mut self.grad, &mut self.touched, f, self.lr as f32);
+        tm.phases.adam_hash = t1.elapsed().as_secs_f64();
         tm.optimizer += t0.elapsed().as_secs_f64();
-        stats(false, tm)
+        stats(false, tm, touched)
     }
 
     /// Renders rays: marches the occupancy grid (no jitter), evaluates the density network in

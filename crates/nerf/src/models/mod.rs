@@ -61,6 +61,55 @@ pub struct StepTimings {
     /// Optimiser steps (burn Adam for the networks, sparse Adam for the hash table) and the
     /// occupancy-grid update.
     pub optimizer: f64,
+    /// The phases inside the sums above, where a model measures them (`fast` does; 0 otherwise),
+    /// for `bench nerf`'s roofline.
+    #[serde(default)]
+    pub phases: PhaseTimings,
+}
+
+/// Seconds in each phase of a `fast` training step (wall time, except `composite_cpu`).
+#[derive(Clone, Copy, Debug, Default, Serialize, Deserialize)]
+pub struct PhaseTimings {
+    /// The trainer drawing the step's ray batch (pixels, rays, targets).
+    pub batch: f64,
+    /// Marching the occupancy grid and the samples' unit-cube points.
+    pub march: f64,
+    /// Hash-grid encoding forward of every marched sample.
+    pub hash_forward: f64,
+    /// The density-only pass without gradients that finds where rays turn opaque (compaction).
+    pub density_pass: f64,
+    /// Gathering the kept samples' encodings and direction inputs.
+    pub gather: f64,
+    /// The fused sweep: density and colour networks forward and backward, compositing and loss.
+    pub mlp_sweep: f64,
+    /// CPU seconds (summed over threads) of the sweep spent compositing, taking the loss and
+    /// the compositing backward (inside `mlp_sweep`).
+    pub composite_cpu: f64,
+    /// Hash-grid backward (scatter of the encoding's gradient into the table gradient).
+    pub hash_backward: f64,
+    /// burn Adam over the networks' parameters.
+    pub adam_mlp: f64,
+    /// Sparse Adam over the touched hash-table entries.
+    pub adam_hash: f64,
+    /// Occupancy-grid update (every `grid_update_interval` steps).
+    pub occupancy: f64,
+}
+
+impl PhaseTimings {
+    /// Adds another step's phases.
+    pub fn add(&mut self, o: &PhaseTimings) {
+        self.batch += o.batch;
+        self.march += o.march;
+        self.hash_forward += o.hash_forward;
+        self.density_pass += o.density_pass;
+        self.gather += o.gather;
+        self.mlp_sweep += o.mlp_sweep;
+        self.composite_cpu += o.composite_cpu;
+        self.hash_backward += o.hash_backward;
+        self.adam_mlp += o.adam_mlp;
+        self.adam_hash += o.adam_hash;
+        self.occupancy += o.occupancy;
+    }
 }
 
 impl StepTimings {
@@ -70,6 +119,7 @@ impl StepTimings {
         self.mlp += o.mlp;
         self.render += o.render;
         self.optimizer += o.optimizer;
+        self.phases.add(&o.phases);
     }
 }
 
@@ -82,6 +132,10 @@ pub struct StepStats {
     pub mse: f32,
     /// Samples evaluated by the networks.
     pub samples: usize,
+    /// Samples marched (before compaction; `fast` only, else equal to `samples`).
+    pub marched: usize,
+    /// Hash-table entries the sparse Adam step updated (`fast` only).
+    pub touched: usize,
     /// Whether the update was skipped because the loss or a gradient was not finite.
     pub skipped_nonfinite: bool,
     /// Time split.

@@ -1,0 +1,141 @@
+//! The roofline of a `fast` training step (`cargo xtask bench nerf`): the work each phase does
+//! (floating-point operations for the networks, bytes for the hash tables, the optimisers and
+//! the occupancy flags) and the two limits it is measured against on this machine, both timed
+//! in the same run: the fp32 matmul peak ([`crate::mlp::gemm_peak_gflops`]) and the memory
+//! bandwidth of a streaming kernel ([`stream_bandwidth_gbs`]).
+//!
+//! Work model (what a perfect cache would move; the hash tables' corners are random 4- to
+//! 32-byte reads, so their real traffic is whole 64-byte lines and latency, not bandwidth):
+//! - networks: 2 FLOPs per multiply-add; a trained sample runs both networks forward and
+//!   backward (3× the forward: the backward takes two matmuls per layer); the compaction pass
+//!   runs the density network's hidden layer and its density column forward on every marched
+//!   sample;
+//! - hash forward: per marched sample and level, 8 corners × `F` floats read and `F` written;
+//! - hash backward: per trained sample and level, `F` gradient floats read, 8 corners × `F`
+//!   floats read and written in the table gradient, and 8 one-byte touched flags written;
+//! - sparse Adam: every one-byte flag read, and per touched entry `F` floats of parameter,
+//!   gradient and both moments read and written (8 × 4 bytes per float);
+//! - network Adam: per parameter, parameter, gradient and both moments read and parameter and
+//!   moments written (7 × 4 bytes).
+
+use crate::models::fast::FastConfig;
+use rayon::prelude::*;
+
+/// Memory bandwidth in GB/s (10⁹ bytes) of a STREAM-style triad `a[i] = b[i] + s · c[i]` over
+/// three arrays of `n` floats on every rayon thread, counting 12 bytes per element (two reads
+/// and one write, as STREAM does); the best of `reps` timed runs after one warm-up.
+pub fn stream_bandwidth_gbs(n: usize, reps: usize) -> f64 {
+    let b: Vec<f32> = (0..n).into_par_iter().map(|i| (i % 1024) as f32).collect();
+    let c: Vec<f32> = (0..n).into_par_iter().map(|i| (i % 512) as f32).collect();
+    let mut a = vec![0.0f32; n];
+    const CHUNK: usize = 1 << 16;
+    let mut best = f64::INFINITY;
+    for rep in 0..=reps.max(1) {
+        let s = 1.0 + rep as f32 * 1e-3;
+        let t = std::time::Instant::now();
+        a.par_chunks_mut(CHUNK).zip(b.par_chunks(CHUNK)).zip(c.par_chunks(CHUNK)).for_each(|((a, b), c)| {
+            for ((a, b), c) in a.iter_mut().zip(b).zip(c) {
+                *a = b + s * c;
+            }
+        });
+        if rep > 0 {
+            best = best.min(t.elapsed().as_secs_f64());
+        }
+        std::hint::black_box(&a);
+    }
+    12.0 * n as f64 / best / 1e9
+}
+
+/// What one training step of a `fast` model did, for [`StepWork::of`].
+#[derive(Clone, Copy, Debug, Default)]
+pub struct StepCounts {
+    /// Samples marched (every one is hash-encoded and goes through the compaction pass).
+    pub marched: f64,
+    /// Samples trained on (after compaction).
+    pub trained: f64,
+    /// Hash-table entries the sparse Adam updated.
+    pub touched: f64,
+}
+
+/// The work of the phases of one step, from the model's sizes and [`StepCounts`].
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct StepWork {
+    /// FLOPs of the fused network sweep (both networks forward and backward).
+    pub mlp_flops: f64,
+    /// FLOPs of the compaction pass (density network's hidden layer and density column).
+    pub density_pass_flops: f64,
+    /// Bytes of the hash-grid forward.
+    pub hash_forward_bytes: f64,
+    /// Bytes of the hash-grid backward.
+    pub hash_backward_bytes: f64,
+    /// Bytes of the sparse Adam over the hash tables.
+    pub adam_hash_bytes: f64,
+    /// Bytes of the networks' Adam.
+    pub adam_mlp_bytes: f64,
+}
+
+impl StepWork {
+    /// The work model of the module docs for a model of `config` with `mlp_params` network
+    /// parameters.
+    pub fn of(config: &FastConfig, mlp_params: usize, c: StepCounts) -> Self {
+        let (l, f) = (config.levels as f64, config.features_per_level as f64);
+        let enc = l * f;
+        let dw = config.density_width as f64;
+        let density = enc * dw + dw * config.geo_features as f64;
+        let cin = (config.geo_features + config.dir_dims()) as f64;
+        let cw = config.color_width as f64;
+        let color = cin * cw + config.color_depth.saturating_sub(1) as f64 * cw * cw + cw * 3.0;
+        let table_entries = l * (1u64 << config.log2_table_size) as f64;
+        StepWork {
+            mlp_flops: c.trained * (density + color) * 2.0 * 3.0,
+            density_pass_flops: c.marched * (enc * dw + dw) * 2.0,
+            hash_forward_bytes: c.marched * l * (8.0 * f + f) * 4.0,
+            hash_backward_bytes: c.trained * l * (f * 4.0 + 8.0 * f * 4.0 * 2.0 + 8.0),
+            adam_hash_bytes: table_entries + c.touched * f * 4.0 * 8.0,
+            adam_mlp_bytes: mlp_params as f64 * 4.0 * 7.0,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The work model against a hand count for a tiny model: 2 levels of 2 features (enc 4),
+    /// density 4 → 8 → 3, colour (3 + 0) → 8 → 3 (depth 1, no view dependence), 2⁴ entries.
+    #[test]
+    fn work_model_counts_by_hand() {
+        let cfg = FastConfig {
+            levels: 2,
+            features_per_level: 2,
+            log2_table_size: 4,
+            density_width: 8,
+            geo_features: 3,
+            color_width: 8,
+            color_depth: 1,
+            view_dependent: Some(false),
+            ..FastConfig::new()
+        };
+        assert_eq!(cfg.dir_dims(), 0);
+        let w = StepWork::of(&cfg, 100, StepCounts { marched: 10.0, trained: 5.0, touched: 6.0 });
+        // density 4·8 + 8·3 = 56, colour 3·8 + 8·3 = 48 MACs; ×2 FLOPs ×3 (fwd + bwd) × 5 samples
+        assert_eq!(w.mlp_flops, 5.0 * 104.0 * 6.0);
+        // compaction: (4·8 + 8) MACs × 2 × 10 samples
+        assert_eq!(w.density_pass_flops, 10.0 * 40.0 * 2.0);
+        // forward: 10 samples × 2 levels × (8 corners × 2 + 2) floats × 4 bytes
+        assert_eq!(w.hash_forward_bytes, 10.0 * 2.0 * 18.0 * 4.0);
+        // backward: 5 × 2 levels × (2·4 + 8·2·4·2 + 8) bytes
+        assert_eq!(w.hash_backward_bytes, 5.0 * 2.0 * (8.0 + 128.0 + 8.0));
+        // 32 flags + 6 entries × 2 floats × 32 bytes; 100 parameters × 28 bytes
+        assert_eq!(w.adam_hash_bytes, 32.0 + 6.0 * 2.0 * 32.0);
+        assert_eq!(w.adam_mlp_bytes, 2800.0);
+    }
+
+    /// The limits are finite and positive on any machine (their values are the benchmark's).
+    #[test]
+    fn limits_are_measured() {
+        let bw = stream_bandwidth_gbs(1 << 16, 1);
+        let peak = crate::mlp::gemm_peak_gflops(64, 1);
+        assert!(bw.is_finite() && bw > 0.0 && peak.is_finite() && peak > 0.0, "bandwidth {bw} GB/s, peak {peak} GFLOP/s");
+    }
+}
