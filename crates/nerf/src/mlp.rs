@@ -165,10 +165,9 @@ impl HashMlp {
     pub fn geometry(&self, enc: &[f32]) -> Vec<f32> {
         let (n, ed, gd) = (self.samples_in(enc), self.enc_dims(), self.geo_dims());
         let mut geo = vec![0.0; n * gd];
-        geo.par_chunks_mut(TILE * gd).enumerate().for_each(|(c, out)| {
+        geo.par_chunks_mut(TILE * gd).enumerate().for_each_init(Vec::new, |outs, (c, out)| {
             let (s0, t) = (c * TILE, out.len() / gd);
-            let mut outs = Vec::new();
-            forward_stack(&self.density, &enc[s0 * ed..(s0 + t) * ed], t, &mut outs);
+            forward_stack(&self.density, &enc[s0 * ed..(s0 + t) * ed], t, outs);
             out.copy_from_slice(outs.last().expect("the density stack has layers"));
         });
         geo
@@ -188,16 +187,16 @@ impl HashMlp {
         let n = geo.len() / gd;
         assert_eq!(sh.len(), n * sd, "direction input for {n} samples of width {sd}");
         let mut rgb = vec![[0.0; 3]; n];
-        rgb.par_chunks_mut(TILE).enumerate().for_each(|(c, rgb)| {
+        rgb.par_chunks_mut(TILE).enumerate().for_each_init(|| (Vec::new(), Vec::new()), |(cin, outs), (c, rgb)| {
             let (s0, t) = (c * TILE, rgb.len());
-            let mut cin = vec![0.0; t * (gd + sd)];
+            cin.clear();
+            cin.resize(t * (gd + sd), 0.0);
             for k in 0..t {
                 let row = &mut cin[k * (gd + sd)..(k + 1) * (gd + sd)];
                 row[..gd].copy_from_slice(&geo[(s0 + k) * gd..(s0 + k + 1) * gd]);
                 row[gd..].copy_from_slice(&sh[(s0 + k) * sd..(s0 + k + 1) * sd]);
             }
-            let mut outs = Vec::new();
-            forward_stack(&self.color, &cin, t, &mut outs);
+            forward_stack(&self.color, cin, t, outs);
             for (o, v) in rgb.iter_mut().zip(outs.last().expect("the colour stack has layers").chunks_exact(3)) {
                 *o = [sigmoid(v[0]), sigmoid(v[1]), sigmoid(v[2])];
             }
@@ -215,11 +214,10 @@ impl HashMlp {
         // Column 0 of the last layer's weights, contiguous.
         let w0: Vec<f32> = (0..last.d_in).map(|i| last.w[i * last.d_out]).collect();
         let mut raw = vec![0.0; n];
-        raw.par_chunks_mut(TILE).enumerate().for_each(|(c, raw)| {
+        raw.par_chunks_mut(TILE).enumerate().for_each_init(Vec::new, |outs, (c, raw)| {
             let (s0, t) = (c * TILE, raw.len());
             let x = &enc[s0 * ed..(s0 + t) * ed];
-            let mut outs = Vec::new();
-            forward_layers(hidden, hidden.len(), x, t, &mut outs);
+            forward_layers(hidden, hidden.len(), x, t, outs);
             let h: &[f32] = outs.last().map_or(x, |v| v.as_slice());
             for (k, r) in raw.iter_mut().enumerate() {
                 *r = last.b[0] + h[k * last.d_in..(k + 1) * last.d_in].iter().zip(&w0).map(|(a, b)| a * b).sum::<f32>();
@@ -433,14 +431,19 @@ fn forward_stack(stack: &Stack, x: &[f32], t: usize, outs: &mut Vec<Vec<f32>>) {
     forward_layers(&stack.layers, stack.layers.len() - 1, x, t, outs)
 }
 
-/// Runs `layers` over `t` samples `x`, the first `relu` of them followed by a ReLU.
+/// Runs `layers` over `t` samples `x`, the first `relu` of them followed by a ReLU; `outs`
+/// ends with one output per layer, reusing the buffers it already holds (a caller that keeps
+/// `outs` across tiles allocates nothing after the first).
 fn forward_layers(layers: &[Dense], relu: usize, x: &[f32], t: usize, outs: &mut Vec<Vec<f32>>) {
-    outs.clear();
+    outs.truncate(layers.len());
+    outs.resize_with(layers.len(), Vec::new);
     for (i, l) in layers.iter().enumerate() {
-        let input: &[f32] = if i == 0 { x } else { &outs[i - 1] };
-        let mut y = vec![0.0; t * l.d_out];
-        mm::dense(&mut y, input, &l.w, &l.b, t, l.d_in, l.d_out, i < relu);
-        outs.push(y);
+        let (done, rest) = outs.split_at_mut(i);
+        let input: &[f32] = if i == 0 { x } else { &done[i - 1] };
+        let y = &mut rest[0];
+        y.clear();
+        y.resize(t * l.d_out, 0.0);
+        mm::dense(y, input, &l.w, &l.b, t, l.d_in, l.d_out, i < relu);
     }
 }
 
