@@ -221,7 +221,8 @@ pub fn run(args: NerfBenchArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Threads of rayon's global pool (the trainer's and the limits' parallelism).
+/// The machine's available parallelism: the size of rayon's default pool, which the trainer
+/// and the limits run on (unless `RAYON_NUM_THREADS` says otherwise).
 fn rayon_threads() -> usize {
     std::thread::available_parallelism().map_or(1, |n| n.get())
 }
@@ -235,15 +236,15 @@ fn roofline_rows(tm: &nerf::models::StepTimings, step_s: f64, steps: u64, work: 
     // The sweep's compositing runs inside its parallel groups: its share of the sweep's wall
     // time is taken as its CPU time over the threads.
     let composite = (p.composite_cpu / threads).min(p.mlp_sweep);
-    let row = |phase, secs: f64, unit, work: f64| {
+    let row = |phase, secs: f64, unit: &'static str, work: f64| {
         let s = secs / n;
-        let rate = if unit == "" || s <= 0.0 { 0.0 } else { work / s / 1e9 };
+        let rate = if unit.is_empty() || s <= 0.0 { 0.0 } else { work / s / 1e9 };
         let limit = match unit {
             "flops" => peak,
             "bytes" => bw,
             _ => f64::NAN,
         };
-        PhaseRow { phase, ms_per_step: s * 1e3, work_unit: unit, work_per_step: work, rate, fraction_of_limit: if unit == "" { f64::NAN } else { rate / limit } }
+        PhaseRow { phase, ms_per_step: s * 1e3, work_unit: unit, work_per_step: work, rate, fraction_of_limit: if unit.is_empty() { f64::NAN } else { rate / limit } }
     };
     let mut rows = vec![
         row("ray batch", p.batch, "", 0.0),
