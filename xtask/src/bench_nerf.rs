@@ -10,10 +10,10 @@
 //! (default 800×800, the Blender-synthetic size) from a fast model trained briefly on the same
 //! data, and with `--run RUN` from a trained run's checkpoint. Writes `bench-nerf.json`.
 
+use anyhow::Context;
 use dataset::{Camera, Intrinsics};
 use nerf::models::Model;
 use nerf::train::{TrainConfig, Trainer};
-use anyhow::Context;
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -134,7 +134,7 @@ pub fn run(args: NerfBenchArgs) -> anyhow::Result<()> {
     let bw = nerf::roofline::stream_bandwidth_gbs(1 << 25, 5);
     println!(
         "machine: gemm fp32 2048^3 peak {peak:.1} GFLOP/s ({} threads); burn matmul 2048^3 {burn_peak:.1} GFLOP/s (backend {}); stream triad bandwidth {bw:.1} GB/s",
-        rayon_threads(),
+        nerf::roofline::threads(),
         nerf::backend::backend_name()
     );
     networks_fused_vs_burn(peak);
@@ -221,18 +221,12 @@ pub fn run(args: NerfBenchArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// The machine's available parallelism: the size of rayon's default pool, which the trainer
-/// and the limits run on (unless `RAYON_NUM_THREADS` says otherwise).
-fn rayon_threads() -> usize {
-    std::thread::available_parallelism().map_or(1, |n| n.get())
-}
-
 /// The fast model's phases over `steps` steps (`tm` summed over them; `step_s` the mean
 /// wall seconds of a step) against `work` (per step) and the machine's limits.
 fn roofline_rows(tm: &nerf::models::StepTimings, step_s: f64, steps: u64, work: &nerf::roofline::StepWork, peak: f64, bw: f64) -> Vec<PhaseRow> {
     let p = &tm.phases;
     let n = steps as f64;
-    let threads = rayon_threads() as f64;
+    let threads = nerf::roofline::threads() as f64;
     // The sweep's compositing runs inside its parallel groups: its share of the sweep's wall
     // time is taken as its CPU time over the threads.
     let composite = (p.composite_cpu / threads).min(p.mlp_sweep);

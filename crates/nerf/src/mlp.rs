@@ -714,7 +714,6 @@ mod mm {
     }
 }
 
-
 /// This machine's fp32 matmul peak in GFLOP/s: `gemm` (the fastest fp32 GEMM in our
 /// dependencies, runtime-dispatched to AVX-512 or AVX2) on an `n × n` square problem with
 /// every rayon thread, best of `reps` runs.

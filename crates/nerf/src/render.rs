@@ -2,12 +2,12 @@
 //! checkpoint; [`RunModel::render_view`] gives colour (display sRGB, the space the models are
 //! trained in), opacity, expected z-depth and distance, and every ray's samples and weights.
 
-use rayon::prelude::*;
 use crate::checkpoint;
 use crate::data::SceneBounds;
 use crate::models::Model;
 use crate::train::{CONFIG_FILE, TrainConfig, TrainError};
 use dataset::Camera;
+use rayon::prelude::*;
 use std::path::{Path, PathBuf};
 
 /// The samples behind each pixel, for off-surface-mass metrics.

@@ -21,6 +21,11 @@
 use crate::models::fast::FastConfig;
 use rayon::prelude::*;
 
+/// Threads of the rayon pool the trainer and both limits run on.
+pub fn threads() -> usize {
+    rayon::current_num_threads()
+}
+
 /// Memory bandwidth in GB/s (10⁹ bytes) of a STREAM-style triad `a[i] = b[i] + s · c[i]` over
 /// three arrays of `n` floats on every rayon thread, counting 12 bytes per element (two reads
 /// and one write, as STREAM does); the best of `reps` timed runs after one warm-up.
