@@ -95,20 +95,15 @@ impl MarchState {
     }
 }
 
-/// Coarser occupancy of an [`OccupancyGrid`] ([`OccupancyGrid::blocks`]).
+/// The empty space around each cell of an [`OccupancyGrid`] ([`OccupancyGrid::blocks`]): the
+/// chessboard distance in cells from each cell to the nearest occupied one (0 for an occupied
+/// cell; capped at 255, which a grid with no occupied cell gets everywhere). Every cell within
+/// distance `k − 1` of a cell at distance `k` is empty, so the march leaves that whole cube of
+/// `(2k − 1)³` cells at once.
 #[derive(Clone, Debug)]
 pub struct OccupancyBlocks {
-    /// Finest first.
-    levels: Vec<BlockLevel>,
-}
-
-#[derive(Clone, Debug)]
-struct BlockLevel {
-    /// Cells per block side.
-    side: u32,
-    /// Blocks per axis.
-    n: u32,
-    bits: Vec<u64>,
+    /// Index `x + R (y + R z)`, as the grid's cells.
+    dist: Vec<u8>,
 }
 
 /// The grid: running densities and the occupancy bitfield.
@@ -338,9 +333,10 @@ impl OccupancyGrid {
     /// Emits the ray's next intervals (at most `limit` of them, and none past
     /// `max_samples_per_ray` in all) into `ts`/`te`; returns how many. `state` moves on, and is
     /// marked done when the ray has left the box or reached its cap. With `blocks` (this
-    /// grid's [`Self::blocks`]) the march leaves a whole empty block at once where it would
-    /// otherwise visit its empty cells one by one: the same intervals but for rounding where a
-    /// midpoint lies on a block's face.
+    /// grid's [`Self::blocks`]) the march leaves the whole empty cube of cells around an empty
+    /// cell at once where it would otherwise visit them one by one: with constant steps the
+    /// same intervals but for rounding where a midpoint lies on the cube's face; a cone march
+    /// resumes `u · step` past the cube's exit instead of the cell's.
     #[allow(clippy::too_many_arguments)]
     pub fn march_more(
         &self,
@@ -437,63 +433,64 @@ impl OccupancyGrid {
         now
     }
 
-    /// Where the ray leaves empty cell `c`: the exit of the largest empty block of `blocks`
-    /// holding it, else of the cell.
+    /// Where the ray leaves empty cell `c`: with `blocks`, the exit of the empty cube of cells
+    /// around `c` that its distance to the nearest occupied cell gives (clipped to the grid),
+    /// else of the cell.
     #[inline]
     fn empty_exit(&self, o: [f32; 3], d: [f32; 3], c: [u32; 3], size: [f32; 3], blocks: Option<&OccupancyBlocks>) -> f32 {
         if let Some(bl) = blocks {
-            for lv in bl.levels.iter().rev() {
-                let cb = c.map(|v| v / lv.side);
-                let i = cb[0] as usize + lv.n as usize * (cb[1] as usize + lv.n as usize * cb[2] as usize);
-                if (lv.bits[i / 64] >> (i % 64)) & 1 == 0 {
-                    return self.box_exit(o, d, cb.map(|v| v * lv.side), lv.side, size);
+            let radius = (bl.dist[self.cell_index(c)] as u32).saturating_sub(1);
+            if radius > 0 {
+                let r = self.config.resolution;
+                let mut t_exit = f32::INFINITY;
+                for a in 0..3 {
+                    if d[a] != 0.0 {
+                        let cell = if d[a] > 0.0 { (c[a] + radius + 1).min(r) } else { c[a].saturating_sub(radius) };
+                        let plane = self.config.aabb.min[a] + cell as f32 * size[a];
+                        t_exit = t_exit.min((plane - o[a]) / d[a]);
+                    }
                 }
+                return t_exit;
             }
         }
         self.cell_exit(o, d, c, size)
     }
 
-    /// Distance along `o + t d` at which it leaves the box of `side³` cells whose lowest cell
-    /// is `first` (clipped to the grid).
-    #[inline]
-    fn box_exit(&self, o: [f32; 3], d: [f32; 3], first: [u32; 3], side: u32, size: [f32; 3]) -> f32 {
-        let r = self.config.resolution;
-        let mut t_exit = f32::INFINITY;
-        for a in 0..3 {
-            if d[a] != 0.0 {
-                let cell = if d[a] > 0.0 { (first[a] + side).min(r) } else { first[a] };
-                let plane = self.config.aabb.min[a] + cell as f32 * size[a];
-                t_exit = t_exit.min((plane - o[a]) / d[a]);
-            }
-        }
-        t_exit
-    }
-
-    /// The grid's occupancy summarised in blocks of 4³ and 16³ cells (a block is occupied when
-    /// any of its cells is), for [`Self::march_more`] to skip empty space fast. Stale once the
-    /// grid changes.
+    /// The grid's empty space as each cell's chessboard distance to the nearest occupied cell
+    /// ([`OccupancyBlocks`]), for [`Self::march_more`] to skip empty space fast: two raster
+    /// passes over the 26-neighbourhood (Rosenfeld and Pfaltz's chamfer algorithm, exact for
+    /// the chessboard metric). Stale once the grid changes.
     pub fn blocks(&self) -> OccupancyBlocks {
-        let r = self.config.resolution;
-        let levels = [4u32, 16]
-            .into_iter()
-            .filter(|&side| side < r)
-            .map(|side| {
-                let n = r.div_ceil(side);
-                let mut bits = vec![0u64; ((n * n * n) as usize).div_ceil(64)];
-                for z in 0..r {
-                    for y in 0..r {
-                        for x in 0..r {
-                            if self.is_occupied([x, y, z]) {
-                                let i = (x / side) as usize + n as usize * ((y / side) as usize + n as usize * (z / side) as usize);
-                                bits[i / 64] |= 1 << (i % 64);
-                            }
-                        }
+        let r = self.config.resolution as i64;
+        let n = self.n_cells();
+        let mut dist: Vec<u8> = (0..n).map(|i| if self.bit(i) { 0 } else { u8::MAX }).collect();
+        // The 13 neighbours before a cell in raster order (z, then y, then x).
+        let before: Vec<[i64; 3]> = (-1..=1i64)
+            .flat_map(|dz| (-1..=1i64).flat_map(move |dy| (-1..=1i64).map(move |dx| [dx, dy, dz])))
+            .filter(|&[dx, dy, dz]| (dz, dy, dx) < (0, 0, 0))
+            .collect();
+        let idx = |x: i64, y: i64, z: i64| (x + r * (y + r * z)) as usize;
+        let mut pass = |cells: &mut dyn Iterator<Item = (i64, i64, i64)>, sign: i64| {
+            for (x, y, z) in cells {
+                let i = idx(x, y, z);
+                if dist[i] == 0 {
+                    continue;
+                }
+                let mut m = dist[i];
+                for &[dx, dy, dz] in &before {
+                    let (nx, ny, nz) = (x + sign * dx, y + sign * dy, z + sign * dz);
+                    if (0..r).contains(&nx) && (0..r).contains(&ny) && (0..r).contains(&nz) {
+                        m = m.min(dist[idx(nx, ny, nz)].saturating_add(1));
                     }
                 }
-                BlockLevel { side, n, bits }
-            })
-            .collect();
-        OccupancyBlocks { levels }
+                dist[i] = m;
+            }
+        };
+        let forward = (0..r).flat_map(|z| (0..r).flat_map(move |y| (0..r).map(move |x| (x, y, z))));
+        pass(&mut forward.clone(), 1);
+        let backward = (0..r).rev().flat_map(|z| (0..r).rev().flat_map(move |y| (0..r).rev().map(move |x| (x, y, z))));
+        pass(&mut backward.clone(), -1);
+        OccupancyBlocks { dist }
     }
 
     /// One cell's size per axis (world units).
@@ -659,7 +656,9 @@ mod tests {
 
     /// Marching resumed a few intervals at a time (as rendering does) emits exactly the
     /// intervals of one march, for constant steps and cone marching, jittered or not, through
-    /// a grid with empty cells to skip and a cap to hit.
+    /// a grid with empty cells to skip and a cap to hit; skipping whole empty cubes
+    /// ([`OccupancyGrid::blocks`]) changes nothing with constant steps, and with cone marching
+    /// gives the same intervals however it is resumed.
     #[test]
     fn resumed_marching_emits_exactly_the_whole_march() {
         // 32³ cells: a ball and scattered cells in the lower half, the upper half empty (whole
@@ -675,11 +674,7 @@ mod tests {
             }
         }
         let coarse = g.blocks();
-        assert_eq!(coarse.levels.iter().map(|l| l.side).collect::<Vec<_>>(), [4, 16]);
-        for l in &coarse.levels {
-            let occupied: u32 = l.bits.iter().map(|w| w.count_ones()).sum();
-            assert!(occupied > 0 && occupied <= l.n.pow(3) / 2, "blocks of {}: {occupied} of {} occupied", l.side, l.n.pow(3));
-        }
+        assert!(coarse.dist.iter().any(|&d| d >= 8), "the test needs wide empty regions to skip");
         let n = 64;
         let origins: Vec<[f32; 3]> = (0..n).map(|i| [-0.5 + 0.01 * i as f32, 0.3 + 0.005 * i as f32, -0.7]).collect();
         let dirs: Vec<[f32; 3]> = (0..n)
@@ -696,7 +691,7 @@ mod tests {
                 for cap in [1024, 9] {
                     let opt = MarchOptions { step_size: 0.013, max_samples_per_ray: cap, jitter, cone_angle };
                     let whole = g.march(&origins, &dirs, &near, &far, &opt);
-                    for (limit, blocks) in [(1, None), (3, None), (4, None), (4, Some(&coarse)), (1, Some(&coarse))] {
+                    let resumed = |limit: usize, blocks: Option<&OccupancyBlocks>| {
                         let (mut ts, mut te, mut offsets) = (Vec::new(), Vec::new(), vec![0u32]);
                         for r in 0..n {
                             let mut st = g.march_start(r, origins[r], dirs[r], near[r], far[r], &opt);
@@ -706,11 +701,65 @@ mod tests {
                             }
                             offsets.push(ts.len() as u32);
                         }
-                        assert_eq!(offsets, whole.offsets, "cone {cone_angle} {jitter:?} cap {cap} limit {limit} blocks {}", blocks.is_some());
-                        assert_eq!(ts, whole.t_start);
-                        assert_eq!(te, whole.t_end);
+                        (offsets, ts, te)
+                    };
+                    let skipping = resumed(usize::MAX, Some(&coarse));
+                    for (limit, blocks) in [(1, None), (3, None), (4, None), (4, Some(&coarse)), (1, Some(&coarse))] {
+                        let (offsets, ts, te) = resumed(limit, blocks);
+                        let what = format!("cone {cone_angle} {jitter:?} cap {cap} limit {limit} blocks {}", blocks.is_some());
+                        // Cone marching resumes u·step past where it leaves empty space, so a
+                        // skip across a whole empty cube places later intervals differently
+                        // from a walk cell by cell; constant steps fix every interval's place.
+                        let want = if blocks.is_some() && cone_angle > 0.0 { skipping.clone() } else { (whole.offsets.clone(), whole.t_start.clone(), whole.t_end.clone()) };
+                        assert_eq!(offsets, want.0, "{what}");
+                        assert_eq!(ts, want.1, "{what}");
+                        assert_eq!(te, want.2, "{what}");
+                    }
+                    // Skipping cubes emits only intervals whose midpoints lie in occupied cells.
+                    for r in 0..n {
+                        for s in skipping.0[r] as usize..skipping.0[r + 1] as usize {
+                            let tm = 0.5 * (skipping.1[s] + skipping.2[s]);
+                            let p = [0, 1, 2].map(|a| origins[r][a] + tm * dirs[r][a]);
+                            assert!(g.is_occupied(g.cell_clamped(p)), "ray {r} sample {s} at {p:?} lies in an empty cell");
+                        }
                     }
                     assert!(whole.len() > n / 2, "the test rays must sample something ({})", whole.len());
+                }
+            }
+        }
+    }
+
+    /// The empty-space distances are each cell's exact chessboard distance to the nearest
+    /// occupied cell (brute force over every pair), on random grids of a few densities, an
+    /// empty grid (the cap) and a full one.
+    #[test]
+    fn empty_space_distance_is_the_exact_chessboard_distance() {
+        let r = 11u32;
+        for (seed, p) in [(1u64, 0.002f32), (2, 0.01), (3, 0.05), (4, 0.3), (5, 0.0), (6, 1.0)] {
+            let mut g = OccupancyGrid::new(cfg(r));
+            let mut occupied = Vec::new();
+            for z in 0..r {
+                for y in 0..r {
+                    for x in 0..r {
+                        let on = rng::uniform_f32(rng::key(&[seed, (x + r * (y + r * z)) as u64])) < p;
+                        g.set_occupied([x, y, z], on);
+                        if on {
+                            occupied.push([x, y, z]);
+                        }
+                    }
+                }
+            }
+            let d = g.blocks().dist;
+            for z in 0..r {
+                for y in 0..r {
+                    for x in 0..r {
+                        let want = occupied
+                            .iter()
+                            .map(|o| (0..3).map(|a| o[a].abs_diff([x, y, z][a])).max().unwrap())
+                            .min()
+                            .map_or(255, |v| v.min(255) as u8);
+                        assert_eq!(d[g.cell_index([x, y, z])], want, "seed {seed}, cell {x} {y} {z}");
+                    }
                 }
             }
         }
