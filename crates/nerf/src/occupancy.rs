@@ -245,7 +245,8 @@ impl OccupancyGrid {
         }
     }
 
-    /// Marches rays through the occupied cells (see the module doc).
+    /// Marches rays through the occupied cells (see the module doc); `blocks` as in
+    /// [`Self::march_more`].
     ///
     /// # Shapes
     /// `origins`, `dirs`, `near`, `far`: `[n_rays]` → `RaySamples`
@@ -256,6 +257,7 @@ impl OccupancyGrid {
         near: &[f32],
         far: &[f32],
         options: &MarchOptions,
+        blocks: Option<&OccupancyBlocks>,
     ) -> RaySamples {
         let n_rays = origins.len();
         assert!(dirs.len() == n_rays && near.len() == n_rays && far.len() == n_rays, "per-ray lengths differ");
@@ -266,7 +268,7 @@ impl OccupancyGrid {
                 let (mut counts, mut ts, mut te) = (Vec::new(), Vec::new(), Vec::new());
                 for r in b * MARCH_BLOCK..((b + 1) * MARCH_BLOCK).min(n_rays) {
                     let before = ts.len();
-                    self.march_ray(r, origins[r], dirs[r], near[r], far[r], options, &mut ts, &mut te);
+                    self.march_ray(r, origins[r], dirs[r], near[r], far[r], options, blocks, &mut ts, &mut te);
                     counts.push((ts.len() - before) as u32);
                 }
                 (counts, ts, te)
@@ -301,11 +303,12 @@ impl OccupancyGrid {
         near: f32,
         far: f32,
         opt: &MarchOptions,
+        blocks: Option<&OccupancyBlocks>,
         ts: &mut Vec<f32>,
         te: &mut Vec<f32>,
     ) {
         let mut state = self.march_start(r, o, d, near, far, opt);
-        self.march_more(&mut state, o, d, opt, None, usize::MAX, ts, te);
+        self.march_more(&mut state, o, d, opt, blocks, usize::MAX, ts, te);
     }
 
     /// Where ray `r` (`o + t d`) starts its march, for [`Self::march_more`]: its clipped
@@ -556,7 +559,7 @@ mod tests {
     fn worked_example_everything_occupied_covers_near_far() {
         let g = OccupancyGrid::new(cfg(8));
         assert_eq!(g.occupied_fraction(), 1.0);
-        let s = g.march(&[[0.5, 0.5, -1.0]], &[[0.0, 0.0, 1.0]], &[1.2], &[1.5], &opts(0.1, SampleMode::Deterministic));
+        let s = g.march(&[[0.5, 0.5, -1.0]], &[[0.0, 0.0, 1.0]], &[1.2], &[1.5], &opts(0.1, SampleMode::Deterministic), None);
         assert_eq!(s.len(), 3);
         for (k, (a, b)) in s.t_start.iter().zip(&s.t_end).enumerate() {
             assert!((a - (1.2 + 0.1 * k as f32)).abs() < 1e-6 && (b - (1.3 + 0.1 * k as f32)).abs() < 1e-6);
@@ -565,13 +568,13 @@ mod tests {
         // a diagonal ray, jittered: contiguous steps up to far
         let (o, d) = ([-0.5f32, -0.5, -0.5], [1.0f32 / 3f32.sqrt(); 3]);
         let (n, f) = (1.0f32, 2.0f32);
-        let s = g.march(&[o], &[d], &[n], &[f], &opts(0.01, SampleMode::Random { seed: 3, step: 7 }));
+        let s = g.march(&[o], &[d], &[n], &[f], &opts(0.01, SampleMode::Random { seed: 3, step: 7 }), None);
         assert!(s.t_start[0] >= n && s.t_start[0] < n + 0.01);
         assert!(s.t_start[1..].iter().zip(&s.t_end).all(|(a, b)| (a - b).abs() < 1e-5));
         assert_eq!(*s.t_end.last().unwrap(), f);
         assert!((s.len() as i32 - 100).abs() <= 1);
         // the box clips: a ray from far outside starts at the box
-        let s = g.march(&[[0.5, 0.5, -1.0]], &[[0.0, 0.0, 1.0]], &[0.0], &[100.0], &opts(0.25, SampleMode::Deterministic));
+        let s = g.march(&[[0.5, 0.5, -1.0]], &[[0.0, 0.0, 1.0]], &[0.0], &[100.0], &opts(0.25, SampleMode::Deterministic), None);
         assert_eq!((s.t_start.clone(), s.t_end.clone()), (vec![1.0, 1.25, 1.5, 1.75], vec![1.25, 1.5, 1.75, 2.0]));
     }
 
@@ -587,7 +590,7 @@ mod tests {
         let near = vec![0.0; 6];
         let far = vec![10.0; 6];
         for mode in [SampleMode::Deterministic, SampleMode::Random { seed: 5, step: 2 }] {
-            let s = g.march(&origins, &dirs, &near, &far, &opts(0.01, mode));
+            let s = g.march(&origins, &dirs, &near, &far, &opts(0.01, mode), None);
             for r in 0..6 {
                 let (a, b) = s.ray(r);
                 assert_eq!(!a.is_empty(), hits[r], "ray {r}");
@@ -611,7 +614,7 @@ mod tests {
         // Everything occupied, a ray along +z from z = -9 through the unit box (t 9..10):
         // steps t · 0.01 ≈ 0.09..0.1 (above the 0.001 minimum, below the 0.125 cell),
         // contiguous from near to far.
-        let s = g.march(&[[0.5, 0.5, -9.0]], &[[0.0, 0.0, 1.0]], &[0.0], &[100.0], &cone(0.001, SampleMode::Deterministic));
+        let s = g.march(&[[0.5, 0.5, -9.0]], &[[0.0, 0.0, 1.0]], &[0.0], &[100.0], &cone(0.001, SampleMode::Deterministic), None);
         assert_eq!(s.t_start[0], 9.0);
         assert_eq!(*s.t_end.last().unwrap(), 10.0);
         assert!(s.t_start[1..].iter().zip(&s.t_end).all(|(a, b)| a == b));
@@ -619,16 +622,16 @@ mod tests {
             assert!(((b - a) - 0.01 * a).abs() < 1e-5, "step {} at {a}", b - a);
         }
         // Close to the origin the minimum step rules; far away one cell.
-        let s = g.march(&[[0.5, 0.5, 0.0]], &[[0.0, 0.0, 1.0]], &[0.0], &[100.0], &cone(0.02, SampleMode::Deterministic));
+        let s = g.march(&[[0.5, 0.5, 0.0]], &[[0.0, 0.0, 1.0]], &[0.0], &[100.0], &cone(0.02, SampleMode::Deterministic), None);
         assert!((s.t_end[0] - s.t_start[0] - 0.02).abs() < 1e-6);
-        let s = g.march(&[[0.5, 0.5, -99.0]], &[[0.0, 0.0, 1.0]], &[0.0], &[1000.0], &cone(0.001, SampleMode::Deterministic));
+        let s = g.march(&[[0.5, 0.5, -99.0]], &[[0.0, 0.0, 1.0]], &[0.0], &[1000.0], &cone(0.001, SampleMode::Deterministic), None);
         assert!((s.t_end[0] - s.t_start[0] - 0.125).abs() < 1e-4, "{}", s.t_end[0] - s.t_start[0]);
         // One occupied cell: every sample's midpoint lies in it, jittered or not.
         let mut g = OccupancyGrid::new(cfg(8));
         g.mark_all(false);
         g.set_occupied([3, 4, 5], true);
         for mode in [SampleMode::Deterministic, SampleMode::Random { seed: 5, step: 2 }] {
-            let s = g.march(&[[-1.0, 0.55, 0.7]], &[[1.0, 0.0, 0.0]], &[0.0], &[10.0], &cone(0.001, mode));
+            let s = g.march(&[[-1.0, 0.55, 0.7]], &[[1.0, 0.0, 0.0]], &[0.0], &[10.0], &cone(0.001, mode), None);
             // The chord 1.375..1.5 at steps ≈ 0.014: 8 or 9 samples.
             assert!((8..=10).contains(&s.len()), "{} samples", s.len());
             for (&t0, &t1) in s.t_start.iter().zip(&s.t_end) {
@@ -647,10 +650,11 @@ mod tests {
             &[0.3, f32::NAN, 0.0, 0.0],
             &[0.3, 1.0, 1.0, 1.0],
             &opts(0.01, SampleMode::Deterministic),
+            None,
         );
         assert_eq!(s.offsets, vec![0, 0, 0, 0, 0]);
         // the cap
-        let s = g.march(&[[0.0, 0.5, 0.5]], &[[1.0, 0.0, 0.0]], &[0.0], &[1.0], &MarchOptions { step_size: 0.001, max_samples_per_ray: 17, jitter: SampleMode::Deterministic, cone_angle: 0.0 });
+        let s = g.march(&[[0.0, 0.5, 0.5]], &[[1.0, 0.0, 0.0]], &[0.0], &[1.0], &MarchOptions { step_size: 0.001, max_samples_per_ray: 17, jitter: SampleMode::Deterministic, cone_angle: 0.0 }, None);
         assert_eq!(s.len(), 17);
     }
 
@@ -690,7 +694,7 @@ mod tests {
             for jitter in [SampleMode::Deterministic, SampleMode::Random { seed: 5, step: 2 }] {
                 for cap in [1024, 9] {
                     let opt = MarchOptions { step_size: 0.013, max_samples_per_ray: cap, jitter, cone_angle };
-                    let whole = g.march(&origins, &dirs, &near, &far, &opt);
+                    let whole = g.march(&origins, &dirs, &near, &far, &opt, None);
                     let resumed = |limit: usize, blocks: Option<&OccupancyBlocks>| {
                         let (mut ts, mut te, mut offsets) = (Vec::new(), Vec::new(), vec![0u32]);
                         for r in 0..n {
@@ -814,7 +818,7 @@ mod tests {
         let dirs: Vec<[f32; 3]> = (0..n).map(|i| [1.0, 0.1 * ((i % 7) as f32 - 3.0), 0.05]).collect();
         let run = |t: usize| {
             rayon::ThreadPoolBuilder::new().num_threads(t).build().unwrap().install(|| {
-                g.march(&origins, &dirs, &vec![0.0; n], &vec![3.0; n], &opts(0.004, SampleMode::Random { seed: 1, step: 3 }))
+                g.march(&origins, &dirs, &vec![0.0; n], &vec![3.0; n], &opts(0.004, SampleMode::Random { seed: 1, step: 3 }), None)
             })
         };
         let a = run(1);

@@ -187,6 +187,9 @@ pub struct FastModel {
     grad: Vec<f32>,
     /// Table entries touched this step, all false between steps.
     touched: Vec<bool>,
+    /// The occupancy grid's empty-space distances ([`OccupancyGrid::blocks`]) and the
+    /// occupancy bits they were computed from: used by marching while the bits are unchanged.
+    empty_space: Option<(Vec<u64>, OccupancyBlocks)>,
     /// Learning rate used by the next step (set by the trainer).
     pub lr: f64,
 }
@@ -239,6 +242,7 @@ impl FastModel {
             occupancy,
             grad: vec![0.0; n],
             touched: vec![false; hash.levels * hash.table_size()],
+            empty_space: None,
             lr: 1e-2,
         })
     }
@@ -255,7 +259,16 @@ impl FastModel {
 
     /// The parts rendering and sampling read, shared across threads.
     fn parts(&self) -> Parts<'_> {
-        Parts { config: &self.config, bounds: &self.bounds, grid: &self.grid, occupancy: &self.occupancy }
+        let empty = self.empty_space.as_ref().filter(|(bits, _)| *bits == self.occupancy.bits).map(|e| &e.1);
+        Parts { config: &self.config, bounds: &self.bounds, grid: &self.grid, occupancy: &self.occupancy, empty }
+    }
+
+    /// Recomputes the occupancy grid's empty-space distances if its bits changed since (a
+    /// 32 KiB comparison for a 64³ grid).
+    fn refresh_empty_space(&mut self) {
+        if self.empty_space.as_ref().is_none_or(|(bits, _)| *bits != self.occupancy.bits) {
+            self.empty_space = Some((self.occupancy.bits.clone(), self.occupancy.blocks()));
+        }
     }
 
     fn march(&self, origins: &[[f32; 3]], dirs: &[[f32; 3]], jitter: SampleMode) -> RaySamples {
@@ -319,6 +332,7 @@ impl FastModel {
         // The networks' weights, read once for the step (they change only in its Adam step).
         let mlp = self.mlp();
         self.maybe_update_occupancy(step, &mlp);
+        self.refresh_empty_space();
         tm.phases.occupancy = t0.elapsed().as_secs_f64();
         tm.optimizer += tm.phases.occupancy;
 
@@ -549,6 +563,7 @@ impl FastModel {
                 self.occupancy.bits[i / 64] |= 1 << (i % 64);
             }
         }
+        self.refresh_empty_space();
         Ok(())
     }
 }
@@ -606,6 +621,8 @@ struct Parts<'a> {
     bounds: &'a SceneBounds,
     grid: &'a HashGrid,
     occupancy: &'a OccupancyGrid,
+    /// The occupancy grid's [`OccupancyGrid::blocks`], when computed for its current bits.
+    empty: Option<&'a OccupancyBlocks>,
 }
 
 impl Parts<'_> {
@@ -625,7 +642,7 @@ impl Parts<'_> {
     fn march(&self, origins: &[[f32; 3]], dirs: &[[f32; 3]], jitter: SampleMode) -> RaySamples {
         let n = origins.len();
         let (near, far) = (vec![self.bounds.near; n], vec![self.bounds.far; n]);
-        self.occupancy.march(origins, dirs, &near, &far, &self.march_options(jitter))
+        self.occupancy.march(origins, dirs, &near, &far, &self.march_options(jitter), self.empty)
     }
 
     /// Unit-cube points of samples (all, or those listed in `idx`).
@@ -675,13 +692,20 @@ impl Parts<'_> {
 
     /// [`FastModel::render_rays`] with the networks' weights `mlp`.
     fn render_rays(&self, mlp: &HashMlp, origins: &[[f32; 3]], dirs: &[[f32; 3]], background: [f32; 3]) -> RayOutputs {
-        let blocks = self.occupancy.blocks();
+        let computed;
+        let blocks = match self.empty {
+            Some(b) => b,
+            None => {
+                computed = self.occupancy.blocks();
+                &computed
+            }
+        };
         let outs: Vec<RayOutputs> = origins
             .par_chunks(RENDER_CHUNK)
             .zip(dirs.par_chunks(RENDER_CHUNK))
             // one encoding buffer per rayon job, reused by its chunks and rounds (a fresh
             // half-megabyte buffer per round spent ~7 % of rendering in page faults)
-            .map_init(Vec::new, |enc, (o, d)| self.render_chunk(mlp, &blocks, enc, o, d, background))
+            .map_init(Vec::new, |enc, (o, d)| self.render_chunk(mlp, blocks, enc, o, d, background))
             .collect();
         RayOutputs::concat(outs)
     }
@@ -690,8 +714,8 @@ impl Parts<'_> {
     /// marches [`INFERENCE_ROUND`] more intervals of every ray still live (transmittance above
     /// the inference threshold and not past the box), evaluates them, and stops the ray once
     /// opaque, so intervals behind a surface are never generated. The evaluated samples are
-    /// those of marching each ray whole and evaluating it in rounds (the march skips whole
-    /// empty blocks of the occupancy grid, [`OccupancyGrid::blocks`]).
+    /// those of marching each ray whole and evaluating it in rounds (the march skips the
+    /// empty space of the occupancy grid, [`OccupancyGrid::blocks`]).
     // Sample indices address several parallel arrays at once.
     #[allow(clippy::needless_range_loop)]
     #[allow(clippy::too_many_arguments)]
