@@ -422,65 +422,153 @@ mod simd {
     #[target_feature(enable = "avx2")]
     pub(super) unsafe fn encode_level_f2_avx2<const DENSE: bool>(pts: &[[f32; 3]], lv: &Level, table: &[f32], out: &mut [f32], stride: usize) -> usize {
         let n8 = pts.len() / 8 * 8;
-        assert!(table.len() < i32::MAX as usize, "table too large for 32-bit gathers");
+        assert!(table.len() / 2 < i32::MAX as usize / 8, "table too large for 64-bit pair gathers");
         assert!(n8 == 0 || out.len() >= (n8 - 1) * stride + 2, "output too short");
-        let res_f = _mm256_set1_pd(lv.res_f);
-        let res_m1 = _mm256_set1_epi32((lv.res - 1) as i32);
-        let one = _mm256_set1_epi32(1);
-        let onef = _mm256_set1_ps(1.0);
-        let (s1, s2) = (_mm256_set1_epi32(lv.s1 as i32), _mm256_set1_epi32(lv.s2 as i32));
-        let primes = [_mm256_set1_epi32(PRIMES[0] as i32), _mm256_set1_epi32(PRIMES[1] as i32), _mm256_set1_epi32(PRIMES[2] as i32)];
-        let mask = _mm256_set1_epi32(lv.mask as i32);
-        let base = table.as_ptr();
-        let mut coord = [[0f32; 8]; 3];
+        let k = Consts::new(lv);
+        let pairs = table.as_ptr() as *const f64;
+        let dup_lo = _mm256_setr_epi32(0, 0, 1, 1, 2, 2, 3, 3);
+        let dup_hi = _mm256_setr_epi32(4, 4, 5, 5, 6, 6, 7, 7);
         for k0 in (0..n8).step_by(8) {
-            for (j, p) in pts[k0..k0 + 8].iter().enumerate() {
-                coord[0][j] = p[0];
-                coord[1][j] = p[1];
-                coord[2][j] = p[2];
-            }
-            // SAFETY: the arrays hold 8 floats each.
-            let (cx, fx) = axis(unsafe { _mm256_loadu_ps(coord[0].as_ptr()) }, res_f, res_m1);
-            let (cy, fy) = axis(unsafe { _mm256_loadu_ps(coord[1].as_ptr()) }, res_f, res_m1);
-            let (cz, fz) = axis(unsafe { _mm256_loadu_ps(coord[2].as_ptr()) }, res_f, res_m1);
-            let (cx1, cy1, cz1) = (_mm256_add_epi32(cx, one), _mm256_add_epi32(cy, one), _mm256_add_epi32(cz, one));
-            let (ix, iy, iz) = if DENSE {
-                ([cx, cx1], [_mm256_mullo_epi32(cy, s1), _mm256_mullo_epi32(cy1, s1)], [_mm256_mullo_epi32(cz, s2), _mm256_mullo_epi32(cz1, s2)])
-            } else {
-                (
-                    [_mm256_mullo_epi32(cx, primes[0]), _mm256_mullo_epi32(cx1, primes[0])],
-                    [_mm256_mullo_epi32(cy, primes[1]), _mm256_mullo_epi32(cy1, primes[1])],
-                    [_mm256_mullo_epi32(cz, primes[2]), _mm256_mullo_epi32(cz1, primes[2])],
-                )
-            };
-            let wx = [_mm256_sub_ps(onef, fx), fx];
-            let wy = [_mm256_sub_ps(onef, fy), fy];
-            let wz = [_mm256_sub_ps(onef, fz), fz];
-            let (mut a0, mut a1) = (_mm256_setzero_ps(), _mm256_setzero_ps());
+            let (idx, w) = corners8::<DENSE>(&pts[k0..k0 + 8], &k);
+            // Each corner's two features are one 64-bit gather lane (an entry's pair), four
+            // points per gather: half the gathered elements of one 32-bit gather per feature.
+            // Accumulators hold (feature 0, feature 1) pairs of points 0–3 and 4–7, each lane
+            // summing the same products in the same corner order as the scalar path.
+            let (mut lo, mut hi) = (_mm256_setzero_ps(), _mm256_setzero_ps());
             for c in 0..8 {
-                let (i, j, l) = (c & 1, (c >> 1) & 1, c >> 2);
-                let idx = if DENSE {
-                    _mm256_add_epi32(_mm256_add_epi32(ix[i], iy[j]), iz[l])
-                } else {
-                    _mm256_and_si256(_mm256_xor_si256(_mm256_xor_si256(ix[i], iy[j]), iz[l]), mask)
+                // SAFETY: every index is a table entry of this level (as in the scalar path), so
+                // its pair lies inside `table`.
+                let (e_lo, e_hi) = unsafe {
+                    (
+                        _mm256_castpd_ps(_mm256_i32gather_pd::<8>(pairs, _mm256_castsi256_si128(idx[c]))),
+                        _mm256_castpd_ps(_mm256_i32gather_pd::<8>(pairs, _mm256_extracti128_si256::<1>(idx[c]))),
+                    )
                 };
-                let w = _mm256_mul_ps(_mm256_mul_ps(wx[i], wy[j]), wz[l]);
-                let e = _mm256_slli_epi32::<1>(idx);
-                // SAFETY: every index is a table entry of this level (as in the scalar path).
-                let (e0, e1) = unsafe { (_mm256_i32gather_ps::<4>(base, e), _mm256_i32gather_ps::<4>(base.add(1), e)) };
-                a0 = _mm256_add_ps(a0, _mm256_mul_ps(w, e0));
-                a1 = _mm256_add_ps(a1, _mm256_mul_ps(w, e1));
+                lo = _mm256_add_ps(lo, _mm256_mul_ps(_mm256_permutevar8x32_ps(w[c], dup_lo), e_lo));
+                hi = _mm256_add_ps(hi, _mm256_mul_ps(_mm256_permutevar8x32_ps(w[c], dup_hi), e_hi));
             }
-            let (mut r0, mut r1) = ([0f32; 8], [0f32; 8]);
-            // SAFETY: the arrays hold 8 floats each.
+            let mut r = [0f32; 16];
+            // SAFETY: the array holds 16 floats.
             unsafe {
-                _mm256_storeu_ps(r0.as_mut_ptr(), a0);
-                _mm256_storeu_ps(r1.as_mut_ptr(), a1);
+                _mm256_storeu_ps(r.as_mut_ptr(), lo);
+                _mm256_storeu_ps(r.as_mut_ptr().add(8), hi);
             }
             for j in 0..8 {
                 let o = (k0 + j) * stride;
-                out[o] = r0[j];
-                out[o + 1] = r1[j];
+                out[o..o + 2].copy_from_slice(&r[2 * j..2 * j + 2]);
+            }
+        }
+        n8
+    }
+
+    /// One level's constants in registers.
+    struct Consts {
+        res_f: __m256d,
+        res_m1: __m256i,
+        s1: __m256i,
+        s2: __m256i,
+        primes: [__m256i; 3],
+        mask: __m256i,
+    }
+
+    impl Consts {
+        #[inline]
+        #[target_feature(enable = "avx2")]
+        fn new(lv: &Level) -> Self {
+            Self {
+                res_f: _mm256_set1_pd(lv.res_f),
+                res_m1: _mm256_set1_epi32((lv.res - 1) as i32),
+                s1: _mm256_set1_epi32(lv.s1 as i32),
+                s2: _mm256_set1_epi32(lv.s2 as i32),
+                primes: PRIMES.map(|p| _mm256_set1_epi32(p as i32)),
+                mask: _mm256_set1_epi32(lv.mask as i32),
+            }
+        }
+    }
+
+    /// The 8 corners' table indices and trilinear weights of eight points (`pts[..8]`), corner
+    /// `c` in register `c`, lane `j` for point `j`: lane for lane the scalar
+    /// [`super::corners`].
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn corners8<const DENSE: bool>(pts: &[[f32; 3]], k: &Consts) -> ([__m256i; 8], [__m256; 8]) {
+        let one = _mm256_set1_epi32(1);
+        let onef = _mm256_set1_ps(1.0);
+        let mut coord = [[0f32; 8]; 3];
+        for (j, p) in pts[..8].iter().enumerate() {
+            coord[0][j] = p[0];
+            coord[1][j] = p[1];
+            coord[2][j] = p[2];
+        }
+        // SAFETY: the arrays hold 8 floats each.
+        let (cx, fx) = axis(unsafe { _mm256_loadu_ps(coord[0].as_ptr()) }, k.res_f, k.res_m1);
+        let (cy, fy) = axis(unsafe { _mm256_loadu_ps(coord[1].as_ptr()) }, k.res_f, k.res_m1);
+        let (cz, fz) = axis(unsafe { _mm256_loadu_ps(coord[2].as_ptr()) }, k.res_f, k.res_m1);
+        let (cx1, cy1, cz1) = (_mm256_add_epi32(cx, one), _mm256_add_epi32(cy, one), _mm256_add_epi32(cz, one));
+        let (ix, iy, iz) = if DENSE {
+            ([cx, cx1], [_mm256_mullo_epi32(cy, k.s1), _mm256_mullo_epi32(cy1, k.s1)], [_mm256_mullo_epi32(cz, k.s2), _mm256_mullo_epi32(cz1, k.s2)])
+        } else {
+            (
+                [_mm256_mullo_epi32(cx, k.primes[0]), _mm256_mullo_epi32(cx1, k.primes[0])],
+                [_mm256_mullo_epi32(cy, k.primes[1]), _mm256_mullo_epi32(cy1, k.primes[1])],
+                [_mm256_mullo_epi32(cz, k.primes[2]), _mm256_mullo_epi32(cz1, k.primes[2])],
+            )
+        };
+        let wx = [_mm256_sub_ps(onef, fx), fx];
+        let wy = [_mm256_sub_ps(onef, fy), fy];
+        let wz = [_mm256_sub_ps(onef, fz), fz];
+        let mut idx = [_mm256_setzero_si256(); 8];
+        let mut w = [_mm256_setzero_ps(); 8];
+        for c in 0..8 {
+            let (i, j, l) = (c & 1, (c >> 1) & 1, c >> 2);
+            idx[c] = if DENSE {
+                _mm256_add_epi32(_mm256_add_epi32(ix[i], iy[j]), iz[l])
+            } else {
+                _mm256_and_si256(_mm256_xor_si256(_mm256_xor_si256(ix[i], iy[j]), iz[l]), k.mask)
+            };
+            w[c] = _mm256_mul_ps(_mm256_mul_ps(wx[i], wy[j]), wz[l]);
+        }
+        (idx, w)
+    }
+
+    /// [`super::backward_level`] for the first `8 · floor(n / 8)` points, their corners
+    /// computed eight at a time; the scatter is scalar, point by point and corner by corner as
+    /// in the scalar path, so the sums are bit-identical. Returns how many points it did.
+    ///
+    /// # Safety
+    /// AVX2 must be available.
+    #[target_feature(enable = "avx2")]
+    pub(super) unsafe fn backward_level_avx2<const F: usize, const DENSE: bool, const MARK: bool>(
+        points: &[[f32; 3]],
+        lv: &Level,
+        d_l: &[f32],
+        g: &mut [f32],
+        touched: &mut [bool],
+    ) -> usize {
+        let n8 = points.len() / 8 * 8;
+        let k = Consts::new(lv);
+        let (mut idx, mut w) = ([[0u32; 8]; 8], [[0f32; 8]; 8]);
+        for k0 in (0..n8).step_by(8) {
+            let (vi, vw) = corners8::<DENSE>(&points[k0..k0 + 8], &k);
+            for c in 0..8 {
+                // SAFETY: each array holds 8 lanes.
+                unsafe {
+                    _mm256_storeu_si256(idx[c].as_mut_ptr() as *mut __m256i, vi[c]);
+                    _mm256_storeu_ps(w[c].as_mut_ptr(), vw[c]);
+                }
+            }
+            for j in 0..8 {
+                let d = &d_l[(k0 + j) * F..(k0 + j) * F + F];
+                for c in 0..8 {
+                    let i = idx[c][j] as usize;
+                    if MARK {
+                        touched[i] = true;
+                    }
+                    let e = &mut g[i * F..i * F + F];
+                    for f in 0..F {
+                        e[f] += w[c][j] * d[f];
+                    }
+                }
             }
         }
         n8
@@ -491,6 +579,28 @@ mod simd {
 /// `MARK`, `touched[index(v)] = true`).
 #[inline(always)]
 fn backward_level<const F: usize, const DENSE: bool, const MARK: bool>(
+    points: &[[f32; 3]],
+    lv: &Level,
+    d_l: &[f32],
+    g: &mut [f32],
+    touched: &mut [bool],
+) {
+    #[cfg(target_arch = "x86_64")]
+    let (points, d_l) = if simd::avx2() {
+        // SAFETY: AVX2 is present (checked at run time).
+        #[allow(unsafe_code)]
+        let done = unsafe { simd::backward_level_avx2::<F, DENSE, MARK>(points, lv, d_l, g, touched) };
+        (&points[done..], &d_l[done * F..])
+    } else {
+        (points, d_l)
+    };
+    backward_level_scalar::<F, DENSE, MARK>(points, lv, d_l, g, touched);
+}
+
+/// [`backward_level`] one point at a time (the reference the SIMD kernel reproduces bit for
+/// bit).
+#[inline(always)]
+fn backward_level_scalar<const F: usize, const DENSE: bool, const MARK: bool>(
     points: &[[f32; 3]],
     lv: &Level,
     d_l: &[f32],
@@ -791,6 +901,46 @@ mod tests {
                     }
                 }
             }
+        }
+    }
+
+    #[test]
+    fn simd_backward_is_bit_identical_to_scalar() {
+        fn run<const F: usize>(c: &HashGridConfig, pts: &[[f32; 3]]) {
+            let lvs = levels(c);
+            let t = c.table_size();
+            let d: Vec<f32> = (0..pts.len() * F).map(|i| rnd(7000 + i as u64) - 0.5).collect();
+            for skip in 0..8 {
+                let (p, d) = (&pts[skip..], &d[skip * F..]);
+                for (l, lv) in lvs.iter().enumerate() {
+                    let (mut fast, mut slow) = (vec![0.0f32; t * F], vec![0.0f32; t * F]);
+                    let (mut tf, mut ts) = (vec![false; t], vec![false; t]);
+                    if lv.dense {
+                        backward_level::<F, true, true>(p, lv, d, &mut fast, &mut tf);
+                        backward_level_scalar::<F, true, true>(p, lv, d, &mut slow, &mut ts);
+                    } else {
+                        backward_level::<F, false, true>(p, lv, d, &mut fast, &mut tf);
+                        backward_level_scalar::<F, false, true>(p, lv, d, &mut slow, &mut ts);
+                    }
+                    assert_eq!(tf, ts, "config {c:?} level {l}: touched entries");
+                    assert!(ts.iter().any(|x| *x));
+                    for (k, (a, b)) in fast.iter().zip(&slow).enumerate() {
+                        assert_eq!(a.to_bits(), b.to_bits(), "config {c:?} F {F} level {l} gradient {k}: {a} vs {b}");
+                    }
+                }
+            }
+        }
+        let mut pts = random_points(1000, 9);
+        let special = [0.0, -0.0, 1.0, 0.5, 0.25, 1.0 / 3.0, -0.25, 1.5, f32::NAN, f32::INFINITY, f32::NEG_INFINITY, 1e-30, 1.0 - 1e-7];
+        for (i, &a) in special.iter().enumerate() {
+            for &b in &special {
+                pts.push([a, b, special[(i * 7 + 3) % special.len()]]);
+            }
+        }
+        for (levels, log2_t, nmin, nmax) in [(16usize, 14u32, 16u32, 2048u32), (6, 4, 2, 300), (4, 14, 3, 17)] {
+            run::<1>(&cfg(levels, 1, log2_t, nmin, nmax), &pts);
+            run::<2>(&cfg(levels, 2, log2_t, nmin, nmax), &pts);
+            run::<4>(&cfg(levels, 4, log2_t, nmin, nmax), &pts);
         }
     }
 
