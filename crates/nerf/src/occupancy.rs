@@ -206,7 +206,10 @@ impl OccupancyGrid {
         let cfg = &self.config;
         let r = cfg.resolution;
         let all = step < cfg.warmup_steps;
+        // Selection and jitter are keyed per cell, so computing them in parallel gives the
+        // same cells and points for any thread count (rayon keeps the order).
         let selected: Vec<u32> = (0..self.n_cells() as u32)
+            .into_par_iter()
             .filter(|&i| {
                 all || rng::uniform_f32(rng::key(&[cfg.seed, step, i as u64, 0])) < cfg.update_fraction
                     || (self.bit(i as usize)
@@ -216,7 +219,7 @@ impl OccupancyGrid {
         let size: [f32; 3] = [0, 1, 2].map(|a| (cfg.aabb.max[a] - cfg.aabb.min[a]) / r as f32);
         for batch in selected.chunks(UPDATE_BATCH) {
             let pts: Vec<[f32; 3]> = batch
-                .iter()
+                .par_iter()
                 .map(|&i| {
                     let c = [i % r, (i / r) % r, i / (r * r)];
                     [0, 1, 2].map(|a| {
