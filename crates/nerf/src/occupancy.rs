@@ -208,12 +208,17 @@ impl OccupancyGrid {
         let all = step < cfg.warmup_steps;
         // Selection and jitter are keyed per cell, so computing them in parallel gives the
         // same cells and points for any thread count (rayon keeps the order).
+        // The keys are `(seed, step, cell, draw)`, their shared prefixes hashed once.
+        let step_key = rng::key(&[cfg.seed, step]);
         let selected: Vec<u32> = (0..self.n_cells() as u32)
             .into_par_iter()
             .filter(|&i| {
-                all || rng::uniform_f32(rng::key(&[cfg.seed, step, i as u64, 0])) < cfg.update_fraction
-                    || (self.bit(i as usize)
-                        && rng::uniform_f32(rng::key(&[cfg.seed, step, i as u64, 1])) < cfg.update_fraction)
+                if all {
+                    return true;
+                }
+                let cell_key = rng::extend(step_key, &[i as u64]);
+                rng::uniform_f32(rng::extend(cell_key, &[0])) < cfg.update_fraction
+                    || (self.bit(i as usize) && rng::uniform_f32(rng::extend(cell_key, &[1])) < cfg.update_fraction)
             })
             .collect();
         let size: [f32; 3] = [0, 1, 2].map(|a| (cfg.aabb.max[a] - cfg.aabb.min[a]) / r as f32);
@@ -222,8 +227,9 @@ impl OccupancyGrid {
                 .par_iter()
                 .map(|&i| {
                     let c = [i % r, (i / r) % r, i / (r * r)];
+                    let cell_key = rng::extend(step_key, &[i as u64]);
                     [0, 1, 2].map(|a| {
-                        let u = rng::uniform_f32(rng::key(&[cfg.seed, step, i as u64, 2 + a as u64]));
+                        let u = rng::uniform_f32(rng::extend(cell_key, &[2 + a as u64]));
                         cfg.aabb.min[a] + (c[a] as f32 + u) * size[a]
                     })
                 })

@@ -35,7 +35,13 @@ pub mod rng {
     /// Order matters: `key(&[1, 2]) != key(&[2, 1])`.
     #[inline]
     pub fn key(parts: &[u64]) -> u64 {
-        let mut h = GOLDEN;
+        extend(GOLDEN, parts)
+    }
+
+    /// Continues a key with more parts: `extend(key(a), b) == key(a ++ b)`, so a prefix
+    /// shared by many keys (e.g. `(seed, step)`) is hashed once.
+    #[inline]
+    pub fn extend(mut h: u64, parts: &[u64]) -> u64 {
         for &p in parts {
             h = mix(h.wrapping_add(GOLDEN) ^ mix(p.wrapping_add(GOLDEN)));
         }
@@ -358,6 +364,11 @@ mod tests {
         assert!(chi2 < 27.9, "chi2 {chi2} (p = 0.001, 9 dof)");
         assert_ne!(rng::key(&[1, 2]), rng::key(&[2, 1]));
         assert_eq!(rng::key(&[5, 6, 7]), rng::key(&[5, 6, 7]));
+        // a prefix hashed once and extended gives the whole tuple's key
+        for split in 0..=4 {
+            let parts = [3u64, u64::MAX, 0, 17];
+            assert_eq!(rng::extend(rng::key(&parts[..split]), &parts[split..]), rng::key(&parts), "split {split}");
+        }
         assert!(rng::uniform_f32(u64::MAX) < 1.0 && rng::uniform_f64(u64::MAX) < 1.0);
     }
 
