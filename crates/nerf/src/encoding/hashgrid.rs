@@ -385,7 +385,7 @@ fn encode_level_scalar<const F: usize, const DENSE: bool>(pts: &[[f32; 3]], lv: 
 #[cfg(target_arch = "x86_64")]
 #[allow(unsafe_code)]
 mod simd {
-    use super::{Level, PRIMES};
+    use super::{Level, PRIMES, scatter_point};
     use std::arch::x86_64::*;
     use std::sync::OnceLock;
 
@@ -559,16 +559,7 @@ mod simd {
             }
             for j in 0..8 {
                 let d = &d_l[(k0 + j) * F..(k0 + j) * F + F];
-                for c in 0..8 {
-                    let i = idx[c][j] as usize;
-                    if MARK {
-                        touched[i] = true;
-                    }
-                    let e = &mut g[i * F..i * F + F];
-                    for f in 0..F {
-                        e[f] += w[c][j] * d[f];
-                    }
-                }
+                scatter_point::<F, MARK>(std::array::from_fn(|c| idx[c][j]), std::array::from_fn(|c| w[c][j]), d, g, touched);
             }
         }
         n8
@@ -609,14 +600,23 @@ fn backward_level_scalar<const F: usize, const DENSE: bool, const MARK: bool>(
 ) {
     for (&p, d) in points.iter().zip(d_l.chunks_exact(F)) {
         let (idx, w) = corners::<DENSE>(p, lv);
-        for c in 0..8 {
-            if MARK {
-                touched[idx[c] as usize] = true;
-            }
-            let e = &mut g[idx[c] as usize * F..idx[c] as usize * F + F];
-            for j in 0..F {
-                e[j] += w[c] * d[j];
-            }
+        scatter_point::<F, MARK>(idx, w, d, g, touched);
+    }
+}
+
+/// One point's share of a level's backward: `g[idx[c]] += w[c] · d` corner by corner, in
+/// corner order (and, when `MARK`, `touched[idx[c]] = true`). Shared by the scalar and SIMD
+/// paths so that their sums are the same operations in the same order.
+#[inline(always)]
+fn scatter_point<const F: usize, const MARK: bool>(idx: [u32; 8], w: [f32; 8], d: &[f32], g: &mut [f32], touched: &mut [bool]) {
+    for c in 0..8 {
+        let i = idx[c] as usize;
+        if MARK {
+            touched[i] = true;
+        }
+        let e = &mut g[i * F..i * F + F];
+        for j in 0..F {
+            e[j] += w[c] * d[j];
         }
     }
 }
@@ -796,6 +796,19 @@ mod tests {
         out
     }
 
+    /// Random points in the cube plus combinations of special coordinates (±0, the cube's
+    /// faces, outside it, NaN, ±inf, denormal-small, just below 1).
+    fn points_with_specials() -> Vec<[f32; 3]> {
+        let mut pts = random_points(1000, 9);
+        let special = [0.0, -0.0, 1.0, 0.5, 0.25, 1.0 / 3.0, -0.25, 1.5, f32::NAN, f32::INFINITY, f32::NEG_INFINITY, 1e-30, 1.0 - 1e-7];
+        for (i, &a) in special.iter().enumerate() {
+            for &b in &special {
+                pts.push([a, b, special[(i * 7 + 3) % special.len()]]);
+            }
+        }
+        pts
+    }
+
     fn grid(c: HashGridConfig, seed: u64, scale: f32) -> HashGrid {
         let mut g = HashGrid::new(c, seed).unwrap();
         // larger params than the ±1e-4 init so that differences are visible
@@ -875,13 +888,7 @@ mod tests {
     fn simd_forward_is_bit_identical_to_scalar() {
         for c in [cfg(16, 2, 19, 16, 2048), cfg(6, 2, 4, 2, 300), cfg(4, 2, 14, 3, 17)] {
             let g = grid(c.clone(), 4, 1.0);
-            let mut pts = random_points(1000, 9);
-            let special = [0.0, -0.0, 1.0, 0.5, 0.25, 1.0 / 3.0, -0.25, 1.5, f32::NAN, f32::INFINITY, f32::NEG_INFINITY, 1e-30, 1.0 - 1e-7];
-            for (i, &a) in special.iter().enumerate() {
-                for &b in &special {
-                    pts.push([a, b, special[(i * 7 + 3) % special.len()]]);
-                }
-            }
+            let pts = points_with_specials();
             let lvs = levels(&c);
             let tf = c.table_size() * 2;
             for skip in 0..8 {
@@ -930,13 +937,7 @@ mod tests {
                 }
             }
         }
-        let mut pts = random_points(1000, 9);
-        let special = [0.0, -0.0, 1.0, 0.5, 0.25, 1.0 / 3.0, -0.25, 1.5, f32::NAN, f32::INFINITY, f32::NEG_INFINITY, 1e-30, 1.0 - 1e-7];
-        for (i, &a) in special.iter().enumerate() {
-            for &b in &special {
-                pts.push([a, b, special[(i * 7 + 3) % special.len()]]);
-            }
-        }
+        let pts = points_with_specials();
         for (levels, log2_t, nmin, nmax) in [(16usize, 14u32, 16u32, 2048u32), (6, 4, 2, 300), (4, 14, 3, 17)] {
             run::<1>(&cfg(levels, 1, log2_t, nmin, nmax), &pts);
             run::<2>(&cfg(levels, 2, log2_t, nmin, nmax), &pts);
