@@ -41,6 +41,9 @@ pub struct RenderBenchArgs {
     /// Measure in the profile this xtask was built with instead of re-running it in release.
     #[arg(long)]
     pub no_release: bool,
+    /// Measure our renderer only (no Mitsuba renders; the comparison table is left out).
+    #[arg(long)]
+    pub no_mitsuba: bool,
 }
 
 /// Options of `bench scaling`.
@@ -367,7 +370,7 @@ fn bench_render(args: &RenderBenchArgs) -> anyhow::Result<()> {
         });
     }
     report.line(format!("child-box test: {simd}"));
-    let comparisons = bench_render_mitsuba(&ours_quick, cmp_runs, &mut report)?;
+    let comparisons = bench_render_mitsuba(&ours_quick, cmp_runs, !args.no_mitsuba, &mut report)?;
     let json = serde_json::json!({
         "profile": build_profile(),
         "threads": threads,
@@ -649,7 +652,7 @@ struct OursQuick {
 /// Runs `tests/mitsuba/bench.py` on the exports in `ours` (with `runs` timed renders each),
 /// prints the side-by-side table with a line per target of issue 25 (raw samples/s at least
 /// Mitsuba's, at least 2x at equal error), and returns the rows for the JSON.
-fn bench_render_mitsuba(ours: &[OursQuick], runs: usize, report: &mut Report) -> anyhow::Result<Vec<serde_json::Value>> {
+fn bench_render_mitsuba(ours: &[OursQuick], runs: usize, mitsuba: bool, report: &mut Report) -> anyhow::Result<Vec<serde_json::Value>> {
     let root = crate::render::repo_root();
     let python = root.join(".venv/bin/python");
     let quick = pathtracer::dataset_render::DatasetRenderConfig::preset(pathtracer::dataset_render::Preset::Quick);
@@ -664,6 +667,10 @@ fn bench_render_mitsuba(ours: &[OursQuick], runs: usize, report: &mut Report) ->
         })
     };
     let only_ours = || ours.iter().map(|o| serde_json::json!({ "scene": o.scene, "model": o.model, "ours": ours_json(o) })).collect();
+    if !mitsuba {
+        report.line("Mitsuba comparison skipped (--no-mitsuba)");
+        return Ok(only_ours());
+    }
     if !python.is_file() {
         report.line(format!(
             "Mitsuba comparison skipped: {} not found (python3 -m venv .venv && .venv/bin/pip install -r tests/mitsuba/requirements.txt)",
