@@ -415,8 +415,9 @@ impl Renderer {
                         // sample (their own stratified set), the rest of each path as usual.
                         let split = edges.as_ref().filter(|e| e.flagged[pixel as usize]).map(|e| e.split);
                         if let Some(m) = split {
+                            let edge_sampler = Sampler::new(edge_seed, view_index, pixel, 0);
                             for e in 0..spp * m {
-                                let u = Sampler::new(edge_seed, view_index, pixel, e).next_2d();
+                                let u = edge_sampler.with_sample(e).next_2d();
                                 let wray = camera.pixel_ray(i as f64 + u.x as f64, j as f64 + u.y as f64);
                                 let le = integ.primary_emission(&self.local_ray(&wray)) / m as f32;
                                 if le.is_finite() {
@@ -428,8 +429,9 @@ impl Renderer {
                                 }
                             }
                         }
+                        let pixel_sampler = Sampler::new(settings.seed, view_index, pixel, 0);
                         for s in 0..spp {
-                            let mut sampler = Sampler::new(settings.seed, view_index, pixel, s);
+                            let mut sampler = pixel_sampler.with_sample(s);
                             let u = sampler.next_2d();
                             let wray = camera.pixel_ray(i as f64 + u.x as f64, j as f64 + u.y as f64);
                             let r = integ.radiance_split(&self.local_ray(&wray), &mut sampler, split.is_none());

@@ -127,6 +127,14 @@ impl Sampler {
         Self { key: h, sample_reversed: sample.reverse_bits(), dimension: 0 }
     }
 
+    /// The same pixel's sample `sample`, from dimension 0: equal to `Sampler::new(seed, view,
+    /// pixel, sample)` for the `(seed, view, pixel)` of `self`, without hashing them again
+    /// (a pixel's samples share the key).
+    #[inline]
+    pub fn with_sample(&self, sample: u32) -> Self {
+        Self { key: self.key, sample_reversed: sample.reverse_bits(), dimension: 0 }
+    }
+
     /// Dimension `k`'s scramble keys (index shuffle, x, y) and its shuffled Sobol' index
     /// `owen_scramble(sample, key)`; advances by `n` dimensions.
     #[inline]
@@ -222,6 +230,20 @@ pub fn power_heuristic(f: f32, g: f32) -> f32 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn with_sample_is_new_with_that_sample() {
+        for (seed, view, pixel) in [(0u64, 0u32, 0u64), (7, 3, 12345), (u64::MAX, u32::MAX, u64::MAX)] {
+            let base = Sampler::new(seed, view, pixel, 99);
+            for s in [0u32, 1, 5, 1 << 20, u32::MAX] {
+                let (mut a, mut b) = (base.with_sample(s), Sampler::new(seed, view, pixel, s));
+                for _ in 0..4 {
+                    assert_eq!(a.next_2d().to_array().map(f32::to_bits), b.next_2d().to_array().map(f32::to_bits));
+                    assert_eq!(a.next_u32(), b.next_u32());
+                }
+            }
+        }
+    }
 
     #[test]
     fn streams_are_pure_functions_of_the_key() {
