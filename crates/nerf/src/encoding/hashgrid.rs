@@ -715,6 +715,7 @@ impl Adam {
         let c1 = (1.0 - (b1 as f64).powi(t)) as f32;
         let c2 = (1.0 - (b2 as f64).powi(t)) as f32;
         const ENTRIES: usize = 1 << 14;
+        const _: () = assert!(ENTRIES <= 1 << 16, "entry indices are u16 within a chunk");
         let chunk = ENTRIES * group;
         params
             .par_chunks_mut(chunk)
@@ -723,13 +724,18 @@ impl Adam {
             .zip(self.v.par_chunks_mut(chunk))
             .zip(touched.par_chunks_mut(ENTRIES))
             .map(|((((p, g), m), v), tch)| {
+                // The touched entries' indices first, without a branch per flag (about a
+                // third of the flags are set, scattered, so a branch on each mispredicts
+                // often), then the updates in index order.
+                let mut list = [0u16; ENTRIES];
                 let mut updated = 0;
-                for (e, hit) in tch.iter_mut().enumerate() {
-                    if !*hit {
-                        continue;
-                    }
-                    *hit = false;
-                    updated += 1;
+                for (e, hit) in tch.iter().enumerate() {
+                    list[updated] = e as u16;
+                    updated += *hit as usize;
+                }
+                tch.fill(false);
+                for &e in &list[..updated] {
+                    let e = e as usize;
                     for i in e * group..(e + 1) * group {
                         let gi = if g[i].is_finite() { g[i] } else { 0.0 };
                         g[i] = 0.0;
@@ -1168,5 +1174,33 @@ mod tests {
                 cpu.1 * 1e3
             );
         }
+    }
+}
+#[cfg(test)]
+mod adam_timing {
+    use super::*;
+    #[test]
+    #[ignore]
+    fn sparse_adam_timing() {
+        let n = 1usize << 22;
+        let mut p = vec![0.1f32; n];
+        let mut adam = Adam::new(AdamConfig::instant_ngp(0.01), n);
+        let mut g = vec![0.0f32; n];
+        let mut touched = vec![false; n / 2];
+        let mut ts = Vec::new();
+        for step in 0..15u64 {
+            for e in 0..n / 2 {
+                if rng::uniform_f32(rng::key(&[step, e as u64])) < 0.35 {
+                    touched[e] = true;
+                    g[2 * e] = 0.01;
+                    g[2 * e + 1] = -0.02;
+                }
+            }
+            let t = std::time::Instant::now();
+            adam.step_sparse(&mut p, &mut g, &mut touched, 2, 0.01);
+            ts.push(t.elapsed().as_secs_f64() * 1e3);
+        }
+        ts.sort_by(f64::total_cmp);
+        println!("sparse Adam, 4.2 M params, 35 % of entries touched: median {:.2} ms ({} threads)", ts[7], rayon::current_num_threads());
     }
 }
