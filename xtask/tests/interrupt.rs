@@ -103,6 +103,8 @@ fn render_killed_at_random_moments_resumes_to_the_identical_dataset() {
         let done = files(&b).iter().filter(|(rel, _)| rel.ends_with(".png")).count();
         let left = 1.0 - done as f64 / views as f64;
         let at = full.mul_f64((0.1 + 0.8 * splitmix(&mut state)) * left.max(0.2));
+        // Waited for below: by `try_wait` when it finishes, else after the kill.
+        #[allow(clippy::zombie_processes)]
         let mut child = render_cmd(&b).spawn().unwrap();
         let deadline = Instant::now() + at;
         let mut finished = None;

@@ -57,6 +57,9 @@ impl std::str::FromStr for Background {
     }
 }
 
+/// A view's ground truth at some resolution: (z-depth, alpha), row-major from the top.
+pub type DepthAlpha = (Vec<f32>, Vec<f32>);
+
 /// One view as pixels: straight-alpha RGBA display values, row-major from the top.
 #[derive(Clone, Debug)]
 pub struct ViewPixels {
@@ -95,7 +98,7 @@ impl ViewPixels {
 
     /// The frame's ground truth (z-depth, alpha) at `downscale` (see [`Self::gt`]), without
     /// reading its image; `None` when the frame has none.
-    pub fn load_ground_truth(frame: &Frame, downscale: u32) -> Result<Option<(Vec<f32>, Vec<f32>)>, DataError> {
+    pub fn load_ground_truth(frame: &Frame, downscale: u32) -> Result<Option<DepthAlpha>, DataError> {
         let Some(p) = &frame.gt_path else { return Ok(None) };
         let k = downscale.max(1);
         let camera = frame.camera.downscaled(k);

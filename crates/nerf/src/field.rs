@@ -330,6 +330,9 @@ pub fn load_param_vectors<M: Module>(module: M, values: &[Vec<f32>]) -> Result<M
     }
 }
 
+/// One parameter's Adam state as flat vectors: (time, first moment, second moment).
+pub type MomentState = (usize, Vec<f32>, Vec<f32>);
+
 /// burn's Adam applied parameter by parameter, its per-parameter state kept in visiting order
 /// (not by burn's random parameter ids) so that it can be written to and read from a
 /// checkpoint as flat vectors.
@@ -337,7 +340,7 @@ pub struct MlpAdam {
     optim: Adam,
     states: Vec<Option<Box<dyn Any + Send>>>,
     /// States read from a checkpoint, turned into tensors on the next step: (time, m1, m2).
-    pending: Vec<Option<(usize, Vec<f32>, Vec<f32>)>>,
+    pending: Vec<Option<MomentState>>,
 }
 
 impl std::fmt::Debug for MlpAdam {
@@ -372,7 +375,7 @@ impl MlpAdam {
 
     /// The state as flat vectors per parameter (time, first moment, second moment); `None` for
     /// a parameter that has not been stepped.
-    pub fn export(&self) -> Vec<Option<(usize, Vec<f32>, Vec<f32>)>> {
+    pub fn export(&self) -> Vec<Option<MomentState>> {
         let n = self.states.len().max(self.pending.len());
         (0..n)
             .map(|k| {
@@ -392,7 +395,7 @@ impl MlpAdam {
     }
 
     /// Restores a state written by [`Self::export`].
-    pub fn import(&mut self, states: Vec<Option<(usize, Vec<f32>, Vec<f32>)>>) {
+    pub fn import(&mut self, states: Vec<Option<MomentState>>) {
         self.states = states.iter().map(|_| None).collect();
         self.pending = states;
     }

@@ -733,10 +733,10 @@ impl Trainer {
             if self.config.view_test_at.is_some_and(|n| self.step >= n) {
                 self.test_view_dependence()?;
             }
-            if self.step % self.config.log_interval_steps.max(1) == 0 {
+            if self.step.is_multiple_of(self.config.log_interval_steps.max(1)) {
                 self.log_window()?;
             }
-            if self.step % self.config.checkpoint_interval_steps.max(1) == 0 {
+            if self.step.is_multiple_of(self.config.checkpoint_interval_steps.max(1)) {
                 self.save_checkpoint()?;
             }
             if self.wall_s >= self.next_val_at && !self.finished() {

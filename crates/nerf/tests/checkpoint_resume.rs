@@ -94,7 +94,8 @@ fn resume_refuses_a_dataset_whose_views_changed() {
     assert!(Trainer::resume(&run).is_ok(), "an unchanged dataset resumes");
 
     let ds = dataset::Dataset::load(&data).unwrap();
-    let edits: Vec<(std::path::PathBuf, Box<dyn Fn(&mut Vec<u8>)>)> = vec![
+    type Edit = (std::path::PathBuf, Box<dyn Fn(&mut Vec<u8>)>);
+    let edits: Vec<Edit> = vec![
         // One train image, one byte.
         (ds.train[1].image_path.clone(), Box::new(|b: &mut Vec<u8>| *b.last_mut().unwrap() ^= 1)),
         // The val view's image.

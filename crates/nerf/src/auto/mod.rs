@@ -325,7 +325,7 @@ pub fn decide(auto: &AutoConfig, mut fast: FastConfig, run: &RunSettings, ds: &D
         }),
         _ => None,
     };
-    let (hs, r) = hash_sizes(cube_side, min_side, &fp, surface.as_ref(), &auto);
+    let (hs, r) = hash_sizes(cube_side, min_side, &fp, surface.as_ref(), auto);
     reasons.extend(r);
     fast.levels = hs.levels;
     fast.features_per_level = hs.features_per_level;
@@ -364,12 +364,12 @@ pub fn decide(auto: &AutoConfig, mut fast: FastConfig, run: &RunSettings, ds: &D
     reasons.push(r);
 
     // Samples.
-    let (grid, spd, r) = sampling(hs.finest_resolution, cube_side, fp.size, &auto, fast.max_samples_per_ray);
+    let (grid, spd, r) = sampling(hs.finest_resolution, cube_side, fp.size, auto, fast.max_samples_per_ray);
     fast.grid_resolution = grid;
     fast.steps_per_diagonal = spd;
     reasons.extend(r);
     if auto.cone_marching.unwrap_or(false) {
-        let (angle, r) = cone(&fp, &auto, cube_side, grid, spd);
+        let (angle, r) = cone(&fp, auto, cube_side, grid, spd);
         fast.cone_angle = Some(angle);
         reasons.push(r);
     }

@@ -1177,6 +1177,7 @@ mod tests {
     }
 }
 #[cfg(test)]
+#[allow(clippy::needless_range_loop)]
 mod sparse_adam_list {
     use super::*;
 

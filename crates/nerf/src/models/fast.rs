@@ -595,6 +595,8 @@ fn ray_groups(offsets: &[u32], target: usize) -> Vec<(std::ops::Range<usize>, st
 /// The samples of each ray up to (and including) the one at which the optical depth
 /// `Σ σ_j δ_j` before it still is ≤ `tau_stop` (transmittance ≥ e^−tau_stop): a prefix of
 /// every ray. Returns the kept samples and their indices in `s`.
+// The sample index `i` addresses three parallel arrays and is also what is kept.
+#[allow(clippy::needless_range_loop)]
 fn keep_until_opaque(s: &RaySamples, sigma: &[f32], tau_stop: f32) -> (RaySamples, Vec<usize>) {
     let mut out = RaySamples::with_rays(s.n_rays());
     let mut idx = Vec::with_capacity(s.len());
