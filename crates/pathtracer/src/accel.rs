@@ -260,10 +260,10 @@ impl ChildBoxTest for EightWide {
 fn intersect_children<K: ChildBoxTest>(test: K, node: &CwBvhNode, ray: &obvhs::ray::Ray, oct_inv4: u32) -> u32 {
     let adj_inv = node.compute_extent() * ray.inv_direction;
     let adj_o = (Vec3A::from(node.p) - ray.origin) * ray.inv_direction;
-    let (nx, fx) = if ray.direction.x < 0.0 { (&node.child_max_x, &node.child_min_x) } else { (&node.child_min_x, &node.child_max_x) };
-    let (ny, fy) = if ray.direction.y < 0.0 { (&node.child_max_y, &node.child_min_y) } else { (&node.child_min_y, &node.child_max_y) };
-    let (nz, fz) = if ray.direction.z < 0.0 { (&node.child_max_z, &node.child_min_z) } else { (&node.child_min_z, &node.child_max_z) };
-
+    let pick = |lo, hi, neg: bool| if neg { (hi, lo) } else { (lo, hi) };
+    let (nx, fx) = pick(&node.child_min_x, &node.child_max_x, ray.direction.x < 0.0);
+    let (ny, fy) = pick(&node.child_min_y, &node.child_max_y, ray.direction.y < 0.0);
+    let (nz, fz) = pick(&node.child_min_z, &node.child_max_z, ray.direction.z < 0.0);
     let mut hit = test.hits([nx, ny, nz], [fx, fy, fz], adj_inv, adj_o, ray.tmax);
     if hit == 0 {
         return 0;
@@ -522,8 +522,7 @@ impl Accel {
     pub fn memory_bytes(&self) -> usize {
         use std::mem::size_of;
         let bvh = self.bvh.as_ref().map_or(0, |b| b.nodes.len() * size_of::<CwBvhNode>() + b.primitive_indices.len() * size_of::<u32>());
-        bvh
-            + self.tris.len() * size_of::<PackedTriangle>()
+        bvh + self.tris.len() * size_of::<PackedTriangle>()
     }
 
     #[inline(always)]
