@@ -43,6 +43,10 @@ use crate::sampler::{Sampler, power_heuristic, splitmix64};
 use crate::scene::{AlphaMode, Scene};
 use glam::{Vec2, Vec3, Vec4};
 
+/// Sampler dimensions every path vertex reserves: 1 + 2 (emitter selection and point),
+/// 2 (environment), 2 (BSDF), 1 (Russian roulette).
+const VERTEX_DIMENSIONS: u32 = 8;
+
 /// Fraction of a shadow ray's length left unchecked at its far end (pbrt's ShadowEpsilon).
 pub const SHADOW_EPSILON: f32 = 1e-4;
 
@@ -97,10 +101,19 @@ pub struct Interaction {
 pub fn surface_attributes(scene: &Scene, prim: u32, b: [f32; 3]) -> SurfaceAttributes {
     let m = &scene.mesh;
     let idx = m.indices[prim as usize];
+    // A missing attribute skips the lookups: the sums below are then exactly 0 (UVs) and
+    // `((0 + b₀) + b₁) + b₂` (colour), the same bits as interpolating the defaults.
     let lerp2 = |v: &Vec<Vec2>| {
+        if v.is_empty() {
+            return Vec2::ZERO;
+        }
         (0..3).fold(Vec2::ZERO, |acc, k| acc + b[k] * v.get(idx[k] as usize).copied().unwrap_or(Vec2::ZERO))
     };
-    let color = (0..3).fold(Vec4::ZERO, |acc, k| acc + b[k] * m.colors.get(idx[k] as usize).copied().unwrap_or(Vec4::ONE));
+    let color = if m.colors.is_empty() {
+        Vec4::splat(((0.0 + b[0]) + b[1]) + b[2])
+    } else {
+        (0..3).fold(Vec4::ZERO, |acc, k| acc + b[k] * m.colors.get(idx[k] as usize).copied().unwrap_or(Vec4::ONE))
+    };
     SurfaceAttributes { uv: [lerp2(&m.uv0), lerp2(&m.uv1)], color }
 }
 
@@ -263,12 +276,10 @@ impl PathIntegrator<'_> {
             if depth >= self.settings.max_bounces {
                 break;
             }
-            // Fixed dimension budget per vertex: 1 + 2 (emitter), 2 (env), 2 (bsdf), 1 (rr).
-            let u_sel = sampler.next_1d();
-            let u_emit = sampler.next_2d();
-            let u_env = sampler.next_2d();
-            let u_bsdf = sampler.next_2d();
-            let u_rr = sampler.next_1d();
+            // Fixed dimension budget per vertex: 1 + 2 (emitter), 2 (env), 2 (bsdf), 1 (rr),
+            // reserved at once; each is computed only where it is used (the same numbers as
+            // drawing all eight in order).
+            let dim = sampler.skip(VERTEX_DIMENSIONS);
 
             let wo = -ray.direction;
             let ns = match &mat.normal_texture {
@@ -314,14 +325,16 @@ impl PathIntegrator<'_> {
             }
 
             // Emissive triangles: one sample, MIS with BSDF sampling.
-            if let Some(es) = self.emitters.sample(u_sel, u_emit) {
+            if !self.emitters.is_empty()
+                && let Some(es) = self.emitters.sample(sampler.get_1d(dim), sampler.get_2d(dim + 1))
+            {
                 l += beta * self.emitter_nee(&si, origin, &bsdf, es);
             }
 
             // Environment map: one sample, MIS with BSDF sampling. A constant environment is
             // left to BSDF sampling alone (see the module docs).
             if env_nee
-                && let Some((wi, pdf)) = env.sample(u_env)
+                && let Some((wi, pdf)) = env.sample(sampler.get_2d(dim + 3))
                 && wi.dot(si.ng) > 0.0
             {
                 let wi_l = si.frame.to_local(wi);
@@ -334,7 +347,7 @@ impl PathIntegrator<'_> {
             }
 
             // Continue the path by sampling the BSDF.
-            let Some(bs) = bsdf.sample(u_bsdf) else { break };
+            let Some(bs) = bsdf.sample(sampler.get_2d(dim + 5)) else { break };
             let wi = si.frame.to_world(bs.wi).normalize();
             if wi.dot(si.ng) <= 0.0 {
                 break;
@@ -343,7 +356,7 @@ impl PathIntegrator<'_> {
             prev_bsdf_pdf = bs.pdf;
             if depth >= 2 {
                 let survive = beta.max_element().min(1.0);
-                if !(survive > 0.0) || u_rr >= survive {
+                if !(survive > 0.0) || sampler.get_1d(dim + 7) >= survive {
                     break;
                 }
                 beta /= survive;

@@ -135,24 +135,58 @@ impl Sampler {
         Self { key: self.key, sample_reversed: sample.reverse_bits(), dimension: 0 }
     }
 
-    /// Dimension `k`'s scramble keys (index shuffle, x, y) and its shuffled Sobol' index
-    /// `owen_scramble(sample, key)`; advances by `n` dimensions.
+    /// Dimension `dim`'s scramble keys (index shuffle, x, y) and its shuffled Sobol' index
+    /// `owen_scramble(sample, key)`.
     #[inline]
-    fn start(&mut self, n: u32) -> (u32, u32, u32) {
-        let h = splitmix64(self.key ^ (self.dimension as u64).wrapping_mul(0xD1B5_4A32_D192_ED03));
-        self.dimension = self.dimension.wrapping_add(n);
+    fn keys(&self, dim: u32) -> (u32, u32, u32) {
+        let h = splitmix64(self.key ^ (dim as u64).wrapping_mul(0xD1B5_4A32_D192_ED03));
         let ky = ((h ^ (h >> 31)).wrapping_mul(0xD6E8_FEB8_6659_FD93) >> 32) as u32;
         let index = laine_karras(self.sample_reversed, h as u32).reverse_bits();
         (index, (h >> 32) as u32, ky)
     }
 
-    /// The next dimension as 32-bit fixed point (one coordinate of its own shuffled,
-    /// scrambled sequence: the van der Corput point of the shuffled index, Owen-scrambled).
+    /// Dimension `dim` as 32-bit fixed point (one coordinate of its own shuffled, scrambled
+    /// sequence: the van der Corput point of the shuffled index, Owen-scrambled), whatever
+    /// has been drawn.
     #[inline]
-    pub fn next_u32(&mut self) -> u32 {
-        let (index, kx, _) = self.start(1);
+    pub fn u32_at(&self, dim: u32) -> u32 {
+        let (index, kx, _) = self.keys(dim);
         // owen_scramble(index.reverse_bits(), kx), without the double reversal.
         laine_karras(index, kx).reverse_bits()
+    }
+
+    /// Dimension `dim` as an `f32` in `[0, 1)`: what [`Sampler::next_1d`] returns when it is
+    /// the next dimension.
+    #[inline]
+    pub fn get_1d(&self, dim: u32) -> f32 {
+        to_unit(self.u32_at(dim))
+    }
+
+    /// Dimensions `dim` and `dim + 1` as one 2-D point: what [`Sampler::next_2d`] returns
+    /// when `dim` is the next dimension.
+    #[inline]
+    pub fn get_2d(&self, dim: u32) -> Vec2 {
+        let (index, kx, ky) = self.keys(dim);
+        let x = laine_karras(index, kx).reverse_bits();
+        let y = laine_karras(sobol_dim1_reversed(index), ky).reverse_bits();
+        Vec2::new(to_unit(x), to_unit(y))
+    }
+
+    /// Reserves the next `n` dimensions without computing them and returns the first: a
+    /// consumer with a fixed dimension budget computes only those it uses
+    /// ([`Sampler::get_1d`], [`Sampler::get_2d`]), and every later draw is unchanged.
+    #[inline]
+    pub fn skip(&mut self, n: u32) -> u32 {
+        let d = self.dimension;
+        self.dimension = self.dimension.wrapping_add(n);
+        d
+    }
+
+    /// The next dimension as 32-bit fixed point ([`Sampler::u32_at`] of the next dimension).
+    #[inline]
+    pub fn next_u32(&mut self) -> u32 {
+        let d = self.skip(1);
+        self.u32_at(d)
     }
 
     /// The next dimension as an `f32` in `[0, 1)` (multiples of 2⁻²⁴).
@@ -165,10 +199,8 @@ impl Sampler {
     /// (0,2)-sequence.
     #[inline]
     pub fn next_2d(&mut self) -> Vec2 {
-        let (index, kx, ky) = self.start(2);
-        let x = laine_karras(index, kx).reverse_bits();
-        let y = laine_karras(sobol_dim1_reversed(index), ky).reverse_bits();
-        Vec2::new(to_unit(x), to_unit(y))
+        let d = self.skip(2);
+        self.get_2d(d)
     }
 
     /// How many dimensions have been drawn.
@@ -242,6 +274,28 @@ mod tests {
                     assert_eq!(a.next_u32(), b.next_u32());
                 }
             }
+        }
+    }
+
+    #[test]
+    fn reserved_dimensions_are_the_numbers_drawn_in_order() {
+        // A vertex's budget (1, 2, 2, 2, 1 dimensions) drawn in order, then reserved with
+        // `skip` and read back out of order or not at all: the same numbers, and the draw
+        // after the budget is the same too.
+        for (seed, pixel, sample) in [(0u64, 0u64, 0u32), (7, 12345, 9), (u64::MAX, u64::MAX, u32::MAX)] {
+            let mut a = Sampler::new(seed, 2, pixel, sample);
+            let mut b = a.clone();
+            for _ in 0..3 {
+                let drawn = (a.next_1d(), a.next_2d(), a.next_2d(), a.next_2d(), a.next_1d());
+                let d = b.skip(8);
+                assert_eq!(b.get_2d(d + 5).to_array().map(f32::to_bits), drawn.3.to_array().map(f32::to_bits));
+                assert_eq!(b.get_1d(d + 7).to_bits(), drawn.4.to_bits());
+                assert_eq!(b.get_1d(d).to_bits(), drawn.0.to_bits());
+                assert_eq!(b.get_2d(d + 1).to_array().map(f32::to_bits), drawn.1.to_array().map(f32::to_bits));
+                assert_eq!(b.get_2d(d + 3).to_array().map(f32::to_bits), drawn.2.to_array().map(f32::to_bits));
+                assert_eq!(a.dimension(), b.dimension());
+            }
+            assert_eq!(a.next_u32(), b.next_u32());
         }
     }
 
