@@ -43,9 +43,15 @@ use crate::sampler::{Sampler, power_heuristic, splitmix64};
 use crate::scene::{AlphaMode, Scene};
 use glam::{Vec2, Vec3, Vec4};
 
-/// Sampler dimensions every path vertex reserves: 1 + 2 (emitter selection and point),
-/// 2 (environment), 2 (BSDF), 1 (Russian roulette).
-const VERTEX_DIMENSIONS: u32 = 8;
+/// Where each of a path vertex's numbers lies in its block of sampler dimensions: emitter
+/// selection (1), emitter point (2), environment (2), BSDF (2), Russian roulette (1).
+const DIM_EMITTER_SELECT: u32 = 0;
+const DIM_EMITTER_POINT: u32 = 1;
+const DIM_ENVIRONMENT: u32 = 3;
+const DIM_BSDF: u32 = 5;
+const DIM_ROULETTE: u32 = 7;
+/// Sampler dimensions every path vertex reserves (the block above).
+const VERTEX_DIMENSIONS: u32 = DIM_ROULETTE + 1;
 
 /// Fraction of a shadow ray's length left unchecked at its far end (pbrt's ShadowEpsilon).
 pub const SHADOW_EPSILON: f32 = 1e-4;
@@ -276,9 +282,8 @@ impl PathIntegrator<'_> {
             if depth >= self.settings.max_bounces {
                 break;
             }
-            // Fixed dimension budget per vertex: 1 + 2 (emitter), 2 (env), 2 (bsdf), 1 (rr),
-            // reserved at once; each is computed only where it is used (the same numbers as
-            // drawing all eight in order).
+            // The vertex's fixed block of dimensions (`DIM_*`), reserved at once; each number is
+            // computed only where it is used (the same numbers as drawing all eight in order).
             let dim = sampler.skip(VERTEX_DIMENSIONS);
 
             let wo = -ray.direction;
@@ -326,7 +331,7 @@ impl PathIntegrator<'_> {
 
             // Emissive triangles: one sample, MIS with BSDF sampling.
             if !self.emitters.is_empty()
-                && let Some(es) = self.emitters.sample(sampler.get_1d(dim), sampler.get_2d(dim + 1))
+                && let Some(es) = self.emitters.sample(sampler.get_1d(dim + DIM_EMITTER_SELECT), sampler.get_2d(dim + DIM_EMITTER_POINT))
             {
                 l += beta * self.emitter_nee(&si, origin, &bsdf, es);
             }
@@ -334,7 +339,7 @@ impl PathIntegrator<'_> {
             // Environment map: one sample, MIS with BSDF sampling. A constant environment is
             // left to BSDF sampling alone (see the module docs).
             if env_nee
-                && let Some((wi, pdf)) = env.sample(sampler.get_2d(dim + 3))
+                && let Some((wi, pdf)) = env.sample(sampler.get_2d(dim + DIM_ENVIRONMENT))
                 && wi.dot(si.ng) > 0.0
             {
                 let wi_l = si.frame.to_local(wi);
@@ -347,7 +352,7 @@ impl PathIntegrator<'_> {
             }
 
             // Continue the path by sampling the BSDF.
-            let Some(bs) = bsdf.sample(sampler.get_2d(dim + 5)) else { break };
+            let Some(bs) = bsdf.sample(sampler.get_2d(dim + DIM_BSDF)) else { break };
             let wi = si.frame.to_world(bs.wi).normalize();
             if wi.dot(si.ng) <= 0.0 {
                 break;
@@ -356,7 +361,7 @@ impl PathIntegrator<'_> {
             prev_bsdf_pdf = bs.pdf;
             if depth >= 2 {
                 let survive = beta.max_element().min(1.0);
-                if !(survive > 0.0) || sampler.get_1d(dim + 7) >= survive {
+                if !(survive > 0.0) || sampler.get_1d(dim + DIM_ROULETTE) >= survive {
                     break;
                 }
                 beta /= survive;

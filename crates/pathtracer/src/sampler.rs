@@ -149,7 +149,7 @@ impl Sampler {
     /// sequence: the van der Corput point of the shuffled index, Owen-scrambled), whatever
     /// has been drawn.
     #[inline]
-    pub fn u32_at(&self, dim: u32) -> u32 {
+    fn u32_at(&self, dim: u32) -> u32 {
         let (index, kx, _) = self.keys(dim);
         // owen_scramble(index.reverse_bits(), kx), without the double reversal.
         laine_karras(index, kx).reverse_bits()
