@@ -1,4 +1,4 @@
-//! `cargo xtask bench render|scaling|nerf|auto`: performance figures, printed (the render
+//! `cargo xtask bench render|scaling|nerf|auto|auto-diff`: performance figures, printed (the render
 //! benchmarks also write them as JSON).
 
 use anyhow::Context;
@@ -24,6 +24,8 @@ pub enum BenchWhat {
     Nerf(crate::bench_nerf::NerfBenchArgs),
     /// `--model auto` against fixed fast sizes and paper on every scene (train, eval, compare).
     Auto(crate::bench_auto::AutoBenchArgs),
+    /// Quality at equal time before and after a change: two `bench auto` output folders (two builds, the same runs) compared figure by figure against the seeds' noise.
+    AutoDiff(crate::bench_auto_diff::AutoDiffArgs),
 }
 
 /// Options of `bench render`.
@@ -82,6 +84,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
             Ok(())
         }
         BenchWhat::Auto(a) => crate::bench_auto::run(a),
+        BenchWhat::AutoDiff(a) => crate::bench_auto_diff::run(a),
     }
 }
 

@@ -266,7 +266,7 @@ fn spread(runs: &[eval::RunSummary], f: impl Fn(&eval::RunSummary) -> Option<f64
 
 /// Two standard errors of the difference of two means (Welch): `None` unless both sides
 /// have at least two values.
-fn two_se(a: &[f64], b: &[f64]) -> Option<f64> {
+pub(crate) fn two_se(a: &[f64], b: &[f64]) -> Option<f64> {
     let var_of_mean = |v: &[f64]| {
         let n = v.len() as f64;
         let m = v.iter().sum::<f64>() / n;

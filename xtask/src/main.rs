@@ -7,6 +7,7 @@ use std::sync::{Arc, OnceLock};
 
 mod bench;
 mod bench_auto;
+mod bench_auto_diff;
 mod bench_nerf;
 mod crosscheck;
 mod evaluate;
