@@ -147,6 +147,13 @@ fn check_settings(before: &Path, after: &Path) -> anyhow::Result<Option<(PathBuf
     Ok(dataset(&a).zip(dataset(&b)))
 }
 
+/// The seconds between validations of a run, from the config `bench auto` wrote next to it:
+/// its time to 30 dB is interpolated between validations (`eval::curve::time_to_psnr`).
+fn val_interval_s(run: &Path) -> Option<f64> {
+    let bytes = std::fs::read(run.with_extension("config.json")).ok()?;
+    serde_json::from_slice::<serde_json::Value>(&bytes).ok()?.get("val_interval_s")?.as_f64()
+}
+
 /// Mean of a non-empty slice.
 fn mean(v: &[f64]) -> f64 {
     v.iter().sum::<f64>() / v.len() as f64
@@ -264,6 +271,19 @@ pub fn run(args: AutoDiffArgs) -> anyhow::Result<()> {
             groups.entry(config_of_run(name)).or_default().push((b, a));
         }
         notes.extend(rb.keys().filter(|n| !ra.contains_key(*n)).map(|n| format!("{n}: before only (left out)")));
+        let intervals: Vec<String> = groups
+            .keys()
+            .filter_map(|c| {
+                let first = ra.keys().find(|n| config_of_run(n) == *c)?;
+                val_interval_s(&args.after.join(scene).join(first)).map(|v| format!("{c} every {v} s"))
+            })
+            .collect();
+        if !intervals.is_empty() {
+            notes.push(format!(
+                "time to 30 dB is interpolated between validations ({}), and is the first validation's time where that one already reaches 30 dB: a change smaller than the interval is a weak signal",
+                intervals.join(", ")
+            ));
+        }
         let resolve = |p: &Path| std::fs::canonicalize(p).unwrap_or_else(|_| p.to_path_buf());
         if datasets.iter().any(|(b, a)| resolve(b) != resolve(a)) {
             notes.push("the two sides trained on different dataset folders: their differences include the datasets' Monte Carlo noise".into());
@@ -383,6 +403,9 @@ mod tests {
         let b_same = serde_json::json!({"dataset": "y", "seed": 1, "model": {"levels": 16}, "time_budget_s": 120.0});
         std::fs::write(ra.with_extension("config.json"), b_same.to_string()).unwrap();
         assert_eq!(check_settings(&rb, &ra).unwrap(), Some((PathBuf::from("x"), PathBuf::from("y"))));
+        assert_eq!(val_interval_s(&ra), None, "not recorded");
+        std::fs::write(ra.with_extension("config.json"), serde_json::json!({"val_interval_s": 6.0}).to_string()).unwrap();
+        assert_eq!(val_interval_s(&ra), Some(6.0));
         std::fs::write(ra.with_extension("config.json"), "{").unwrap();
         assert!(check_settings(&rb, &ra).unwrap_err().to_string().contains("is not valid JSON"));
     }
