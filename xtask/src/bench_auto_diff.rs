@@ -121,10 +121,21 @@ fn differing_settings(a: &serde_json::Value, b: &serde_json::Value, path: &str, 
     }
 }
 
+/// What the records of a pair of runs say besides agreeing (see [`check_settings`]).
+#[derive(Debug, PartialEq)]
+struct PairSettings {
+    /// The two dataset folders (before, after), when both runs have a record.
+    datasets: Option<(PathBuf, PathBuf)>,
+    /// The after-run's seconds between validations: its time to 30 dB is interpolated
+    /// between validations (`eval::curve::time_to_psnr`).
+    val_interval_s: Option<f64>,
+}
+
 /// Checks that the two sides of a pair of runs trained with the same settings, from the
-/// configs `bench auto` wrote next to them (`<run>.config.json`); returns the two dataset
-/// folders. A run without that record (trained by hand) is compared unchecked.
-fn check_settings(before: &Path, after: &Path) -> anyhow::Result<Option<(PathBuf, PathBuf)>> {
+/// configs `bench auto` wrote next to them (`<run>.config.json`, each read once), and returns
+/// what else they record. A pair without both records (trained by hand) is compared
+/// unchecked.
+fn check_settings(before: &Path, after: &Path) -> anyhow::Result<PairSettings> {
     let read = |run: &Path| -> anyhow::Result<Option<serde_json::Value>> {
         let path = run.with_extension("config.json");
         if !path.is_file() {
@@ -133,7 +144,9 @@ fn check_settings(before: &Path, after: &Path) -> anyhow::Result<Option<(PathBuf
         let bytes = std::fs::read(&path).with_context(|| format!("reading {}", path.display()))?;
         serde_json::from_slice(&bytes).map(Some).with_context(|| format!("{} is not valid JSON", path.display()))
     };
-    let (Some(a), Some(b)) = (read(before)?, read(after)?) else { return Ok(None) };
+    let (a, b) = (read(before)?, read(after)?);
+    let val_interval_s = b.as_ref().and_then(|v| v.get("val_interval_s")?.as_f64());
+    let (Some(a), Some(b)) = (a, b) else { return Ok(PairSettings { datasets: None, val_interval_s }) };
     let mut diffs = Vec::new();
     differing_settings(&a, &b, "", &["dataset"], &mut diffs);
     anyhow::ensure!(
@@ -144,14 +157,7 @@ fn check_settings(before: &Path, after: &Path) -> anyhow::Result<Option<(PathBuf
         diffs.join("; ")
     );
     let dataset = |v: &serde_json::Value| v.get("dataset").and_then(|d| d.as_str()).map(PathBuf::from);
-    Ok(dataset(&a).zip(dataset(&b)))
-}
-
-/// The seconds between validations of a run, from the config `bench auto` wrote next to it:
-/// its time to 30 dB is interpolated between validations (`eval::curve::time_to_psnr`).
-fn val_interval_s(run: &Path) -> Option<f64> {
-    let bytes = std::fs::read(run.with_extension("config.json")).ok()?;
-    serde_json::from_slice::<serde_json::Value>(&bytes).ok()?.get("val_interval_s")?.as_f64()
+    Ok(PairSettings { datasets: dataset(&a).zip(dataset(&b)), val_interval_s })
 }
 
 /// Mean of a non-empty slice.
@@ -260,24 +266,23 @@ pub fn run(args: AutoDiffArgs) -> anyhow::Result<()> {
         let mut notes = Vec::new();
         let mut groups: BTreeMap<&str, Vec<(&RunSummary, &RunSummary)>> = BTreeMap::new();
         let mut datasets = Vec::new();
+        // Each configuration's validation interval, from its first run (in name order).
+        let mut intervals: BTreeMap<&str, f64> = BTreeMap::new();
         for (name, a) in ra {
             let Some(b) = rb.get(name) else {
                 notes.push(format!("{name}: after only (left out)"));
                 continue;
             };
-            if let Some(pair) = check_settings(&args.before.join(scene).join(name), &args.after.join(scene).join(name))? {
-                datasets.push(pair);
+            let config = config_of_run(name);
+            let settings = check_settings(&args.before.join(scene).join(name), &args.after.join(scene).join(name))?;
+            datasets.extend(settings.datasets);
+            if let Some(v) = settings.val_interval_s {
+                intervals.entry(config).or_insert(v);
             }
-            groups.entry(config_of_run(name)).or_default().push((b, a));
+            groups.entry(config).or_default().push((b, a));
         }
         notes.extend(rb.keys().filter(|n| !ra.contains_key(*n)).map(|n| format!("{n}: before only (left out)")));
-        let intervals: Vec<String> = groups
-            .keys()
-            .filter_map(|c| {
-                let first = ra.keys().find(|n| config_of_run(n) == *c)?;
-                val_interval_s(&args.after.join(scene).join(first)).map(|v| format!("{c} every {v} s"))
-            })
-            .collect();
+        let intervals: Vec<String> = intervals.iter().map(|(c, v)| format!("{c} every {v} s")).collect();
         if !intervals.is_empty() {
             notes.push(format!(
                 "time to 30 dB is interpolated between validations ({}), and is the first validation's time where that one already reaches 30 dB: a change smaller than the interval is a weak signal",
@@ -395,17 +400,16 @@ mod tests {
         let (rb, ra) = (dir.path().join("b/s/auto"), dir.path().join("a/s/auto"));
         std::fs::create_dir_all(&rb).unwrap();
         std::fs::create_dir_all(&ra).unwrap();
-        assert!(check_settings(&rb, &ra).unwrap().is_none(), "no records: unchecked");
+        assert_eq!(check_settings(&rb, &ra).unwrap(), PairSettings { datasets: None, val_interval_s: None }, "no records: unchecked");
         std::fs::write(rb.with_extension("config.json"), a.to_string()).unwrap();
         std::fs::write(ra.with_extension("config.json"), b.to_string()).unwrap();
         let e = check_settings(&rb, &ra).unwrap_err().to_string();
         assert!(e.contains("time_budget_s: 120.0 vs 300.0") && e.contains("not the same experiment"), "{e}");
         let b_same = serde_json::json!({"dataset": "y", "seed": 1, "model": {"levels": 16}, "time_budget_s": 120.0});
         std::fs::write(ra.with_extension("config.json"), b_same.to_string()).unwrap();
-        assert_eq!(check_settings(&rb, &ra).unwrap(), Some((PathBuf::from("x"), PathBuf::from("y"))));
-        assert_eq!(val_interval_s(&ra), None, "not recorded");
+        assert_eq!(check_settings(&rb, &ra).unwrap(), PairSettings { datasets: Some((PathBuf::from("x"), PathBuf::from("y"))), val_interval_s: None }, "interval not recorded");
         std::fs::write(ra.with_extension("config.json"), serde_json::json!({"val_interval_s": 6.0}).to_string()).unwrap();
-        assert_eq!(val_interval_s(&ra), Some(6.0));
+        assert_eq!(check_settings(&rb, &ra).unwrap().val_interval_s, Some(6.0));
         std::fs::write(ra.with_extension("config.json"), "{").unwrap();
         assert!(check_settings(&rb, &ra).unwrap_err().to_string().contains("is not valid JSON"));
     }
