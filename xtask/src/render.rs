@@ -125,9 +125,22 @@ impl RenderArgs {
     }
 }
 
-/// The repository root (the parent of `xtask/`).
+/// The repository root: the source tree this xtask was built from (the parent of `xtask/`)
+/// while it still has `scenes/`; otherwise (a binary kept after its build tree was removed,
+/// e.g. an older build for a before/after comparison) the nearest ancestor of the current
+/// directory that has both `scenes/` and `xtask/`; else the build tree's path, so errors
+/// name where scenes were expected.
 pub fn repo_root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).parent().map(Path::to_path_buf).unwrap_or_else(|| PathBuf::from("."))
+    let built = Path::new(env!("CARGO_MANIFEST_DIR")).parent().map(Path::to_path_buf).unwrap_or_else(|| PathBuf::from("."));
+    root_from(built, std::env::current_dir().ok().as_deref())
+}
+
+/// [`repo_root`] for a given build tree and current directory.
+fn root_from(built: PathBuf, cwd: Option<&Path>) -> PathBuf {
+    if built.join("scenes").is_dir() {
+        return built;
+    }
+    cwd.and_then(|cwd| cwd.ancestors().find(|d| d.join("scenes").is_dir() && d.join("xtask").is_dir()).map(Path::to_path_buf)).unwrap_or(built)
 }
 
 /// Resolves the scene argument: an existing file, or a name `NAME` meaning
@@ -309,6 +322,27 @@ mod tests {
 
     fn parse(cmd: &[&str]) -> RenderArgs {
         Cli::try_parse_from(std::iter::once("render").chain(cmd.iter().copied())).unwrap().args
+    }
+
+    #[test]
+    fn repo_root_falls_back_to_the_checkout_around_the_current_directory() {
+        let tmp = tempfile::tempdir().unwrap();
+        let (built, checkout) = (tmp.path().join("build-tree"), tmp.path().join("checkout"));
+        for d in [checkout.join("scenes"), checkout.join("xtask"), checkout.join("out/bench"), built.join("xtask")] {
+            std::fs::create_dir_all(d).unwrap();
+        }
+        let inside = checkout.join("out/bench");
+        // The build tree has no scenes (removed): the checkout around the current directory.
+        assert_eq!(root_from(built.clone(), Some(&inside)), checkout);
+        assert_eq!(root_from(built.clone(), Some(&checkout)), checkout);
+        // Nothing around the current directory either: the build tree, named in errors.
+        assert_eq!(root_from(built.clone(), Some(tmp.path())), built);
+        assert_eq!(root_from(built.clone(), None), built);
+        // A build tree that still has its scenes wins wherever the command runs.
+        std::fs::create_dir_all(built.join("scenes")).unwrap();
+        assert_eq!(root_from(built.clone(), Some(&inside)), built);
+        // The real one has the committed scenes.
+        assert!(repo_root().join("scenes/tabletop.gltf").is_file());
     }
 
     #[test]
