@@ -2,7 +2,8 @@
 //! (written to a temporary folder, so no prior step is needed; `--dataset DS` trains on a
 //! dataset folder instead), in the release profile (a dev xtask rebuilds and re-runs itself):
 //! the machine's limits measured in the same run (fp32 matmul peak through `gemm`, burn's
-//! matmul for comparison, stream-triad memory bandwidth); rays/s, samples/s and the fast
+//! matmul for comparison, stream-triad memory bandwidth, and random accesses to a table the size
+//! of one hash level); rays/s, samples/s and the fast
 //! model's roofline (each phase's time per step, its work — FLOPs for the networks, bytes for
 //! the hash tables and optimisers, [`nerf::roofline`] — and the fraction of the limit it
 //! reaches); the fast model's networks on one batch through the fused kernels ([`nerf::mlp`])
@@ -80,6 +81,24 @@ struct PhaseRow {
     rate: f64,
     /// Fraction of the machine's limit for that unit (matmul peak or stream bandwidth).
     fraction_of_limit: f64,
+    /// Hash phases: corner lookups per step (8 per sample and level), else 0.
+    corners_per_step: f64,
+    /// Hash phases: corner lookups per second over the measured random-access rate (reads for
+    /// the forward, read-modify-writes for the backward), else NaN.
+    fraction_of_random_access: f64,
+}
+
+/// The random-access limits of the hash lookups ([`nerf::roofline::random_access_rate`]),
+/// measured in the same run over one level's table of the benchmarked model.
+#[derive(Clone, Copy, Debug, serde::Serialize)]
+struct RandomAccessLimits {
+    /// Entries per table (`T`) and floats per entry (`F`).
+    entries: usize,
+    floats_per_entry: usize,
+    /// Random entry reads per second, all threads.
+    reads_per_s: f64,
+    /// Random entry read-modify-writes per second, all threads.
+    rmw_per_s: f64,
 }
 
 /// What `bench-nerf.json` holds.
@@ -90,6 +109,7 @@ struct NerfBenchJson {
     gemm_peak_gflops: f64,
     burn_matmul_gflops: f64,
     stream_bandwidth_gbs: f64,
+    random_access: Option<RandomAccessLimits>,
     steps: u64,
     rays_per_s: f64,
     samples_per_s: f64,
@@ -144,6 +164,7 @@ pub fn run(args: NerfBenchArgs) -> anyhow::Result<()> {
         gemm_peak_gflops: peak,
         burn_matmul_gflops: burn_peak,
         stream_bandwidth_gbs: bw,
+        random_access: None,
         steps: args.steps,
         rays_per_s: 0.0,
         samples_per_s: 0.0,
@@ -200,8 +221,17 @@ pub fn run(args: NerfBenchArgs) -> anyhow::Result<()> {
                 let n = steps as f64;
                 let avg = nerf::roofline::StepCounts { marched: counts.marched / n, trained: counts.trained / n, touched: counts.touched / n };
                 let work = nerf::roofline::StepWork::of(&m.config, m.parameters() - m.grid.params.len(), avg);
-                json.phases = roofline_rows(&tm, wall / n, steps, &work, peak, bw);
-                print_roofline(&json.phases, avg, rays / n);
+                // The hash lookups' own limit: random accesses to one level's table.
+                let (entries, f) = (1usize << m.config.log2_table_size, m.config.features_per_level);
+                let ra = RandomAccessLimits {
+                    entries,
+                    floats_per_entry: f,
+                    reads_per_s: nerf::roofline::random_access_rate(entries, f, 1 << 24, 5, false),
+                    rmw_per_s: nerf::roofline::random_access_rate(entries, f, 1 << 24, 5, true),
+                };
+                json.phases = roofline_rows(&tm, wall / n, steps, &work, peak, bw, &ra);
+                print_roofline(&json.phases, avg, rays / n, &ra);
+                json.random_access = Some(ra);
                 json.rays_per_s = rays / wall;
                 json.samples_per_s = samples as f64 / wall;
                 json.marched_per_ray = counts.marched / rays;
@@ -223,7 +253,7 @@ pub fn run(args: NerfBenchArgs) -> anyhow::Result<()> {
 
 /// The fast model's phases over `steps` steps (`tm` summed over them; `step_s` the mean
 /// wall seconds of a step) against `work` (per step) and the machine's limits.
-fn roofline_rows(tm: &nerf::models::StepTimings, step_s: f64, steps: u64, work: &nerf::roofline::StepWork, peak: f64, bw: f64) -> Vec<PhaseRow> {
+fn roofline_rows(tm: &nerf::models::StepTimings, step_s: f64, steps: u64, work: &nerf::roofline::StepWork, peak: f64, bw: f64, ra: &RandomAccessLimits) -> Vec<PhaseRow> {
     let p = &tm.phases;
     let n = steps as f64;
     let threads = nerf::roofline::threads() as f64;
@@ -238,17 +268,33 @@ fn roofline_rows(tm: &nerf::models::StepTimings, step_s: f64, steps: u64, work: 
             "bytes" => bw,
             _ => f64::NAN,
         };
-        PhaseRow { phase, ms_per_step: s * 1e3, work_unit: unit, work_per_step: work, rate, fraction_of_limit: if unit.is_empty() { f64::NAN } else { rate / limit } }
+        PhaseRow {
+            phase,
+            ms_per_step: s * 1e3,
+            work_unit: unit,
+            work_per_step: work,
+            rate,
+            fraction_of_limit: if unit.is_empty() { f64::NAN } else { rate / limit },
+            corners_per_step: 0.0,
+            fraction_of_random_access: f64::NAN,
+        }
+    };
+    // A hash phase's corners per second against the random-access rate.
+    let corners = |mut r: PhaseRow, corners: f64, limit: f64| {
+        r.corners_per_step = corners;
+        let s = r.ms_per_step / 1e3;
+        r.fraction_of_random_access = if s > 0.0 && limit > 0.0 { corners / s / limit } else { f64::NAN };
+        r
     };
     let mut rows = vec![
         row("ray batch", p.batch, "", 0.0),
         row("marching", p.march, "", 0.0),
-        row("hash forward", p.hash_forward, "bytes", work.hash_forward_bytes),
+        corners(row("hash forward", p.hash_forward, "bytes", work.hash_forward_bytes), work.hash_forward_corners, ra.reads_per_s),
         row("density pass (compaction)", p.density_pass, "flops", work.density_pass_flops),
         row("gather kept samples", p.gather, "", 0.0),
         row("MLP fwd+bwd (sweep less compositing)", p.mlp_sweep - composite, "flops", work.mlp_flops),
         row("compositing + loss (in the sweep)", composite, "", 0.0),
-        row("hash backward", p.hash_backward, "bytes", work.hash_backward_bytes),
+        corners(row("hash backward", p.hash_backward, "bytes", work.hash_backward_bytes), work.hash_backward_corners, ra.rmw_per_s),
         row("Adam networks", p.adam_mlp, "bytes", work.adam_mlp_bytes),
         row("Adam hash (sparse)", p.adam_hash, "bytes", work.adam_hash_bytes),
         row("occupancy update", p.occupancy, "", 0.0),
@@ -259,7 +305,7 @@ fn roofline_rows(tm: &nerf::models::StepTimings, step_s: f64, steps: u64, work: 
 }
 
 /// Prints the roofline table.
-fn print_roofline(rows: &[PhaseRow], c: nerf::roofline::StepCounts, rays: f64) {
+fn print_roofline(rows: &[PhaseRow], c: nerf::roofline::StepCounts, rays: f64, ra: &RandomAccessLimits) {
     println!(
         " fast roofline per step ({rays:.0} rays, {:.0} samples marched, {:.0} trained, {:.0} hash entries updated; work model in nerf::roofline):",
         c.marched, c.trained, c.touched
@@ -272,6 +318,23 @@ fn print_roofline(rows: &[PhaseRow], c: nerf::roofline::StepCounts, rays: f64) {
             _ => ("-".into(), "-".into(), "-".into()),
         };
         println!("  {:<38} {:>9.2} {:>14} {:>12} {:>9}", r.phase, r.ms_per_step, work, rate, frac);
+    }
+    println!(
+        "  hash lookups against random access (8 corners per sample and level; limit measured in this run: independent random accesses to entries of {} floats in one {:.1} MB table per thread, {:.0} M reads/s, {:.0} M read-modify-writes/s):",
+        ra.floats_per_entry,
+        (ra.entries * ra.floats_per_entry * 4) as f64 / 1e6,
+        ra.reads_per_s / 1e6,
+        ra.rmw_per_s / 1e6
+    );
+    for r in rows.iter().filter(|r| r.corners_per_step > 0.0) {
+        println!(
+            "  {:<38} {:>9.2} {:>9.2} M corners {:>7.0} M/s {:>7.1} %",
+            r.phase,
+            r.ms_per_step,
+            r.corners_per_step / 1e6,
+            r.corners_per_step / (r.ms_per_step / 1e3) / 1e6,
+            100.0 * r.fraction_of_random_access
+        );
     }
 }
 
