@@ -428,8 +428,20 @@ mod simd {
         let pairs = table.as_ptr() as *const f64;
         let dup_lo = _mm256_setr_epi32(0, 0, 1, 1, 2, 2, 3, 3);
         let dup_hi = _mm256_setr_epi32(4, 4, 5, 5, 6, 6, 7, 7);
-        for k0 in (0..n8).step_by(8) {
-            let (idx, w) = corners8::<DENSE>(&pts[k0..k0 + 8], &k);
+        if n8 == 0 {
+            return 0;
+        }
+        // As in the backward: the next eight points' corners one batch ahead, their entries
+        // prefetched while this batch's gathers wait.
+        let mut ring = [corners8::<DENSE>(&pts[..8], &k), corners8::<DENSE>(&pts[if n8 > 8 { 8 } else { 0 }..][..8], &k)];
+        prefetch_entries::<2>(&ring[0].0, table.as_ptr(), std::ptr::null());
+        prefetch_entries::<2>(&ring[1].0, table.as_ptr(), std::ptr::null());
+        for (b, k0) in (0..n8).step_by(8).enumerate() {
+            let (idx, w) = ring[b % 2];
+            if k0 + 16 < n8 {
+                ring[b % 2] = corners8::<DENSE>(&pts[k0 + 16..k0 + 24], &k);
+                prefetch_entries::<2>(&ring[b % 2].0, table.as_ptr(), std::ptr::null());
+            }
             // Each corner's two features are one 64-bit gather lane (an entry's pair), four
             // points per gather: half the gathered elements of one 32-bit gather per feature.
             // Accumulators hold (feature 0, feature 1) pairs of points 0–3 and 4–7, each lane
@@ -459,6 +471,101 @@ mod simd {
             }
         }
         n8
+    }
+
+    /// The constants of one sparse Adam step ([`super::Adam::step_sparse`]).
+    pub(super) struct AdamConsts {
+        pub(super) b1: f32,
+        pub(super) b2: f32,
+        pub(super) eps: f32,
+        pub(super) lr: f32,
+        /// Bias corrections `1 − β₁ᵗ`, `1 − β₂ᵗ`.
+        pub(super) c1: f32,
+        pub(super) c2: f32,
+    }
+
+    /// One chunk of [`super::Adam::step_sparse`] for two parameters per flag: entries four at a
+    /// time (eight floats), skipping groups with no touched entry; a group with one is computed
+    /// in all lanes and blended into the touched entries' lanes only, then its flags cleared
+    /// and its touched gradients zeroed. Lane for lane the scalar update, operation for
+    /// operation (`gᵢ` finite or 0; `m = β₁m + (1−β₁)g`; `v = β₂v + ((1−β₂)g)g`;
+    /// `p −= (lr·(m/c₁)) / (√(v/c₂) + ε)`; no fused multiply-add), so the same bits. Returns the
+    /// number of touched entries.
+    ///
+    /// # Safety
+    /// AVX2 must be available.
+    #[target_feature(enable = "avx2")]
+    pub(super) unsafe fn adam_pairs_avx2(p: &mut [f32], g: &mut [f32], m: &mut [f32], v: &mut [f32], tch: &mut [bool], k: &AdamConsts) -> usize {
+        let n = tch.len();
+        assert!(p.len() == 2 * n && g.len() == 2 * n && m.len() == 2 * n && v.len() == 2 * n, "two parameters per flag");
+        let set = |x: f32| _mm256_set1_ps(x);
+        let (b1, ob1, b2, ob2) = (set(k.b1), set(1.0 - k.b1), set(k.b2), set(1.0 - k.b2));
+        let (eps, lr, c1, c2, zero) = (set(k.eps), set(k.lr), set(k.c1), set(k.c2), _mm256_setzero_ps());
+        let n4 = n / 4 * 4;
+        let mut updated = 0usize;
+        for e0 in (0..n4).step_by(4) {
+            let f = [tch[e0], tch[e0 + 1], tch[e0 + 2], tch[e0 + 3]];
+            if f == [false; 4] {
+                continue;
+            }
+            updated += f.iter().filter(|&&x| x).count();
+            tch[e0..e0 + 4].fill(false);
+            let lane = |x: bool| -(x as i32);
+            let mask = _mm256_castsi256_ps(_mm256_setr_epi32(lane(f[0]), lane(f[0]), lane(f[1]), lane(f[1]), lane(f[2]), lane(f[2]), lane(f[3]), lane(f[3])));
+            let i = 2 * e0;
+            let (ps, gs, ms, vs) = (&mut p[i..i + 8], &mut g[i..i + 8], &mut m[i..i + 8], &mut v[i..i + 8]);
+            // SAFETY: each slice holds 8 floats.
+            let (pv, gv, mv, vv) = unsafe { (_mm256_loadu_ps(ps.as_ptr()), _mm256_loadu_ps(gs.as_ptr()), _mm256_loadu_ps(ms.as_ptr()), _mm256_loadu_ps(vs.as_ptr())) };
+            // Finite: g − g is 0 (NaN for an infinity or NaN).
+            let gi = _mm256_and_ps(_mm256_cmp_ps::<_CMP_EQ_OQ>(_mm256_sub_ps(gv, gv), zero), gv);
+            let m_new = _mm256_add_ps(_mm256_mul_ps(b1, mv), _mm256_mul_ps(ob1, gi));
+            let v_new = _mm256_add_ps(_mm256_mul_ps(b2, vv), _mm256_mul_ps(_mm256_mul_ps(ob2, gi), gi));
+            let step = _mm256_div_ps(_mm256_mul_ps(lr, _mm256_div_ps(m_new, c1)), _mm256_add_ps(_mm256_sqrt_ps(_mm256_div_ps(v_new, c2)), eps));
+            let p_new = _mm256_sub_ps(pv, step);
+            // SAFETY: as the loads.
+            unsafe {
+                _mm256_storeu_ps(ps.as_mut_ptr(), _mm256_blendv_ps(pv, p_new, mask));
+                _mm256_storeu_ps(gs.as_mut_ptr(), _mm256_blendv_ps(gv, zero, mask));
+                _mm256_storeu_ps(ms.as_mut_ptr(), _mm256_blendv_ps(mv, m_new, mask));
+                _mm256_storeu_ps(vs.as_mut_ptr(), _mm256_blendv_ps(vv, v_new, mask));
+            }
+        }
+        for e in n4..n {
+            if !tch[e] {
+                continue;
+            }
+            tch[e] = false;
+            updated += 1;
+            for i in 2 * e..2 * e + 2 {
+                let gi = if g[i].is_finite() { g[i] } else { 0.0 };
+                g[i] = 0.0;
+                m[i] = k.b1 * m[i] + (1.0 - k.b1) * gi;
+                v[i] = k.b2 * v[i] + (1.0 - k.b2) * gi * gi;
+                p[i] -= k.lr * (m[i] / k.c1) / ((v[i] / k.c2).sqrt() + k.eps);
+            }
+        }
+        updated
+    }
+
+    /// Prefetches (into every cache level) the table entries of `F` floats at the 64 indices of
+    /// `idx`, and the one-byte flags at the same indices of `flags` unless it is null.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn prefetch_entries<const F: usize>(idx: &[__m256i; 8], table: *const f32, flags: *const bool) {
+        let mut lanes = [[0u32; 8]; 8];
+        for c in 0..8 {
+            // SAFETY: each array holds 8 lanes.
+            unsafe { _mm256_storeu_si256(lanes[c].as_mut_ptr() as *mut __m256i, idx[c]) };
+        }
+        for i in lanes.iter().flatten() {
+            let i = *i as usize;
+            // A prefetch never faults and reads nothing into the program; `wrapping_add` keeps
+            // the address computation defined whatever the index.
+            _mm_prefetch::<_MM_HINT_T0>(table.wrapping_add(i * F) as *const i8);
+            if !flags.is_null() {
+                _mm_prefetch::<_MM_HINT_T0>(flags.wrapping_add(i) as *const i8);
+            }
+        }
     }
 
     /// One level's constants in registers.
@@ -546,10 +653,24 @@ mod simd {
         touched: &mut [bool],
     ) -> usize {
         let n8 = points.len() / 8 * 8;
+        if n8 == 0 {
+            return 0;
+        }
         let k = Consts::new(lv);
         let (mut idx, mut w) = ([[0u32; 8]; 8], [[0f32; 8]; 8]);
-        for k0 in (0..n8).step_by(8) {
-            let (vi, vw) = corners8::<DENSE>(&points[k0..k0 + 8], &k);
+        // The corners of the next eight points are computed one batch ahead and their gradient
+        // entries (and flags) prefetched, so that the scatter's read-modify-writes find them in
+        // cache instead of waiting on each miss in turn. Prefetches change no value.
+        let flags = if MARK { touched.as_ptr() } else { std::ptr::null() };
+        let mut ring = [corners8::<DENSE>(&points[..8], &k), corners8::<DENSE>(&points[if n8 > 8 { 8 } else { 0 }..][..8], &k)];
+        prefetch_entries::<F>(&ring[0].0, g.as_ptr(), flags);
+        prefetch_entries::<F>(&ring[1].0, g.as_ptr(), flags);
+        for (b, k0) in (0..n8).step_by(8).enumerate() {
+            let (vi, vw) = ring[b % 2];
+            if k0 + 16 < n8 {
+                ring[b % 2] = corners8::<DENSE>(&points[k0 + 16..k0 + 24], &k);
+                prefetch_entries::<F>(&ring[b % 2].0, g.as_ptr(), flags);
+            }
             for c in 0..8 {
                 // SAFETY: each array holds 8 lanes.
                 unsafe {
@@ -724,6 +845,17 @@ impl Adam {
             .zip(self.v.par_chunks_mut(chunk))
             .zip(touched.par_chunks_mut(ENTRIES))
             .map(|((((p, g), m), v), tch)| {
+                // Two parameters per flag (the hash grid's two features) with AVX2: every group
+                // of four entries that has a touched one is updated eight lanes at once, the
+                // results kept only in the touched entries' lanes (the same operations in the
+                // same order as below, so the same bits).
+                #[cfg(target_arch = "x86_64")]
+                if group == 2 && simd::avx2() {
+                    let k = simd::AdamConsts { b1, b2, eps, lr, c1, c2 };
+                    // SAFETY: AVX2 is present (checked at run time).
+                    #[allow(unsafe_code)]
+                    return unsafe { simd::adam_pairs_avx2(p, g, m, v, tch, &k) };
+                }
                 // The touched entries' indices first, without a branch per flag (about a
                 // third of the flags are set, scattered, so a branch on each mispredicts
                 // often), then the updates in index order.
@@ -1183,7 +1315,8 @@ mod sparse_adam_list {
 
     /// The listed sparse Adam equals a plain per-flag loop bit for bit over several steps, on a
     /// table of several chunks plus a partial one, with flags scattered at random (including
-    /// each chunk's first and last entry), for 1, 2 and 3 parameters per flag.
+    /// each chunk's first and last entry, and some non-finite gradients), for 1, 2 and 3
+    /// parameters per flag (2 runs the AVX2 kernel where the CPU has AVX2).
     #[test]
     fn sparse_adam_equals_a_per_flag_loop() {
         for group in [1usize, 2, 3] {
@@ -1203,6 +1336,10 @@ mod sparse_adam_list {
                         for i in e * group..(e + 1) * group {
                             g[i] = rng::uniform_f32(rng::key(&[step, i as u64, 1])) - 0.5;
                         }
+                        // Now and then a non-finite gradient (treated as 0).
+                        if e % 997 == 5 {
+                            g[e * group] = [f32::NAN, f32::INFINITY, f32::NEG_INFINITY][e % 3];
+                        }
                     }
                 }
                 let (reference_g, flags) = (g.clone(), touched.clone());
@@ -1213,7 +1350,7 @@ mod sparse_adam_list {
                 let c2 = (1.0 - (cfg.beta2 as f64).powi(t)) as f32;
                 for e in (0..entries).filter(|&e| flags[e]) {
                     for i in e * group..(e + 1) * group {
-                        let gi = reference_g[i];
+                        let gi = if reference_g[i].is_finite() { reference_g[i] } else { 0.0 };
                         rm[i] = cfg.beta1 * rm[i] + (1.0 - cfg.beta1) * gi;
                         rv[i] = cfg.beta2 * rv[i] + (1.0 - cfg.beta2) * gi * gi;
                         rp[i] -= 0.01 * (rm[i] / c1) / ((rv[i] / c2).sqrt() + cfg.eps);
