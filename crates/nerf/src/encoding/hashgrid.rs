@@ -385,7 +385,7 @@ fn encode_level_scalar<const F: usize, const DENSE: bool>(pts: &[[f32; 3]], lv: 
 #[cfg(target_arch = "x86_64")]
 #[allow(unsafe_code)]
 mod simd {
-    use super::{Level, PRIMES, scatter_point};
+    use super::{AdamStep, Level, PRIMES, scatter_point};
     use std::arch::x86_64::*;
     use std::sync::OnceLock;
 
@@ -473,17 +473,6 @@ mod simd {
         n8
     }
 
-    /// The constants of one sparse Adam step ([`super::Adam::step_sparse`]).
-    pub(super) struct AdamConsts {
-        pub(super) b1: f32,
-        pub(super) b2: f32,
-        pub(super) eps: f32,
-        pub(super) lr: f32,
-        /// Bias corrections `1 − β₁ᵗ`, `1 − β₂ᵗ`.
-        pub(super) c1: f32,
-        pub(super) c2: f32,
-    }
-
     /// One chunk of [`super::Adam::step_sparse`] for two parameters per flag: entries four at a
     /// time (eight floats), skipping groups with no touched entry; a group with one is computed
     /// in all lanes and blended into the touched entries' lanes only, then its flags cleared
@@ -495,7 +484,7 @@ mod simd {
     /// # Safety
     /// AVX2 must be available.
     #[target_feature(enable = "avx2")]
-    pub(super) unsafe fn adam_pairs_avx2(p: &mut [f32], g: &mut [f32], m: &mut [f32], v: &mut [f32], tch: &mut [bool], k: &AdamConsts) -> usize {
+    pub(super) unsafe fn adam_pairs_avx2(p: &mut [f32], g: &mut [f32], m: &mut [f32], v: &mut [f32], tch: &mut [bool], k: &AdamStep) -> usize {
         let n = tch.len();
         assert!(p.len() == 2 * n && g.len() == 2 * n && m.len() == 2 * n && v.len() == 2 * n, "two parameters per flag");
         let set = |x: f32| _mm256_set1_ps(x);
@@ -530,18 +519,13 @@ mod simd {
                 _mm256_storeu_ps(vs.as_mut_ptr(), _mm256_blendv_ps(vv, v_new, mask));
             }
         }
-        for e in n4..n {
-            if !tch[e] {
+        for (e, hit) in tch.iter_mut().enumerate().skip(n4) {
+            if !std::mem::take(hit) {
                 continue;
             }
-            tch[e] = false;
             updated += 1;
             for i in 2 * e..2 * e + 2 {
-                let gi = if g[i].is_finite() { g[i] } else { 0.0 };
-                g[i] = 0.0;
-                m[i] = k.b1 * m[i] + (1.0 - k.b1) * gi;
-                v[i] = k.b2 * v[i] + (1.0 - k.b2) * gi * gi;
-                p[i] -= k.lr * (m[i] / k.c1) / ((v[i] / k.c2).sqrt() + k.eps);
+                k.update(std::mem::take(&mut g[i]), &mut p[i], &mut m[i], &mut v[i]);
             }
         }
         updated
@@ -759,6 +743,38 @@ impl AdamConfig {
     }
 }
 
+/// The numbers of one Adam step: the configuration's betas and epsilon, the learning rate and
+/// the bias corrections `c₁ = 1 − β₁ᵗ`, `c₂ = 1 − β₂ᵗ` (computed in `f64`) at step `t`.
+struct AdamStep {
+    b1: f32,
+    b2: f32,
+    eps: f32,
+    lr: f32,
+    c1: f32,
+    c2: f32,
+}
+
+impl AdamStep {
+    fn new(config: &AdamConfig, step: u64, lr: f32) -> Self {
+        let AdamConfig { beta1: b1, beta2: b2, eps, .. } = *config;
+        let t = step.min(i32::MAX as u64) as i32;
+        let c1 = (1.0 - (b1 as f64).powi(t)) as f32;
+        let c2 = (1.0 - (b2 as f64).powi(t)) as f32;
+        Self { b1, b2, eps, lr, c1, c2 }
+    }
+
+    /// One parameter's update with gradient `g` (a NaN or infinite one counts as 0):
+    /// `m = β₁m + (1−β₁)g`, `v = β₂v + ((1−β₂)g)g`, `p −= (lr·(m/c₁)) / (√(v/c₂) + ε)`, in
+    /// this order and without fused operations (the AVX2 kernel repeats it lane for lane).
+    #[inline(always)]
+    fn update(&self, g: f32, p: &mut f32, m: &mut f32, v: &mut f32) {
+        let g = if g.is_finite() { g } else { 0.0 };
+        *m = self.b1 * *m + (1.0 - self.b1) * g;
+        *v = self.b2 * *v + (1.0 - self.b2) * g * g;
+        *p -= self.lr * (*m / self.c1) / ((*v / self.c2).sqrt() + self.eps);
+    }
+}
+
 /// Dense Adam over a flat `f32` parameter vector: every entry is updated every step (as
 /// instant-ngp does for its hash table), so entries no point touched this step still move with
 /// their momentum. Parallel over fixed chunks, elementwise, hence deterministic.
@@ -795,10 +811,7 @@ impl Adam {
     pub fn step_with_lr(&mut self, params: &mut [f32], grads: &[f32], lr: f32) {
         assert!(params.len() == self.m.len() && grads.len() == self.m.len(), "Adam: length mismatch");
         self.step += 1;
-        let AdamConfig { beta1: b1, beta2: b2, eps, .. } = self.config;
-        let t = self.step.min(i32::MAX as u64) as i32;
-        let c1 = (1.0 - (b1 as f64).powi(t)) as f32;
-        let c2 = (1.0 - (b2 as f64).powi(t)) as f32;
+        let k = AdamStep::new(&self.config, self.step, lr);
         const CHUNK: usize = 1 << 14;
         params
             .par_chunks_mut(CHUNK)
@@ -807,10 +820,7 @@ impl Adam {
             .zip(self.v.par_chunks_mut(CHUNK))
             .for_each(|(((p, g), m), v)| {
                 for i in 0..p.len() {
-                    let gi = if g[i].is_finite() { g[i] } else { 0.0 };
-                    m[i] = b1 * m[i] + (1.0 - b1) * gi;
-                    v[i] = b2 * v[i] + (1.0 - b2) * gi * gi;
-                    p[i] -= lr * (m[i] / c1) / ((v[i] / c2).sqrt() + eps);
+                    k.update(g[i], &mut p[i], &mut m[i], &mut v[i]);
                 }
             });
     }
@@ -831,10 +841,7 @@ impl Adam {
         assert!(params.len() == self.m.len() && grads.len() == self.m.len(), "Adam: length mismatch");
         assert_eq!(touched.len() * group, params.len(), "one flag per group of parameters");
         self.step += 1;
-        let AdamConfig { beta1: b1, beta2: b2, eps, .. } = self.config;
-        let t = self.step.min(i32::MAX as u64) as i32;
-        let c1 = (1.0 - (b1 as f64).powi(t)) as f32;
-        let c2 = (1.0 - (b2 as f64).powi(t)) as f32;
+        let k = AdamStep::new(&self.config, self.step, lr);
         const ENTRIES: usize = 1 << 14;
         const _: () = assert!(ENTRIES <= 1 << 16, "entry indices are u16 within a chunk");
         let chunk = ENTRIES * group;
@@ -851,7 +858,6 @@ impl Adam {
                 // same order as below, so the same bits).
                 #[cfg(target_arch = "x86_64")]
                 if group == 2 && simd::avx2() {
-                    let k = simd::AdamConsts { b1, b2, eps, lr, c1, c2 };
                     // SAFETY: AVX2 is present (checked at run time).
                     #[allow(unsafe_code)]
                     return unsafe { simd::adam_pairs_avx2(p, g, m, v, tch, &k) };
@@ -869,11 +875,7 @@ impl Adam {
                 for &e in &list[..updated] {
                     let e = e as usize;
                     for i in e * group..(e + 1) * group {
-                        let gi = if g[i].is_finite() { g[i] } else { 0.0 };
-                        g[i] = 0.0;
-                        m[i] = b1 * m[i] + (1.0 - b1) * gi;
-                        v[i] = b2 * v[i] + (1.0 - b2) * gi * gi;
-                        p[i] -= lr * (m[i] / c1) / ((v[i] / c2).sqrt() + eps);
+                        k.update(std::mem::take(&mut g[i]), &mut p[i], &mut m[i], &mut v[i]);
                     }
                 }
                 updated
