@@ -10,6 +10,10 @@
 //! against the same networks through burn; then the time to render one full-size view
 //! (default 800×800, the Blender-synthetic size) from a fast model trained briefly on the same
 //! data, and with `--run RUN` from a trained run's checkpoint. Writes `bench-nerf.json`.
+//!
+//! Early steps (the default: steps 5 to 5 + `--steps` of a fresh model) march many samples per
+//! ray; `--resume-run RUN` times the fast model's steps continued from a trained run's
+//! checkpoint instead, the regime that most of a training run's steps are in.
 
 use anyhow::Context;
 use dataset::{Camera, Intrinsics};
@@ -32,9 +36,16 @@ pub struct NerfBenchArgs {
     #[arg(long)]
     pub render_only: bool,
     /// Train on this dataset folder instead of the benchmark's synthetic 64x64 one.
-    #[arg(long)]
+    #[arg(long, conflicts_with = "resume_run")]
     pub dataset: Option<PathBuf>,
-    /// Timed training steps of the fast model (after 5 warm-up steps).
+    /// Time the fast model's steps continued from this trained `fast` (or `auto`) run's latest
+    /// checkpoint, on its dataset and config, instead of from step 0: the late-training regime,
+    /// where the occupancy grid has pruned empty space, rays turn opaque within a few samples
+    /// and batches hold thousands of rays. The run itself is not modified (its config and
+    /// checkpoint are copied); the paper model is not timed.
+    #[arg(long)]
+    pub resume_run: Option<PathBuf>,
+    /// Timed training steps of the fast model (after 5 warm-up steps, also with --resume-run).
     #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u64).range(1..=100000))]
     pub steps: u64,
     /// Folder for `bench-nerf.json`.
@@ -113,7 +124,10 @@ struct NerfBenchJson {
     steps: u64,
     rays_per_s: f64,
     samples_per_s: f64,
+    /// The run whose checkpoint the fast model's steps continued (`--resume-run`), and its step.
+    resumed_from: Option<(String, u64)>,
     marched_per_ray: f64,
+    encoded_per_ray: f64,
     trained_per_ray: f64,
     ms_per_step: f64,
     phases: Vec<PhaseRow>,
@@ -136,9 +150,15 @@ pub fn run(args: NerfBenchArgs) -> anyhow::Result<()> {
     println!("profile: {}", crate::bench::build_profile());
     let tmp = tempfile::Builder::new().prefix("nerf-bench-").tempdir()?;
     let dir = tmp.path().to_path_buf();
-    let data = match &args.dataset {
-        Some(d) => d.clone(),
-        None => {
+    // With --resume-run, a copy of the run (config and latest checkpoint) to continue.
+    let resumed = match &args.resume_run {
+        Some(run) => Some(copy_run_for_resume(run, &dir.join("resumed"))?),
+        None => None,
+    };
+    let data = match (&args.dataset, &resumed) {
+        (_, Some((cfg, _))) => cfg.dataset.clone(),
+        (Some(d), None) => d.clone(),
+        (None, None) => {
             let data = dir.join("data");
             eprintln!("writing a synthetic 64x64 dataset (20 train views) to {}", data.display());
             nerf::data::synthetic::write(&data, 64, [20, 2, 2], false)?;
@@ -168,18 +188,33 @@ pub fn run(args: NerfBenchArgs) -> anyhow::Result<()> {
         steps: args.steps,
         rays_per_s: 0.0,
         samples_per_s: 0.0,
+        resumed_from: None,
         marched_per_ray: 0.0,
+        encoded_per_ray: 0.0,
         trained_per_ray: 0.0,
         ms_per_step: 0.0,
         phases: Vec::new(),
         paper: None,
     };
-    for (kind, warmup, steps) in [("fast", 5u64, args.steps), ("paper", 1, 3)] {
-        let mut cfg = TrainConfig::preset(kind, data.clone()).map_err(anyhow::Error::msg)?;
-        cfg.steps = Some(warmup + steps);
-        cfg.val_max_views = 0;
-        let run = dir.join(kind);
-        let mut t = Trainer::new(cfg, &run, false)?;
+    let models: &[(&str, u64, u64)] = if resumed.is_some() { &[("fast", 5, args.steps)] } else { &[("fast", 5, args.steps), ("paper", 1, 3)] };
+    for &(kind, warmup, steps) in models {
+        let mut t = match &resumed {
+            Some((cfg, step)) => {
+                let mut cfg = cfg.clone();
+                cfg.steps = Some(step + warmup + steps);
+                cfg.time_budget_s = None;
+                cfg.val_max_views = 0;
+                json.resumed_from = Some((args.resume_run.as_ref().map(|p| p.display().to_string()).unwrap_or_default(), *step));
+                println!("fast: continuing {} from its checkpoint at step {step}", args.resume_run.as_ref().map(|p| p.display().to_string()).unwrap_or_default());
+                Trainer::new(cfg, &dir.join("resumed"), true)?
+            }
+            None => {
+                let mut cfg = TrainConfig::preset(kind, data.clone()).map_err(anyhow::Error::msg)?;
+                cfg.steps = Some(warmup + steps);
+                cfg.val_max_views = 0;
+                Trainer::new(cfg, &dir.join(kind), false)?
+            }
+        };
         for _ in 0..warmup {
             t.step_once();
         }
@@ -191,6 +226,7 @@ pub fn run(args: NerfBenchArgs) -> anyhow::Result<()> {
             let st = t.step_once();
             samples += st.samples;
             counts.marched += st.marched as f64;
+            counts.encoded += st.encoded as f64;
             counts.trained += st.samples as f64;
             counts.touched += st.touched as f64;
         }
@@ -219,7 +255,7 @@ pub fn run(args: NerfBenchArgs) -> anyhow::Result<()> {
         match &t.model {
             nerf::models::Model::Fast(m) => {
                 let n = steps as f64;
-                let avg = nerf::roofline::StepCounts { marched: counts.marched / n, trained: counts.trained / n, touched: counts.touched / n };
+                let avg = nerf::roofline::StepCounts { marched: counts.marched / n, encoded: counts.encoded / n, trained: counts.trained / n, touched: counts.touched / n };
                 let work = nerf::roofline::StepWork::of(&m.config, m.parameters() - m.grid.params.len(), avg);
                 // The hash lookups' own limit: random accesses to one level's table.
                 let (entries, f) = (1usize << m.config.log2_table_size, m.config.features_per_level);
@@ -235,6 +271,7 @@ pub fn run(args: NerfBenchArgs) -> anyhow::Result<()> {
                 json.rays_per_s = rays / wall;
                 json.samples_per_s = samples as f64 / wall;
                 json.marched_per_ray = counts.marched / rays;
+                json.encoded_per_ray = counts.encoded / rays;
                 json.trained_per_ray = counts.trained / rays;
                 json.ms_per_step = per(wall);
             }
@@ -249,6 +286,26 @@ pub fn run(args: NerfBenchArgs) -> anyhow::Result<()> {
     println!("wrote {}", path.display());
     render_times(&data, &dir, &args)?;
     Ok(())
+}
+
+/// Copies the config and latest checkpoint of the trained run `run` into `dest`, for
+/// [`Trainer::new`] to continue there (so the run is left as it was): the run's config, with
+/// its recorded dataset, and the checkpoint's step.
+fn copy_run_for_resume(run: &std::path::Path, dest: &std::path::Path) -> anyhow::Result<(TrainConfig, u64)> {
+    let cfg = TrainConfig::read(&run.join("config.json"))?;
+    anyhow::ensure!(
+        matches!(cfg.model, nerf::models::ModelConfig::Fast(_)),
+        "{}: --resume-run times the fast model, but this run trained the paper model",
+        run.display()
+    );
+    let ckpt = nerf::checkpoint::latest(run).ok_or_else(|| anyhow::anyhow!("{}: no checkpoint to continue from (train it first, or pass the run folder holding checkpoints/)", run.display()))?;
+    let step = nerf::checkpoint::load(&ckpt)?.scalar("trainer.step").map_err(|e| anyhow::anyhow!("{}: {e}", ckpt.display()))? as u64;
+    let cdir = dest.join("checkpoints");
+    std::fs::create_dir_all(&cdir).with_context(|| format!("creating {}", cdir.display()))?;
+    std::fs::copy(run.join("config.json"), dest.join("config.json")).with_context(|| format!("copying {}", run.join("config.json").display()))?;
+    let name = ckpt.file_name().ok_or_else(|| anyhow::anyhow!("{}: not a file", ckpt.display()))?;
+    std::fs::copy(&ckpt, cdir.join(name)).with_context(|| format!("copying {}", ckpt.display()))?;
+    Ok((cfg, step))
 }
 
 /// The fast model's phases over `steps` steps (`tm` summed over them; `step_s` the mean
@@ -307,8 +364,8 @@ fn roofline_rows(tm: &nerf::models::StepTimings, step_s: f64, steps: u64, work: 
 /// Prints the roofline table.
 fn print_roofline(rows: &[PhaseRow], c: nerf::roofline::StepCounts, rays: f64, ra: &RandomAccessLimits) {
     println!(
-        " fast roofline per step ({rays:.0} rays, {:.0} samples marched, {:.0} trained, {:.0} hash entries updated; work model in nerf::roofline):",
-        c.marched, c.trained, c.touched
+        " fast roofline per step ({rays:.0} rays, {:.0} samples marched, {:.0} encoded by the compaction pass, {:.0} trained, {:.0} hash entries updated; work model in nerf::roofline):",
+        c.marched, c.encoded, c.trained, c.touched
     );
     println!("  {:<38} {:>9} {:>14} {:>12} {:>9}", "phase", "ms/step", "work/step", "rate", "of limit");
     for r in rows {

@@ -209,21 +209,46 @@ impl HashMlp {
     /// not needed; equal to [`Self::forward`]'s up to rounding).
     pub fn raw_density(&self, enc: &[f32]) -> Vec<f32> {
         let (n, ed) = (self.samples_in(enc), self.enc_dims());
-        let (hidden, last) = self.density.layers.split_at(self.density.layers.len() - 1);
-        let last = &last[0];
-        // Column 0 of the last layer's weights, contiguous.
-        let w0: Vec<f32> = (0..last.d_in).map(|i| last.w[i * last.d_out]).collect();
+        let w0 = self.density_column();
         let mut raw = vec![0.0; n];
         raw.par_chunks_mut(TILE).enumerate().for_each_init(Vec::new, |outs, (c, raw)| {
-            let (s0, t) = (c * TILE, raw.len());
-            let x = &enc[s0 * ed..(s0 + t) * ed];
-            forward_layers(hidden, hidden.len(), x, t, outs);
-            let h: &[f32] = outs.last().map_or(x, |v| v.as_slice());
-            for (k, r) in raw.iter_mut().enumerate() {
-                *r = last.b[0] + h[k * last.d_in..(k + 1) * last.d_in].iter().zip(&w0).map(|(a, b)| a * b).sum::<f32>();
-            }
+            let s0 = c * TILE;
+            self.raw_density_tile(&enc[s0 * ed..(s0 + raw.len()) * ed], &w0, raw, outs);
         });
         raw
+    }
+
+    /// [`Self::raw_density`] on the calling thread only, into `raw` (resized to the samples'
+    /// count): the same values, for callers that are parallel over batches themselves.
+    pub fn raw_density_serial(&self, enc: &[f32], raw: &mut Vec<f32>) {
+        let ed = self.enc_dims();
+        let n = self.samples_in(enc);
+        let w0 = self.density_column();
+        raw.clear();
+        raw.resize(n, 0.0);
+        let mut outs = Vec::new();
+        for (c, raw) in raw.chunks_mut(TILE).enumerate() {
+            let s0 = c * TILE;
+            self.raw_density_tile(&enc[s0 * ed..(s0 + raw.len()) * ed], &w0, raw, &mut outs);
+        }
+    }
+
+    /// Column 0 (the raw density's) of the density stack's last layer's weights, contiguous.
+    fn density_column(&self) -> Vec<f32> {
+        let last = &self.density.layers[self.density.layers.len() - 1];
+        (0..last.d_in).map(|i| last.w[i * last.d_out]).collect()
+    }
+
+    /// The raw density of one tile of samples `x` `[t][enc_dims]` into `raw` `[t]` (`w0`:
+    /// [`Self::density_column`]; `outs`: the hidden layers' scratch).
+    fn raw_density_tile(&self, x: &[f32], w0: &[f32], raw: &mut [f32], outs: &mut Vec<Vec<f32>>) {
+        let (hidden, last) = self.density.layers.split_at(self.density.layers.len() - 1);
+        let last = &last[0];
+        forward_layers(hidden, hidden.len(), x, raw.len(), outs);
+        let h: &[f32] = outs.last().map_or(x, |v| v.as_slice());
+        for (k, r) in raw.iter_mut().enumerate() {
+            *r = last.b[0] + h[k * last.d_in..(k + 1) * last.d_in].iter().zip(w0).map(|(a, b)| a * b).sum::<f32>();
+        }
     }
 
     /// The exact backward pass: given the loss gradient with respect to each sample's raw

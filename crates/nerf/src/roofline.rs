@@ -9,9 +9,9 @@
 //! 32-byte reads, so their real traffic is whole 64-byte lines and latency, not bandwidth):
 //! - networks: 2 FLOPs per multiply-add; a trained sample runs both networks forward and
 //!   backward (3× the forward: the backward takes two matmuls per layer); the compaction pass
-//!   runs the density network's hidden layer and its density column forward on every marched
-//!   sample;
-//! - hash forward: per marched sample and level, 8 corners × `F` floats read and `F` written;
+//!   runs the density network's hidden layer and its density column forward on every encoded
+//!   sample (those its rounds reached along each ray: between the trained and the marched);
+//! - hash forward: per encoded sample and level, 8 corners × `F` floats read and `F` written;
 //! - hash backward: per trained sample and level, `F` gradient floats read, 8 corners × `F`
 //!   floats read and written in the table gradient, and 8 one-byte touched flags written;
 //! - sparse Adam: every one-byte flag read, and per touched entry `F` floats of parameter,
@@ -166,8 +166,10 @@ fn pass<const F: usize, const WRITE: bool>(table: &mut [f32], accesses: usize, s
 /// What one training step of a `fast` model did, for [`StepWork::of`].
 #[derive(Clone, Copy, Debug, Default)]
 pub struct StepCounts {
-    /// Samples marched (every one is hash-encoded and goes through the compaction pass).
+    /// Samples marched.
     pub marched: f64,
+    /// Samples hash-encoded and put through the compaction pass (up to `marched`).
+    pub encoded: f64,
     /// Samples trained on (after compaction).
     pub trained: f64,
     /// Hash-table entries the sparse Adam updated.
@@ -189,7 +191,7 @@ pub struct StepWork {
     pub adam_hash_bytes: f64,
     /// Bytes of the networks' Adam.
     pub adam_mlp_bytes: f64,
-    /// Corner reads of the hash-grid forward (8 per marched sample and level).
+    /// Corner reads of the hash-grid forward (8 per encoded sample and level).
     pub hash_forward_corners: f64,
     /// Corner read-modify-writes of the hash-grid backward (8 per trained sample and level).
     pub hash_backward_corners: f64,
@@ -209,12 +211,12 @@ impl StepWork {
         let table_entries = l * (1u64 << config.log2_table_size) as f64;
         StepWork {
             mlp_flops: c.trained * (density + color) * 2.0 * 3.0,
-            density_pass_flops: c.marched * (enc * dw + dw) * 2.0,
-            hash_forward_bytes: c.marched * l * (8.0 * f + f) * 4.0,
+            density_pass_flops: c.encoded * (enc * dw + dw) * 2.0,
+            hash_forward_bytes: c.encoded * l * (8.0 * f + f) * 4.0,
             hash_backward_bytes: c.trained * l * (f * 4.0 + 8.0 * f * 4.0 * 2.0 + 8.0),
             adam_hash_bytes: table_entries + c.touched * f * 4.0 * 8.0,
             adam_mlp_bytes: mlp_params as f64 * 4.0 * 7.0,
-            hash_forward_corners: c.marched * l * 8.0,
+            hash_forward_corners: c.encoded * l * 8.0,
             hash_backward_corners: c.trained * l * 8.0,
         }
     }
@@ -240,7 +242,7 @@ mod tests {
             ..FastConfig::new()
         };
         assert_eq!(cfg.dir_dims(), 0);
-        let w = StepWork::of(&cfg, 100, StepCounts { marched: 10.0, trained: 5.0, touched: 6.0 });
+        let w = StepWork::of(&cfg, 100, StepCounts { marched: 12.0, encoded: 10.0, trained: 5.0, touched: 6.0 });
         // density 4·8 + 8·3 = 56, colour 3·8 + 8·3 = 48 MACs; ×2 FLOPs ×3 (fwd + bwd) × 5 samples
         assert_eq!(w.mlp_flops, 5.0 * 104.0 * 6.0);
         // compaction: (4·8 + 8) MACs × 2 × 10 samples
@@ -252,7 +254,7 @@ mod tests {
         // 32 flags + 6 entries × 2 floats × 32 bytes; 100 parameters × 28 bytes
         assert_eq!(w.adam_hash_bytes, 32.0 + 6.0 * 2.0 * 32.0);
         assert_eq!(w.adam_mlp_bytes, 2800.0);
-        // 8 corners × 2 levels × 10 marched (forward) and × 5 trained (backward)
+        // 8 corners × 2 levels × 10 encoded (forward) and × 5 trained (backward)
         assert_eq!((w.hash_forward_corners, w.hash_backward_corners), (160.0, 80.0));
     }
 

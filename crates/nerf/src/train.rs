@@ -5,7 +5,7 @@
 //!
 //! Run folder: `config.json`, `metrics.jsonl` (one JSON object per line: training lines every
 //! `log_interval_steps` with `step`, `wall_s`, `loss`, `train_psnr`, `rays_per_s`,
-//! `samples_per_ray`, `lr`, `skipped_nonfinite`; validation lines with `val_psnr` and, when the
+//! `samples_per_ray`, `marched_per_ray` (before compaction), `lr`, `skipped_nonfinite`; validation lines with `val_psnr` and, when the
 //! dataset has ground truth, `val_depth_mae`), `checkpoints/step-*.ckpt`.
 //!
 //! Clock: `wall_s` counts training time only (steps, checkpoints excluded too): validation
@@ -364,6 +364,9 @@ struct Window {
     time: f64,
     rays: u64,
     samples: u64,
+    /// Samples the occupancy grid let through before compaction (the fast model's
+    /// [`StepStats::marched`]; the paper model's samples).
+    marched: u64,
 }
 
 /// A training run in progress.
@@ -578,6 +581,7 @@ impl Trainer {
         self.window.time += dt;
         self.window.rays += batch.origins.len() as u64;
         self.window.samples += stats.samples as u64;
+        self.window.marched += stats.marched.max(stats.samples) as u64;
         stats
     }
 
@@ -595,6 +599,7 @@ impl Trainer {
             "train_psnr": psnr(w.mse / n),
             "rays_per_s": w.rays as f64 / w.time.max(1e-9),
             "samples_per_ray": w.samples as f64 / w.rays.max(1) as f64,
+            "marched_per_ray": w.marched as f64 / w.rays.max(1) as f64,
             "lr": self.config.lr(self.step),
             "skipped_nonfinite": self.skipped_nonfinite,
         });
@@ -695,6 +700,7 @@ impl Trainer {
             ("time", w.time),
             ("rays", w.rays as f64),
             ("samples", w.samples as f64),
+            ("marched", w.marched as f64),
         ] {
             s.scalars.insert(format!("trainer.window.{k}"), v);
         }
@@ -716,7 +722,10 @@ impl Trainer {
             time: g("trainer.window.time")?,
             rays: g("trainer.window.rays")? as u64,
             samples: g("trainer.window.samples")? as u64,
+            marched: 0,
         };
+        // Checkpoints written before the count was kept hold only the evaluated samples.
+        self.window.marched = s.scalars.get("trainer.window.marched").map_or(self.window.samples, |v| *v as u64);
         Ok(())
     }
 

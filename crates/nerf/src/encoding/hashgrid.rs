@@ -225,10 +225,23 @@ impl HashGrid {
     /// - `out`: `[N · L · F]`, row-major `[N][L · F]`, overwritten
     pub fn encode(&self, points: &[[f32; 3]], out: &mut [f32]) {
         match self.config.features_per_level {
-            1 => self.encode_f::<1>(points, out),
-            2 => self.encode_f::<2>(points, out),
-            4 => self.encode_f::<4>(points, out),
-            8 => self.encode_f::<8>(points, out),
+            1 => self.encode_f::<1, true>(points, out),
+            2 => self.encode_f::<2, true>(points, out),
+            4 => self.encode_f::<4, true>(points, out),
+            8 => self.encode_f::<8, true>(points, out),
+            f => panic!("unsupported features_per_level {f}"),
+        }
+    }
+
+    /// [`Self::encode`] on the calling thread only (level-outer over all `points`), for callers
+    /// that are parallel over batches themselves: the same values, without a fork and join
+    /// per level.
+    pub fn encode_serial(&self, points: &[[f32; 3]], out: &mut [f32]) {
+        match self.config.features_per_level {
+            1 => self.encode_f::<1, false>(points, out),
+            2 => self.encode_f::<2, false>(points, out),
+            4 => self.encode_f::<4, false>(points, out),
+            8 => self.encode_f::<8, false>(points, out),
             f => panic!("unsupported features_per_level {f}"),
         }
     }
@@ -264,23 +277,34 @@ impl HashGrid {
         }
     }
 
-    fn encode_f<const F: usize>(&self, points: &[[f32; 3]], out: &mut [f32]) {
+    fn encode_f<const F: usize, const PAR: bool>(&self, points: &[[f32; 3]], out: &mut [f32]) {
         let lf = self.output_dim();
         assert_eq!(out.len(), points.len() * lf, "out must hold N · L · F floats");
         assert_eq!(self.params.len(), self.config.n_params());
         let lvs = levels(&self.config);
         let tf = self.config.table_size() * F;
+        // At most POINT_CHUNK points per task, in a multiple of the threads' count of tasks of
+        // equal size (three chunks of a 12k-point batch kept one of two cores idle a third of
+        // the time). A point's encoding does not depend on its chunk.
+        let threads = rayon::current_num_threads().max(1);
+        let tasks = points.len().div_ceil(POINT_CHUNK).div_ceil(threads) * threads;
+        let chunk = points.len().div_ceil(tasks.max(1)).max(1);
         // Level-outer: one level's table (≤ T·F floats) stays in cache while every point
         // reads it; rotating through all levels per point chunk thrashes the last-level cache.
         for (l, lv) in lvs.iter().enumerate() {
             let table = &self.params[l * tf..(l + 1) * tf];
-            points.par_chunks(POINT_CHUNK).zip(out.par_chunks_mut(POINT_CHUNK * lf)).for_each(|(pts, o)| {
+            let level = |pts: &[[f32; 3]], o: &mut [f32]| {
                 if lv.dense {
                     encode_level::<F, true>(pts, lv, table, &mut o[l * F..], lf);
                 } else {
                     encode_level::<F, false>(pts, lv, table, &mut o[l * F..], lf);
                 }
-            });
+            };
+            if PAR {
+                points.par_chunks(chunk).zip(out.par_chunks_mut(chunk * lf)).for_each(|(pts, o)| level(pts, o));
+            } else if !points.is_empty() {
+                level(points, out);
+            }
         }
     }
 

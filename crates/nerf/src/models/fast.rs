@@ -201,6 +201,26 @@ const ACT: DensityActivation = DensityActivation::TruncExp;
 /// samples behind it (a trained 800x800 tabletop view: 5.3 -> 4.8 samples per ray, 11 % less
 /// time than rounds of 4, same pixels since the composite stops at the same transmittance).
 const INFERENCE_ROUND: usize = 1;
+/// Samples per ray in the first round of training's compaction pass
+/// ([`Parts::encode_until_opaque`]); later rounds double.
+const COMPACTION_FIRST_ROUND: usize = 4;
+
+/// Groups of rays per thread in training's compaction pass (more than one, so that a thread
+/// whose groups finish early takes another's).
+const COMPACTION_GROUPS_PER_THREAD: usize = 4;
+
+/// One group's part of [`Parts::encode_until_opaque`].
+struct CompactionPiece {
+    /// Samples kept per ray (a prefix of each).
+    kept: Vec<u32>,
+    /// The kept samples' unit-cube points `[k]` and encodings `[k][L·F]`, in ray order.
+    unit: Vec<[f32; 3]>,
+    enc: Vec<f32>,
+    /// Samples encoded.
+    encoded: usize,
+    /// CPU seconds of the unit points, the hash encoding, the density pass and the gather.
+    cpu_s: [f64; 4],
+}
 
 /// Weight below which a sample's colour is not evaluated at inference (it stays 0): a ray's
 /// composited colour moves by at most the sum of the weights skipped, which is far below the
@@ -339,45 +359,34 @@ impl FastModel {
         let t0 = Instant::now();
         let dims = self.grid.output_dim();
         let marched = self.march(&batch.origins, &batch.dirs, SampleMode::Random { seed: stream_seed(seed, stream::MARCH), step });
-        let unit_all = self.unit_points(&marched, None, &batch.origins, &batch.dirs);
         tm.phases.march = t0.elapsed().as_secs_f64();
-        let t1 = Instant::now();
-        let enc_all = self.hash_encode(&unit_all);
-        tm.phases.hash_forward = t1.elapsed().as_secs_f64();
-        tm.encoding += t0.elapsed().as_secs_f64();
+        tm.encoding += tm.phases.march;
         let n_marched = marched.len();
 
-        // Compaction (instant-ngp, nerfacc): a density-only pass without gradients over every
-        // marched sample finds where each ray's transmittance falls below
-        // `train_min_transmittance`; only the samples before that are trained on.
-        let t0 = Instant::now();
-        let keep = (self.config.train_min_transmittance > 0.0 && !marched.is_empty()).then(|| {
-            let sigma: Vec<f32> = mlp.raw_density(&enc_all).into_iter().map(|x| ACT.forward(x)).collect();
+        // Compaction (instant-ngp, nerfacc): a density-only pass without gradients finds where
+        // each ray's transmittance falls below `train_min_transmittance`; only the samples
+        // before that are trained on. The pass runs in rounds along the rays
+        // ([`Parts::encode_until_opaque`]), so samples behind that point are mostly never encoded.
+        let (samples, unit, enc, n_encoded) = if self.config.train_min_transmittance > 0.0 && !marched.is_empty() {
             let tau_stop = -self.config.train_min_transmittance.ln();
-            keep_until_opaque(&marched, &sigma, tau_stop)
-        });
-        tm.phases.density_pass = t0.elapsed().as_secs_f64();
-        tm.mlp += tm.phases.density_pass;
-        let t0 = Instant::now();
-        let (samples, unit, enc) = match keep {
-            Some((kept, idx)) if idx.len() < marched.len() => {
-                let unit = idx.iter().map(|&i| unit_all[i]).collect();
-                let mut enc = Vec::with_capacity(idx.len() * dims);
-                for &i in &idx {
-                    enc.extend_from_slice(&enc_all[i * dims..(i + 1) * dims]);
-                }
-                (kept, unit, enc)
-            }
-            _ => (marched, unit_all, enc_all),
+            self.parts().encode_until_opaque(&mlp, marched, &batch.origins, &batch.dirs, tau_stop, &mut tm)
+        } else {
+            let t0 = Instant::now();
+            let unit = self.unit_points(&marched, None, &batch.origins, &batch.dirs);
+            let enc = self.hash_encode(&unit);
+            tm.phases.hash_forward = t0.elapsed().as_secs_f64();
+            tm.encoding += tm.phases.hash_forward;
+            (marched, unit, enc, n_marched)
         };
+        let t0 = Instant::now();
         let n = samples.len();
         let sh = self.sh_of(samples.ray_index.iter().map(|&r| r as usize), n, &batch.dirs);
-        tm.phases.gather = t0.elapsed().as_secs_f64();
-        tm.encoding += tm.phases.gather;
+        tm.phases.gather += t0.elapsed().as_secs_f64();
+        tm.encoding += t0.elapsed().as_secs_f64();
         if n == 0 {
             // Nothing to learn from: every ray missed the occupied cells.
             let (mse, _) = mse_and_grad(&batch.background, &batch.target);
-            return StepStats { loss: mse, mse, samples: 0, marched: n_marched, skipped_nonfinite: false, timings: tm, ..Default::default() };
+            return StepStats { loss: mse, mse, samples: 0, marched: n_marched, encoded: n_encoded, skipped_nonfinite: false, timings: tm, ..Default::default() };
         }
 
         // Networks, compositing, loss and backward in one sweep over groups of whole rays
@@ -426,7 +435,7 @@ impl FastModel {
         };
         tm.phases.mlp_sweep = t0.elapsed().as_secs_f64();
         tm.mlp += tm.phases.mlp_sweep;
-        let stats = |skipped, tm, touched| StepStats { loss, mse, samples: n, marched: n_marched, touched, skipped_nonfinite: skipped, timings: tm };
+        let stats = |skipped, tm, touched| StepStats { loss, mse, samples: n, marched: n_marched, encoded: n_encoded, touched, skipped_nonfinite: skipped, timings: tm };
         if !loss.is_finite() || d_enc.len() != n * dims || !all_finite(&d_enc) || !grads.is_finite() {
             return stats(true, tm, 0);
         }
@@ -596,6 +605,7 @@ fn ray_groups(offsets: &[u32], target: usize) -> Vec<(std::ops::Range<usize>, st
 /// `Σ σ_j δ_j` before it still is ≤ `tau_stop` (transmittance ≥ e^−tau_stop): a prefix of
 /// every ray. Returns the kept samples and their indices in `s`.
 // The sample index `i` addresses three parallel arrays and is also what is kept.
+#[cfg(test)]
 #[allow(clippy::needless_range_loop)]
 fn keep_until_opaque(s: &RaySamples, sigma: &[f32], tau_stop: f32) -> (RaySamples, Vec<usize>) {
     let mut out = RaySamples::with_rays(s.n_rays());
@@ -628,6 +638,135 @@ struct Parts<'a> {
 }
 
 impl Parts<'_> {
+    /// Compaction by rounds: encodes each ray's marched samples in order, a round at a time
+    /// (first [`COMPACTION_FIRST_ROUND`] samples of every ray, then twice as many per round of
+    /// the rays still live), evaluates their density, and stops a ray once the optical depth
+    /// before its next sample exceeds `tau_stop`. Returns the kept samples (a prefix of every
+    /// ray: exactly those [`keep_until_opaque`] keeps from a pass over all of them, since a
+    /// sample's encoding and density do not depend on which others are evaluated with it),
+    /// their unit-cube points, their encodings, and the number of samples encoded. Samples
+    /// behind a ray's stopping point are encoded only as far as its last round reached: late in
+    /// training, when rays turn opaque within a few samples of the surface, that is half or
+    /// more of the marched samples.
+    ///
+    /// Groups of whole rays ([`ray_groups`], about [`COMPACTION_GROUPS_PER_THREAD`] per thread)
+    /// run in parallel, each its rounds on one thread ([`HashGrid::encode_serial`],
+    /// [`HashMlp::raw_density_serial`]): small rounds through the parallel kernels paid a fork
+    /// and join per level and round and left a core idle on uneven splits.
+    fn encode_until_opaque(&self, mlp: &HashMlp, s: RaySamples, origins: &[[f32; 3]], dirs: &[[f32; 3]], tau_stop: f32, tm: &mut StepTimings) -> (RaySamples, Vec<[f32; 3]>, Vec<f32>, usize) {
+        let t_all = Instant::now();
+        let dims = self.grid.output_dim();
+        let threads = rayon::current_num_threads().max(1);
+        let groups = ray_groups(&s.offsets, s.len().div_ceil(COMPACTION_GROUPS_PER_THREAD * threads).max(64));
+        let pieces: Vec<CompactionPiece> = groups.par_iter().map(|(rays, _)| self.compact_group(mlp, &s, rays.clone(), origins, dirs, tau_stop)).collect();
+        // The pieces in ray order: the kept prefixes, points and encodings.
+        let t0 = Instant::now();
+        let n_kept: usize = pieces.iter().map(|p| p.unit.len()).sum();
+        let mut kept = RaySamples::with_rays(s.n_rays());
+        let (mut unit, mut enc) = (Vec::with_capacity(n_kept), Vec::with_capacity(n_kept * dims));
+        let mut cpu = [0.0f64; 4];
+        let mut encoded = 0;
+        for (p, (rays, _)) in pieces.iter().zip(&groups) {
+            for (r, &k) in rays.clone().zip(&p.kept) {
+                let a = s.offsets[r] as usize;
+                for i in a..a + k as usize {
+                    kept.push(s.t_start[i], s.t_end[i]);
+                }
+                kept.end_ray();
+            }
+            unit.extend_from_slice(&p.unit);
+            enc.extend_from_slice(&p.enc);
+            encoded += p.encoded;
+            cpu.iter_mut().zip(&p.cpu_s).for_each(|(a, b)| *a += b);
+        }
+        let merge = t0.elapsed().as_secs_f64();
+        // The groups' wall time, split over the phases in proportion to their CPU time.
+        let wall = t_all.elapsed().as_secs_f64() - merge;
+        let total: f64 = cpu.iter().sum();
+        let share = |x: f64| if total > 0.0 { wall * x / total } else { 0.0 };
+        tm.phases.march += share(cpu[0]);
+        tm.phases.hash_forward += share(cpu[1]);
+        tm.phases.density_pass += share(cpu[2]);
+        tm.phases.gather += share(cpu[3]) + merge;
+        tm.encoding += share(cpu[0] + cpu[1] + cpu[3]) + merge;
+        tm.mlp += share(cpu[2]);
+        (kept, unit, enc, encoded)
+    }
+
+    /// [`Self::encode_until_opaque`] for the rays `rays` of `s`, on the calling thread.
+    // `i` addresses the samples' parallel arrays and the `row` map.
+    #[allow(clippy::needless_range_loop)]
+    fn compact_group(&self, mlp: &HashMlp, s: &RaySamples, rays: std::ops::Range<usize>, origins: &[[f32; 3]], dirs: &[[f32; 3]], tau_stop: f32) -> CompactionPiece {
+        let dims = self.grid.output_dim();
+        let (r0, first) = (rays.start, s.offsets[rays.start] as usize);
+        let end = |r: usize| s.offsets[r + 1] as usize;
+        // Per ray: the next sample to evaluate and the optical depth before it.
+        let mut next: Vec<usize> = rays.clone().map(|r| s.offsets[r] as usize).collect();
+        let mut tau = vec![0.0f32; rays.len()];
+        let mut live: Vec<usize> = rays.clone().filter(|&r| s.offsets[r] as usize != end(r)).collect();
+        // Every evaluated sample's point and encoding, in evaluation order; `row[i − first]`:
+        // sample `i`'s place among them, where it is kept.
+        let (mut unit_rows, mut enc_rows) = (Vec::<[f32; 3]>::new(), Vec::<f32>::new());
+        let mut row = vec![u32::MAX; end(rays.end - 1) - first];
+        let (mut idx, mut raw) = (Vec::new(), Vec::new());
+        let mut cpu_s = [0.0f64; 4];
+        let mut round = COMPACTION_FIRST_ROUND;
+        while !live.is_empty() {
+            let t0 = Instant::now();
+            idx.clear();
+            for &r in &live {
+                idx.extend(next[r - r0]..(next[r - r0] + round).min(end(r)));
+            }
+            let base = unit_rows.len();
+            unit_rows.extend(idx.iter().map(|&i| self.unit_point(s, i, origins, dirs)));
+            let t1 = Instant::now();
+            enc_rows.resize(unit_rows.len() * dims, 0.0);
+            self.grid.encode_serial(&unit_rows[base..], &mut enc_rows[base * dims..]);
+            let t2 = Instant::now();
+            mlp.raw_density_serial(&enc_rows[base * dims..], &mut raw);
+            // As `keep_until_opaque`: sample `i` is kept unless the optical depth before it
+            // exceeds `tau_stop` (a NaN depth never does).
+            let mut k = 0;
+            live.retain(|&r| {
+                let c = r - r0;
+                let stop = (next[c] + round).min(end(r));
+                let mut open = true;
+                for i in next[c]..stop {
+                    if tau[c] > tau_stop {
+                        open = false;
+                    }
+                    if open {
+                        row[i - first] = (base + k) as u32;
+                        tau[c] += ACT.forward(raw[k]) * (s.t_end[i] - s.t_start[i]);
+                    }
+                    k += 1;
+                }
+                next[c] = stop;
+                open && stop < end(r)
+            });
+            round = round.saturating_mul(2);
+            let t3 = Instant::now();
+            cpu_s[0] += (t1 - t0).as_secs_f64();
+            cpu_s[1] += (t2 - t1).as_secs_f64();
+            cpu_s[2] += (t3 - t2).as_secs_f64();
+        }
+        let t0 = Instant::now();
+        let mut kept = Vec::with_capacity(rays.len());
+        let (mut unit, mut enc) = (Vec::new(), Vec::new());
+        for r in rays {
+            let a = s.offsets[r] as usize;
+            let n = row[a - first..end(r) - first].iter().take_while(|&&j| j != u32::MAX).count();
+            for &j in &row[a - first..a - first + n] {
+                let j = j as usize;
+                unit.push(unit_rows[j]);
+                enc.extend_from_slice(&enc_rows[j * dims..(j + 1) * dims]);
+            }
+            kept.push(n as u32);
+        }
+        cpu_s[3] += t0.elapsed().as_secs_f64();
+        CompactionPiece { kept, unit, enc, encoded: unit_rows.len(), cpu_s }
+    }
+
     fn step_size(&self) -> f32 {
         2.0 * self.bounds.half_extent() * 3f32.sqrt() / self.config.steps_per_diagonal.max(1) as f32
     }
@@ -647,13 +786,16 @@ impl Parts<'_> {
         self.occupancy.march(origins, dirs, &near, &far, &self.march_options(jitter), self.empty)
     }
 
+    /// The unit-cube point of sample `s` (at its interval's midpoint).
+    fn unit_point(&self, samples: &RaySamples, s: usize, origins: &[[f32; 3]], dirs: &[[f32; 3]]) -> [f32; 3] {
+        let r = samples.ray_index[s] as usize;
+        let (o, d, t) = (origins[r], dirs[r], 0.5 * samples.t_start[s] + 0.5 * samples.t_end[s]);
+        self.bounds.to_unit([o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]])
+    }
+
     /// Unit-cube points of samples (all, or those listed in `idx`).
     fn unit_points(&self, samples: &RaySamples, idx: Option<&[usize]>, origins: &[[f32; 3]], dirs: &[[f32; 3]]) -> Vec<[f32; 3]> {
-        let point = |s: usize| {
-            let r = samples.ray_index[s] as usize;
-            let (o, d, t) = (origins[r], dirs[r], 0.5 * samples.t_start[s] + 0.5 * samples.t_end[s]);
-            self.bounds.to_unit([o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]])
-        };
+        let point = |s: usize| self.unit_point(samples, s, origins, dirs);
         match idx {
             Some(ix) => ix.iter().map(|&s| point(s)).collect(),
             None => (0..samples.len()).map(point).collect(),
@@ -945,6 +1087,68 @@ mod tests {
         let mut split = m.render_rays(&origins[..k], &dirs[..k], bg);
         split.append(m.render_rays(&origins[k..], &dirs[k..], bg));
         assert_eq!((&split.rgb, &split.opacity, &split.distance), (&out.rgb, &out.opacity, &out.distance));
+    }
+
+    /// Compaction by rounds keeps exactly what one density pass over every marched sample
+    /// keeps (the same samples, points and encodings, bit for bit) for rays of 0 to 90 samples
+    /// stopping in every round, on any thread count, while encoding fewer samples.
+    #[test]
+    fn compaction_by_rounds_equals_one_pass_over_all_samples() {
+        let bounds = SceneBounds { aabb_min: [-1.0; 3], aabb_max: [1.0; 3], near: 0.5, far: 6.0, source: "test".into() };
+        let cfg = FastConfig::new().with_levels(4).with_log2_table_size(12).with_finest_resolution(64).with_grid_resolution(16);
+        let mut m = FastModel::new(cfg, bounds, 3).unwrap();
+        // Large random table values: densities from near 0 to huge, so rays stop anywhere.
+        let mut x = 0x9e37_79b9_u32;
+        for p in m.grid.params.iter_mut() {
+            x = x.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            *p = (x >> 8) as f32 / (1u32 << 24) as f32 * 8.0 - 4.0;
+        }
+        let n_rays = 300;
+        let origins: Vec<[f32; 3]> = (0..n_rays).map(|r| [0.3 * (r as f32 * 0.37).sin(), 0.3 * (r as f32 * 0.11).cos(), 3.0]).collect();
+        let dirs: Vec<[f32; 3]> = (0..n_rays)
+            .map(|r| {
+                let (a, b) = ((r as f32 * 0.013).sin() * 0.3, (r as f32 * 0.029).cos() * 0.3);
+                let l = (a * a + b * b + 1.0f32).sqrt();
+                [a / l, b / l, -1.0 / l]
+            })
+            .collect();
+        let mut s = RaySamples::with_rays(n_rays);
+        for r in 0..n_rays {
+            // 0 to 90 samples of 0.005 to 0.06 (within the bounds' far distance).
+            let (n, dt) = ((r * 37) % 91, 0.005 + 0.0055 * ((r * 7) % 11) as f32);
+            for i in 0..n {
+                s.push(0.5 + i as f32 * dt, 0.5 + (i + 1) as f32 * dt);
+            }
+            s.end_ray();
+        }
+        let mlp = m.mlp();
+        let parts = m.parts();
+        // Where rays stopped (samples kept, for the rays that kept fewer than they marched).
+        let mut all_stops = Vec::new();
+        for tau_stop in [0.05f32, 0.5, 2.0] {
+            let unit_all = parts.unit_points(&s, None, &origins, &dirs);
+            let enc_all = parts.hash_encode(&unit_all);
+            let sigma: Vec<f32> = mlp.raw_density(&enc_all).into_iter().map(|x| ACT.forward(x)).collect();
+            let (want, idx) = keep_until_opaque(&s, &sigma, tau_stop);
+            let dims = m.grid.output_dim();
+            let want_unit: Vec<[f32; 3]> = idx.iter().map(|&i| unit_all[i]).collect();
+            let want_enc: Vec<f32> = idx.iter().flat_map(|&i| enc_all[i * dims..(i + 1) * dims].iter().copied()).collect();
+            // Rays stopping in each of the first three rounds (after 1-4, 5-12, 13-28 samples).
+            let stops: Vec<usize> = (0..n_rays).filter(|&r| want.offsets[r + 1] - want.offsets[r] < s.offsets[r + 1] - s.offsets[r]).map(|r| (want.offsets[r + 1] - want.offsets[r]) as usize).collect();
+            all_stops.extend(stops);
+            for threads in [1, 3] {
+                let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+                let mut tm = StepTimings::default();
+                let (got, unit, enc, encoded) = pool.install(|| parts.encode_until_opaque(&mlp, s.clone(), &origins, &dirs, tau_stop, &mut tm));
+                assert_eq!((&got.offsets, &got.t_start, &got.t_end, &got.ray_index), (&want.offsets, &want.t_start, &want.t_end, &want.ray_index));
+                assert_eq!(unit, want_unit);
+                assert_eq!(enc.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), want_enc.iter().map(|v| v.to_bits()).collect::<Vec<_>>());
+                assert!(encoded >= idx.len() && encoded <= s.len(), "{encoded} encoded, {} kept of {}", idx.len(), s.len());
+                assert!(encoded < s.len(), "rays that stop early are not encoded to their end ({encoded} of {})", s.len());
+            }
+        }
+        // Rays stop in each round: after 1-4, 5-12, 13-28 and 29-60 samples.
+        assert!([1..5, 5..13, 13..29, 29..61].iter().all(|round| all_stops.iter().any(|k| round.contains(k))), "{all_stops:?}");
     }
 
     #[test]

@@ -72,13 +72,13 @@ pub struct StepTimings {
 pub struct PhaseTimings {
     /// The trainer drawing the step's ray batch (pixels, rays, targets).
     pub batch: f64,
-    /// Marching the occupancy grid and the samples' unit-cube points.
+    /// Marching the occupancy grid and the encoded samples' unit-cube points.
     pub march: f64,
-    /// Hash-grid encoding forward of every marched sample.
+    /// Hash-grid encoding forward of the samples the compaction pass reached (`StepStats::encoded`).
     pub hash_forward: f64,
     /// The density-only pass without gradients that finds where rays turn opaque (compaction).
     pub density_pass: f64,
-    /// Gathering the kept samples' encodings and direction inputs.
+    /// Gathering the kept samples' points, encodings and direction inputs.
     pub gather: f64,
     /// The fused sweep: density and colour networks forward and backward, compositing and loss.
     pub mlp_sweep: f64,
@@ -134,6 +134,9 @@ pub struct StepStats {
     pub samples: usize,
     /// Samples marched (before compaction; `fast` only, else equal to `samples`).
     pub marched: usize,
+    /// Samples hash-encoded and put through the density-only compaction pass (`fast` only:
+    /// from `samples` up to `marched`; without compaction, `marched`).
+    pub encoded: usize,
     /// Hash-table entries the sparse Adam step updated (`fast` only).
     pub touched: usize,
     /// Whether the update was skipped because the loss or a gradient was not finite.

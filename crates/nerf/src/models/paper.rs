@@ -184,7 +184,7 @@ impl PaperModel {
         let (_, mse_f, draw_f, drgb_f) = self.render_and_grad(&fine, &raw_f, &rgb_f, batch);
         tm.render += t0.elapsed().as_secs_f64();
         let loss = mse_c + mse_f;
-        let stats = |skipped, tm| StepStats { loss, mse: mse_f, samples: nc + nf, marched: nc + nf, skipped_nonfinite: skipped, timings: tm, ..Default::default() };
+        let stats = |skipped, tm| StepStats { loss, mse: mse_f, samples: nc + nf, marched: nc + nf, encoded: nc + nf, skipped_nonfinite: skipped, timings: tm, ..Default::default() };
         if !loss.is_finite() || ![&draw_c, &draw_f, &drgb_c, &drgb_f].iter().all(|v| all_finite(v)) {
             return stats(true, tm);
         }
