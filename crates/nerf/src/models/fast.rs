@@ -201,24 +201,28 @@ const ACT: DensityActivation = DensityActivation::TruncExp;
 /// samples behind it (a trained 800x800 tabletop view: 5.3 -> 4.8 samples per ray, 11 % less
 /// time than rounds of 4, same pixels since the composite stops at the same transmittance).
 const INFERENCE_ROUND: usize = 1;
-/// Samples per ray in the first round of training's compaction pass
-/// ([`Parts::encode_until_opaque`]); later rounds double.
+/// Samples per ray in the first round of training's marching and compaction
+/// ([`Parts::march_until_opaque`]); later rounds double.
 const COMPACTION_FIRST_ROUND: usize = 4;
 
-/// Groups of rays per thread in training's compaction pass (more than one, so that a thread
-/// whose groups finish early takes another's).
+/// Groups of rays per thread in training's marching and compaction (more than one, so that a
+/// thread whose groups finish early takes another's).
 const COMPACTION_GROUPS_PER_THREAD: usize = 4;
 
-/// One group's part of [`Parts::encode_until_opaque`].
+/// One group's part of [`Parts::march_until_opaque`].
 struct CompactionPiece {
-    /// Samples kept per ray (a prefix of each).
+    /// Samples kept per ray of the group (a prefix of each).
     kept: Vec<u32>,
-    /// The kept samples' unit-cube points `[k]` and encodings `[k][L·F]`, in ray order.
+    /// The kept samples' intervals `[k]`, unit-cube points `[k]` and encodings `[k][L·F]`, in
+    /// ray order.
+    t_start: Vec<f32>,
+    t_end: Vec<f32>,
     unit: Vec<[f32; 3]>,
     enc: Vec<f32>,
-    /// Samples encoded.
-    encoded: usize,
-    /// CPU seconds of the unit points, the hash encoding, the density pass and the gather.
+    /// Samples marched (and encoded).
+    marched: usize,
+    /// CPU seconds of marching (with the unit points), the hash encoding, the density pass and
+    /// the gather.
     cpu_s: [f64; 4],
 }
 
@@ -356,27 +360,27 @@ impl FastModel {
         tm.phases.occupancy = t0.elapsed().as_secs_f64();
         tm.optimizer += tm.phases.occupancy;
 
-        let t0 = Instant::now();
         let dims = self.grid.output_dim();
-        let marched = self.march(&batch.origins, &batch.dirs, SampleMode::Random { seed: stream_seed(seed, stream::MARCH), step });
-        tm.phases.march = t0.elapsed().as_secs_f64();
-        tm.encoding += tm.phases.march;
-        let n_marched = marched.len();
-
+        let jitter = SampleMode::Random { seed: stream_seed(seed, stream::MARCH), step };
         // Compaction (instant-ngp, nerfacc): a density-only pass without gradients finds where
         // each ray's transmittance falls below `train_min_transmittance`; only the samples
-        // before that are trained on. The pass runs in rounds along the rays
-        // ([`Parts::encode_until_opaque`]), so samples behind that point are mostly never encoded.
-        let (samples, unit, enc, n_encoded) = if self.config.train_min_transmittance > 0.0 && !marched.is_empty() {
+        // before that are trained on. Marching, encoding and that pass go in rounds along the
+        // rays ([`Parts::march_until_opaque`]), so samples behind that point are mostly never
+        // marched or encoded.
+        let (samples, unit, enc, n_marched) = if self.config.train_min_transmittance > 0.0 {
             let tau_stop = -self.config.train_min_transmittance.ln();
-            self.parts().encode_until_opaque(&mlp, marched, &batch.origins, &batch.dirs, tau_stop, &mut tm)
+            self.parts().march_until_opaque(&mlp, &batch.origins, &batch.dirs, jitter, tau_stop, &mut tm)
         } else {
             let t0 = Instant::now();
+            let marched = self.march(&batch.origins, &batch.dirs, jitter);
             let unit = self.unit_points(&marched, None, &batch.origins, &batch.dirs);
+            tm.phases.march = t0.elapsed().as_secs_f64();
+            let t1 = Instant::now();
             let enc = self.hash_encode(&unit);
-            tm.phases.hash_forward = t0.elapsed().as_secs_f64();
-            tm.encoding += tm.phases.hash_forward;
-            (marched, unit, enc, n_marched)
+            tm.phases.hash_forward = t1.elapsed().as_secs_f64();
+            tm.encoding += t0.elapsed().as_secs_f64();
+            let n = marched.len();
+            (marched, unit, enc, n)
         };
         let t0 = Instant::now();
         let n = samples.len();
@@ -386,7 +390,7 @@ impl FastModel {
         if n == 0 {
             // Nothing to learn from: every ray missed the occupied cells.
             let (mse, _) = mse_and_grad(&batch.background, &batch.target);
-            return StepStats { loss: mse, mse, samples: 0, marched: n_marched, encoded: n_encoded, skipped_nonfinite: false, timings: tm, ..Default::default() };
+            return StepStats { loss: mse, mse, samples: 0, marched: n_marched, encoded: n_marched, skipped_nonfinite: false, timings: tm, ..Default::default() };
         }
 
         // Networks, compositing, loss and backward in one sweep over groups of whole rays
@@ -435,7 +439,7 @@ impl FastModel {
         };
         tm.phases.mlp_sweep = t0.elapsed().as_secs_f64();
         tm.mlp += tm.phases.mlp_sweep;
-        let stats = |skipped, tm, touched| StepStats { loss, mse, samples: n, marched: n_marched, encoded: n_encoded, touched, skipped_nonfinite: skipped, timings: tm };
+        let stats = |skipped, tm, touched| StepStats { loss, mse, samples: n, marched: n_marched, encoded: n_marched, touched, skipped_nonfinite: skipped, timings: tm };
         if !loss.is_finite() || d_enc.len() != n * dims || !all_finite(&d_enc) || !grads.is_finite() {
             return stats(true, tm, 0);
         }
@@ -638,45 +642,55 @@ struct Parts<'a> {
 }
 
 impl Parts<'_> {
-    /// Compaction by rounds: encodes each ray's marched samples in order, a round at a time
-    /// (first [`COMPACTION_FIRST_ROUND`] samples of every ray, then twice as many per round of
-    /// the rays still live), evaluates their density, and stops a ray once the optical depth
-    /// before its next sample exceeds `tau_stop`. Returns the kept samples (a prefix of every
-    /// ray: exactly those [`keep_until_opaque`] keeps from a pass over all of them, since a
-    /// sample's encoding and density do not depend on which others are evaluated with it),
-    /// their unit-cube points, their encodings, and the number of samples encoded. Samples
-    /// behind a ray's stopping point are encoded only as far as its last round reached: late in
-    /// training, when rays turn opaque within a few samples of the surface, that is half or
-    /// more of the marched samples.
+    /// Marching and compaction by rounds: marches each ray's intervals in order, a round at a
+    /// time (first [`COMPACTION_FIRST_ROUND`] intervals of every ray, then twice as many per
+    /// round of the rays still live), encodes them and evaluates their density, and stops a ray
+    /// once the optical depth before its next sample exceeds `tau_stop`. Returns the kept
+    /// samples (a prefix of every ray: exactly those [`keep_until_opaque`] keeps from a density
+    /// pass over every sample [`OccupancyGrid::march`] gives, since [`OccupancyGrid::march_more`]
+    /// resumed in pieces gives the same intervals and a sample's encoding and density do not
+    /// depend on which others are evaluated with it), their unit-cube points, their
+    /// encodings, and the number of samples marched (and encoded). Behind a ray's stopping
+    /// point, samples are marched and encoded only as far as its last round reached: late in
+    /// training, when rays turn opaque within a few samples of the surface, that spares half
+    /// or more of them.
     ///
-    /// Groups of whole rays ([`ray_groups`], about [`COMPACTION_GROUPS_PER_THREAD`] per thread)
-    /// run in parallel, each its rounds on one thread ([`HashGrid::encode_serial`],
+    /// Groups of consecutive rays (about [`COMPACTION_GROUPS_PER_THREAD`] per thread) run in
+    /// parallel, each its rounds on one thread ([`HashGrid::encode_serial`],
     /// [`HashMlp::raw_density_serial`]): small rounds through the parallel kernels paid a fork
-    /// and join per level and round and left a core idle on uneven splits.
-    fn encode_until_opaque(&self, mlp: &HashMlp, s: RaySamples, origins: &[[f32; 3]], dirs: &[[f32; 3]], tau_stop: f32, tm: &mut StepTimings) -> (RaySamples, Vec<[f32; 3]>, Vec<f32>, usize) {
+    /// and join per level and round and left a core idle on uneven splits. The result does not
+    /// depend on the grouping.
+    fn march_until_opaque(&self, mlp: &HashMlp, origins: &[[f32; 3]], dirs: &[[f32; 3]], jitter: SampleMode, tau_stop: f32, tm: &mut StepTimings) -> (RaySamples, Vec<[f32; 3]>, Vec<f32>, usize) {
         let t_all = Instant::now();
         let dims = self.grid.output_dim();
-        let threads = rayon::current_num_threads().max(1);
-        let groups = ray_groups(&s.offsets, s.len().div_ceil(COMPACTION_GROUPS_PER_THREAD * threads).max(64));
-        let pieces: Vec<CompactionPiece> = groups.par_iter().map(|(rays, _)| self.compact_group(mlp, &s, rays.clone(), origins, dirs, tau_stop)).collect();
-        // The pieces in ray order: the kept prefixes, points and encodings.
+        let n_rays = origins.len();
+        let opt = self.march_options(jitter);
+        let groups = (COMPACTION_GROUPS_PER_THREAD * rayon::current_num_threads().max(1)).min(n_rays.max(1));
+        let per = n_rays.div_ceil(groups).max(1);
+        let ranges: Vec<std::ops::Range<usize>> = (0..n_rays).step_by(per).map(|a| a..(a + per).min(n_rays)).collect();
+        let pieces: Vec<CompactionPiece> = ranges.par_iter().map(|rays| self.compact_group(mlp, rays.clone(), origins, dirs, &opt, tau_stop)).collect();
+        // The pieces in ray order.
         let t0 = Instant::now();
-        let n_kept: usize = pieces.iter().map(|p| p.unit.len()).sum();
-        let mut kept = RaySamples::with_rays(s.n_rays());
+        let n_kept: usize = pieces.iter().map(|p| p.t_start.len()).sum();
+        let mut kept = RaySamples::with_rays(n_rays);
+        kept.t_start.reserve(n_kept);
+        kept.t_end.reserve(n_kept);
+        kept.ray_index.reserve(n_kept);
         let (mut unit, mut enc) = (Vec::with_capacity(n_kept), Vec::with_capacity(n_kept * dims));
         let mut cpu = [0.0f64; 4];
-        let mut encoded = 0;
-        for (p, (rays, _)) in pieces.iter().zip(&groups) {
+        let mut marched = 0;
+        for (p, rays) in pieces.iter().zip(&ranges) {
+            let mut a = 0;
             for (r, &k) in rays.clone().zip(&p.kept) {
-                let a = s.offsets[r] as usize;
-                for i in a..a + k as usize {
-                    kept.push(s.t_start[i], s.t_end[i]);
-                }
+                kept.t_start.extend_from_slice(&p.t_start[a..a + k as usize]);
+                kept.t_end.extend_from_slice(&p.t_end[a..a + k as usize]);
+                kept.ray_index.extend(std::iter::repeat_n(r as u32, k as usize));
                 kept.end_ray();
+                a += k as usize;
             }
             unit.extend_from_slice(&p.unit);
             enc.extend_from_slice(&p.enc);
-            encoded += p.encoded;
+            marched += p.marched;
             cpu.iter_mut().zip(&p.cpu_s).for_each(|(a, b)| *a += b);
         }
         let merge = t0.elapsed().as_secs_f64();
@@ -690,81 +704,88 @@ impl Parts<'_> {
         tm.phases.gather += share(cpu[3]) + merge;
         tm.encoding += share(cpu[0] + cpu[1] + cpu[3]) + merge;
         tm.mlp += share(cpu[2]);
-        (kept, unit, enc, encoded)
+        (kept, unit, enc, marched)
     }
 
-    /// [`Self::encode_until_opaque`] for the rays `rays` of `s`, on the calling thread.
-    // `i` addresses the samples' parallel arrays and the `row` map.
-    #[allow(clippy::needless_range_loop)]
-    fn compact_group(&self, mlp: &HashMlp, s: &RaySamples, rays: std::ops::Range<usize>, origins: &[[f32; 3]], dirs: &[[f32; 3]], tau_stop: f32) -> CompactionPiece {
+    /// [`Self::march_until_opaque`] for the rays `rays`, on the calling thread.
+    fn compact_group(&self, mlp: &HashMlp, rays: std::ops::Range<usize>, origins: &[[f32; 3]], dirs: &[[f32; 3]], opt: &MarchOptions, tau_stop: f32) -> CompactionPiece {
         let dims = self.grid.output_dim();
-        let (r0, first) = (rays.start, s.offsets[rays.start] as usize);
-        let end = |r: usize| s.offsets[r + 1] as usize;
-        // Per ray: the next sample to evaluate and the optical depth before it.
-        let mut next: Vec<usize> = rays.clone().map(|r| s.offsets[r] as usize).collect();
+        let r0 = rays.start;
+        let (near, far) = (self.bounds.near, self.bounds.far);
+        let mut state: Vec<_> = rays.clone().map(|r| self.occupancy.march_start(r, origins[r], dirs[r], near, far, opt)).collect();
+        // Per ray (local index): the optical depth before its next sample, samples kept.
         let mut tau = vec![0.0f32; rays.len()];
-        let mut live: Vec<usize> = rays.clone().filter(|&r| s.offsets[r] as usize != end(r)).collect();
-        // Every evaluated sample's point and encoding, in evaluation order; `row[i − first]`:
-        // sample `i`'s place among them, where it is kept.
-        let (mut unit_rows, mut enc_rows) = (Vec::<[f32; 3]>::new(), Vec::<f32>::new());
-        let mut row = vec![u32::MAX; end(rays.end - 1) - first];
-        let (mut idx, mut raw) = (Vec::new(), Vec::new());
+        let mut kept = vec![0u32; rays.len()];
+        let mut live: Vec<usize> = (0..rays.len()).filter(|&c| !state[c].is_done()).collect();
+        // Every marched sample, in marching order: interval, ray, point, encoding, kept or not.
+        let (mut ts, mut te, mut ray_of, mut keep) = (Vec::<f32>::new(), Vec::<f32>::new(), Vec::<u32>::new(), Vec::<bool>::new());
+        let (mut unit_rows, mut enc_rows, mut raw) = (Vec::<[f32; 3]>::new(), Vec::<f32>::new(), Vec::new());
+        let mut spans = Vec::new();
         let mut cpu_s = [0.0f64; 4];
         let mut round = COMPACTION_FIRST_ROUND;
         while !live.is_empty() {
             let t0 = Instant::now();
-            idx.clear();
-            for &r in &live {
-                idx.extend(next[r - r0]..(next[r - r0] + round).min(end(r)));
+            let base = ts.len();
+            spans.clear();
+            for &c in &live {
+                let (o, d) = (origins[r0 + c], dirs[r0 + c]);
+                let b = ts.len();
+                let k = self.occupancy.march_more(&mut state[c], o, d, opt, self.empty, round, &mut ts, &mut te);
+                ray_of.extend(std::iter::repeat_n(c as u32, k));
+                for s in b..b + k {
+                    let t = 0.5 * ts[s] + 0.5 * te[s];
+                    unit_rows.push(self.bounds.to_unit([o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]]));
+                }
+                spans.push((c, b, b + k));
             }
-            let base = unit_rows.len();
-            unit_rows.extend(idx.iter().map(|&i| self.unit_point(s, i, origins, dirs)));
             let t1 = Instant::now();
-            enc_rows.resize(unit_rows.len() * dims, 0.0);
+            enc_rows.resize(ts.len() * dims, 0.0);
             self.grid.encode_serial(&unit_rows[base..], &mut enc_rows[base * dims..]);
             let t2 = Instant::now();
             mlp.raw_density_serial(&enc_rows[base * dims..], &mut raw);
-            // As `keep_until_opaque`: sample `i` is kept unless the optical depth before it
+            // As `keep_until_opaque`: a sample is kept unless the optical depth before it
             // exceeds `tau_stop` (a NaN depth never does).
-            let mut k = 0;
-            live.retain(|&r| {
-                let c = r - r0;
-                let stop = (next[c] + round).min(end(r));
+            for &(c, b, e) in &spans {
                 let mut open = true;
-                for i in next[c]..stop {
+                for s in b..e {
                     if tau[c] > tau_stop {
                         open = false;
                     }
+                    keep.push(open);
                     if open {
-                        row[i - first] = (base + k) as u32;
-                        tau[c] += ACT.forward(raw[k]) * (s.t_end[i] - s.t_start[i]);
+                        kept[c] += 1;
+                        tau[c] += ACT.forward(raw[s - base]) * (te[s] - ts[s]);
                     }
-                    k += 1;
                 }
-                next[c] = stop;
-                open && stop < end(r)
-            });
+            }
+            // A ray goes on while it has intervals left and its next sample would be kept.
+            let opaque = |t: f32| t > tau_stop;
+            live.retain(|&c| !state[c].is_done() && !opaque(tau[c]));
             round = round.saturating_mul(2);
             let t3 = Instant::now();
             cpu_s[0] += (t1 - t0).as_secs_f64();
             cpu_s[1] += (t2 - t1).as_secs_f64();
             cpu_s[2] += (t3 - t2).as_secs_f64();
         }
+        // The kept samples, by ray (each ray's in marching order).
         let t0 = Instant::now();
-        let mut kept = Vec::with_capacity(rays.len());
-        let (mut unit, mut enc) = (Vec::new(), Vec::new());
-        for r in rays {
-            let a = s.offsets[r] as usize;
-            let n = row[a - first..end(r) - first].iter().take_while(|&&j| j != u32::MAX).count();
-            for &j in &row[a - first..a - first + n] {
-                let j = j as usize;
-                unit.push(unit_rows[j]);
-                enc.extend_from_slice(&enc_rows[j * dims..(j + 1) * dims]);
-            }
-            kept.push(n as u32);
+        let mut at = Vec::with_capacity(kept.len());
+        let mut n_kept = 0usize;
+        for &k in &kept {
+            at.push(n_kept);
+            n_kept += k as usize;
+        }
+        let (mut k_ts, mut k_te, mut unit) = (vec![0.0f32; n_kept], vec![0.0f32; n_kept], vec![[0.0f32; 3]; n_kept]);
+        let mut enc = vec![0.0f32; n_kept * dims];
+        for (s, _) in keep.iter().enumerate().filter(|(_, k)| **k) {
+            let c = ray_of[s] as usize;
+            let j = at[c];
+            at[c] += 1;
+            (k_ts[j], k_te[j], unit[j]) = (ts[s], te[s], unit_rows[s]);
+            enc[j * dims..(j + 1) * dims].copy_from_slice(&enc_rows[s * dims..(s + 1) * dims]);
         }
         cpu_s[3] += t0.elapsed().as_secs_f64();
-        CompactionPiece { kept, unit, enc, encoded: unit_rows.len(), cpu_s }
+        CompactionPiece { kept, t_start: k_ts, t_end: k_te, unit, enc, marched: ts.len(), cpu_s }
     }
 
     fn step_size(&self) -> f32 {
@@ -1089,66 +1110,70 @@ mod tests {
         assert_eq!((&split.rgb, &split.opacity, &split.distance), (&out.rgb, &out.opacity, &out.distance));
     }
 
-    /// Compaction by rounds keeps exactly what one density pass over every marched sample
-    /// keeps (the same samples, points and encodings, bit for bit) for rays of 0 to 90 samples
-    /// stopping in every round, on any thread count, while encoding fewer samples.
+    /// Marching and compaction by rounds keep exactly what one density pass over every sample
+    /// of the full march keeps (the same intervals, points and encodings, bit for bit), for
+    /// rays that miss the box, cross empty cells and stop in every round, jittered or not, on
+    /// any thread count, while marching fewer samples.
     #[test]
-    fn compaction_by_rounds_equals_one_pass_over_all_samples() {
+    fn compaction_by_rounds_equals_one_pass_over_the_full_march() {
         let bounds = SceneBounds { aabb_min: [-1.0; 3], aabb_max: [1.0; 3], near: 0.5, far: 6.0, source: "test".into() };
-        let cfg = FastConfig::new().with_levels(4).with_log2_table_size(12).with_finest_resolution(64).with_grid_resolution(16);
+        let cfg = FastConfig::new().with_levels(4).with_log2_table_size(12).with_finest_resolution(64).with_grid_resolution(16).with_steps_per_diagonal(160);
         let mut m = FastModel::new(cfg, bounds, 3).unwrap();
         // Large random table values: densities from near 0 to huge, so rays stop anywhere.
         let mut x = 0x9e37_79b9_u32;
-        for p in m.grid.params.iter_mut() {
+        let mut next = || {
             x = x.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
-            *p = (x >> 8) as f32 / (1u32 << 24) as f32 * 8.0 - 4.0;
+            (x >> 8) as f32 / (1u32 << 24) as f32
+        };
+        for p in m.grid.params.iter_mut() {
+            *p = next() * 8.0 - 4.0;
         }
+        // A third of the occupancy cells empty (the march skips them, through the blocks).
+        for (i, w) in m.occupancy.bits.iter_mut().enumerate() {
+            *w &= [0x9249_2492_4924_9249u64, u64::MAX, 0xdb6d_b6db_6db6_db6d][i % 3];
+        }
+        m.refresh_empty_space();
         let n_rays = 300;
-        let origins: Vec<[f32; 3]> = (0..n_rays).map(|r| [0.3 * (r as f32 * 0.37).sin(), 0.3 * (r as f32 * 0.11).cos(), 3.0]).collect();
+        // From z = 3 towards the box, some passing beside it.
+        let origins: Vec<[f32; 3]> = (0..n_rays).map(|_| [next() * 2.4 - 1.2, next() * 2.4 - 1.2, 3.0]).collect();
         let dirs: Vec<[f32; 3]> = (0..n_rays)
-            .map(|r| {
-                let (a, b) = ((r as f32 * 0.013).sin() * 0.3, (r as f32 * 0.029).cos() * 0.3);
+            .map(|_| {
+                let (a, b) = (next() * 0.6 - 0.3, next() * 0.6 - 0.3);
                 let l = (a * a + b * b + 1.0f32).sqrt();
                 [a / l, b / l, -1.0 / l]
             })
             .collect();
-        let mut s = RaySamples::with_rays(n_rays);
-        for r in 0..n_rays {
-            // 0 to 90 samples of 0.005 to 0.06 (within the bounds' far distance).
-            let (n, dt) = ((r * 37) % 91, 0.005 + 0.0055 * ((r * 7) % 11) as f32);
-            for i in 0..n {
-                s.push(0.5 + i as f32 * dt, 0.5 + (i + 1) as f32 * dt);
-            }
-            s.end_ray();
-        }
         let mlp = m.mlp();
         let parts = m.parts();
+        let dims = m.grid.output_dim();
         // Where rays stopped (samples kept, for the rays that kept fewer than they marched).
-        let mut all_stops = Vec::new();
-        for tau_stop in [0.05f32, 0.5, 2.0] {
-            let unit_all = parts.unit_points(&s, None, &origins, &dirs);
+        let mut stops = Vec::new();
+        for jitter in [SampleMode::Deterministic, SampleMode::Random { seed: 9, step: 4 }] {
+            let all = parts.march(&origins, &dirs, jitter);
+            assert!(all.offsets.windows(2).any(|w| w[0] == w[1]) && all.len() > 20 * n_rays, "{} samples", all.len());
+            let unit_all = parts.unit_points(&all, None, &origins, &dirs);
             let enc_all = parts.hash_encode(&unit_all);
             let sigma: Vec<f32> = mlp.raw_density(&enc_all).into_iter().map(|x| ACT.forward(x)).collect();
-            let (want, idx) = keep_until_opaque(&s, &sigma, tau_stop);
-            let dims = m.grid.output_dim();
-            let want_unit: Vec<[f32; 3]> = idx.iter().map(|&i| unit_all[i]).collect();
-            let want_enc: Vec<f32> = idx.iter().flat_map(|&i| enc_all[i * dims..(i + 1) * dims].iter().copied()).collect();
-            // Rays stopping in each of the first three rounds (after 1-4, 5-12, 13-28 samples).
-            let stops: Vec<usize> = (0..n_rays).filter(|&r| want.offsets[r + 1] - want.offsets[r] < s.offsets[r + 1] - s.offsets[r]).map(|r| (want.offsets[r + 1] - want.offsets[r]) as usize).collect();
-            all_stops.extend(stops);
-            for threads in [1, 3] {
-                let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
-                let mut tm = StepTimings::default();
-                let (got, unit, enc, encoded) = pool.install(|| parts.encode_until_opaque(&mlp, s.clone(), &origins, &dirs, tau_stop, &mut tm));
-                assert_eq!((&got.offsets, &got.t_start, &got.t_end, &got.ray_index), (&want.offsets, &want.t_start, &want.t_end, &want.ray_index));
-                assert_eq!(unit, want_unit);
-                assert_eq!(enc.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), want_enc.iter().map(|v| v.to_bits()).collect::<Vec<_>>());
-                assert!(encoded >= idx.len() && encoded <= s.len(), "{encoded} encoded, {} kept of {}", idx.len(), s.len());
-                assert!(encoded < s.len(), "rays that stop early are not encoded to their end ({encoded} of {})", s.len());
+            for tau_stop in [0.05f32, 0.2, 0.5, 2.0] {
+                let (want, idx) = keep_until_opaque(&all, &sigma, tau_stop);
+                let want_unit: Vec<[f32; 3]> = idx.iter().map(|&i| unit_all[i]).collect();
+                let want_enc: Vec<u32> = idx.iter().flat_map(|&i| enc_all[i * dims..(i + 1) * dims].iter().map(|v| v.to_bits())).collect();
+                stops.extend((0..n_rays).map(|r| (want.offsets[r + 1] - want.offsets[r], all.offsets[r + 1] - all.offsets[r])).filter(|(k, n)| k < n).map(|(k, _)| k));
+                for threads in [1, 3] {
+                    let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+                    let mut tm = StepTimings::default();
+                    let (got, unit, enc, marched) = pool.install(|| parts.march_until_opaque(&mlp, &origins, &dirs, jitter, tau_stop, &mut tm));
+                    assert_eq!((&got.offsets, &got.t_start, &got.t_end, &got.ray_index), (&want.offsets, &want.t_start, &want.t_end, &want.ray_index));
+                    assert_eq!(unit, want_unit);
+                    assert_eq!(enc.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), want_enc);
+                    assert!(marched >= idx.len() && marched <= all.len(), "{marched} marched, {} kept of {}", idx.len(), all.len());
+                    // Where rays stop, fewer are marched than the full march gives.
+                    assert!(idx.len() == all.len() || marched < all.len(), "{marched} marched, {} kept of {}", idx.len(), all.len());
+                }
             }
         }
         // Rays stop in each round: after 1-4, 5-12, 13-28 and 29-60 samples.
-        assert!([1..5, 5..13, 13..29, 29..61].iter().all(|round| all_stops.iter().any(|k| round.contains(k))), "{all_stops:?}");
+        assert!([1..5, 5..13, 13..29, 29..61].iter().all(|round| stops.iter().any(|k| round.contains(k))), "{stops:?}");
     }
 
     #[test]
