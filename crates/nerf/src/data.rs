@@ -317,25 +317,43 @@ impl TrainData {
     /// The batch of step `step`: `n` pixels drawn uniformly over all training pixels, a pure
     /// function of (seed, step), so a resumed run sees the same batches.
     pub fn batch(&self, seed: u64, step: u64, n: usize) -> RayBatch {
+        use rayon::prelude::*;
         let total = self.total_pixels() as u64;
-        let mut b = RayBatch::default();
-        for k in 0..n as u64 {
-            let u = (uniform(seed, stream::PIXEL, step, k) as f64 + uniform(seed, stream::PIXEL, step, k + (1 << 40)) as f64 / (1u64 << 24) as f64).min(0.999_999_999);
-            let g = ((u * total as f64) as u64).min(total - 1) as usize;
-            let (v, p) = self.locate(g);
-            let bg = match self.background {
-                Background::Random => [0, 1, 2].map(|c| uniform(seed, stream::BACKGROUND, step, k * 3 + c)),
-                other => other.eval_color(),
-            };
-            let (o, d) = pixel_ray(&self.views[v].camera, p);
+        // Each ray depends only on (seed, step, k): drawn in parallel (a cache miss into the
+        // views' pixels each), collected in order.
+        let rays: Vec<([f32; 3], [f32; 3], [f32; 3], [f32; 3], u64)> = (0..n)
+            .into_par_iter()
+            .with_min_len(256)
+            .map(|k| {
+                let k = k as u64;
+                let u = (uniform(seed, stream::PIXEL, step, k) as f64 + uniform(seed, stream::PIXEL, step, k + (1 << 40)) as f64 / (1u64 << 24) as f64).min(0.999_999_999);
+                let g = ((u * total as f64) as u64).min(total - 1) as usize;
+                let (v, p) = self.locate(g);
+                let bg = match self.background {
+                    Background::Random => [0, 1, 2].map(|c| uniform(seed, stream::BACKGROUND, step, k * 3 + c)),
+                    other => other.eval_color(),
+                };
+                let (o, d) = pixel_ray(&self.views[v].camera, p);
+                (o, d, self.views[v].color(p, bg), bg, ((v as u64) << 32) | p as u64)
+            })
+            .collect();
+        let mut b = RayBatch {
+            origins: Vec::with_capacity(n),
+            dirs: Vec::with_capacity(n),
+            target: Vec::with_capacity(n),
+            background: Vec::with_capacity(n),
+            ids: Vec::with_capacity(n),
+            mixed: Vec::new(),
+        };
+        for (o, d, c, bg, id) in rays {
             b.origins.push(o);
             b.dirs.push(d);
-            b.target.push(self.views[v].color(p, bg));
+            b.target.push(c);
             b.background.push(bg);
-            b.ids.push(((v as u64) << 32) | p as u64);
-            if self.has_mixed() {
-                b.mixed.push(self.mixed[v][p]);
-            }
+            b.ids.push(id);
+        }
+        if self.has_mixed() {
+            b.mixed = b.ids.iter().map(|id| self.mixed[(id >> 32) as usize][(id & 0xffff_ffff) as usize]).collect();
         }
         b
     }

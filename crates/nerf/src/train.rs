@@ -5,7 +5,7 @@
 //!
 //! Run folder: `config.json`, `metrics.jsonl` (one JSON object per line: training lines every
 //! `log_interval_steps` with `step`, `wall_s`, `loss`, `train_psnr`, `rays_per_s`,
-//! `samples_per_ray`, `marched_per_ray` (before compaction), `lr`, `skipped_nonfinite`; validation lines with `val_psnr` and, when the
+//! `samples_per_ray`, `marched_per_ray` (as far as compaction reached), `lr`, `skipped_nonfinite`; validation lines with `val_psnr` and, when the
 //! dataset has ground truth, `val_depth_mae`), `checkpoints/step-*.ckpt`.
 //!
 //! Clock: `wall_s` counts training time only (steps, checkpoints excluded too): validation
@@ -364,8 +364,8 @@ struct Window {
     time: f64,
     rays: u64,
     samples: u64,
-    /// Samples the occupancy grid let through before compaction (the fast model's
-    /// [`StepStats::marched`]; the paper model's samples).
+    /// Samples marched (the fast model's [`StepStats::marched`], as far along each ray as its
+    /// compaction reached; the paper model's samples).
     marched: u64,
 }
 

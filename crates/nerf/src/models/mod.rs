@@ -72,7 +72,7 @@ pub struct StepTimings {
 pub struct PhaseTimings {
     /// The trainer drawing the step's ray batch (pixels, rays, targets).
     pub batch: f64,
-    /// Marching the occupancy grid and the encoded samples' unit-cube points.
+    /// Marching the occupancy grid and the marched samples' unit-cube points.
     pub march: f64,
     /// Hash-grid encoding forward of the samples the compaction pass reached (`StepStats::encoded`).
     pub hash_forward: f64,
@@ -132,10 +132,11 @@ pub struct StepStats {
     pub mse: f32,
     /// Samples evaluated by the networks.
     pub samples: usize,
-    /// Samples marched (before compaction; `fast` only, else equal to `samples`).
+    /// Samples marched (`fast`: along each ray as far as the compaction's rounds reached, from
+    /// `samples` up to the full march; else equal to `samples`).
     pub marched: usize,
-    /// Samples hash-encoded and put through the density-only compaction pass (`fast` only:
-    /// from `samples` up to `marched`; without compaction, `marched`).
+    /// Samples hash-encoded and put through the density-only compaction pass (`fast`; equal to
+    /// `marched`, since marching and encoding go in the same rounds).
     pub encoded: usize,
     /// Hash-table entries the sparse Adam step updated (`fast` only).
     pub touched: usize,
