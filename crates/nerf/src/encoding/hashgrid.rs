@@ -679,10 +679,6 @@ mod simd {
                 ring[b % 2] = corners8::<DENSE>(&points[k0 + 16..k0 + 24], &k);
                 prefetch_entries::<F>(&ring[b % 2].0, g.as_ptr(), flags);
             }
-            if F == 2 {
-                scatter8_f2::<MARK>(&vi, &vw, &d_l[k0 * 2..k0 * 2 + 16], g, touched);
-                continue;
-            }
             for c in 0..8 {
                 // SAFETY: each array holds 8 lanes.
                 unsafe {
@@ -696,51 +692,6 @@ mod simd {
             }
         }
         n8
-    }
-
-    /// [`scatter_point`] for eight points of two features (`d`: their gradients, `[8][2]`;
-    /// `vi`, `vw`: corner `c`'s indices and weights of the eight points): the products
-    /// `w · d` eight points at a time, then each entry's two floats read, added to and written
-    /// as one 8-byte word, points in order and corners in order within a point. The same
-    /// products and sums in the same order as `scatter_point` (no fused multiply-add), so the
-    /// same bits; about half the instructions of the scalar scatter, which bounded the
-    /// backward.
-    #[inline]
-    #[target_feature(enable = "avx2")]
-    fn scatter8_f2<const MARK: bool>(vi: &[__m256i; 8], vw: &[__m256; 8], d: &[f32], g: &mut [f32], touched: &mut [bool]) {
-        assert!(d.len() == 16 && g.len() % 2 == 0 && (!MARK || touched.len() * 2 >= g.len()));
-        let entries = g.len() / 2;
-        let (mut idx, mut prod) = ([[0u32; 8]; 8], [[0f32; 16]; 8]);
-        // SAFETY: `d` holds 16 floats (asserted); every store writes within its 8- or 16-lane
-        // array.
-        unsafe {
-            let (d_lo, d_hi) = (_mm256_loadu_ps(d.as_ptr()), _mm256_loadu_ps(d.as_ptr().add(8)));
-            // Lanes 2j and 2j + 1 take point j's weight (points 0-3, then 4-7).
-            let (lo, hi) = (_mm256_setr_epi32(0, 0, 1, 1, 2, 2, 3, 3), _mm256_setr_epi32(4, 4, 5, 5, 6, 6, 7, 7));
-            for c in 0..8 {
-                _mm256_storeu_si256(idx[c].as_mut_ptr() as *mut __m256i, vi[c]);
-                _mm256_storeu_ps(prod[c].as_mut_ptr(), _mm256_mul_ps(_mm256_permutevar8x32_ps(vw[c], lo), d_lo));
-                _mm256_storeu_ps(prod[c].as_mut_ptr().add(8), _mm256_mul_ps(_mm256_permutevar8x32_ps(vw[c], hi), d_hi));
-            }
-        }
-        let gp = g.as_mut_ptr();
-        for j in 0..8 {
-            for c in 0..8 {
-                let i = idx[c][j] as usize;
-                assert!(i < entries, "hash index {i} outside the level's {entries} entries");
-                if MARK {
-                    touched[i] = true;
-                }
-                // SAFETY: entry `i` (floats 2i and 2i + 1) lies in `g` (asserted above); the
-                // 8-byte loads and store need no alignment.
-                unsafe {
-                    let e = gp.add(2 * i) as *mut f64;
-                    let cur = _mm_castpd_ps(_mm_load_sd(e));
-                    let add = _mm_castpd_ps(_mm_load_sd(prod[c].as_ptr().add(2 * j) as *const f64));
-                    _mm_store_sd(e, _mm_castps_pd(_mm_add_ps(cur, add)));
-                }
-            }
-        }
     }
 }
 
