@@ -321,7 +321,7 @@ impl TrainData {
         let total = self.total_pixels() as u64;
         // Each ray depends only on (seed, step, k): drawn in parallel (a cache miss into the
         // views' pixels each), collected in order.
-        let rays: Vec<([f32; 3], [f32; 3], [f32; 3], [f32; 3], u64)> = (0..n)
+        let rays: Vec<_> = (0..n)
             .into_par_iter()
             .with_min_len(256)
             .map(|k| {

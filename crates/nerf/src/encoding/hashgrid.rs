@@ -224,24 +224,23 @@ impl HashGrid {
     /// - `points`: `[N]` in `[0, 1]³` (clamped)
     /// - `out`: `[N · L · F]`, row-major `[N][L · F]`, overwritten
     pub fn encode(&self, points: &[[f32; 3]], out: &mut [f32]) {
-        match self.config.features_per_level {
-            1 => self.encode_f::<1, true>(points, out),
-            2 => self.encode_f::<2, true>(points, out),
-            4 => self.encode_f::<4, true>(points, out),
-            8 => self.encode_f::<8, true>(points, out),
-            f => panic!("unsupported features_per_level {f}"),
-        }
+        self.encode_dispatch::<true>(points, out);
     }
 
     /// [`Self::encode`] on the calling thread only (level-outer over all `points`), for callers
     /// that are parallel over batches themselves: the same values, without a fork and join
     /// per level.
     pub fn encode_serial(&self, points: &[[f32; 3]], out: &mut [f32]) {
+        self.encode_dispatch::<false>(points, out);
+    }
+
+    /// [`Self::encode_f`] for the configured features per level, in parallel or not.
+    fn encode_dispatch<const PAR: bool>(&self, points: &[[f32; 3]], out: &mut [f32]) {
         match self.config.features_per_level {
-            1 => self.encode_f::<1, false>(points, out),
-            2 => self.encode_f::<2, false>(points, out),
-            4 => self.encode_f::<4, false>(points, out),
-            8 => self.encode_f::<8, false>(points, out),
+            1 => self.encode_f::<1, PAR>(points, out),
+            2 => self.encode_f::<2, PAR>(points, out),
+            4 => self.encode_f::<4, PAR>(points, out),
+            8 => self.encode_f::<8, PAR>(points, out),
             f => panic!("unsupported features_per_level {f}"),
         }
     }

@@ -732,10 +732,7 @@ impl Parts<'_> {
                 let b = ts.len();
                 let k = self.occupancy.march_more(&mut state[c], o, d, opt, self.empty, round, &mut ts, &mut te);
                 ray_of.extend(std::iter::repeat_n(c as u32, k));
-                for s in b..b + k {
-                    let t = 0.5 * ts[s] + 0.5 * te[s];
-                    unit_rows.push(self.bounds.to_unit([o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]]));
-                }
+                unit_rows.extend((b..b + k).map(|s| self.unit_at(o, d, ts[s], te[s])));
                 spans.push((c, b, b + k));
             }
             let t1 = Instant::now();
@@ -810,7 +807,12 @@ impl Parts<'_> {
     /// The unit-cube point of sample `s` (at its interval's midpoint).
     fn unit_point(&self, samples: &RaySamples, s: usize, origins: &[[f32; 3]], dirs: &[[f32; 3]]) -> [f32; 3] {
         let r = samples.ray_index[s] as usize;
-        let (o, d, t) = (origins[r], dirs[r], 0.5 * samples.t_start[s] + 0.5 * samples.t_end[s]);
+        self.unit_at(origins[r], dirs[r], samples.t_start[s], samples.t_end[s])
+    }
+
+    /// The unit-cube point of the interval `[t0, t1]` of the ray `o + t d`, at its midpoint.
+    fn unit_at(&self, o: [f32; 3], d: [f32; 3], t0: f32, t1: f32) -> [f32; 3] {
+        let t = 0.5 * t0 + 0.5 * t1;
         self.bounds.to_unit([o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]])
     }
 
@@ -915,10 +917,7 @@ impl Parts<'_> {
             let mut unit = Vec::with_capacity(ts.len());
             for &(r, b, e) in &live {
                 let (o, d) = (origins[r], dirs[r]);
-                for s in b..e {
-                    let t = 0.5 * ts[s] + 0.5 * te[s];
-                    unit.push(self.bounds.to_unit([o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]]));
-                }
+                unit.extend((b..e).map(|s| self.unit_at(o, d, ts[s], te[s])));
             }
             let need = unit.len() * self.grid.output_dim();
             if enc.len() < need {
