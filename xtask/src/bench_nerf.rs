@@ -206,7 +206,14 @@ pub fn run(args: NerfBenchArgs) -> anyhow::Result<()> {
                 cfg.val_max_views = 0;
                 json.resumed_from = Some((args.resume_run.as_ref().map(|p| p.display().to_string()).unwrap_or_default(), *step));
                 println!("fast: continuing {} from its checkpoint at step {step}", args.resume_run.as_ref().map(|p| p.display().to_string()).unwrap_or_default());
-                Trainer::new(cfg, &dir.join("resumed"), true)?
+                let t = Trainer::new(cfg, &dir.join("resumed"), true)?;
+                anyhow::ensure!(
+                    t.step == *step,
+                    "{}: the latest checkpoint is named for step {step} but holds step {}",
+                    args.resume_run.as_ref().map(|p| p.display().to_string()).unwrap_or_default(),
+                    t.step
+                );
+                t
             }
             None => {
                 let mut cfg = TrainConfig::preset(kind, data.clone()).map_err(anyhow::Error::msg)?;
@@ -298,8 +305,10 @@ fn copy_run_for_resume(run: &std::path::Path, dest: &std::path::Path) -> anyhow:
         "{}: --resume-run times the fast model, but this run trained the paper model",
         run.display()
     );
-    let ckpt = nerf::checkpoint::latest(run).ok_or_else(|| anyhow::anyhow!("{}: no checkpoint to continue from (train it first, or pass the run folder holding checkpoints/)", run.display()))?;
-    let step = nerf::checkpoint::load(&ckpt)?.scalar("trainer.step").map_err(|e| anyhow::anyhow!("{}: {e}", ckpt.display()))? as u64;
+    // The step from the file name: the trainer reads the checkpoint itself, once (it is tens
+    // of megabytes), and the bench checks that it resumed at this step.
+    let (step, ckpt) = nerf::checkpoint::latest_with_step(run)
+        .ok_or_else(|| anyhow::anyhow!("{}: no checkpoint to continue from (train it first, or pass the run folder holding checkpoints/)", run.display()))?;
     let cdir = dest.join("checkpoints");
     std::fs::create_dir_all(&cdir).with_context(|| format!("creating {}", cdir.display()))?;
     std::fs::copy(run.join("config.json"), dest.join("config.json")).with_context(|| format!("copying {}", run.join("config.json").display()))?;

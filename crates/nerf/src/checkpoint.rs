@@ -162,7 +162,13 @@ pub fn remove_all(run_dir: &Path) -> Result<(), CheckpointError> {
 
 /// The newest checkpoint of a run, if any.
 pub fn latest(run_dir: &Path) -> Option<PathBuf> {
-    list(run_dir).into_iter().max_by_key(|(s, _)| *s).map(|(_, p)| p)
+    latest_with_step(run_dir).map(|(_, p)| p)
+}
+
+/// The newest checkpoint of a run with the step its file name gives (`step-<08 step>.ckpt`,
+/// as [`save`] names it), if any, without reading the file.
+pub fn latest_with_step(run_dir: &Path) -> Option<(u64, PathBuf)> {
+    list(run_dir).into_iter().max_by_key(|(s, _)| *s)
 }
 
 /// Loads a checkpoint file.
