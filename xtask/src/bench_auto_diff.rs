@@ -2,7 +2,8 @@
 //! after a change. Reads two output folders of `bench auto` (the same scenes, configurations,
 //! seeds and budget, trained by two builds) and compares every figure of every configuration:
 //! training steps and steps per second, final test PSNR and SSIM, time to 30 dB, depth error, off-surface mass,
-//! mesh Chamfer-L1 and F-score. Each figure's means over the seeds are compared against the
+//! mesh Chamfer-L1 and F-score, and validation PSNR at equal training time (15 s, 30 s, 1, 2,
+//! 3, 5 minutes and on, as far as every run trained). Each figure's means over the seeds are compared against the
 //! seeds' noise as `bench auto` defines it (two standard errors of the difference of the means,
 //! Welch), so a change that a re-run could reverse is not read as a gain or a loss. Writes
 //! `bench-auto-diff.md` (default: in the `--after` folder) and prints it; the last section lists
@@ -237,6 +238,38 @@ fn compare_config(config: &str, pairs: &[(&RunSummary, &RunSummary)]) -> (String
     (rows, losses)
 }
 
+/// The training times (s) at which the validation curves are compared: of these, those that
+/// every run of a configuration, on both sides, spans (from its first validation to its last).
+const CURVE_TIMES_S: [f64; 10] = [15.0, 30.0, 60.0, 120.0, 180.0, 300.0, 600.0, 1200.0, 1800.0, 3600.0];
+
+/// One configuration's validation PSNR at equal training time (`| config | t | before |
+/// after | change | verdict |`, at each of [`CURVE_TIMES_S`] that every run spans; linear
+/// between validations, [`eval::value_at`]), judged against the seeds' noise as the final
+/// figures are, and its losses beyond that noise.
+fn compare_curves(config: &str, pairs: &[(&RunSummary, &RunSummary)]) -> (String, Vec<String>) {
+    let at = |r: &RunSummary, t: f64| {
+        let pts: Vec<(f64, f64)> = r.val_psnr_curve.iter().map(|p| (p[0], p[1])).collect();
+        eval::value_at(&pts, t)
+    };
+    let mut rows = String::new();
+    let mut losses = Vec::new();
+    for t in CURVE_TIMES_S {
+        let b: Option<Vec<f64>> = pairs.iter().map(|(b, _)| at(b, t)).collect();
+        let a: Option<Vec<f64>> = pairs.iter().map(|(_, a)| at(a, t)).collect();
+        let (Some(b), Some(a)) = (b, a) else { continue };
+        if b.is_empty() {
+            continue;
+        }
+        let (verdict, loss) = judge(&b, &a, true, 2);
+        let d = mean(&a) - mean(&b);
+        rows.push_str(&format!("| {config} | {t} | {} | {} | {d:+.2} | {verdict} |\n", mean_and_range(&b, 2), mean_and_range(&a, 2)));
+        if loss {
+            losses.push(format!("{config}: val PSNR at {t} s {} → {} dB, {verdict}", mean_and_range(&b, 2), mean_and_range(&a, 2)));
+        }
+    }
+    (rows, losses)
+}
+
 /// Runs the comparison.
 pub fn run(args: AutoDiffArgs) -> anyhow::Result<()> {
     let before = scenes(&args.before)?;
@@ -302,6 +335,15 @@ pub fn run(args: AutoDiffArgs) -> anyhow::Result<()> {
             all_losses.extend(losses.into_iter().map(|l| format!("{scene} {l}")));
         }
         md.push('\n');
+        let curves: Vec<(String, Vec<String>)> = groups.iter().map(|(config, pairs)| compare_curves(config, pairs)).collect();
+        if curves.iter().any(|(rows, _)| !rows.is_empty()) {
+            md.push_str("Validation PSNR (dB) at equal training time, linear between validations:\n\n| config | t (s) | before | after | change | verdict |\n|---|---:|---:|---:|---:|---|\n");
+            for (rows, losses) in curves {
+                md.push_str(&rows);
+                all_losses.extend(losses.into_iter().map(|l| format!("{scene} {l}")));
+            }
+            md.push('\n');
+        }
         for n in notes {
             md.push_str(&format!("- {n}\n"));
         }
@@ -387,6 +429,32 @@ mod tests {
         assert!(!rows.contains("Chamfer") && !rows.contains("off-surface"), "figures nobody measured are left out: {rows}");
         assert_eq!(losses.len(), 1, "{losses:?}");
         assert!(losses[0].starts_with("fast: final test PSNR (dB) 30.10 (30.00–30.20) → 29.10 (29.00–29.20) (-3.3 %)"), "{losses:?}");
+    }
+
+    #[test]
+    fn curves_are_compared_at_times_every_run_spans() {
+        let run = |curve: Vec<[f64; 2]>| RunSummary { val_psnr_curve: curve, ..summary(100, 30.0, None, None) };
+        // before: 20 dB at 10 s rising to 26 at 70 s, two close seeds; after: faster, two seeds 4 dB apart
+        let b = [run(vec![[10.0, 20.0], [70.0, 26.0]]), run(vec![[10.0, 20.2], [70.0, 26.2]])];
+        let a = [run(vec![[10.0, 22.0], [40.0, 25.0], [65.0, 30.0]]), run(vec![[10.0, 26.0], [40.0, 29.0], [65.0, 34.0]])];
+        let pairs: Vec<_> = b.iter().zip(&a).collect();
+        let (rows, losses) = compare_curves("fast", &pairs);
+        // 15 s: before 20.5 / 20.7, after 22.5 / 26.5 (2 SE = 2 √(0.01 + 4) ≈ 4.0 > 3.9)
+        assert!(rows.contains("| fast | 15 | 20.60 (20.50–20.70) | 24.50 (22.50–26.50) | +3.90 | better, inside the seeds' noise"), "{rows}");
+        // 60 s: before 25.0 / 25.2, after 29.0 / 33.0
+        assert!(rows.contains("| fast | 60 | 25.10 (25.00–25.20) | 31.00 (29.00–33.00) | +5.90 | **better**, beyond"), "{rows}");
+        // 30 s is spanned too; 120 s by nobody (the after-runs end at 65 s)
+        assert_eq!(rows.lines().count(), 3, "{rows}");
+        assert!(losses.is_empty(), "{losses:?}");
+        // swapped sides: the 60 s row is a loss beyond the noise, the others inside it
+        let swapped: Vec<_> = a.iter().zip(&b).collect();
+        let (_, losses) = compare_curves("fast", &swapped);
+        assert_eq!(losses.len(), 1, "{losses:?}");
+        assert!(losses[0].starts_with("fast: val PSNR at 60 s 31.00 (29.00–33.00) → 25.10 (25.00–25.20) dB, **WORSE**"), "{losses:?}");
+        // a run without validations leaves no row
+        let empty = [run(Vec::new())];
+        let pairs: Vec<_> = b[..1].iter().zip(&empty).collect();
+        assert_eq!(compare_curves("fast", &pairs).0, "");
     }
 
     #[test]

@@ -88,6 +88,20 @@ pub fn time_to_psnr(records: &[MetricsRecord], threshold_db: f64) -> Option<f64>
     Some(t0 + (threshold_db - p0) / (p1 - p0) * (t1 - t0))
 }
 
+/// The value at `t` of a curve given by points `(t_i, v_i)` in non-decreasing `t_i`: linear
+/// between the two points around `t` (the later point's value where several share a time);
+/// `None` before the first point, after the last, or without points.
+pub fn value_at(points: &[(f64, f64)], t: f64) -> Option<f64> {
+    let k = points.iter().position(|&(ti, _)| ti >= t)?;
+    let (t1, v1) = points[k];
+    if t1 == t {
+        // the last of the points at exactly t
+        return points[k..].iter().take_while(|&&(ti, _)| ti == t).last().map(|&(_, v)| v);
+    }
+    let (t0, v0) = *points.get(k.checked_sub(1)?)?;
+    Some(v0 + (t - t0) / (t1 - t0) * (v1 - v0))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -158,5 +172,25 @@ mod tests {
         // reached at the first evaluation
         assert_eq!(time_to_psnr(&recs, 15.0), Some(10.0));
         assert_eq!(time_to_psnr(&[], 25.0), None);
+    }
+
+    #[test]
+    fn values_at_a_time_interpolate_between_the_points_around_it() {
+        let pts = val_psnr_points(&[rec(0, 1.0, None), rec(100, 10.0, Some(20.0)), rec(150, 15.0, None), rec(200, 20.0, Some(24.0)), rec(300, 30.0, Some(28.0))]);
+        // between (10 s, 20 dB) and (20 s, 24 dB)
+        assert!((value_at(&pts, 12.5).unwrap() - 21.0).abs() < 1e-12);
+        assert_eq!(value_at(&pts, 10.0), Some(20.0));
+        assert_eq!(value_at(&pts, 30.0), Some(28.0));
+        // before the first point and after the last: no value
+        assert_eq!(value_at(&pts, 9.9), None);
+        assert_eq!(value_at(&pts, 30.1), None);
+        assert_eq!(value_at(&[], 1.0), None);
+        assert_eq!(value_at(&pts, f64::NAN), None);
+        // several points at one time: the last one's value there, and the interpolation
+        // after it starts from it
+        let pts = [(0.0, 1.0), (2.0, 3.0), (2.0, 5.0), (4.0, 9.0)];
+        assert_eq!(value_at(&pts, 2.0), Some(5.0));
+        assert_eq!(value_at(&pts, 3.0), Some(7.0));
+        assert_eq!(value_at(&pts, 1.0), Some(2.0));
     }
 }

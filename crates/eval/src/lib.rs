@@ -44,7 +44,7 @@ pub mod report;
 pub mod run;
 
 pub use compare::{ParetoAxis, RunSummary, compare_runs, compare_table, pareto_front};
-pub use curve::{MetricsRecord, parse_metrics_jsonl, read_metrics_jsonl, time_to_psnr};
+pub use curve::{MetricsRecord, parse_metrics_jsonl, read_metrics_jsonl, time_to_psnr, value_at};
 pub use error::{EvalError, MetricError};
 pub use evaluate::{EvalOptions, EvalReport, EvalResolution, RunInfo, ViewInput, ViewMetrics, ViewReport, evaluate_view, evaluate_views};
 pub use io::read_json;
