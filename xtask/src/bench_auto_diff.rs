@@ -247,15 +247,14 @@ const CURVE_TIMES_S: [f64; 10] = [15.0, 30.0, 60.0, 120.0, 180.0, 300.0, 600.0, 
 /// between validations, [`eval::value_at`]), judged against the seeds' noise as the final
 /// figures are, and its losses beyond that noise.
 fn compare_curves(config: &str, pairs: &[(&RunSummary, &RunSummary)]) -> (String, Vec<String>) {
-    let at = |r: &RunSummary, t: f64| {
-        let pts: Vec<(f64, f64)> = r.val_psnr_curve.iter().map(|p| (p[0], p[1])).collect();
-        eval::value_at(&pts, t)
-    };
+    // Each run's curve as points once, not once per compared time.
+    let points = |r: &RunSummary| -> Vec<(f64, f64)> { r.val_psnr_curve.iter().map(|p| (p[0], p[1])).collect() };
+    let curves: Vec<_> = pairs.iter().map(|(b, a)| (points(b), points(a))).collect();
     let mut rows = String::new();
     let mut losses = Vec::new();
     for t in CURVE_TIMES_S {
-        let b: Option<Vec<f64>> = pairs.iter().map(|(b, _)| at(b, t)).collect();
-        let a: Option<Vec<f64>> = pairs.iter().map(|(_, a)| at(a, t)).collect();
+        let b: Option<Vec<f64>> = curves.iter().map(|(b, _)| eval::value_at(b, t)).collect();
+        let a: Option<Vec<f64>> = curves.iter().map(|(_, a)| eval::value_at(a, t)).collect();
         let (Some(b), Some(a)) = (b, a) else { continue };
         if b.is_empty() {
             continue;
