@@ -146,6 +146,19 @@ fn levels(c: &HashGridConfig) -> Vec<Level> {
         .collect()
 }
 
+/// Levels whose entries take at most this many bytes stay in a core's L2 cache (512 KiB to
+/// 2 MiB on the x86 machines we run on) through a level's pass, so their kernels skip software
+/// prefetching.
+const PREFETCH_MIN_BYTES: usize = 256 << 10;
+
+/// Whether a level's table (the `(N + 1)³` entries a dense level uses, or all `T`) is larger
+/// than [`PREFETCH_MIN_BYTES`] at `f` floats per entry. Prefetching changes no value.
+#[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
+fn worth_prefetching(lv: &Level, f: usize) -> bool {
+    let entries = if lv.dense { (lv.res as usize + 1).pow(3) } else { lv.mask as usize + 1 };
+    entries * f * 4 > PREFETCH_MIN_BYTES
+}
+
 #[inline(always)]
 fn clamp01(v: f32) -> f32 {
     // NaN >= 0 is false → 0
@@ -457,13 +470,14 @@ mod simd {
         // As in the backward: the next eight points' corners one batch ahead, their entries
         // prefetched while this batch's gathers wait.
         let mut ring = [corners8::<DENSE>(&pts[..8], &k), corners8::<DENSE>(&pts[if n8 > 8 { 8 } else { 0 }..][..8], &k)];
-        prefetch_entries::<2>(&ring[0].0, table.as_ptr(), std::ptr::null());
-        prefetch_entries::<2>(&ring[1].0, table.as_ptr(), std::ptr::null());
+        let on = super::worth_prefetching(lv, 2);
+        prefetch_entries::<2>(on, &ring[0].0, table.as_ptr(), std::ptr::null());
+        prefetch_entries::<2>(on, &ring[1].0, table.as_ptr(), std::ptr::null());
         for (b, k0) in (0..n8).step_by(8).enumerate() {
             let (idx, w) = ring[b % 2];
             if k0 + 16 < n8 {
                 ring[b % 2] = corners8::<DENSE>(&pts[k0 + 16..k0 + 24], &k);
-                prefetch_entries::<2>(&ring[b % 2].0, table.as_ptr(), std::ptr::null());
+                prefetch_entries::<2>(on, &ring[b % 2].0, table.as_ptr(), std::ptr::null());
             }
             // Each corner's two features are one 64-bit gather lane (an entry's pair), four
             // points per gather: half the gathered elements of one 32-bit gather per feature.
@@ -554,23 +568,39 @@ mod simd {
         updated
     }
 
-    /// Prefetches (into every cache level) the table entries of `F` floats at the 64 indices of
-    /// `idx`, and the one-byte flags at the same indices of `flags` unless it is null.
+    /// Prefetches (into every cache level) the table entries of `F` floats of eight points'
+    /// corners `idx`, and the one-byte flags at the same indices of `flags` unless it is null;
+    /// nothing when `!on` (a level whose table stays in cache, see
+    /// [`super::worth_prefetching`]). Flags are fetched for the corners at the cell's lower x
+    /// only: the upper-x neighbour's index is the next one on dense levels and differs only in
+    /// its low bits on hashed ones (x's prime is 1), so its flag shares the 64-byte line 63 times
+    /// in 64.
     #[inline]
     #[target_feature(enable = "avx2")]
-    fn prefetch_entries<const F: usize>(idx: &[__m256i; 8], table: *const f32, flags: *const bool) {
+    #[allow(clippy::needless_range_loop)] // index loops on purpose, see below
+    fn prefetch_entries<const F: usize>(on: bool, idx: &[__m256i; 8], table: *const f32, flags: *const bool) {
+        if !on {
+            return;
+        }
         let mut lanes = [[0u32; 8]; 8];
         for c in 0..8 {
             // SAFETY: each array holds 8 lanes.
             unsafe { _mm256_storeu_si256(lanes[c].as_mut_ptr() as *mut __m256i, idx[c]) };
         }
-        for i in lanes.iter().flatten() {
-            let i = *i as usize;
-            // A prefetch never faults and reads nothing into the program; `wrapping_add` keeps
-            // the address computation defined whatever the index.
-            _mm_prefetch::<_MM_HINT_T0>(table.wrapping_add(i * F) as *const i8);
-            if !flags.is_null() {
-                _mm_prefetch::<_MM_HINT_T0>(flags.wrapping_add(i) as *const i8);
+        // Plain index loops (constant bounds, no iterator adaptors): this runs once per eight
+        // points and level, and a flattening iterator's bookkeeping cost as much as the scatter.
+        for c in 0..8 {
+            for j in 0..8 {
+                // A prefetch never faults and reads nothing into the program; `wrapping_add`
+                // keeps the address computation defined whatever the index.
+                _mm_prefetch::<_MM_HINT_T0>(table.wrapping_add(lanes[c][j] as usize * F) as *const i8);
+            }
+        }
+        if !flags.is_null() {
+            for c in (0..8).step_by(2) {
+                for j in 0..8 {
+                    _mm_prefetch::<_MM_HINT_T0>(flags.wrapping_add(lanes[c][j] as usize) as *const i8);
+                }
             }
         }
     }
@@ -670,13 +700,14 @@ mod simd {
         // cache instead of waiting on each miss in turn. Prefetches change no value.
         let flags = if MARK { touched.as_ptr() } else { std::ptr::null() };
         let mut ring = [corners8::<DENSE>(&points[..8], &k), corners8::<DENSE>(&points[if n8 > 8 { 8 } else { 0 }..][..8], &k)];
-        prefetch_entries::<F>(&ring[0].0, g.as_ptr(), flags);
-        prefetch_entries::<F>(&ring[1].0, g.as_ptr(), flags);
+        let on = super::worth_prefetching(lv, F);
+        prefetch_entries::<F>(on, &ring[0].0, g.as_ptr(), flags);
+        prefetch_entries::<F>(on, &ring[1].0, g.as_ptr(), flags);
         for (b, k0) in (0..n8).step_by(8).enumerate() {
             let (vi, vw) = ring[b % 2];
             if k0 + 16 < n8 {
                 ring[b % 2] = corners8::<DENSE>(&points[k0 + 16..k0 + 24], &k);
-                prefetch_entries::<F>(&ring[b % 2].0, g.as_ptr(), flags);
+                prefetch_entries::<F>(on, &ring[b % 2].0, g.as_ptr(), flags);
             }
             for c in 0..8 {
                 // SAFETY: each array holds 8 lanes.
@@ -1114,6 +1145,24 @@ mod tests {
             run::<2>(&cfg(levels, 2, log2_t, nmin, nmax), &pts);
             run::<4>(&cfg(levels, 4, log2_t, nmin, nmax), &pts);
         }
+    }
+
+    /// Prefetching is skipped exactly on the levels whose used entries fit in
+    /// [`PREFETCH_MIN_BYTES`]: instant-ngp's grid (16 levels, `T = 2^19`, `F = 2`, 16 to 2048)
+    /// has three dense levels that small (17³, 23³ and 31³ entries of 8 bytes), then a dense
+    /// level of 43³ entries (632 KiB) and hashed ones of 4 MiB.
+    #[test]
+    fn prefetching_is_skipped_on_levels_that_stay_in_cache() {
+        let c = cfg(16, 2, 19, 16, 2048);
+        let lvs = levels(&c);
+        let on: Vec<bool> = lvs.iter().map(|lv| worth_prefetching(lv, 2)).collect();
+        assert_eq!(&on[..4], &[false, false, false, true], "resolutions {:?}", lvs.iter().map(|l| l.res).collect::<Vec<_>>());
+        assert!(on[4..].iter().all(|x| *x));
+        // One feature per entry halves the bytes: 43³ · 4 B = 318 KiB still over, 31³ · 4 B under.
+        assert_eq!(lvs.iter().map(|lv| worth_prefetching(lv, 1)).take(4).collect::<Vec<_>>(), [false, false, false, true]);
+        // A tiny table is never worth it, however fine the level.
+        let small = cfg(4, 2, 10, 16, 2048);
+        assert!(levels(&small).iter().all(|lv| !worth_prefetching(lv, 2)));
     }
 
     #[test]
