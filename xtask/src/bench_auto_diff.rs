@@ -248,8 +248,7 @@ const CURVE_TIMES_S: [f64; 10] = [15.0, 30.0, 60.0, 120.0, 180.0, 300.0, 600.0, 
 /// figures are, and its losses beyond that noise.
 fn compare_curves(config: &str, pairs: &[(&RunSummary, &RunSummary)]) -> (String, Vec<String>) {
     // Each run's curve as points once, not once per compared time.
-    let points = |r: &RunSummary| -> Vec<(f64, f64)> { r.val_psnr_curve.iter().map(|p| (p[0], p[1])).collect() };
-    let curves: Vec<_> = pairs.iter().map(|(b, a)| (points(b), points(a))).collect();
+    let curves: Vec<_> = pairs.iter().map(|(b, a)| (b.val_psnr_points(), a.val_psnr_points())).collect();
     let mut rows = String::new();
     let mut losses = Vec::new();
     for t in CURVE_TIMES_S {

@@ -64,6 +64,12 @@ pub struct RunSummary {
 }
 
 impl RunSummary {
+    /// The validation PSNR curve as `(wall_s, dB)` points (what [`crate::value_at`] and
+    /// the plots take).
+    pub fn val_psnr_points(&self) -> Vec<(f64, f64)> {
+        self.val_psnr_curve.iter().map(|p| (p[0], p[1])).collect()
+    }
+
     /// Summarise a run from its evaluation report and its training curve.
     pub fn from_report(name: &str, report: &EvalReport, curve: &[MetricsRecord]) -> Self {
         Self {
@@ -189,7 +195,7 @@ pub fn compare_runs(runs: &[RunSummary], out_dir: &Path) -> Result<String, EvalE
     }
     let curves: Vec<Curve> = runs
         .iter()
-        .map(|r| Curve { label: r.name.clone(), points: r.val_psnr_curve.iter().map(|p| (p[0], p[1])).collect() })
+        .map(|r| Curve { label: r.name.clone(), points: r.val_psnr_points() })
         .collect();
     compare_png(&out_dir.join("compare.png"), &curves)?;
     let table = compare_table(runs);
