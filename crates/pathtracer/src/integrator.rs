@@ -43,9 +43,12 @@ use crate::sampler::{Sampler, power_heuristic, splitmix64};
 use crate::scene::{AlphaMode, Scene};
 use glam::{Vec2, Vec3, Vec4};
 
-/// Where each of a path vertex's numbers lies in its block of sampler dimensions: emitter
-/// selection (1), emitter point (2), environment (2), BSDF (2), Russian roulette (1).
-const DIM_EMITTER_SELECT: u32 = 0;
+/// Where each of a path vertex's numbers lies in its block of sampler dimensions: a spare
+/// number for the emitter point (1, used only where the picked triangle's share of the
+/// emitted power is too small to reuse the choice's number, see
+/// [`EmissiveTriangles::sample`]), emitter choice and point (2), environment (2), BSDF (2),
+/// Russian roulette (1).
+const DIM_EMITTER_SPARE: u32 = 0;
 const DIM_EMITTER_POINT: u32 = 1;
 const DIM_ENVIRONMENT: u32 = 3;
 const DIM_BSDF: u32 = 5;
@@ -331,7 +334,7 @@ impl PathIntegrator<'_> {
 
             // Emissive triangles: one sample, MIS with BSDF sampling.
             if !self.emitters.is_empty()
-                && let Some(es) = self.emitters.sample(sampler.get_1d(dim + DIM_EMITTER_SELECT), sampler.get_2d(dim + DIM_EMITTER_POINT))
+                && let Some(es) = self.emitters.sample(sampler.get_2d(dim + DIM_EMITTER_POINT), || sampler.get_1d(dim + DIM_EMITTER_SPARE))
             {
                 l += beta * self.emitter_nee(&si, origin, &bsdf, es);
             }

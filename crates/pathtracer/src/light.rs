@@ -325,6 +325,13 @@ pub struct EmitterSample {
     pub area: f32,
 }
 
+/// Narrowest CDF interval whose rescaled number [`EmissiveTriangles::sample`] reuses for the
+/// point: `2⁻¹²`, so at least 12 of a uniform `f32`'s 24 bits remain.
+pub const MIN_REUSED_INTERVAL: f32 = 1.0 / 4096.0;
+
+/// Largest `f32` below 1.
+const ONE_MINUS_EPSILON: f32 = 1.0 - f32::EPSILON / 2.0;
+
 /// The table of emissive triangles, sampled proportionally to power.
 #[derive(Clone, Debug, Default)]
 pub struct EmissiveTriangles {
@@ -416,14 +423,28 @@ impl EmissiveTriangles {
         self.area_by_prim.get(prim as usize).copied().unwrap_or(0.0)
     }
 
-    /// Picks a triangle with `u_select` and a uniform point on it with `u_point`.
-    pub fn sample(&self, u_select: f32, u_point: Vec2) -> Option<EmitterSample> {
+    /// Picks a triangle and a uniform point on it from one 2D sample `u`: `u.x` picks the
+    /// triangle through the CDF and, rescaled to `[0, 1)` within the picked triangle's CDF
+    /// interval, is reused with `u.y` for the point (pbrt's sample reuse). So the points of a
+    /// stratified 2D set stay stratified over the whole emitting surface, not only over each
+    /// triangle: with a separate number for the choice, the samples landing on one triangle
+    /// would be an arbitrary subset of the 2D set, no better spread than random points (a
+    /// quad light, two triangles, lost its stratification that way).
+    ///
+    /// Where the picked interval is narrower than [`MIN_REUSED_INTERVAL`] (one triangle among
+    /// thousands), the rescaled `u.x` would keep too few bits to place a point, so `spare()`
+    /// (an independent uniform number) replaces it. Either way the point is uniform on the
+    /// triangle, so the estimate is unbiased.
+    pub fn sample(&self, u: Vec2, spare: impl FnOnce() -> f32) -> Option<EmitterSample> {
         if self.prims.is_empty() {
             return None;
         }
-        let i = self.cdf.partition_point(|&c| c <= u_select).min(self.prims.len() - 1);
+        let i = self.cdf.partition_point(|&c| c <= u.x).min(self.prims.len() - 1);
         let prim = self.prims[i];
-        Some(EmitterSample { prim, b: sample_uniform_triangle(u_point), pmf: self.pmf(prim), area: self.area(prim) })
+        let lo = if i == 0 { 0.0 } else { self.cdf[i - 1] };
+        let width = self.cdf[i] - lo;
+        let ux = if width >= MIN_REUSED_INTERVAL { ((u.x - lo) / width).clamp(0.0, ONE_MINUS_EPSILON) } else { spare() };
+        Some(EmitterSample { prim, b: sample_uniform_triangle(Vec2::new(ux, u.y)), pmf: self.pmf(prim), area: self.area(prim) })
     }
 
     /// Solid-angle density at a receiver of sampling point on `prim` at `distance` whose
