@@ -28,7 +28,12 @@
 //!   the camera. Misses: depth, distance, normal and alpha 0.
 //! - Non-finite radiance samples are replaced by zero and counted.
 //! - Cameras are in true world coordinates (`f64`); rays are moved into the scene's local
-//!   frame by subtracting [`Scene::origin`] before conversion to `f32`.
+//!   frame by subtracting [`Scene::origin`] before conversion to `f32`. The jittered camera
+//!   rays of path samples are generated in `f32` from the camera's pose converted once per
+//!   view ([`SampleRays`]): the same map as [`dataset::Camera::pixel_ray`] (image point →
+//!   camera-frame direction → rotated, normalised once), without its two `f64` divisions and
+//!   three normalisations per sample (5 % of a render's time); the ground truth keeps the
+//!   `f64` pixel-centre ray.
 
 use crate::PathTracerError;
 use crate::accel::{Accel, AccelParams, Hit};
@@ -43,6 +48,46 @@ use dataset::{Camera, GroundTruth, RgbaImage};
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
+
+/// The jittered camera rays of one view's path samples, in the scene's local frame and `f32`
+/// (see the module docs): image point `(px, py)` → camera-frame direction
+/// `((px − cx)/f_x, −(py − cy)/f_y, −1)` → `c2w` rotation → normalised.
+#[derive(Clone, Copy, Debug)]
+pub struct SampleRays {
+    origin: Vec3,
+    x: Vec3,
+    y: Vec3,
+    z: Vec3,
+    cx: f32,
+    cy: f32,
+    inv_fx: f32,
+    inv_fy: f32,
+}
+
+impl SampleRays {
+    /// The rays of `camera` for a scene whose local frame is centred at `scene_origin`.
+    pub fn new(camera: &Camera, scene_origin: DVec3) -> Self {
+        let k = &camera.intrinsics;
+        let m = camera.c2w;
+        Self {
+            origin: (camera.origin() - scene_origin).as_vec3(),
+            x: m.x_axis.truncate().as_vec3(),
+            y: m.y_axis.truncate().as_vec3(),
+            z: m.z_axis.truncate().as_vec3(),
+            cx: k.cx as f32,
+            cy: k.cy as f32,
+            inv_fx: (1.0 / k.fl_x) as f32,
+            inv_fy: (1.0 / k.fl_y) as f32,
+        }
+    }
+
+    /// The ray through image point (`px`, `py`) (pixels from the top-left corner).
+    #[inline]
+    pub fn ray(&self, px: f32, py: f32) -> Ray {
+        let (dx, dy) = ((px - self.cx) * self.inv_fx, -(py - self.cy) * self.inv_fy);
+        Ray::new(self.origin, (self.x * dx + self.y * dy - self.z).normalize_or_zero())
+    }
+}
 
 /// Pixels of one view whose camera vertex's emission is estimated with extra rays
 /// ([`Renderer::emitter_edges`]).
@@ -397,6 +442,7 @@ impl Renderer {
         let spp = settings.spp;
         let edges = self.emitter_edges(camera, &integ, spp);
         let edge_seed = splitmix64(settings.seed ^ EDGE_SEED_KEY);
+        let rays = SampleRays::new(camera, self.scene.origin);
         struct PixelOut {
             rgba: [f32; 4],
             gt: Option<PixelTruth>,
@@ -418,8 +464,7 @@ impl Renderer {
                             let edge_sampler = Sampler::new(edge_seed, view_index, pixel, 0);
                             for e in 0..spp * m {
                                 let u = edge_sampler.with_sample(e).next_2d();
-                                let wray = camera.pixel_ray(i as f64 + u.x as f64, j as f64 + u.y as f64);
-                                let le = integ.primary_emission(&self.local_ray(&wray)) / m as f32;
+                                let le = integ.primary_emission(&rays.ray(i as f32 + u.x, j as f32 + u.y)) / m as f32;
                                 if le.is_finite() {
                                     sum[0] += le.x as f64;
                                     sum[1] += le.y as f64;
@@ -433,8 +478,7 @@ impl Renderer {
                         for s in 0..spp {
                             let mut sampler = pixel_sampler.with_sample(s);
                             let u = sampler.next_2d();
-                            let wray = camera.pixel_ray(i as f64 + u.x as f64, j as f64 + u.y as f64);
-                            let r = integ.radiance_split(&self.local_ray(&wray), &mut sampler, split.is_none());
+                            let r = integ.radiance_split(&rays.ray(i as f32 + u.x, j as f32 + u.y), &mut sampler, split.is_none());
                             let mut rad = r.radiance;
                             if !rad.is_finite() {
                                 nonfinite += 1;
@@ -1456,5 +1500,36 @@ mod tests {
         // Uniform on [0, 1]: sd 1/√12 per coordinate; 4 standard errors.
         let tol = 4.0 / 12f64.sqrt() / (n as f64).sqrt();
         assert!((mean.x - 0.5).abs() < tol && (mean.y - 0.5).abs() < tol, "mean point {mean:?}");
+    }
+
+    /// The `f32` camera rays of path samples are `Camera::pixel_ray` to `f32` rounding: the
+    /// same origin bits as `Renderer::local_ray`, directions within 4e-7 radians, for a
+    /// camera far from the world origin (a scene centred at 10 km), an off-centre principal
+    /// point and unequal focal lengths, at pixel corners, centres and random points.
+    #[test]
+    fn sample_rays_are_the_cameras_pixel_rays_in_f32() {
+        let mut b = Builder::new();
+        let m = b.material(0.5, 0.0, false);
+        b.tri([Vec3::ZERO, Vec3::X, Vec3::Y], m);
+        let scene_origin = DVec3::new(1.0e4, -3.0e3, 2.5e3);
+        let r = Renderer::new(b.build(scene_origin), &AccelParams::fast_build()).unwrap();
+        let mut cam = camera(37, 23, 55.0, scene_origin + DVec3::new(3.0, 2.0, 4.5), scene_origin + DVec3::new(0.1, 0.2, -0.3));
+        cam.intrinsics.cx = 16.25;
+        cam.intrinsics.cy = 12.5;
+        cam.intrinsics.fl_y *= 1.1;
+        let rays = SampleRays::new(&cam, r.scene().origin);
+        let mut rng = Sampler::new(4, 0, 0, 0);
+        for k in 0..2000 {
+            let (px, py) = match k % 3 {
+                0 => ((k % 38) as f32, (k / 38 % 24) as f32),
+                1 => ((k % 37) as f32 + 0.5, (k / 37 % 23) as f32 + 0.5),
+                _ => (rng.next_1d() * 37.0, rng.next_1d() * 23.0),
+            };
+            let got = rays.ray(px, py);
+            let want = r.local_ray(&cam.pixel_ray(px as f64, py as f64));
+            assert_eq!(got.origin, want.origin, "point ({px}, {py})");
+            let angle = got.direction.as_dvec3().angle_between(want.direction.as_dvec3());
+            assert!(angle < 4e-7 && (got.direction.length() - 1.0).abs() < 1e-6, "point ({px}, {py}): {angle:e} rad");
+        }
     }
 }
