@@ -22,7 +22,7 @@
 //! - Shading: BSDFs are evaluated in [`shading_frame`] around the interpolated normal,
 //!   perturbed by the material's normal map ([`normal_mapped`], with the asset's TANGENT or a
 //!   per-triangle tangent from the normal map's UV set, [`triangle_tangent`]) and bent
-//!   towards the viewer when it faces away. The ground-truth normal ([`Interaction::frame`])
+//!   towards the viewer when it faces away. The ground-truth normal ([`Interaction::n`])
 //!   is the interpolated normal without the normal map.
 //! - Alpha: `Mask` cuts where alpha < cutoff; `Blend` is stochastic coverage: a ray passes
 //!   through a blended triangle when `hash(ray, triangle) ≥ alpha` ([`alpha_test`]), so the
@@ -38,7 +38,7 @@
 use crate::accel::{Accel, Hit};
 use crate::geometry::{Frame, Ray, hit_point_error, offset_ray_origin};
 use crate::light::{EmissiveTriangles, Environment, punctual_incidence};
-use crate::material::{SurfaceAttributes, base_color, emission, facing_frame, normal_mapped, resolve, shading_frame, triangle_tangent};
+use crate::material::{SurfaceAttributes, base_color, emission, facing_normals, normal_mapped, resolve, shading_frame, triangle_tangent};
 use crate::sampler::{Sampler, power_heuristic, splitmix64};
 use crate::scene::{AlphaMode, Scene};
 use glam::{Vec2, Vec3, Vec4};
@@ -92,8 +92,9 @@ pub struct Interaction {
     pub ng: Vec3,
     /// Unit geometric normal of the front face (counter-clockwise side).
     pub ng_front: Vec3,
-    /// Shading frame; its `n` is the interpolated normal facing the incoming ray.
-    pub frame: Frame,
+    /// Unit interpolated normal on the side of the incoming ray (the ground-truth normal; the
+    /// integrator's shading frame is built from it, or from the normal map, per vertex).
+    pub n: Vec3,
     /// Unit interpolated normal on the front side (not flipped).
     pub ns_front: Vec3,
     /// Barycentrics of the hit.
@@ -185,14 +186,14 @@ pub fn interaction(scene: &Scene, ray: &Ray, hit: &Hit) -> Interaction {
     let ns = (0..3).fold(Vec3::ZERO, |acc, k| acc + hit.b[k] * m.normals.get(idx[k] as usize).copied().unwrap_or(Vec3::ZERO));
     let ns = if ns.length_squared() > 1e-12 { ns } else { ng_front };
     let ns_front = ns.normalize_or_zero();
-    let (ng, frame) = facing_frame(ng_front, ns, ray.direction);
+    let (ng, n) = facing_normals(ng_front, ns, ray.direction);
     Interaction {
         prim: hit.prim,
         p: point,
         p_err,
         ng,
         ng_front,
-        frame,
+        n,
         ns_front,
         b: hit.b,
         attr: surface_attributes(scene, hit.prim, hit.b),
@@ -297,9 +298,8 @@ impl PathIntegrator<'_> {
                 }
                 None => si.ns_front,
             };
-            let frame = shading_frame(ns, si.frame.n.dot(si.ns_front) < 0.0, wo);
-            let si = Interaction { frame, ..si };
-            let wo_l = si.frame.to_local(wo);
+            let frame = shading_frame(ns, si.n.dot(si.ns_front) < 0.0, wo);
+            let wo_l = frame.to_local(wo);
             let bsdf = surf.bsdf.at(wo_l);
             // Every ray leaving this vertex is checked to leave on the `ng` side first, and
             // `offset_ray_origin` depends on the direction only through that side: one origin
@@ -312,7 +312,7 @@ impl PathIntegrator<'_> {
                 if inc.wi.dot(si.ng) <= 0.0 {
                     continue;
                 }
-                let (f, _) = bsdf.evaluate_pdf(si.frame.to_local(inc.wi));
+                let (f, _) = bsdf.evaluate_pdf(frame.to_local(inc.wi));
                 if f.max_element() <= 0.0 {
                     continue;
                 }
@@ -336,7 +336,7 @@ impl PathIntegrator<'_> {
             if !self.emitters.is_empty()
                 && let Some(es) = self.emitters.sample(sampler.get_2d(dim + DIM_EMITTER_POINT), || sampler.get_1d(dim + DIM_EMITTER_SPARE))
             {
-                l += beta * self.emitter_nee(&si, origin, &bsdf, es);
+                l += beta * self.emitter_nee(&si, &frame, origin, &bsdf, es);
             }
 
             // Environment map: one sample, MIS with BSDF sampling. A constant environment is
@@ -345,7 +345,7 @@ impl PathIntegrator<'_> {
                 && let Some((wi, pdf)) = env.sample(sampler.get_2d(dim + DIM_ENVIRONMENT))
                 && wi.dot(si.ng) > 0.0
             {
-                let wi_l = si.frame.to_local(wi);
+                let wi_l = frame.to_local(wi);
                 let (f, bsdf_pdf) = bsdf.evaluate_pdf(wi_l);
                 let le = env.eval(wi);
                 if f.max_element() > 0.0 && le.max_element() > 0.0 && !self.occluded(&Ray::new(origin, wi), f32::INFINITY) {
@@ -356,7 +356,7 @@ impl PathIntegrator<'_> {
 
             // Continue the path by sampling the BSDF.
             let Some(bs) = bsdf.sample(sampler.get_2d(dim + DIM_BSDF)) else { break };
-            let wi = si.frame.to_world(bs.wi).normalize();
+            let wi = frame.to_world(bs.wi).normalize();
             if wi.dot(si.ng) <= 0.0 {
                 break;
             }
@@ -391,7 +391,7 @@ impl PathIntegrator<'_> {
     /// One light-sampling estimate of the emissive triangles' direct light at `si`,
     /// MIS-weighted: `f · Le · w_light / pdf_light`. `origin` is the shadow ray's start,
     /// `offset_ray_origin(si.p, si.p_err, si.ng, si.ng)`.
-    fn emitter_nee(&self, si: &Interaction, origin: Vec3, bsdf: &crate::material::BsdfAt, es: crate::light::EmitterSample) -> Vec3 {
+    fn emitter_nee(&self, si: &Interaction, frame: &Frame, origin: Vec3, bsdf: &crate::material::BsdfAt, es: crate::light::EmitterSample) -> Vec3 {
         let scene = self.scene;
         let m = &scene.mesh;
         let idx = m.indices[es.prim as usize];
@@ -434,7 +434,7 @@ impl PathIntegrator<'_> {
         if !(light_pdf > 0.0) || !light_pdf.is_finite() {
             return Vec3::ZERO;
         }
-        let wi_l = si.frame.to_local(wi);
+        let wi_l = frame.to_local(wi);
         let (f, bsdf_pdf) = bsdf.evaluate_pdf(wi_l);
         if f.max_element() <= 0.0 {
             return Vec3::ZERO;

@@ -620,12 +620,20 @@ pub fn scene_is_view_dependent(scene: &Scene) -> bool {
 /// made to agree in side with the geometric one).
 #[inline]
 pub fn facing_frame(ng: Vec3, ns: Vec3, ray_dir: Vec3) -> (Vec3, Frame) {
+    let (ng, ns) = facing_normals(ng, ns, ray_dir);
+    (ng, Frame::from_normal(ns))
+}
+
+/// [`facing_frame`]'s two normals without the frame: the geometric normal facing the ray and
+/// the unit shading normal on its side.
+#[inline]
+pub fn facing_normals(ng: Vec3, ns: Vec3, ray_dir: Vec3) -> (Vec3, Vec3) {
     let ng = if ng.dot(ray_dir) > 0.0 { -ng } else { ng };
     let mut ns = if ns.is_finite() && ns.length_squared() > 0.0 { ns.normalize() } else { ng };
     if ns.dot(ng) < 0.0 {
         ns = -ns;
     }
-    (ng, Frame::from_normal(ns))
+    (ng, ns)
 }
 
 /// A per-triangle tangent from positions and UVs (the `uv` set the normal texture reads),

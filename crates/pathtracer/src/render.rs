@@ -400,7 +400,7 @@ impl Renderer {
             .filter(|t| *t > 0.0 && (*t - hit.t as f64).abs() <= 1e-3 * (hit.t as f64).max(1.0))
             .unwrap_or(hit.t as f64);
         let si = interaction(&self.scene, &local, &hit);
-        Some(PrimaryHit { hit, distance, normal: si.frame.n })
+        Some(PrimaryHit { hit, distance, normal: si.n })
     }
 
     /// The exact ground truth of pixel (`i`, `j`)'s centre ray: (z-depth, distance, normal,
@@ -608,7 +608,7 @@ impl Renderer {
                         }
                     } else if self.scene.lights.is_empty() {
                         let d = crate::sampler::sample_cosine_hemisphere(sampler.next_2d());
-                        out.push((Ray::new(origin, si.frame.to_world(d).normalize()), f32::INFINITY));
+                        out.push((Ray::new(origin, crate::geometry::Frame::from_normal(si.n).to_world(d).normalize()), f32::INFINITY));
                     }
                 }
                 out
