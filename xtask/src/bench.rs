@@ -213,6 +213,8 @@ struct SceneFigures {
     shadow_rays_occluded: f64,
     quick_msamples_per_s: Spread,
     std_spp_msamples_per_s: Spread,
+    /// `pathtracer::version::view_hash` of the first quick render (view 0), hex.
+    quick_render_hash: String,
 }
 
 /// `cargo xtask bench render`: per scene in `scenes/`, the BVH build time (obvhs medium
@@ -264,12 +266,13 @@ fn bench_render(args: &RenderBenchArgs) -> anyhow::Result<()> {
     report.line(format!(
         "bench render: profile {}, {threads} threads; medians of {RENDER_RUNS} runs (IQR = quartiles); BVH = obvhs medium_build; \
          primary = 256x256 pixel-centre closest hits; shadow = any-hit rays from those hits to every punctual light and one emitter \
-         point; quick = 64x64 16 spp 4 bounces; std-spp = 32x32 128 spp 8 bounces",
+         point; quick = 64x64 16 spp 4 bounces; std-spp = 32x32 128 spp 8 bounces; quick hash = the first quick render's bits \
+         (colour and ground truth, pathtracer::version::view_hash): equal between two builds = bit-identical renders",
         build_profile()
     ));
     report.line(format!(
-        "{:<12} {:>9} {:>10} {:>8} {:>8} {:>15} {:>11} {:>14} {:>11} {:>16} {:>18}",
-        "scene", "triangles", "rig", "BVH ms", "B/tri", "primary Mray/s", "IQR", "shadow Mray/s", "IQR", "quick Msample/s", "std-spp Msample/s"
+        "{:<12} {:>9} {:>10} {:>8} {:>8} {:>15} {:>11} {:>14} {:>11} {:>16} {:>18}  {:<16}",
+        "scene", "triangles", "rig", "BVH ms", "B/tri", "primary Mray/s", "IQR", "shadow Mray/s", "IQR", "quick Msample/s", "std-spp Msample/s", "quick hash"
     ));
     let export_root = crate::render::repo_root().join("out/bench/mitsuba");
     let mut ours_quick: Vec<OursQuick> = Vec::new();
@@ -298,16 +301,23 @@ fn bench_render(args: &RenderBenchArgs) -> anyhow::Result<()> {
         let shadow_runs: Vec<_> = (0..RENDER_RUNS).map(|_| renderer.shadow_ray_throughput(&big)).collect();
         let shadow = Spread::of(&shadow_runs.iter().map(|s| s.rays_per_second * 1e-6).collect::<Vec<_>>());
         let occluded = shadow_runs.first().map_or(0.0, |s| s.hits as f64 / s.rays.max(1) as f64);
+        // Samples/s over the runs (view index k in run k), and the hash of run 0's output
+        // (`pathtracer::version::view_hash`): equal hashes from two builds mean their renders
+        // are bit-identical.
         let path_rate_of = |renderer: &Renderer, settings: &RenderSettings, camera: &dataset::Camera| {
-            Spread::of(
-                &(0..RENDER_RUNS)
-                    .map(|k| {
-                        let t = std::time::Instant::now();
-                        let out = renderer.render_view(camera, k as u32, settings);
-                        out.samples as f64 / t.elapsed().as_secs_f64().max(1e-9) * 1e-6
-                    })
-                    .collect::<Vec<_>>(),
-            )
+            let mut hash = 0u64;
+            let rates: Vec<f64> = (0..RENDER_RUNS)
+                .map(|k| {
+                    let t = std::time::Instant::now();
+                    let out = renderer.render_view(camera, k as u32, settings);
+                    let rate = out.samples as f64 / t.elapsed().as_secs_f64().max(1e-9) * 1e-6;
+                    if k == 0 {
+                        hash = pathtracer::version::view_hash(&out);
+                    }
+                    rate
+                })
+                .collect();
+            (Spread::of(&rates), hash)
         };
         let path_rate = |settings: &RenderSettings, camera: &dataset::Camera| path_rate_of(&renderer, settings, camera);
         let quick_settings = RenderSettings {
@@ -320,7 +330,7 @@ fn bench_render(args: &RenderBenchArgs) -> anyhow::Result<()> {
         };
         let standard = DatasetRenderConfig::preset(Preset::Standard);
         let std_settings = RenderSettings { spp: standard.spp, max_bounces: standard.max_bounces, ..quick_settings.clone() };
-        let quick_rate = path_rate(&quick_settings, &cam);
+        let (quick_rate, quick_hash) = path_rate(&quick_settings, &cam);
         // The same scene with every material exactly Lambertian (metallic 0, specular 0), for a
         // comparison with Mitsuba's native `diffuse`.
         let mut lambert_scene = scene_for_export.clone();
@@ -344,9 +354,9 @@ fn bench_render(args: &RenderBenchArgs) -> anyhow::Result<()> {
             ours_quick.push(OursQuick { scene: name.clone(), model, cmp, export: export_dir });
         }
         let small = cam.downscaled(2);
-        let std_rate = path_rate(&std_settings, &small);
+        let (std_rate, _) = path_rate(&std_settings, &small);
         report.line(format!(
-            "{:<12} {:>9} {:>10} {:>8.2} {:>8.0} {:>15.2} {:>11} {:>14.2} {:>11} {:>16.3} {:>18.3}",
+            "{:<12} {:>9} {:>10} {:>8.2} {:>8.0} {:>15.2} {:>11} {:>14.2} {:>11} {:>16.3} {:>18.3}  {:016x}",
             name,
             triangles,
             rig.kind.name(),
@@ -357,7 +367,8 @@ fn bench_render(args: &RenderBenchArgs) -> anyhow::Result<()> {
             shadow.median,
             shadow.iqr(2),
             quick_rate.median,
-            std_rate.median
+            std_rate.median,
+            quick_hash
         ));
         figures.push(SceneFigures {
             scene: name.clone(),
@@ -370,6 +381,7 @@ fn bench_render(args: &RenderBenchArgs) -> anyhow::Result<()> {
             shadow_rays_occluded: occluded,
             quick_msamples_per_s: quick_rate,
             std_spp_msamples_per_s: std_rate,
+            quick_render_hash: format!("{quick_hash:016x}"),
         });
     }
     report.line(format!("child-box test: {simd}"));

@@ -77,7 +77,13 @@ pub fn probe_hash() -> Result<u64, crate::PathTracerError> {
     let camera = Camera::new(intr, Camera::look_at(DVec3::new(1.6, 1.3, 2.4), DVec3::new(0.0, 0.4, 0.0), DVec3::Y))
         .map_err(crate::PathTracerError::Config)?;
     let settings = RenderSettings { spp: 6, max_bounces: 4, seed: 7, environment: [0.2, 0.25, 0.3], transparent_background: true, environment_map: None };
-    let v = renderer.render_view(&camera, 3, &settings);
+    Ok(view_hash(&renderer.render_view(&camera, 3, &settings)))
+}
+
+/// FNV-1a 64 over the bits of a rendered view: its colour and every ground-truth channel
+/// (depth, distance, normal, alpha), in that order. Equal hashes mean bit-identical outputs
+/// (the probe's identity, and `bench render`'s check that a change kept the images).
+pub fn view_hash(v: &crate::render::ViewOutput) -> u64 {
     let g = &v.ground_truth;
     let mut h = 0xcbf2_9ce4_8422_2325u64;
     for channel in [&v.color.data, &g.depth, &g.distance, &g.normal, &g.alpha] {
@@ -85,7 +91,7 @@ pub fn probe_hash() -> Result<u64, crate::PathTracerError> {
             h = fnv(h, &x.to_bits().to_le_bytes());
         }
     }
-    Ok(h)
+    h
 }
 
 /// [`crate::RENDERER_VERSION`] with the probe's hash: `"<version> (…); probe 0123456789abcdef"`.
