@@ -59,21 +59,45 @@ def parse_args():
     return p.parse_args()
 
 
+# A one-sample render of Mitsuba's Cornell box in llvm_ad_rgb, run in a child process: an LLVM
+# that Dr.Jit loads but cannot compile its kernels with (e.g. a distribution's LLVM 14 or 15:
+# "LLVM ERROR: Cannot select ... fminimum") aborts the whole process, which no `except` can
+# catch, so the variant is tried where an abort costs nothing.
+LLVM_PROBE = """
+import drjit as dr, mitsuba as mi
+mi.set_variant("llvm_ad_rgb")
+dr.eval(mi.render(mi.load_dict(mi.cornell_box()), spp=1))
+"""
+
+
+def llvm_probe():
+    """None when llvm_ad_rgb renders in this environment, else why not."""
+    import subprocess
+
+    try:
+        r = subprocess.run([sys.executable, "-c", LLVM_PROBE], capture_output=True, text=True, timeout=600)
+    except subprocess.TimeoutExpired:
+        return "its probe render timed out"
+    if r.returncode == 0:
+        return None
+    lines = [line for line in (r.stderr or "").splitlines() if line.strip() and not line.startswith(" ")]
+    tail = [line for line in lines if line.startswith("LLVM ERROR")][:1] or lines[-1:]
+    return f"its probe render failed (exit {r.returncode}{': ' + tail[0] if tail else ''})"
+
+
 def choose_variant(mi, wanted):
     if wanted != "auto":
         mi.set_variant(wanted)
         return wanted
-    try:
+    why = llvm_probe()
+    if why is None:
         mi.set_variant("llvm_ad_rgb")
-        import drjit as dr
-
-        x = dr.llvm.Float([1.0, 2.0]) * 2.0  # forces the LLVM backend to start
-        dr.eval(x)
         return "llvm_ad_rgb"
-    except Exception as e:  # no LLVM: fall back
-        print(f"bench.py: llvm_ad_rgb unavailable ({e}); using scalar_rgb", file=sys.stderr)
-        mi.set_variant("scalar_rgb")
-        return "scalar_rgb"
+    llvm = os.environ.get("DRJIT_LIBLLVM_PATH", "the libLLVM Dr.Jit found")
+    print(f"bench.py: llvm_ad_rgb unavailable with {llvm}: {why}; using scalar_rgb "
+          f"(Debian/Ubuntu: apt-get install libllvm19, which provides {LLVM19})", file=sys.stderr)
+    mi.set_variant("scalar_rgb")
+    return "scalar_rgb"
 
 
 def timed_render(mi, dr, scene, spp, seed):

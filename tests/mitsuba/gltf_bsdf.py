@@ -157,7 +157,11 @@ class GltfBSDF(mi.BSDF):
         h = dr.normalize(v + l)
         vh = dr.clip(dr.dot(v, h), 0.0, 1.0)
         w5 = dr.power(1.0 - vh, 5.0)
-        spec = self.d(a, h) / (self.sd(a, l.z) * self.sd(a, v.z))
+        # Both Smith denominators are > 0 wherever the result is used (v.z > 0, l.z > 0); the
+        # guard only keeps scalar variants, which evaluate every lane's expression in Python
+        # floats, from raising ZeroDivisionError on directions the select below discards.
+        den = self.sd(a, l.z) * self.sd(a, v.z)
+        spec = self.d(a, h) / dr.select(den > 0.0, den, 1.0)
         fd = self.fresnel_dielectric(fr, w5)
         dielectric = rho * ((1.0 - dr.max(fd)) * INV_PI) + fd * spec
         metal = (rho + (1.0 - rho) * w5) * spec
