@@ -615,17 +615,9 @@ pub fn scene_is_view_dependent(scene: &Scene) -> bool {
     scene.materials.iter().zip(used).any(|(m, u)| u && is_view_dependent_textured(m, &scene.textures))
 }
 
-/// The shading frame for a hit seen from direction `-ray_dir`: the geometric normal and the
-/// shading normal are both flipped to face the incoming ray (the shading normal is also
-/// made to agree in side with the geometric one).
-#[inline]
-pub fn facing_frame(ng: Vec3, ns: Vec3, ray_dir: Vec3) -> (Vec3, Frame) {
-    let (ng, ns) = facing_normals(ng, ns, ray_dir);
-    (ng, Frame::from_normal(ns))
-}
-
-/// [`facing_frame`]'s two normals without the frame: the geometric normal facing the ray and
-/// the unit shading normal on its side.
+/// The normals of a hit seen from direction `-ray_dir`: the geometric normal `ng` and the
+/// shading normal `ns` (returned unit length), both flipped to face the incoming ray (the
+/// shading normal is also made to agree in side with the geometric one).
 #[inline]
 pub fn facing_normals(ng: Vec3, ns: Vec3, ray_dir: Vec3) -> (Vec3, Vec3) {
     let ng = if ng.dot(ray_dir) > 0.0 { -ng } else { ng };
@@ -1111,10 +1103,10 @@ mod tests {
     }
 
     #[test]
-    fn facing_frame_flips_towards_the_ray() {
-        let (ng, f) = facing_frame(Vec3::Z, Vec3::new(0.1, 0.0, 1.0), Vec3::new(0.0, 0.0, 1.0));
+    fn facing_normals_flip_towards_the_ray() {
+        let (ng, n) = facing_normals(Vec3::Z, Vec3::new(0.1, 0.0, 1.0), Vec3::new(0.0, 0.0, 1.0));
         assert_eq!(ng, -Vec3::Z);
-        assert!(f.n.z < 0.0);
+        assert!(n.z < 0.0);
     }
 
     #[test]

@@ -1425,30 +1425,21 @@ mod tests {
         assert!(!r.is_view_dependent());
     }
 
-    /// The mean of `f` over the points `EmissiveTriangles::sample` places on a square light
-    /// (`cells × cells` quads, two triangles each) from the first `n` 2D points of one pixel's
-    /// stratified set, minus the exact mean of `f` over the square, and the standard deviation
-    /// of `f` over the square (estimated from a fine grid).
-    fn emitter_point_error(cells: u32, n: u32, pixel: u64, f: impl Fn(Vec2) -> f64) -> (f64, f64) {
+    /// A unit square light in the z = 0 plane, `cells × cells` quads of two triangles each, and
+    /// its emitter table.
+    fn unit_square_light(cells: u32) -> (Scene, EmissiveTriangles) {
         let mut b = Builder::new();
         let lamp = b.material(0.0, 1.0, false);
         b.quad([Vec3::new(0.0, 0.0, 0.0), Vec3::new(1.0, 0.0, 0.0), Vec3::new(1.0, 1.0, 0.0), Vec3::new(0.0, 1.0, 0.0)], cells, lamp);
         let scene = b.build(DVec3::ZERO);
         let emitters = EmissiveTriangles::build(&scene);
-        let base = Sampler::new(7, 0, pixel, 0);
-        let mut sum = 0.0;
-        for s in 0..n {
-            let sampler = base.with_sample(s);
-            let es = emitters.sample(sampler.get_2d(1), || sampler.get_1d(0)).unwrap();
-            let p = scene.mesh.indices[es.prim as usize].map(|k| scene.mesh.positions[k as usize]);
-            let q = p[0] * es.b[0] + p[1] * es.b[1] + p[2] * es.b[2];
-            sum += f(q.truncate());
-        }
-        let g = 512;
-        let vals: Vec<f64> = (0..g * g).map(|k| f(Vec2::new(((k % g) as f32 + 0.5) / g as f32, ((k / g) as f32 + 0.5) / g as f32))).collect();
-        let mean = vals.iter().sum::<f64>() / vals.len() as f64;
-        let sd = (vals.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / vals.len() as f64).sqrt();
-        (sum / n as f64 - mean, sd)
+        (scene, emitters)
+    }
+
+    /// The point an emitter sample stands for (the barycentric interpolation light sampling uses).
+    fn emitter_point(scene: &Scene, es: &crate::light::EmitterSample) -> Vec3 {
+        let p = scene.mesh.indices[es.prim as usize].map(|k| scene.mesh.positions[k as usize]);
+        crate::geometry::hit_point_error(p, es.b).0
     }
 
     /// Light sampling keeps a stratified 2D set stratified over the whole light, across the
@@ -1460,12 +1451,26 @@ mod tests {
     #[test]
     fn emitter_points_stay_stratified_across_the_triangles_of_a_light() {
         let f = |p: Vec2| (3.0 * p.x as f64).sin() + (p.y as f64 * 2.0).powi(2) + (p.x * p.y) as f64;
+        // The exact mean of `f` over the square and its standard deviation, from a fine grid.
+        let g = 512;
+        let vals: Vec<f64> = (0..g * g).map(|k| f(Vec2::new(((k % g) as f32 + 0.5) / g as f32, ((k / g) as f32 + 0.5) / g as f32))).collect();
+        let mean = vals.iter().sum::<f64>() / vals.len() as f64;
+        let sd = (vals.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / vals.len() as f64).sqrt();
+        let n = 256;
         for cells in [1, 4] {
-            let n = 256;
+            let (scene, emitters) = unit_square_light(cells);
             let mut worst = 0.0f64;
             for pixel in 0..16 {
-                let (err, sd) = emitter_point_error(cells, n, pixel, f);
-                worst = worst.max(err.abs() / (sd / (n as f64).sqrt()));
+                let base = Sampler::new(7, 0, pixel, 0);
+                let estimate = (0..n)
+                    .map(|s| {
+                        let sampler = base.with_sample(s);
+                        let es = emitters.sample(sampler.get_2d(1), || sampler.get_1d(0)).unwrap();
+                        f(emitter_point(&scene, &es).truncate())
+                    })
+                    .sum::<f64>()
+                    / n as f64;
+                worst = worst.max((estimate - mean).abs() / (sd / (n as f64).sqrt()));
             }
             // Independent points: |err| / (sd/√n) is |N(0, 1)|, above 0.5 for 62 % of pixels.
             assert!(worst < 0.25, "{cells}x{cells} quads: worst error {worst:.3} x sd/sqrt(n)");
@@ -1478,11 +1483,7 @@ mod tests {
     /// Monte Carlo error.
     #[test]
     fn emitter_points_on_tiny_triangles_use_the_spare_number() {
-        let mut b = Builder::new();
-        let lamp = b.material(0.0, 1.0, false);
-        b.quad([Vec3::new(0.0, 0.0, 0.0), Vec3::new(1.0, 0.0, 0.0), Vec3::new(1.0, 1.0, 0.0), Vec3::new(0.0, 1.0, 0.0)], 64, lamp);
-        let scene = b.build(DVec3::ZERO);
-        let emitters = EmissiveTriangles::build(&scene);
+        let (scene, emitters) = unit_square_light(64);
         assert_eq!(emitters.len(), 8192);
         let (mut used, mut mean) = (0u32, DVec3::ZERO);
         let n = 4096;
@@ -1492,9 +1493,7 @@ mod tests {
                 used += 1;
                 sampler.get_1d(0)
             });
-            let es = es.unwrap();
-            let p = scene.mesh.indices[es.prim as usize].map(|k| scene.mesh.positions[k as usize]);
-            mean += (p[0] * es.b[0] + p[1] * es.b[1] + p[2] * es.b[2]).as_dvec3() / n as f64;
+            mean += emitter_point(&scene, &es.unwrap()).as_dvec3() / n as f64;
         }
         assert_eq!(used, n, "every point on a 1/8192 share should take the spare number");
         // Uniform on [0, 1]: sd 1/√12 per coordinate; 4 standard errors.
