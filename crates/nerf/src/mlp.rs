@@ -320,17 +320,16 @@ impl HashMlp {
         let results: Vec<(HashMlpGrads, R)> = pieces
             .into_par_iter()
             .enumerate()
-            .map(|(gi, d_enc)| {
+            .map_init(Workspace::default, |ws, (gi, d_enc)| {
                 let range = groups[gi].clone();
                 let (s0, t) = (range.start, range.len());
                 let x = &enc[s0 * ed..(s0 + t) * ed];
-                let mut ws = Workspace::default();
-                let cin = self.tile_forward(x, &sh[s0 * sd..(s0 + t) * sd], t, &mut ws);
-                let (raw, rgb) = self.tile_outputs(&ws, t);
+                let cin = self.tile_forward(x, &sh[s0 * sd..(s0 + t) * sd], t, ws);
+                let (raw, rgb) = self.tile_outputs(ws, t);
                 let GroupGrads { d_raw, d_rgb, value } = loss(gi, &raw, &rgb);
                 assert!(d_raw.len() == t && d_rgb.len() == t, "group {gi}: gradients for {} / {} samples, not {t}", d_raw.len(), d_rgb.len());
                 let mut g = self.zero_grads();
-                let d_x = self.tile_backward(x, &cin, &ws, &rgb, &d_raw, &d_rgb, &mut g);
+                let d_x = self.tile_backward(x, &cin, ws, &rgb, &d_raw, &d_rgb, &mut g);
                 d_enc.copy_from_slice(&d_x);
                 (g, value)
             })
@@ -479,7 +478,7 @@ fn forward_layers(layers: &[Dense], relu: usize, x: &[f32], t: usize, outs: &mut
         let (done, rest) = outs.split_at_mut(i);
         let input: &[f32] = if i == 0 { x } else { &done[i - 1] };
         let y = &mut rest[0];
-        y.clear();
+        // (every element is written below: no need to clear what a previous tile left)
         y.resize(t * l.d_out, 0.0);
         mm::dense(y, input, &l.w, &l.b, t, l.d_in, l.d_out, i < relu);
     }
@@ -496,9 +495,7 @@ fn backward_stack(stack: &Stack, x: &[f32], outs: &[Vec<f32>], d_last: Vec<f32>,
         let input: &[f32] = if i == 0 { x } else { &outs[i - 1] };
         let g = &mut grads[i];
         mm::matmul_tn_acc(&mut g.w, input, &d, t, l.d_in, l.d_out);
-        for row in d.chunks_exact(l.d_out) {
-            g.b.iter_mut().zip(row).for_each(|(a, b)| *a += b);
-        }
+        mm::col_sums_acc(&mut g.b, &d);
         // d_in = d · Wᵀ: the forward kernel on the transposed weights, with a zero bias.
         let cols = if i == 0 { need.min(l.d_in) } else { l.d_in };
         let mut d_in = vec![0.0; t * cols];
@@ -506,7 +503,7 @@ fn backward_stack(stack: &Stack, x: &[f32], outs: &[Vec<f32>], d_last: Vec<f32>,
         if i > 0 {
             // Through the previous layer's ReLU: its output is > 0 exactly where it passed.
             // (A select rather than a branch: the pattern is data-dependent.)
-            d_in.iter_mut().zip(input).for_each(|(g, y)| *g = if *y > 0.0 { *g } else { 0.0 });
+            mm::relu_mask(&mut d_in, input);
         }
         d = d_in;
     }
@@ -854,6 +851,52 @@ mod mm {
 
         tn_kernels!(tn_acc_avx512, "avx512f,fma", 16, 4, __m512, _mm512_loadu_ps, _mm512_storeu_ps, _mm512_set1_ps, _mm512_fmadd_ps, _mm512_setzero_ps);
         tn_kernels!(tn_acc_avx2, "avx2,fma", 8, 2, __m256, _mm256_loadu_ps, _mm256_storeu_ps, _mm256_set1_ps, _mm256_fmadd_ps, _mm256_setzero_ps);
+    }
+
+    /// `c[n] += Σₛ b[s][n]` (a bias gradient), each column summed in sample order.
+    pub fn col_sums_acc(c: &mut [f32], b: &[f32]) {
+        assert!(!c.is_empty() && b.len().is_multiple_of(c.len()), "col_sums_acc shapes");
+        #[inline(always)]
+        fn plain(c: &mut [f32], b: &[f32]) {
+            for row in b.chunks_exact(c.len()) {
+                c.iter_mut().zip(row).for_each(|(a, x)| *a += x);
+            }
+        }
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            /// `plain` compiled for AVX2: the same additions in the same order, 8 lanes wide.
+            #[target_feature(enable = "avx2")]
+            fn wide(c: &mut [f32], b: &[f32]) {
+                plain(c, b)
+            }
+            // SAFETY: the CPU has AVX2 (checked above).
+            unsafe { wide(c, b) };
+            return;
+        }
+        plain(c, b)
+    }
+
+    /// A gradient through a ReLU whose output was `y`: `d[i] = 0` where `y[i] ≤ 0` (the ReLU
+    /// passed exactly where its output is positive).
+    pub fn relu_mask(d: &mut [f32], y: &[f32]) {
+        assert_eq!(d.len(), y.len(), "relu_mask shapes");
+        // A select rather than a branch: the pattern is data-dependent.
+        #[inline(always)]
+        fn plain(d: &mut [f32], y: &[f32]) {
+            d.iter_mut().zip(y).for_each(|(g, y)| *g = if *y > 0.0 { *g } else { 0.0 });
+        }
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            /// `plain` compiled for AVX2.
+            #[target_feature(enable = "avx2")]
+            fn wide(d: &mut [f32], y: &[f32]) {
+                plain(d, y)
+            }
+            // SAFETY: the CPU has AVX2 (checked above).
+            unsafe { wide(d, y) };
+            return;
+        }
+        plain(d, y)
     }
 
     /// `c[k][n] += a[m][k]ᵀ · b[m][n]` (a weight gradient: inputs transposed times output
