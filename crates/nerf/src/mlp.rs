@@ -329,8 +329,8 @@ impl HashMlp {
                 let GroupGrads { d_raw, d_rgb, value } = loss(gi, &raw, &rgb);
                 assert!(d_raw.len() == t && d_rgb.len() == t, "group {gi}: gradients for {} / {} samples, not {t}", d_raw.len(), d_rgb.len());
                 let mut g = self.zero_grads();
-                let d_x = self.tile_backward(x, &cin, ws, &rgb, &d_raw, &d_rgb, &mut g);
-                d_enc.copy_from_slice(&d_x);
+                self.tile_backward(x, &cin, ws, &rgb, &d_raw, &d_rgb, &mut g);
+                d_enc.copy_from_slice(&ws.grad);
                 (g, value)
             })
             .collect();
@@ -340,26 +340,27 @@ impl HashMlp {
 
     /// The backward pass of one tile of `t` samples from its forward pass's activations `ws`
     /// (input `x`, colour input `cin`, output `rgb` after the sigmoid): adds the parameter
-    /// gradients to `g` and returns the gradient with respect to `x`.
+    /// gradients to `g` and leaves the gradient with respect to `x` in `ws.grad`.
     #[allow(clippy::too_many_arguments)]
-    fn tile_backward(&self, x: &[f32], cin: &[f32], ws: &Workspace, rgb: &[[f32; 3]], d_raw: &[f32], d_rgb: &[[f32; 3]], g: &mut HashMlpGrads) -> Vec<f32> {
+    fn tile_backward(&self, x: &[f32], cin: &[f32], ws: &mut Workspace, rgb: &[[f32; 3]], d_raw: &[f32], d_rgb: &[[f32; 3]], g: &mut HashMlpGrads) {
         let t = rgb.len();
         let gd = self.geo_dims();
+        let Workspace { density, color, grad, spare } = ws;
         // Colour: d(pre-sigmoid) = d_rgb · s (1 − s).
-        let mut d_out = vec![0.0; t * 3];
+        grad.resize(t * 3, 0.0);
         for k in 0..t {
             for j in 0..3 {
                 let s = rgb[k][j];
-                d_out[3 * k + j] = d_rgb[k][j] * s * (1.0 - s);
+                grad[3 * k + j] = d_rgb[k][j] * s * (1.0 - s);
             }
         }
         // Geometry features: from the colour input (its first `gd` columns; the directions'
         // part is not needed), plus the raw density's gradient.
-        let mut d_geo = backward_stack(&self.color, cin, &ws.color, d_out, t, &mut g.color, gd);
+        backward_stack(&self.color, cin, color, grad, spare, t, &mut g.color, gd);
         for k in 0..t {
-            d_geo[k * gd] += d_raw[k];
+            grad[k * gd] += d_raw[k];
         }
-        backward_stack(&self.density, x, &ws.density, d_geo, t, &mut g.density, self.enc_dims())
+        backward_stack(&self.density, x, density, grad, spare, t, &mut g.density, self.enc_dims());
     }
 
     fn sum_grads(&self, partials: &[HashMlpGrads]) -> HashMlpGrads {
@@ -457,6 +458,10 @@ fn register_bias(out: &mut GradientsParams, b: &Param<Tensor<1>>, g: Vec<f32>, d
 struct Workspace {
     density: Vec<Vec<f32>>,
     color: Vec<Vec<f32>>,
+    /// The backward pass's gradient with respect to the current layer's output (in the end:
+    /// to the tile's input), and the buffer its next layer's goes into.
+    grad: Vec<f32>,
+    spare: Vec<f32>,
 }
 
 fn sigmoid(x: f32) -> f32 {
@@ -484,30 +489,27 @@ fn forward_layers(layers: &[Dense], relu: usize, x: &[f32], t: usize, outs: &mut
     }
 }
 
-/// Backward through a stack for one tile: `d_last` is the gradient with respect to the last
-/// layer's output; accumulates parameter gradients into `grads` and returns the gradient
-/// with respect to the first `need` columns of the stack's input `x` (`[t][need]`).
+/// Backward through a stack for one tile: `grad` holds the gradient with respect to the last
+/// layer's output; accumulates parameter gradients into `grads` and leaves in `grad` the
+/// gradient with respect to the first `need` columns of the stack's input `x` (`[t][need]`).
+/// `spare` is scratch; neither buffer is cleared (every element is written).
 #[allow(clippy::too_many_arguments)]
-fn backward_stack(stack: &Stack, x: &[f32], outs: &[Vec<f32>], d_last: Vec<f32>, t: usize, grads: &mut [Dense], need: usize) -> Vec<f32> {
-    let mut d = d_last;
+fn backward_stack(stack: &Stack, x: &[f32], outs: &[Vec<f32>], grad: &mut Vec<f32>, spare: &mut Vec<f32>, t: usize, grads: &mut [Dense], need: usize) {
     for i in (0..stack.layers.len()).rev() {
         let l = &stack.layers[i];
         let input: &[f32] = if i == 0 { x } else { &outs[i - 1] };
         let g = &mut grads[i];
-        mm::matmul_tn_acc(&mut g.w, input, &d, t, l.d_in, l.d_out);
-        mm::col_sums_acc(&mut g.b, &d);
+        mm::weight_grads_acc(&mut g.w, &mut g.b, input, grad, t, l.d_in, l.d_out);
         // d_in = d · Wᵀ: the forward kernel on the transposed weights, with a zero bias.
         let cols = if i == 0 { need.min(l.d_in) } else { l.d_in };
-        let mut d_in = vec![0.0; t * cols];
-        mm::dense_strided(&mut d_in, &d, &stack.wt[i], l.d_in, &vec![0.0; cols], t, l.d_out, cols, false);
+        spare.resize(t * cols, 0.0);
+        mm::dense_strided(spare, grad, &stack.wt[i], l.d_in, &vec![0.0; cols], t, l.d_out, cols, false);
         if i > 0 {
             // Through the previous layer's ReLU: its output is > 0 exactly where it passed.
-            // (A select rather than a branch: the pattern is data-dependent.)
-            mm::relu_mask(&mut d_in, input);
+            mm::relu_mask(spare, input);
         }
-        d = d_in;
+        std::mem::swap(grad, spare);
     }
-    d
 }
 
 /// Matrix products on row-major slices through the `gemm` crate (single-threaded: the
@@ -694,7 +696,7 @@ mod mm {
                     }
                     // The last columns (fewer than a vector, e.g. the colour output's 3): each a
                     // dot product of the row with the column (transposed once), `$w` lanes of
-                    // partial sums added to the bias in lane order, then the leftover inputs.
+                    // partial sums added pairwise, then to the bias, then the leftover inputs.
                     if c0 < n {
                         let wt: Vec<f32> = (c0..n).flat_map(|c| (0..k).map(move |i| w[i * ldw + c])).collect();
                         for r in 0..m {
@@ -712,10 +714,16 @@ mod mm {
                                     }
                                     $store(lanes.as_mut_ptr(), acc);
                                 }
-                                let mut a = b[c];
-                                for l in lanes {
-                                    a += l;
+                                // The lanes summed pairwise (halves, then quarters, …): a
+                                // fixed order per row, 4 additions deep instead of 16.
+                                let mut width = $w;
+                                while width > 1 {
+                                    width /= 2;
+                                    for l in 0..width {
+                                        lanes[l] += lanes[l + width];
+                                    }
                                 }
+                                let mut a = b[c] + lanes[0];
                                 for j in i..k {
                                     a = xr[j].mul_add(wc[j], a);
                                 }
@@ -734,19 +742,24 @@ mod mm {
         /// most 64 wide) stay in L1 while every block of `c` reads them.
         const TN_CHUNK: usize = 64;
 
-        /// One weight-gradient kernel per vector width: `c[k][n] += a[m][k]ᵀ · b[m][n]`, blocks
-        /// of `RB` rows × `NV` vectors of `c` held in registers over a pass of samples. Every
-        /// element is `c + a[0][r]·b[0][j] + a[1][r]·b[1][j] + …`, fused-multiply-added in sample
-        /// order whichever block, pass or kernel computes it, so both widths give the same bits.
+        /// One weight-gradient kernel per vector width: `c[k][n] += a[m][k]ᵀ · b[m][n]` and the
+        /// bias gradient `cb[n] += Σₛ b[s][n]`, blocks of `RB` rows × `NV` vectors of `c` held in
+        /// registers over a pass of samples. Every element is `c + a[0][r]·b[0][j] + a[1][r]·b[1][j]
+        /// + …`, fused-multiply-added in sample order (and `cb + b[0][j] + b[1][j] + …` added in
+        /// sample order) whichever block, pass or kernel computes it, so both widths give the
+        /// same bits.
         macro_rules! tn_kernels {
-            ($name:ident, $feat:literal, $w:literal, $nvw:literal, $vt:ty, $load:ident, $store:ident, $set1:ident, $fma:ident, $zero:ident) => {
-                /// See [`super::matmul_tn_acc`]; the caller checked the shapes and the CPU's features.
+            ($name:ident, $feat:literal, $w:literal, $nvw:literal, $vt:ty, $load:ident, $store:ident, $set1:ident, $fma:ident, $add:ident, $zero:ident) => {
+                /// See [`super::weight_grads_acc`]; the caller checked the shapes and the CPU's features.
                 #[target_feature(enable = $feat)]
-                pub unsafe fn $name(c: &mut [f32], a: &[f32], b: &[f32], m: usize, k: usize, n: usize) {
-                    /// Rows `r0..r0 + RB`, vectors of columns from `c0`, samples `s0..s1`.
+                #[allow(clippy::too_many_arguments)]
+                pub unsafe fn $name(c: &mut [f32], cb: &mut [f32], a: &[f32], b: &[f32], m: usize, k: usize, n: usize) {
+                    /// Rows `r0..r0 + RB`, vectors of columns from `c0`, samples `s0..s1`; with
+                    /// `BIAS`, also the columns' sums of `b` into `cb` (from the loads of `b`
+                    /// the block makes anyway).
                     #[inline(always)]
                     #[allow(clippy::too_many_arguments)]
-                    unsafe fn block<const RB: usize, const NV: usize>(c: *mut f32, a: *const f32, b: *const f32, r0: usize, c0: usize, s0: usize, s1: usize, k: usize, n: usize) {
+                    unsafe fn block<const RB: usize, const NV: usize, const BIAS: bool>(c: *mut f32, cb: *mut f32, a: *const f32, b: *const f32, r0: usize, c0: usize, s0: usize, s1: usize, k: usize, n: usize) {
                         unsafe {
                             let mut acc = [[$zero(); NV]; RB];
                             for (r, row) in acc.iter_mut().enumerate() {
@@ -754,10 +767,21 @@ mod mm {
                                     *av = $load(c.add((r0 + r) * n + c0 + v * $w));
                                 }
                             }
+                            let mut bacc = [$zero(); NV];
+                            if BIAS {
+                                for (v, av) in bacc.iter_mut().enumerate() {
+                                    *av = $load(cb.add(c0 + v * $w));
+                                }
+                            }
                             for s in s0..s1 {
                                 let mut bv = [$zero(); NV];
                                 for (v, bvv) in bv.iter_mut().enumerate() {
                                     *bvv = $load(b.add(s * n + c0 + v * $w));
+                                }
+                                if BIAS {
+                                    for v in 0..NV {
+                                        bacc[v] = $add(bacc[v], bv[v]);
+                                    }
                                 }
                                 for (r, row) in acc.iter_mut().enumerate() {
                                     let av = $set1(*a.add(s * k + r0 + r));
@@ -771,9 +795,26 @@ mod mm {
                                     $store(c.add((r0 + r) * n + c0 + v * $w), *av);
                                 }
                             }
+                            if BIAS {
+                                for (v, av) in bacc.iter().enumerate() {
+                                    $store(cb.add(c0 + v * $w), *av);
+                                }
+                            }
                         }
                     }
-                    let (cp, ap, bp) = (c.as_mut_ptr(), a.as_ptr(), b.as_ptr());
+                    /// [`block`], summing the bias for the first block of rows of a column block.
+                    #[inline(always)]
+                    #[allow(clippy::too_many_arguments)]
+                    unsafe fn blk<const RB: usize, const NV: usize>(c: *mut f32, cb: *mut f32, a: *const f32, b: *const f32, r0: usize, c0: usize, s0: usize, s1: usize, k: usize, n: usize) {
+                        unsafe {
+                            if r0 == 0 {
+                                block::<RB, NV, true>(c, cb, a, b, r0, c0, s0, s1, k, n)
+                            } else {
+                                block::<RB, NV, false>(c, cb, a, b, r0, c0, s0, s1, k, n)
+                            }
+                        }
+                    }
+                    let (cp, cbp, ap, bp) = (c.as_mut_ptr(), cb.as_mut_ptr(), a.as_ptr(), b.as_ptr());
                     let mut s0 = 0;
                     while s0 < m {
                         let s1 = (s0 + TN_CHUNK).min(m);
@@ -784,33 +825,33 @@ mod mm {
                             while c0 + $nvw * $w <= n {
                                 let mut r0 = 0;
                                 while r0 + 4 <= k {
-                                    block::<4, $nvw>(cp, ap, bp, r0, c0, s0, s1, k, n);
+                                    blk::<4, $nvw>(cp, cbp, ap, bp, r0, c0, s0, s1, k, n);
                                     r0 += 4;
                                 }
                                 for r in r0..k {
-                                    block::<1, $nvw>(cp, ap, bp, r, c0, s0, s1, k, n);
+                                    blk::<1, $nvw>(cp, cbp, ap, bp, r, c0, s0, s1, k, n);
                                 }
                                 c0 += $nvw * $w;
                             }
                             while c0 + 2 * $w <= n {
                                 let mut r0 = 0;
                                 while r0 + 4 <= k {
-                                    block::<4, 2>(cp, ap, bp, r0, c0, s0, s1, k, n);
+                                    blk::<4, 2>(cp, cbp, ap, bp, r0, c0, s0, s1, k, n);
                                     r0 += 4;
                                 }
                                 for r in r0..k {
-                                    block::<1, 2>(cp, ap, bp, r, c0, s0, s1, k, n);
+                                    blk::<1, 2>(cp, cbp, ap, bp, r, c0, s0, s1, k, n);
                                 }
                                 c0 += 2 * $w;
                             }
                             while c0 + $w <= n {
                                 let mut r0 = 0;
                                 while r0 + 8 <= k {
-                                    block::<8, 1>(cp, ap, bp, r0, c0, s0, s1, k, n);
+                                    blk::<8, 1>(cp, cbp, ap, bp, r0, c0, s0, s1, k, n);
                                     r0 += 8;
                                 }
                                 for r in r0..k {
-                                    block::<1, 1>(cp, ap, bp, r, c0, s0, s1, k, n);
+                                    blk::<1, 1>(cp, cbp, ap, bp, r, c0, s0, s1, k, n);
                                 }
                                 c0 += $w;
                             }
@@ -818,6 +859,9 @@ mod mm {
                             // vectors over `$w` rows of `c` (a row of `a` is contiguous there),
                             // the remaining rows one by one; the same sums in the same order.
                             for j in c0..n {
+                                for s in s0..s1 {
+                                    *cbp.add(j) += *bp.add(s * n + j);
+                                }
                                 let mut r0 = 0;
                                 while r0 + $w <= k {
                                     let mut lanes = [0.0f32; $w];
@@ -849,8 +893,8 @@ mod mm {
             };
         }
 
-        tn_kernels!(tn_acc_avx512, "avx512f,fma", 16, 4, __m512, _mm512_loadu_ps, _mm512_storeu_ps, _mm512_set1_ps, _mm512_fmadd_ps, _mm512_setzero_ps);
-        tn_kernels!(tn_acc_avx2, "avx2,fma", 8, 2, __m256, _mm256_loadu_ps, _mm256_storeu_ps, _mm256_set1_ps, _mm256_fmadd_ps, _mm256_setzero_ps);
+        tn_kernels!(tn_acc_avx512, "avx512f,fma", 16, 4, __m512, _mm512_loadu_ps, _mm512_storeu_ps, _mm512_set1_ps, _mm512_fmadd_ps, _mm512_add_ps, _mm512_setzero_ps);
+        tn_kernels!(tn_acc_avx2, "avx2,fma", 8, 2, __m256, _mm256_loadu_ps, _mm256_storeu_ps, _mm256_set1_ps, _mm256_fmadd_ps, _mm256_add_ps, _mm256_setzero_ps);
     }
 
     /// `c[n] += Σₛ b[s][n]` (a bias gradient), each column summed in sample order.
@@ -900,28 +944,34 @@ mod mm {
     }
 
     /// `c[k][n] += a[m][k]ᵀ · b[m][n]` (a weight gradient: inputs transposed times output
-    /// gradients). Where the CPU has FMA, register-blocked kernels for AVX-512 or AVX2 (chosen
-    /// at run time, the same bits from either) that need no packing, which at the networks'
-    /// sizes (`m` = 512 samples, 16 to 64 wide) cost `gemm` about as much as the products;
-    /// elsewhere `gemm`.
-    pub fn matmul_tn_acc(c: &mut [f32], a: &[f32], b: &[f32], m: usize, k: usize, n: usize) {
-        assert!(c.len() == k * n && a.len() == m * k && b.len() == m * n, "matmul_tn_acc shapes");
-        if m == 0 || n == 0 || k == 0 {
+    /// gradients) and `cb[n] += Σₛ b[s][n]` (the bias gradient). Where the CPU has FMA,
+    /// register-blocked kernels for AVX-512 or AVX2 (chosen at run time, the same bits from
+    /// either) that need no packing, which at the networks' sizes (`m` = 512 samples, 16 to 64
+    /// wide) costs `gemm` about as much as the products, and that sum the bias from the same
+    /// loads; elsewhere `gemm` and [`col_sums_acc`].
+    pub fn weight_grads_acc(c: &mut [f32], cb: &mut [f32], a: &[f32], b: &[f32], m: usize, k: usize, n: usize) {
+        assert!(c.len() == k * n && cb.len() == n && a.len() == m * k && b.len() == m * n, "weight_grads_acc shapes");
+        if m == 0 || n == 0 {
+            return;
+        }
+        if k == 0 {
+            col_sums_acc(cb, b);
             return;
         }
         #[cfg(target_arch = "x86_64")]
         {
             if std::arch::is_x86_feature_detected!("avx512f") {
                 // SAFETY: the CPU has the features the function is compiled for (checked above).
-                unsafe { blocked::tn_acc_avx512(c, a, b, m, k, n) };
+                unsafe { blocked::tn_acc_avx512(c, cb, a, b, m, k, n) };
                 return;
             }
             if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
                 // SAFETY: as above.
-                unsafe { blocked::tn_acc_avx2(c, a, b, m, k, n) };
+                unsafe { blocked::tn_acc_avx2(c, cb, a, b, m, k, n) };
                 return;
             }
         }
+        col_sums_acc(cb, b);
         // SAFETY: as above; aᵀ is `a` read with row stride 1 and column stride k.
         unsafe {
             gemm(
@@ -1249,8 +1299,15 @@ mod tests {
             let a: Vec<f32> = (0..m * k).map(|i| ((i * 7919) % 1013) as f32 / 1013.0 - 0.5).collect();
             let b: Vec<f32> = (0..m * n).map(|i| ((i * 104729) % 997) as f32 / 997.0 - 0.5).collect();
             let c0: Vec<f32> = (0..k * n).map(|i| (i as f32 * 0.37).sin()).collect();
-            let mut c = c0.clone();
-            super::mm::matmul_tn_acc(&mut c, &a, &b, m, k, n);
+            let cb0: Vec<f32> = (0..n).map(|i| (i as f32 * 0.71).cos()).collect();
+            let (mut c, mut cb) = (c0.clone(), cb0.clone());
+            super::mm::weight_grads_acc(&mut c, &mut cb, &a, &b, m, k, n);
+            // The bias: each column summed in sample order, as the plain column sums do.
+            let mut cb_plain = cb0.clone();
+            for row in b.chunks_exact(n) {
+                cb_plain.iter_mut().zip(row).for_each(|(x, y)| *x += y);
+            }
+            assert_eq!(cb, cb_plain, "{m}x{k}x{n}: bias gradient");
             for r in 0..k {
                 for j in 0..n {
                     let (mut e, mut scale) = (c0[r * n + j] as f64, c0[r * n + j].abs() as f64);
@@ -1265,13 +1322,13 @@ mod tests {
             }
             #[cfg(target_arch = "x86_64")]
             if std::arch::is_x86_feature_detected!("avx512f") && std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
-                let mut c2 = c0.clone();
+                let (mut c2, mut cb2) = (c0.clone(), cb0.clone());
                 // SAFETY: the CPU has AVX2 and FMA (checked).
                 #[allow(unsafe_code)]
                 unsafe {
-                    super::mm::blocked::tn_acc_avx2(&mut c2, &a, &b, m, k, n)
+                    super::mm::blocked::tn_acc_avx2(&mut c2, &mut cb2, &a, &b, m, k, n)
                 };
-                assert_eq!(c2, c, "{m}x{k}x{n}: AVX2 against AVX-512");
+                assert_eq!((c2, cb2), (c, cb), "{m}x{k}x{n}: AVX2 against AVX-512");
             }
             // The strided forward kernel: `b` `[m][n]` times the first `k.min(n)` columns of `c0`
             // read as `[k][n]` with row stride `n`.
@@ -1283,6 +1340,38 @@ mod tests {
             super::mm::dense_strided(&mut y1, &x, &w, n, &bias, m, k, cols, true);
             super::mm::dense(&mut y2, &x, &wn, &bias, m, k, cols, true);
             assert_eq!(y1, y2, "{m}x{k}x{n}: strided against sliced");
+        }
+    }
+}
+#[cfg(test)]
+mod kernel_timing_tmp {
+    #[test]
+    #[ignore]
+    fn kernel_timing_tmp() {
+        let t = 512;
+        for (k, n) in [(32usize, 64usize), (64, 16), (64, 64), (64, 3), (3, 64), (16, 64), (64, 32)] {
+            let x: Vec<f32> = (0..t * k).map(|i| ((i * 7919) % 1013) as f32 / 1013.0 - 0.5).collect();
+            let w: Vec<f32> = (0..k * n).map(|i| ((i * 104729) % 997) as f32 / 997.0 - 0.5).collect();
+            let b = vec![0.1f32; n];
+            let mut y = vec![0.0; t * n];
+            let reps = 2000;
+            let mut best = f64::MAX;
+            for _ in 0..5 {
+                let t0 = std::time::Instant::now();
+                for _ in 0..reps { super::mm::dense(&mut y, &x, &w, &b, t, k, n, true); std::hint::black_box(&y); }
+                best = best.min(t0.elapsed().as_secs_f64() / reps as f64);
+            }
+            let g = 2.0 * (t * k * n) as f64 / best / 1e9;
+            let dy: Vec<f32> = (0..t * n).map(|i| ((i * 31) % 97) as f32 / 97.0 - 0.5).collect();
+            let mut c = vec![0.0f32; k * n];
+            let mut best2 = f64::MAX;
+            for _ in 0..5 {
+                let t0 = std::time::Instant::now();
+                let mut cb = vec![0.0f32; n]; for _ in 0..reps { super::mm::weight_grads_acc(&mut c, &mut cb, &x, &dy, t, k, n); std::hint::black_box(&c); }
+                best2 = best2.min(t0.elapsed().as_secs_f64() / reps as f64);
+            }
+            let g2 = 2.0 * (t * k * n) as f64 / best2 / 1e9;
+            println!("k={k:3} n={n:3}: dense {:.2} us {g:.0} GFLOP/s | tn {:.2} us {g2:.0} GFLOP/s (1 thread)", best * 1e6, best2 * 1e6);
         }
     }
 }
