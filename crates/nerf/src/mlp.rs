@@ -744,10 +744,10 @@ mod mm {
 
         /// One weight-gradient kernel per vector width: `c[k][n] += a[m][k]ᵀ · b[m][n]` and the
         /// bias gradient `cb[n] += Σₛ b[s][n]`, blocks of `RB` rows × `NV` vectors of `c` held in
-        /// registers over a pass of samples. Every element is `c + a[0][r]·b[0][j] + a[1][r]·b[1][j]
-        /// + …`, fused-multiply-added in sample order (and `cb + b[0][j] + b[1][j] + …` added in
-        /// sample order) whichever block, pass or kernel computes it, so both widths give the
-        /// same bits.
+        /// registers over a pass of samples. Every element is `c + a[0][r]·b[0][j] +
+        /// a[1][r]·b[1][j] + …`, fused-multiply-added in sample order (and `cb + b[0][j] +
+        /// b[1][j] + …` added in sample order) whichever block, pass or kernel computes it, so
+        /// both widths give the same bits.
         macro_rules! tn_kernels {
             ($name:ident, $feat:literal, $w:literal, $nvw:literal, $vt:ty, $load:ident, $store:ident, $set1:ident, $fma:ident, $add:ident, $zero:ident) => {
                 /// See [`super::weight_grads_acc`]; the caller checked the shapes and the CPU's features.
