@@ -319,9 +319,12 @@ impl TrainData {
     pub fn batch(&self, seed: u64, step: u64, n: usize) -> RayBatch {
         use rayon::prelude::*;
         let total = self.total_pixels() as u64;
-        // Each ray depends only on (seed, step, k): drawn in parallel (a cache miss into the
-        // views' pixels each), collected in order.
-        let rays: Vec<_> = (0..n)
+        // Each ray depends only on (seed, step, k), drawn in parallel. Three passes: the
+        // pixels and backgrounds; their colours, a tight loop of independent loads that keeps
+        // many of its cache misses into the views' pixels in flight at once (interleaved with
+        // each ray's camera arithmetic they came one or two at a time, and took most of the
+        // batch's time); the camera rays.
+        let drawn: Vec<(usize, usize, [f32; 3])> = (0..n)
             .into_par_iter()
             .with_min_len(256)
             .map(|k| {
@@ -333,25 +336,19 @@ impl TrainData {
                     Background::Random => [0, 1, 2].map(|c| uniform(seed, stream::BACKGROUND, step, k * 3 + c)),
                     other => other.eval_color(),
                 };
-                let (o, d) = pixel_ray(&self.views[v].camera, p);
-                (o, d, self.views[v].color(p, bg), bg, ((v as u64) << 32) | p as u64)
+                (v, p, bg)
             })
             .collect();
+        let target: Vec<[f32; 3]> = drawn.par_iter().with_min_len(256).map(|&(v, p, bg)| self.views[v].color(p, bg)).collect();
+        let (origins, dirs): (Vec<[f32; 3]>, Vec<[f32; 3]>) = drawn.par_iter().with_min_len(256).map(|&(v, p, _)| pixel_ray(&self.views[v].camera, p)).unzip();
         let mut b = RayBatch {
-            origins: Vec::with_capacity(n),
-            dirs: Vec::with_capacity(n),
-            target: Vec::with_capacity(n),
-            background: Vec::with_capacity(n),
-            ids: Vec::with_capacity(n),
+            origins,
+            dirs,
+            target,
+            background: drawn.iter().map(|d| d.2).collect(),
+            ids: drawn.iter().map(|&(v, p, _)| ((v as u64) << 32) | p as u64).collect(),
             mixed: Vec::new(),
         };
-        for (o, d, c, bg, id) in rays {
-            b.origins.push(o);
-            b.dirs.push(d);
-            b.target.push(c);
-            b.background.push(bg);
-            b.ids.push(id);
-        }
         if self.has_mixed() {
             b.mixed = b.ids.iter().map(|id| self.mixed[(id >> 32) as usize][(id & 0xffff_ffff) as usize]).collect();
         }

@@ -262,7 +262,7 @@ impl HashMlp {
         forward_layers(hidden, hidden.len(), x, raw.len(), outs);
         let h: &[f32] = outs.last().map_or(x, |v| v.as_slice());
         for (k, r) in raw.iter_mut().enumerate() {
-            *r = last.b[0] + h[k * last.d_in..(k + 1) * last.d_in].iter().zip(w0).map(|(a, b)| a * b).sum::<f32>();
+            *r = last.b[0] + mm::dot(&h[k * last.d_in..(k + 1) * last.d_in], w0);
         }
     }
 
@@ -897,6 +897,47 @@ mod mm {
         tn_kernels!(tn_acc_avx2, "avx2,fma", 8, 2, __m256, _mm256_loadu_ps, _mm256_storeu_ps, _mm256_set1_ps, _mm256_fmadd_ps, _mm256_add_ps, _mm256_setzero_ps);
     }
 
+    /// `Σᵢ a[i]·b[i]` in 16 lanes (lane `l` sums the products `i ≡ l (mod 16)` in order, the
+    /// remainder into lane 0), then the lanes pairwise: a fixed order, vectorised (a plain
+    /// sequential sum is one 64-deep chain of dependent additions per row), the same bits on
+    /// every path (no fused multiply-add).
+    pub fn dot(a: &[f32], b: &[f32]) -> f32 {
+        assert_eq!(a.len(), b.len(), "dot lengths");
+        #[inline(always)]
+        fn plain(a: &[f32], b: &[f32]) -> f32 {
+            let mut lanes = [0.0f32; 16];
+            let (ca, cb) = (a.chunks_exact(16), b.chunks_exact(16));
+            let (ra, rb) = (ca.remainder(), cb.remainder());
+            for (x, y) in ca.zip(cb) {
+                for l in 0..16 {
+                    lanes[l] += x[l] * y[l];
+                }
+            }
+            for (x, y) in ra.iter().zip(rb) {
+                lanes[0] += x * y;
+            }
+            let mut width = 16;
+            while width > 1 {
+                width /= 2;
+                for l in 0..width {
+                    lanes[l] += lanes[l + width];
+                }
+            }
+            lanes[0]
+        }
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            /// `plain` compiled for AVX2: the same operations lane for lane.
+            #[target_feature(enable = "avx2")]
+            fn wide(a: &[f32], b: &[f32]) -> f32 {
+                plain(a, b)
+            }
+            // SAFETY: the CPU has AVX2 (checked above).
+            return unsafe { wide(a, b) };
+        }
+        plain(a, b)
+    }
+
     /// `c[n] += Σₛ b[s][n]` (a bias gradient), each column summed in sample order.
     pub fn col_sums_acc(c: &mut [f32], b: &[f32]) {
         assert!(!c.is_empty() && b.len().is_multiple_of(c.len()), "col_sums_acc shapes");
@@ -1340,38 +1381,6 @@ mod tests {
             super::mm::dense_strided(&mut y1, &x, &w, n, &bias, m, k, cols, true);
             super::mm::dense(&mut y2, &x, &wn, &bias, m, k, cols, true);
             assert_eq!(y1, y2, "{m}x{k}x{n}: strided against sliced");
-        }
-    }
-}
-#[cfg(test)]
-mod kernel_timing_tmp {
-    #[test]
-    #[ignore]
-    fn kernel_timing_tmp() {
-        let t = 512;
-        for (k, n) in [(32usize, 64usize), (64, 16), (64, 64), (64, 3), (3, 64), (16, 64), (64, 32)] {
-            let x: Vec<f32> = (0..t * k).map(|i| ((i * 7919) % 1013) as f32 / 1013.0 - 0.5).collect();
-            let w: Vec<f32> = (0..k * n).map(|i| ((i * 104729) % 997) as f32 / 997.0 - 0.5).collect();
-            let b = vec![0.1f32; n];
-            let mut y = vec![0.0; t * n];
-            let reps = 2000;
-            let mut best = f64::MAX;
-            for _ in 0..5 {
-                let t0 = std::time::Instant::now();
-                for _ in 0..reps { super::mm::dense(&mut y, &x, &w, &b, t, k, n, true); std::hint::black_box(&y); }
-                best = best.min(t0.elapsed().as_secs_f64() / reps as f64);
-            }
-            let g = 2.0 * (t * k * n) as f64 / best / 1e9;
-            let dy: Vec<f32> = (0..t * n).map(|i| ((i * 31) % 97) as f32 / 97.0 - 0.5).collect();
-            let mut c = vec![0.0f32; k * n];
-            let mut best2 = f64::MAX;
-            for _ in 0..5 {
-                let t0 = std::time::Instant::now();
-                let mut cb = vec![0.0f32; n]; for _ in 0..reps { super::mm::weight_grads_acc(&mut c, &mut cb, &x, &dy, t, k, n); std::hint::black_box(&c); }
-                best2 = best2.min(t0.elapsed().as_secs_f64() / reps as f64);
-            }
-            let g2 = 2.0 * (t * k * n) as f64 / best2 / 1e9;
-            println!("k={k:3} n={n:3}: dense {:.2} us {g:.0} GFLOP/s | tn {:.2} us {g2:.0} GFLOP/s (1 thread)", best * 1e6, best2 * 1e6);
         }
     }
 }
