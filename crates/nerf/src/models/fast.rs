@@ -201,8 +201,11 @@ const ACT: DensityActivation = DensityActivation::TruncExp;
 /// samples behind it (a trained 800x800 tabletop view: 5.3 -> 4.8 samples per ray, 11 % less
 /// time than rounds of 4, same pixels since the composite stops at the same transmittance).
 const INFERENCE_ROUND: usize = 1;
-/// Samples per ray in the first round of training's marching and compaction
-/// ([`Parts::march_until_opaque`]); later rounds double.
+/// Samples per ray in the first two rounds of training's marching and compaction
+/// ([`Parts::march_until_opaque`]); later rounds double. Late in training most rays turn
+/// opaque within 4 to 8 samples, so a second round of 8 (doubling at once) marched and encoded
+/// samples behind the surface: on a 5-minute tabletop-std fast run's checkpoint (7,536 rays per
+/// step) 46,848 samples marched per step that way, 42,546 with a second round of 4.
 const COMPACTION_FIRST_ROUND: usize = 4;
 
 /// Groups of rays per thread in training's marching and compaction (more than one, so that a
@@ -643,8 +646,8 @@ struct Parts<'a> {
 
 impl Parts<'_> {
     /// Marching and compaction by rounds: marches each ray's intervals in order, a round at a
-    /// time (first [`COMPACTION_FIRST_ROUND`] intervals of every ray, then twice as many per
-    /// round of the rays still live), encodes them and evaluates their density, and stops a ray
+    /// time (first [`COMPACTION_FIRST_ROUND`] intervals of every ray, as many again for the
+    /// rays still live, then twice as many per round), encodes them and evaluates their density, and stops a ray
     /// once the optical depth before its next sample exceeds `tau_stop`. Returns the kept
     /// samples (a prefix of every ray: exactly those [`keep_until_opaque`] keeps from a density
     /// pass over every sample [`OccupancyGrid::march`] gives, since [`OccupancyGrid::march_more`]
@@ -723,6 +726,7 @@ impl Parts<'_> {
         let mut spans = Vec::new();
         let mut cpu_s = [0.0f64; 4];
         let mut round = COMPACTION_FIRST_ROUND;
+        let mut rounds = 0usize;
         while !live.is_empty() {
             let t0 = Instant::now();
             let base = ts.len();
@@ -758,7 +762,11 @@ impl Parts<'_> {
             // A ray goes on while it has intervals left and its next sample would be kept.
             let opaque = |t: f32| t > tau_stop;
             live.retain(|&c| !state[c].is_done() && !opaque(tau[c]));
-            round = round.saturating_mul(2);
+            // The second round as long as the first, then doubling (see the constant).
+            rounds += 1;
+            if rounds >= 2 {
+                round = round.saturating_mul(2);
+            }
             let t3 = Instant::now();
             cpu_s[0] += (t1 - t0).as_secs_f64();
             cpu_s[1] += (t2 - t1).as_secs_f64();
