@@ -1,8 +1,12 @@
 //! The fast model's two networks ([`crate::field::HashField`]) run as plain Rust kernels:
 //! forward and an exact hand-written backward, in tiles of [`TILE`] samples that keep every
-//! layer's activations in a core's cache, with the matrix products done by the `gemm` crate
-//! (the kernels burn's `flex` backend uses, picked at run time for the CPU: AVX-512, AVX2+FMA
-//! or SSE).
+//! layer's activations in a core's cache. The matrix products are register-blocked kernels
+//! picked at run time for the CPU (AVX-512 or AVX2+FMA; [`mm`]): the forward product, which
+//! with transposed weights also gives the backward's input gradients, and the weight (and bias)
+//! gradients; without FMA, the `gemm` crate (the kernels burn's `flex` backend uses). At the
+//! networks' sizes (16 to 64 wide, tiles of 512) `gemm`'s packing cost about as much as the
+//! products: `cargo xtask bench nerf`'s forward + backward went 280 → 341 GFLOP/s when the
+//! backward moved off it.
 //!
 //! Why: through burn the networks ran at ~35–45 GFLOP/s on this machine's 2 cores (`cargo
 //! xtask bench nerf`) and took ~70 % of a training step. Each layer there is a separate pass
