@@ -1,7 +1,7 @@
 //! The fast model's two networks ([`crate::field::HashField`]) run as plain Rust kernels:
 //! forward and an exact hand-written backward, in tiles of [`TILE`] samples that keep every
 //! layer's activations in a core's cache. The matrix products are register-blocked kernels
-//! picked at run time for the CPU (AVX-512 or AVX2+FMA; [`mm`]): the forward product, which
+//! picked at run time for the CPU (AVX-512 or AVX2+FMA; module `mm`): the forward product, which
 //! with transposed weights also gives the backward's input gradients, and the weight (and bias)
 //! gradients; without FMA, the `gemm` crate (the kernels burn's `flex` backend uses). At the
 //! networks' sizes (16 to 64 wide, tiles of 512) `gemm`'s packing cost about as much as the
