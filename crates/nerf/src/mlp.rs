@@ -618,6 +618,63 @@ mod mm {
     pub(super) mod blocked {
         use std::arch::x86_64::*;
 
+        /// A kernel's register block: `RB` rows × `NV` vectors of output from row `r0`, column
+        /// `c0` (its other arguments held by the implementer).
+        trait Blocks {
+            /// # Safety
+            /// The block lies within the kernel's checked shapes; the CPU has its features.
+            unsafe fn block<const RB: usize, const NV: usize>(&self, r0: usize, c0: usize);
+        }
+
+        /// The walk both kernels make over a `rows × cols` output: column blocks `NVW` vectors
+        /// of `W` lanes wide where the registers allow, then 2, then 1 vector (rows in fours,
+        /// in eights for one vector to keep 8 accumulators in flight, the rest one by one).
+        /// Returns the first column no block covered (fewer than `W` are left).
+        ///
+        /// # Safety
+        /// As [`Blocks::block`], for every block of the output.
+        #[inline(always)]
+        unsafe fn walk<B: Blocks, const W: usize, const NVW: usize>(b: &B, rows: usize, cols: usize) -> usize {
+            let mut c0 = 0;
+            // SAFETY (all blocks): rows < `rows` and columns < `cols` (the caller's promise).
+            unsafe {
+                while c0 + NVW * W <= cols {
+                    let mut r0 = 0;
+                    while r0 + 4 <= rows {
+                        b.block::<4, NVW>(r0, c0);
+                        r0 += 4;
+                    }
+                    for r in r0..rows {
+                        b.block::<1, NVW>(r, c0);
+                    }
+                    c0 += NVW * W;
+                }
+                while c0 + 2 * W <= cols {
+                    let mut r0 = 0;
+                    while r0 + 4 <= rows {
+                        b.block::<4, 2>(r0, c0);
+                        r0 += 4;
+                    }
+                    for r in r0..rows {
+                        b.block::<1, 2>(r, c0);
+                    }
+                    c0 += 2 * W;
+                }
+                while c0 + W <= cols {
+                    let mut r0 = 0;
+                    while r0 + 8 <= rows {
+                        b.block::<8, 1>(r0, c0);
+                        r0 += 8;
+                    }
+                    for r in r0..rows {
+                        b.block::<1, 1>(r, c0);
+                    }
+                    c0 += W;
+                }
+            }
+            c0
+        }
+
         /// One kernel per vector width: `$rb` rows × `$nv` vectors of `$w` lanes of columns.
         macro_rules! kernels {
             ($name:ident, $feat:literal, $w:literal, $nvw:literal, $vt:ty, $load:ident, $store:ident, $set1:ident, $fma:ident, $max:ident, $zero:ident) => {
@@ -656,48 +713,30 @@ mod mm {
                             }
                         }
                     }
-                    let (yp, xp, wp, bp) = (y.as_mut_ptr(), x.as_ptr(), w.as_ptr(), b.as_ptr());
-                    let mut c0 = 0;
-                    // SAFETY (all blocks): rows < m and columns < n, within the checked lengths.
-                    unsafe {
-                        // `$nvw` vectors wide where the registers allow (AVX-512: 4 rows × 4
-                        // vectors, 16 FMAs per 4 weight loads and 4 broadcasts, FMA-bound
-                        // rather than load-bound as 4 × 2 is).
-                        while c0 + $nvw * $w <= n {
-                            let mut r0 = 0;
-                            while r0 + 4 <= m {
-                                block::<4, $nvw>(yp, xp, wp, ldw, bp, r0, c0, k, n, relu);
-                                r0 += 4;
-                            }
-                            for r in r0..m {
-                                block::<1, $nvw>(yp, xp, wp, ldw, bp, r, c0, k, n, relu);
-                            }
-                            c0 += $nvw * $w;
-                        }
-                        while c0 + 2 * $w <= n {
-                            let mut r0 = 0;
-                            while r0 + 4 <= m {
-                                block::<4, 2>(yp, xp, wp, ldw, bp, r0, c0, k, n, relu);
-                                r0 += 4;
-                            }
-                            for r in r0..m {
-                                block::<1, 2>(yp, xp, wp, ldw, bp, r, c0, k, n, relu);
-                            }
-                            c0 += 2 * $w;
-                        }
-                        while c0 + $w <= n {
-                            // One vector wide: 8 rows, to keep 8 accumulators in flight.
-                            let mut r0 = 0;
-                            while r0 + 8 <= m {
-                                block::<8, 1>(yp, xp, wp, ldw, bp, r0, c0, k, n, relu);
-                                r0 += 8;
-                            }
-                            for r in r0..m {
-                                block::<1, 1>(yp, xp, wp, ldw, bp, r, c0, k, n, relu);
-                            }
-                            c0 += $w;
+                    /// The forward's blocks ([`block`] with the call's arguments).
+                    struct Fwd {
+                        y: *mut f32,
+                        x: *const f32,
+                        w: *const f32,
+                        ldw: usize,
+                        b: *const f32,
+                        k: usize,
+                        n: usize,
+                        relu: bool,
+                    }
+                    impl Blocks for Fwd {
+                        #[inline(always)]
+                        unsafe fn block<const RB: usize, const NV: usize>(&self, r0: usize, c0: usize) {
+                            // SAFETY: as the trait's.
+                            unsafe { block::<RB, NV>(self.y, self.x, self.w, self.ldw, self.b, r0, c0, self.k, self.n, self.relu) }
                         }
                     }
+                    let fwd = Fwd { y: y.as_mut_ptr(), x: x.as_ptr(), w: w.as_ptr(), ldw, b: b.as_ptr(), k, n, relu };
+                    // `$nvw` vectors wide where the registers allow (AVX-512: 4 rows × 4 vectors,
+                    // 16 FMAs per 4 weight loads and 4 broadcasts, FMA-bound rather than
+                    // load-bound as 4 × 2 is).
+                    // SAFETY: the blocks cover rows < m and columns < n, within the checked lengths.
+                    let c0 = unsafe { walk::<Fwd, $w, $nvw>(&fwd, m, n) };
                     // The last columns (fewer than a vector, e.g. the colour output's 3): each a
                     // dot product of the row with the column (transposed once), `$w` lanes of
                     // partial sums added pairwise, then to the bias, then the leftover inputs.
@@ -818,47 +857,33 @@ mod mm {
                             }
                         }
                     }
+                    /// The blocks of one pass of samples `s0..s1` ([`blk`] with the call's arguments).
+                    struct Pass {
+                        c: *mut f32,
+                        cb: *mut f32,
+                        a: *const f32,
+                        b: *const f32,
+                        s0: usize,
+                        s1: usize,
+                        k: usize,
+                        n: usize,
+                    }
+                    impl Blocks for Pass {
+                        #[inline(always)]
+                        unsafe fn block<const RB: usize, const NV: usize>(&self, r0: usize, c0: usize) {
+                            // SAFETY: as the trait's.
+                            unsafe { blk::<RB, NV>(self.c, self.cb, self.a, self.b, r0, c0, self.s0, self.s1, self.k, self.n) }
+                        }
+                    }
                     let (cp, cbp, ap, bp) = (c.as_mut_ptr(), cb.as_mut_ptr(), a.as_ptr(), b.as_ptr());
                     let mut s0 = 0;
                     while s0 < m {
                         let s1 = (s0 + TN_CHUNK).min(m);
+                        let pass = Pass { c: cp, cb: cbp, a: ap, b: bp, s0, s1, k, n };
                         // SAFETY (all blocks): rows < k, columns < n and samples < m, within the
                         // checked lengths.
                         unsafe {
-                            let mut c0 = 0;
-                            while c0 + $nvw * $w <= n {
-                                let mut r0 = 0;
-                                while r0 + 4 <= k {
-                                    blk::<4, $nvw>(cp, cbp, ap, bp, r0, c0, s0, s1, k, n);
-                                    r0 += 4;
-                                }
-                                for r in r0..k {
-                                    blk::<1, $nvw>(cp, cbp, ap, bp, r, c0, s0, s1, k, n);
-                                }
-                                c0 += $nvw * $w;
-                            }
-                            while c0 + 2 * $w <= n {
-                                let mut r0 = 0;
-                                while r0 + 4 <= k {
-                                    blk::<4, 2>(cp, cbp, ap, bp, r0, c0, s0, s1, k, n);
-                                    r0 += 4;
-                                }
-                                for r in r0..k {
-                                    blk::<1, 2>(cp, cbp, ap, bp, r, c0, s0, s1, k, n);
-                                }
-                                c0 += 2 * $w;
-                            }
-                            while c0 + $w <= n {
-                                let mut r0 = 0;
-                                while r0 + 8 <= k {
-                                    blk::<8, 1>(cp, cbp, ap, bp, r0, c0, s0, s1, k, n);
-                                    r0 += 8;
-                                }
-                                for r in r0..k {
-                                    blk::<1, 1>(cp, cbp, ap, bp, r, c0, s0, s1, k, n);
-                                }
-                                c0 += $w;
-                            }
+                            let c0 = walk::<Pass, $w, $nvw>(&pass, k, n);
                             // The last columns (fewer than a vector, e.g. the colour output's 3):
                             // vectors over `$w` rows of `c` (a row of `a` is contiguous there),
                             // the remaining rows one by one; the same sums in the same order.
@@ -942,27 +967,13 @@ mod mm {
         plain(a, b)
     }
 
-    /// `c[n] += Σₛ b[s][n]` (a bias gradient), each column summed in sample order.
+    /// `c[n] += Σₛ b[s][n]` (a bias gradient), each column summed in sample order (the
+    /// fallback's; the kernels sum it inside [`weight_grads_acc`]).
     pub fn col_sums_acc(c: &mut [f32], b: &[f32]) {
         assert!(!c.is_empty() && b.len().is_multiple_of(c.len()), "col_sums_acc shapes");
-        #[inline(always)]
-        fn plain(c: &mut [f32], b: &[f32]) {
-            for row in b.chunks_exact(c.len()) {
-                c.iter_mut().zip(row).for_each(|(a, x)| *a += x);
-            }
+        for row in b.chunks_exact(c.len()) {
+            c.iter_mut().zip(row).for_each(|(a, x)| *a += x);
         }
-        #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx2") {
-            /// `plain` compiled for AVX2: the same additions in the same order, 8 lanes wide.
-            #[target_feature(enable = "avx2")]
-            fn wide(c: &mut [f32], b: &[f32]) {
-                plain(c, b)
-            }
-            // SAFETY: the CPU has AVX2 (checked above).
-            unsafe { wide(c, b) };
-            return;
-        }
-        plain(c, b)
     }
 
     /// A gradient through a ReLU whose output was `y`: `d[i] = 0` where `y[i] ≤ 0` (the ReLU
