@@ -69,12 +69,15 @@ pub struct Stack {
     /// Each layer's weights transposed, `[d_out][d_in]`: the right-hand side of its input
     /// gradient, which the forward kernel then computes.
     wt: Vec<Vec<f32>>,
+    /// Zeros as wide as the widest layer input: the input gradients' bias.
+    zero_bias: Vec<f32>,
 }
 
 impl Stack {
     fn new(layers: Vec<Dense>) -> Self {
         let wt = layers.iter().map(|l| (0..l.d_out).flat_map(|j| (0..l.d_in).map(move |i| l.w[i * l.d_out + j])).collect()).collect();
-        Self { layers, wt }
+        let zero_bias = vec![0.0; layers.iter().map(|l| l.d_in).max().unwrap_or(0)];
+        Self { layers, wt, zero_bias }
     }
 
     /// The layers, input first.
@@ -507,7 +510,7 @@ fn backward_stack(stack: &Stack, x: &[f32], outs: &[Vec<f32>], grad: &mut Vec<f3
         // d_in = d · Wᵀ: the forward kernel on the transposed weights, with a zero bias.
         let cols = if i == 0 { need.min(l.d_in) } else { l.d_in };
         spare.resize(t * cols, 0.0);
-        mm::dense_strided(spare, grad, &stack.wt[i], l.d_in, &vec![0.0; cols], t, l.d_out, cols, false);
+        mm::dense_strided(spare, grad, &stack.wt[i], l.d_in, &stack.zero_bias[..cols], t, l.d_out, cols, false);
         if i > 0 {
             // Through the previous layer's ReLU: its output is > 0 exactly where it passed.
             mm::relu_mask(spare, input);
@@ -757,16 +760,9 @@ mod mm {
                                     }
                                     $store(lanes.as_mut_ptr(), acc);
                                 }
-                                // The lanes summed pairwise (halves, then quarters, …): a
-                                // fixed order per row, 4 additions deep instead of 16.
-                                let mut width = $w;
-                                while width > 1 {
-                                    width /= 2;
-                                    for l in 0..width {
-                                        lanes[l] += lanes[l + width];
-                                    }
-                                }
-                                let mut a = b[c] + lanes[0];
+                                // The lanes summed pairwise: a fixed order per row, 4
+                                // additions deep instead of 16.
+                                let mut a = b[c] + super::pairwise_sum(&mut lanes);
                                 for j in i..k {
                                     a = xr[j].mul_add(wc[j], a);
                                 }
@@ -926,6 +922,21 @@ mod mm {
         tn_kernels!(tn_acc_avx2, "avx2,fma", 8, 2, __m256, _mm256_loadu_ps, _mm256_storeu_ps, _mm256_set1_ps, _mm256_fmadd_ps, _mm256_add_ps, _mm256_setzero_ps);
     }
 
+    /// The sum of `lanes` (a power of two of them) pairwise: halves added, then quarters, …,
+    /// in place; a fixed order, `log₂` additions deep.
+    #[inline(always)]
+    pub(super) fn pairwise_sum(lanes: &mut [f32]) -> f32 {
+        debug_assert!(lanes.len().is_power_of_two());
+        let mut width = lanes.len();
+        while width > 1 {
+            width /= 2;
+            for l in 0..width {
+                lanes[l] += lanes[l + width];
+            }
+        }
+        lanes[0]
+    }
+
     /// `Σᵢ a[i]·b[i]` in 16 lanes (lane `l` sums the products `i ≡ l (mod 16)` in order, the
     /// remainder into lane 0), then the lanes pairwise: a fixed order, vectorised (a plain
     /// sequential sum is one 64-deep chain of dependent additions per row), the same bits on
@@ -945,14 +956,7 @@ mod mm {
             for (x, y) in ra.iter().zip(rb) {
                 lanes[0] += x * y;
             }
-            let mut width = 16;
-            while width > 1 {
-                width /= 2;
-                for l in 0..width {
-                    lanes[l] += lanes[l + width];
-                }
-            }
-            lanes[0]
+            pairwise_sum(&mut lanes)
         }
         #[cfg(target_arch = "x86_64")]
         if std::arch::is_x86_feature_detected!("avx2") {
