@@ -639,43 +639,42 @@ mod mm {
         #[inline(always)]
         unsafe fn walk<B: Blocks, const W: usize, const NVW: usize>(b: &B, rows: usize, cols: usize) -> usize {
             let mut c0 = 0;
-            // SAFETY (all blocks): rows < `rows` and columns < `cols` (the caller's promise).
+            // SAFETY (all bands): rows < `rows` and columns < `cols` (the caller's promise).
             unsafe {
                 while c0 + NVW * W <= cols {
-                    let mut r0 = 0;
-                    while r0 + 4 <= rows {
-                        b.block::<4, NVW>(r0, c0);
-                        r0 += 4;
-                    }
-                    for r in r0..rows {
-                        b.block::<1, NVW>(r, c0);
-                    }
+                    band::<B, 4, NVW>(b, rows, c0);
                     c0 += NVW * W;
                 }
                 while c0 + 2 * W <= cols {
-                    let mut r0 = 0;
-                    while r0 + 4 <= rows {
-                        b.block::<4, 2>(r0, c0);
-                        r0 += 4;
-                    }
-                    for r in r0..rows {
-                        b.block::<1, 2>(r, c0);
-                    }
+                    band::<B, 4, 2>(b, rows, c0);
                     c0 += 2 * W;
                 }
                 while c0 + W <= cols {
-                    let mut r0 = 0;
-                    while r0 + 8 <= rows {
-                        b.block::<8, 1>(r0, c0);
-                        r0 += 8;
-                    }
-                    for r in r0..rows {
-                        b.block::<1, 1>(r, c0);
-                    }
+                    band::<B, 8, 1>(b, rows, c0);
                     c0 += W;
                 }
             }
             c0
+        }
+
+        /// One band of [`walk`]: the columns `NV` vectors wide from `c0`, rows in blocks of
+        /// `RB`, then the rest one by one.
+        ///
+        /// # Safety
+        /// As [`Blocks::block`], for every block of the band.
+        #[inline(always)]
+        unsafe fn band<B: Blocks, const RB: usize, const NV: usize>(b: &B, rows: usize, c0: usize) {
+            let mut r0 = 0;
+            // SAFETY: the caller's promise, block by block.
+            unsafe {
+                while r0 + RB <= rows {
+                    b.block::<RB, NV>(r0, c0);
+                    r0 += RB;
+                }
+                for r in r0..rows {
+                    b.block::<1, NV>(r, c0);
+                }
+            }
         }
 
         /// One kernel per vector width: `$rb` rows × `$nv` vectors of `$w` lanes of columns.
