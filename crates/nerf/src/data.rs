@@ -372,6 +372,22 @@ pub struct SceneBounds {
 }
 
 impl SceneBounds {
+    /// Refuses bounds no model can use (the config file may come from a user): a box with a
+    /// non-finite corner or a side that is not positive, or a near/far range that is not
+    /// finite with `0 ≤ near < far`.
+    pub fn check(&self) -> Result<(), String> {
+        for k in 0..3 {
+            let (lo, hi) = (self.aabb_min[k], self.aabb_max[k]);
+            if !(lo.is_finite() && hi.is_finite() && lo < hi && (hi - lo).is_finite()) {
+                return Err(format!("bounds: the box must have finite corners with aabb_min < aabb_max on every axis, not {lo} .. {hi} on axis {k}"));
+            }
+        }
+        if !(self.near.is_finite() && self.far.is_finite() && self.near >= 0.0 && self.near < self.far) {
+            return Err(format!("bounds: need finite 0 ≤ near < far, not near {} far {}", self.near, self.far));
+        }
+        Ok(())
+    }
+
     /// Centre of the box.
     pub fn center(&self) -> [f32; 3] {
         [0, 1, 2].map(|k| 0.5 * (self.aabb_min[k] + self.aabb_max[k]))

@@ -198,8 +198,10 @@ impl TrainConfig {
         self.val_interval_s.unwrap_or_else(|| self.time_budget_s.map_or(30.0, |t| t / 10.0)).max(1e-3)
     }
 
-    /// Refuses settings no run can use (before anything is written): no budget, a zero or
-    /// negative budget, empty batches, a zero downscale factor, logging or checkpoint interval.
+    /// Refuses settings no run can use (before anything is written), naming the field: no
+    /// budget, a zero or negative budget, empty or impossibly large batches, a learning rate
+    /// that is not positive, a zero downscale factor, logging or checkpoint interval, bounds
+    /// ([`SceneBounds::check`]) or model settings ([`ModelConfig::check`]) out of range.
     pub fn check(&self) -> Result<(), String> {
         if self.steps.is_none() && self.time_budget_s.is_none() {
             return Err("give a step count or a time budget".into());
@@ -212,17 +214,45 @@ impl TrainConfig {
         {
             return Err(format!("the time budget must be a positive number of seconds, not {t}"));
         }
-        for (name, v) in [("batch_rays", self.batch_rays), ("batch_samples", self.batch_samples.unwrap_or(1))] {
-            if v == 0 {
-                return Err(format!("{name} must be positive"));
-            }
-        }
         if self.downscale == 0 {
             return Err("downscale must be a positive integer factor".into());
         }
-        if self.log_interval_steps == 0 || self.checkpoint_interval_steps == 0 {
-            return Err("log_interval_steps and checkpoint_interval_steps must be positive".into());
+        if self.log_interval_steps == 0 || self.checkpoint_interval_steps == 0 || self.checkpoints_kept == 0 {
+            return Err("log_interval_steps, checkpoint_interval_steps and checkpoints_kept must be positive".into());
         }
+        for (name, v) in [("lr_init", self.lr_init), ("lr_final", self.lr_final)] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(format!("{name} must be a finite learning rate > 0, not {v}"));
+            }
+        }
+        // Beyond these a step's buffers alone exceed any machine this runs on (out-of-memory
+        // kills instead of an error).
+        const MOST_RAYS: usize = 1 << 22;
+        const MOST_SAMPLES: usize = 1 << 26;
+        for (name, v, most) in [
+            ("batch_rays", self.batch_rays, MOST_RAYS),
+            ("max_batch_rays", self.max_batch_rays, MOST_RAYS),
+            ("batch_samples", self.batch_samples.unwrap_or(1), MOST_SAMPLES),
+        ] {
+            if v == 0 || v > most {
+                return Err(format!("{name} must be 1..={most}, not {v}"));
+            }
+        }
+        if !(self.bounds_padding.is_finite() && self.bounds_padding >= 0.0) {
+            return Err(format!("bounds_padding must be a finite fraction ≥ 0, not {}", self.bounds_padding));
+        }
+        if !(self.assumed_scene_radius.is_finite() && self.assumed_scene_radius > 0.0) {
+            return Err(format!("assumed_scene_radius must be a finite length > 0, not {}", self.assumed_scene_radius));
+        }
+        if let Some(v) = self.val_interval_s
+            && !(v.is_finite() && v > 0.0)
+        {
+            return Err(format!("val_interval_s must be a positive number of seconds, not {v}"));
+        }
+        if let Some(b) = &self.bounds {
+            b.check()?;
+        }
+        self.model.check()?;
         if let ModelConfig::Fast(f) = &self.model {
             if let Some(w) = f.distortion_weight
                 && !(w.is_finite() && w >= 0.0)

@@ -142,3 +142,64 @@ fn impossible_distortion_settings_are_refused() {
         assert!(!run.exists(), "nothing written");
     }
 }
+
+/// Model, bounds and optimiser settings no model can be built or trained with (a config file
+/// may come from a user) are refused before anything is written, naming the field: before
+/// these checks some panicked inside the model's constructors, others trained to garbage.
+#[test]
+fn impossible_model_and_bounds_settings_are_refused() {
+    use nerf::data::SceneBounds;
+    use nerf::models::paper::PaperConfig;
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    nerf::data::synthetic::write(&data, 16, [2, 1, 1], false).unwrap();
+    let fast = |f: FastConfig| TrainConfig::new(data.clone(), ModelConfig::Fast(f), 64, 1e-2, 1e-3, 10).with_steps(Some(1));
+    let set = |f: &dyn Fn(&mut TrainConfig)| {
+        let mut c = fast(FastConfig::new());
+        f(&mut c);
+        c
+    };
+    let bounds = |min: [f32; 3], max: [f32; 3], near: f32, far: f32| SceneBounds { aabb_min: min, aabb_max: max, near, far, source: "test".into() };
+    let cases: Vec<(TrainConfig, &str)> = vec![
+        (fast(FastConfig::new().with_sh_degree(99)), "model.sh_degree"),
+        (fast(FastConfig::new().with_sh_degree(0)), "model.sh_degree"),
+        (fast(FastConfig::new().with_levels(0)), "levels must be ≥ 1"),
+        (fast(FastConfig::new().with_features_per_level(0)), "features_per_level"),
+        (fast(FastConfig::new().with_density_width(0)), "model.density_width"),
+        (fast(FastConfig::new().with_color_width(0)), "model.color_width"),
+        (fast(FastConfig::new().with_color_depth(0)), "model.color_depth"),
+        (fast(FastConfig::new().with_max_samples_per_ray(0)), "model.max_samples_per_ray"),
+        (fast(FastConfig::new().with_steps_per_diagonal(0)), "model.steps_per_diagonal"),
+        (fast(FastConfig::new().with_grid_update_interval(0)), "model.grid_update_interval"),
+        (fast(FastConfig::new().with_grid_decay(2.0)), "model.grid_decay"),
+        (fast(FastConfig::new().with_grid_threshold(-1.0)), "model.grid_threshold"),
+        (fast(FastConfig::new().with_train_min_transmittance(1.0)), "model.train_min_transmittance"),
+        (fast(FastConfig::new().with_cone_angle(Some(f32::NAN))), "model.cone_angle"),
+        (fast(FastConfig::new().with_beta1(1.0)), "model.beta1"),
+        (fast(FastConfig::new().with_beta2(-0.5)), "model.beta2"),
+        (fast(FastConfig::new().with_eps(0.0)), "model.eps"),
+        (fast(FastConfig::new()).with_bounds(Some(bounds([2.0; 3], [1.0; 3], 0.1, 5.0))), "aabb_min < aabb_max"),
+        (fast(FastConfig::new()).with_bounds(Some(bounds([0.0; 3], [1.0, 0.0, 1.0], 0.1, 5.0))), "aabb_min < aabb_max"),
+        (fast(FastConfig::new()).with_bounds(Some(bounds([0.0; 3], [1.0; 3], 6.0, 5.0))), "near < far"),
+        (fast(FastConfig::new()).with_bounds(Some(bounds([0.0; 3], [1.0; 3], -1.0, 5.0))), "near < far"),
+        (set(&|c: &mut TrainConfig| c.lr_init = -1.0), "lr_init"),
+        (set(&|c: &mut TrainConfig| c.lr_final = f64::NAN), "lr_final"),
+        (set(&|c: &mut TrainConfig| c.batch_rays = 1 << 30), "batch_rays"),
+        (fast(FastConfig::new()).with_bounds_padding(-10.0), "bounds_padding"),
+        (fast(FastConfig::new()).with_checkpoints_kept(0), "checkpoints_kept"),
+        (
+            TrainConfig::new(data.clone(), ModelConfig::Paper(PaperConfig::new().with_coarse_samples(0)), 64, 5e-4, 5e-5, 10).with_steps(Some(1)),
+            "model.coarse_samples",
+        ),
+    ];
+    for (cfg, name) in cases {
+        let run = tmp.path().join("run");
+        let err = match Trainer::new(cfg, &run, false) {
+            Ok(_) => panic!("{name}: accepted"),
+            Err(e) => e.to_string(),
+        };
+        assert!(err.contains(name), "{name}: {err}");
+        assert!(!run.exists(), "{name}: wrote {}", run.display());
+    }
+}
+

@@ -16,7 +16,7 @@
 //! becomes opaque, and only the samples before it are trained on.
 
 use super::ops::{DensityActivation, stream, stream_seed};
-use super::{RayOutputs, StepStats, StepTimings, all_finite, expected_distance, mse_and_grad, squared_error_and_grad};
+use super::{RayOutputs, StepStats, StepTimings, all_finite, check_adam, expected_distance, mse_and_grad, squared_error_and_grad};
 use crate::backend;
 use crate::checkpoint::StateDict;
 use crate::data::{RayBatch, SceneBounds};
@@ -136,6 +136,58 @@ pub struct FastConfig {
 }
 
 impl FastConfig {
+    /// Refuses values no model can be built or trained with (each message names the field):
+    /// the hash grid's ranges ([`HashGridConfig::validate`]), SH degree 1..=4, network widths
+    /// 1..=4096 and colour depth 1..=16, the occupancy grid 1..=1024 cells per axis, positive
+    /// marching steps and sample caps, a positive update interval, a threshold ≥ 0, a decay in
+    /// [0, 1], a stopping transmittance in [0, 1), a cone angle ≥ 0, and Adam's β in [0, 1) and
+    /// ε > 0 (all finite).
+    pub fn check(&self) -> Result<(), String> {
+        let bad = |field: &str, rule: &str, value: &dyn std::fmt::Display| Err(format!("model.{field} must be {rule}, not {value}"));
+        self.hash_config().validate().map_err(|e| format!("model: {e}"))?;
+        if !(1..=4).contains(&self.sh_degree) {
+            return bad("sh_degree", "1..=4 (spherical-harmonic bands of the view direction)", &self.sh_degree);
+        }
+        for (field, v) in [("density_width", self.density_width), ("color_width", self.color_width)] {
+            if !(1..=4096).contains(&v) {
+                return bad(field, "1..=4096", &v);
+            }
+        }
+        if !(1..=16).contains(&self.color_depth) {
+            return bad("color_depth", "1..=16", &self.color_depth);
+        }
+        if !(1..=1024).contains(&self.geo_features) {
+            return bad("geo_features", "1..=1024", &self.geo_features);
+        }
+        if !(1..=1024).contains(&self.grid_resolution) {
+            return bad("grid_resolution", "1..=1024", &self.grid_resolution);
+        }
+        if !(1..=1 << 20).contains(&self.steps_per_diagonal) {
+            return bad("steps_per_diagonal", "1..=2^20", &self.steps_per_diagonal);
+        }
+        if !(1..=1 << 16).contains(&self.max_samples_per_ray) {
+            return bad("max_samples_per_ray", "1..=65536", &self.max_samples_per_ray);
+        }
+        if self.grid_update_interval == 0 {
+            return bad("grid_update_interval", "a positive number of steps", &0);
+        }
+        if !(self.grid_threshold.is_finite() && self.grid_threshold >= 0.0) {
+            return bad("grid_threshold", "a finite number ≥ 0", &self.grid_threshold);
+        }
+        if !(0.0..=1.0).contains(&self.grid_decay) {
+            return bad("grid_decay", "in [0, 1]", &self.grid_decay);
+        }
+        if !(0.0..1.0).contains(&self.train_min_transmittance) {
+            return bad("train_min_transmittance", "in [0, 1)", &self.train_min_transmittance);
+        }
+        if let Some(a) = self.cone_angle
+            && !(a.is_finite() && a >= 0.0)
+        {
+            return bad("cone_angle", "a finite angle ≥ 0", &a);
+        }
+        check_adam("model", self.beta1, self.beta2, self.eps)
+    }
+
     fn hash_config(&self) -> HashGridConfig {
         HashGridConfig {
             levels: self.levels,
@@ -240,14 +292,13 @@ const RENDER_CHUNK: usize = 1024;
 impl FastModel {
     /// A new model with parameters keyed by `seed`.
     pub fn new(config: FastConfig, bounds: SceneBounds, seed: u64) -> Result<Self, String> {
+        config.check()?;
+        bounds.check()?;
         let device = backend::train_device();
         let field = seeded_init(config.field_config().init(&device), seed);
         let hash = config.hash_config();
         let grid = HashGrid::new(hash.clone(), stream_seed(seed, stream::INIT)).map_err(|e| e.to_string())?;
         let n = grid.params.len();
-        if !(1..=1024).contains(&config.grid_resolution) {
-            return Err(format!("grid_resolution must be 1..=1024, not {}", config.grid_resolution));
-        }
         let occupancy = OccupancyGrid::new(OccupancyGridConfig {
             aabb: Aabb { min: bounds.aabb_min, max: bounds.aabb_max },
             resolution: config.grid_resolution as u32,

@@ -40,10 +40,21 @@ impl ModelConfig {
     }
     /// Builds the model, its parameters a function of `seed`; errors on invalid settings.
     pub fn init(&self, bounds: &SceneBounds, seed: u64) -> Result<Model, String> {
+        self.check()?;
         Ok(match self {
             ModelConfig::Paper(c) => Model::Paper(Box::new(paper::PaperModel::new(c.clone(), bounds.clone(), seed))),
             ModelConfig::Fast(c) => Model::Fast(Box::new(fast::FastModel::new(c.clone(), bounds.clone(), seed)?)),
         })
+    }
+
+    /// Refuses settings no model can be built or trained with, naming the field (the config
+    /// file may come from a user): see [`fast::FastConfig::check`] and
+    /// [`paper::PaperConfig::check`].
+    pub fn check(&self) -> Result<(), String> {
+        match self {
+            ModelConfig::Paper(c) => c.check(),
+            ModelConfig::Fast(c) => c.check(),
+        }
     }
 }
 
@@ -388,4 +399,18 @@ pub(crate) fn load_params<M: burn::module::Module>(s: &StateDict, prefix: &str, 
         .map(|k| s.arrays.get(&format!("{prefix}.{k}")).cloned().ok_or_else(|| format!("checkpoint lacks {prefix}.{k}")))
         .collect::<Result<Vec<_>, _>>()?;
     crate::field::load_param_vectors(m, &values)
+}
+
+/// Refuses Adam settings that make no optimiser: β₁ and β₂ in [0, 1), ε finite and > 0 (the
+/// fields `{prefix}.beta1`, `.beta2`, `.eps`).
+pub fn check_adam(prefix: &str, beta1: f32, beta2: f32, eps: f32) -> Result<(), String> {
+    for (field, b) in [("beta1", beta1), ("beta2", beta2)] {
+        if !(0.0..1.0).contains(&b) {
+            return Err(format!("{prefix}.{field} must be in [0, 1), not {b}"));
+        }
+    }
+    if !(eps.is_finite() && eps > 0.0) {
+        return Err(format!("{prefix}.eps must be a finite number > 0, not {eps}"));
+    }
+    Ok(())
 }

@@ -12,7 +12,7 @@ use super::ops::{self, DensityActivation, stream, stream_seed};
 use crate::encoding::frequency_encode;
 use crate::sampling::{self, RaySamples, SampleMode};
 use crate::volrend;
-use super::{RayOutputs, StepStats, StepTimings, all_finite, expected_distance, mse_and_grad};
+use super::{RayOutputs, StepStats, StepTimings, all_finite, check_adam, expected_distance, mse_and_grad};
 use crate::backend;
 use crate::checkpoint::StateDict;
 use crate::data::{RayBatch, SceneBounds};
@@ -47,6 +47,36 @@ pub struct PaperConfig {
     /// Adam ε (the paper: 1e-7).
     #[config(default = 1e-7)]
     pub eps: f32,
+}
+
+impl PaperConfig {
+    /// Refuses values no model can be built or trained with (each message names the field):
+    /// at least one coarse sample, at most 2^16 samples of each kind, 0..=32 frequencies,
+    /// network widths 1..=4096 and depth 1..=64, and Adam's β in [0, 1) and ε > 0.
+    pub fn check(&self) -> Result<(), String> {
+        let bad = |field: &str, rule: &str, value: usize| Err(format!("model.{field} must be {rule}, not {value}"));
+        if !(1..=1 << 16).contains(&self.coarse_samples) {
+            return bad("coarse_samples", "1..=65536", self.coarse_samples);
+        }
+        if self.fine_samples > 1 << 16 {
+            return bad("fine_samples", "0..=65536", self.fine_samples);
+        }
+        let f = &self.field;
+        for (field, v) in [("field.pos_freqs", f.pos_freqs), ("field.dir_freqs", f.dir_freqs)] {
+            if v > 32 {
+                return bad(field, "0..=32", v);
+            }
+        }
+        for (field, v) in [("field.width", f.width), ("field.color_width", f.color_width)] {
+            if !(1..=4096).contains(&v) {
+                return bad(field, "1..=4096", v);
+            }
+        }
+        if !(1..=64).contains(&f.depth) {
+            return bad("field.depth", "1..=64", f.depth);
+        }
+        check_adam("model", self.beta1, self.beta2, self.eps)
+    }
 }
 
 /// Coarse and fine networks.
