@@ -16,18 +16,24 @@ pub struct TrainArgs {
     #[arg(long)]
     pub out: PathBuf,
     /// Model: paper, fast, or auto (fast sized from the scene and its cameras; the reasons go
-    /// into config.json).
-    #[arg(long, default_value = "fast")]
-    pub model: String,
+    /// into config.json). Default fast.
+    #[arg(long)]
+    pub model: Option<String>,
     /// Stop after this many steps.
     #[arg(long)]
     pub steps: Option<u64>,
     /// Stop after this much training time: 90s, 5m, 1h.
     #[arg(long, allow_hyphen_values = true)]
     pub time: Option<String>,
-    /// Continue the run in --out from its latest checkpoint, with its recorded config.
+    /// Continue the run in --out from its latest checkpoint, with its recorded config
+    /// (--steps and --time may extend its budget; flags that would change other settings are
+    /// refused).
     #[arg(long)]
     pub resume: bool,
+    /// Replace a run already in --out (the folder is removed first); without it such a run is
+    /// refused, so that a new run never mixes with an old one's checkpoints and outputs.
+    #[arg(long, conflicts_with = "resume")]
+    pub force: bool,
     /// Seed of every random choice.
     #[arg(long)]
     pub seed: Option<u64>,
@@ -75,10 +81,12 @@ impl TrainArgs {
         Self {
             dataset: Some(dataset.to_path_buf()),
             out: out.to_path_buf(),
-            model: model.to_string(),
+            // A resumed run keeps its recorded model (a caller's label is only for fresh runs).
+            model: (!resume).then(|| model.to_string()),
             steps: None,
             time: Some(time.to_string()),
             resume,
+            force: false,
             seed: None,
             config: None,
             downscale: None,
@@ -108,7 +116,7 @@ fn build_config(args: &TrainArgs) -> anyhow::Result<TrainConfig> {
         Some(p) => TrainConfig::read(p)?,
         None => {
             let ds = args.dataset.clone().context("give a dataset folder (or --config)")?;
-            TrainConfig::preset(&args.model, ds).map_err(anyhow::Error::msg)?
+            TrainConfig::preset(args.model.as_deref().unwrap_or("fast"), ds).map_err(anyhow::Error::msg)?
         }
     };
     if let Some(d) = &args.dataset {
@@ -144,16 +152,80 @@ fn build_config(args: &TrainArgs) -> anyhow::Result<TrainConfig> {
     if let Some(b) = args.batch_samples {
         cfg.batch_samples = Some(b);
     }
+    if let Err(e) = cfg.check() {
+        match &args.config {
+            Some(p) => anyhow::bail!("{}: {e}", p.display()),
+            None => anyhow::bail!("{e}"),
+        }
+    }
     Ok(cfg)
+}
+
+/// Whether `dir` holds a training run: its `config.json` or a checkpoint.
+fn holds_run(dir: &std::path::Path) -> bool {
+    dir.join(nerf::train::CONFIG_FILE).exists() || nerf::checkpoint::latest(dir).is_some()
+}
+
+/// The trainer of `--resume`: the run's recorded config, whose budget `--steps` and `--time`
+/// may replace; any flag that would change another setting is refused rather than ignored.
+fn resume_trainer(args: &TrainArgs) -> anyhow::Result<Trainer> {
+    let out = &args.out;
+    let config_path = out.join(nerf::train::CONFIG_FILE);
+    anyhow::ensure!(config_path.is_file(), "--resume: {} holds no run to continue (no {})", out.display(), config_path.display());
+    let mut cfg = TrainConfig::read(&config_path)?;
+    let same_path = |a: &std::path::Path, b: &std::path::Path| match (a.canonicalize(), b.canonicalize()) {
+        (Ok(x), Ok(y)) => x == y,
+        _ => a == b,
+    };
+    let changed: Vec<&str> = [
+        ("a dataset other than the recorded one", args.dataset.as_deref().is_some_and(|d| !same_path(d, &cfg.dataset))),
+        ("--config", args.config.is_some()),
+        ("--seed", args.seed.is_some_and(|s| s != cfg.seed)),
+        ("--downscale", args.downscale.is_some_and(|d| d != cfg.downscale)),
+        ("--background", args.background.is_some_and(|b| b != cfg.background)),
+        ("--batch-rays", args.batch_rays.is_some_and(|b| b != cfg.batch_rays)),
+        ("--batch-samples", args.batch_samples.is_some_and(|b| Some(b) != cfg.batch_samples)),
+        ("--model", args.model.as_deref().is_some_and(|m| m != cfg.model_label())),
+    ]
+    .into_iter()
+    .filter_map(|(name, differs)| differs.then_some(name))
+    .collect();
+    anyhow::ensure!(
+        changed.is_empty(),
+        "--resume continues the run in {} with the settings in {} ({} model, seed {}, downscale {}); {} would change them: leave them out, or train into a new --out",
+        out.display(),
+        config_path.display(),
+        cfg.model_label(),
+        cfg.seed,
+        cfg.downscale,
+        changed.join(", ")
+    );
+    if let Some(s) = args.steps {
+        cfg.steps = Some(s);
+    }
+    if let Some(t) = &args.time {
+        cfg.time_budget_s = Some(parse_duration(t)?);
+    }
+    cfg.check().map_err(|e| anyhow::anyhow!("{}: {e}", config_path.display()))?;
+    Trainer::new(cfg, out, true).with_context(|| format!("resuming {}", out.display()))
 }
 
 /// Trains a model.
 pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     let stop = crate::stop_flag();
     let mut trainer = if args.resume {
-        Trainer::resume(&args.out).with_context(|| format!("resuming {}", args.out.display()))?
+        resume_trainer(&args)?
     } else {
-        Trainer::new(build_config(&args)?, &args.out, false)?
+        let cfg = build_config(&args)?;
+        if holds_run(&args.out) {
+            anyhow::ensure!(
+                args.force,
+                "{} already holds a training run (config.json or checkpoints): continue it with --resume, replace it with --force, or train into a new --out",
+                args.out.display()
+            );
+            std::fs::remove_dir_all(&args.out).with_context(|| format!("removing the run in {} (--force)", args.out.display()))?;
+        }
+        Trainer::new(cfg, &args.out, false)?
     };
     for reason in trainer.config.auto_reasons.iter().flatten() {
         eprintln!("auto: {reason}");
@@ -223,6 +295,8 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
 /// Renders views from a run.
 pub fn run_render(args: RenderNerfArgs) -> anyhow::Result<()> {
     anyhow::ensure!(args.orbit != Some(0), "--orbit 0: at least one view is needed");
+    const MOST_ORBIT_VIEWS: usize = 100_000;
+    anyhow::ensure!(args.orbit.is_none_or(|n| n <= MOST_ORBIT_VIEWS), "--orbit {}: at most {MOST_ORBIT_VIEWS} views", args.orbit.unwrap_or(0));
     let model = RunModel::load(&args.run).with_context(|| format!("loading {}", args.run.display()))?;
     let downscale = args.downscale.unwrap_or(model.config.downscale.max(1));
     {

@@ -209,14 +209,16 @@ fn impossible_training_options_exit_1_and_write_nothing() {
     let tmp = tempfile::tempdir().unwrap();
     let valid = dataset_corpus().join("valid_blender");
     let run = tmp.path().join("run");
-    let cases: [(&[&str], &str); 13] = [
+    let cases: [(&[&str], &str); 15] = [
         (&["--time", "-5s"], "time budget must be positive"),
         (&["--time=-5s"], "time budget must be positive"),
         (&["--time", "0s"], "time budget must be positive"),
         (&["--time", "5parsecs"], "bad duration unit"),
         (&["--steps", "0"], "steps must be positive"),
-        (&["--steps", "1", "--batch-rays", "0"], "batch_rays must be positive"),
-        (&["--steps", "1", "--batch-samples", "0"], "batch_samples must be positive"),
+        (&["--steps", "1", "--batch-rays", "0"], "batch_rays must be 1..="),
+        (&["--steps", "1", "--batch-samples", "0"], "batch_samples must be 1..="),
+        (&["--steps", "1", "--batch-rays", "4000000000"], "batch_rays must be 1..=4194304, not 4000000000"),
+        (&["--steps", "1", "--batch-samples", "99999999999"], "batch_samples must be 1..="),
         (&["--steps", "1", "--downscale", "0"], "downscale must be a positive integer"),
         (&["--steps", "1", "--downscale", "17"], "downscale 17 is larger than the 16x16 image"),
         (&["--steps", "1", "--downscale", "3"], "downscale 3 does not divide the 16x16 image"),
@@ -230,6 +232,37 @@ fn impossible_training_options_exit_1_and_write_nothing() {
         let stderr = assert_refused(&args, what, &run);
         assert!(stderr.starts_with("error: ") && stderr.trim_end().lines().count() == 1, "{opts:?}: not one message:\n{stderr}");
     }
+}
+
+/// `train --out` on a folder that holds a run starts nothing there unless `--force` replaces
+/// it; `--resume` continues it, extends its budget with `--steps`, and refuses flags that would
+/// change its recorded settings instead of ignoring them.
+#[test]
+fn an_existing_run_is_refused_replaced_or_resumed_never_mixed() {
+    let tmp = tempfile::tempdir().unwrap();
+    let valid = dataset_corpus().join("valid_blender");
+    let run = train_valid_blender(tmp.path(), "run");
+    let r = run.to_str().unwrap();
+    let before: Vec<(PathBuf, Vec<u8>)> = listing(&run).into_iter().map(|p| (p.clone(), std::fs::read(&p).unwrap())).collect();
+    let unchanged = |why: &str| {
+        let now: Vec<(PathBuf, Vec<u8>)> = listing(&run).into_iter().map(|p| (p.clone(), std::fs::read(&p).unwrap())).collect();
+        assert!(now == before, "{why}: the run folder changed");
+    };
+    let (code, stderr) = xtask(&["train", valid.to_str().unwrap(), "--out", r, "--steps", "1", "--seed", "9"]);
+    assert!(code == 1 && stderr.contains("already holds a training run") && stderr.contains("--force"), "{code}: {stderr}");
+    unchanged("a fresh run into it");
+    let (code, stderr) = xtask(&["train", "--resume", "--out", r, "--steps", "3", "--seed", "9", "--model", "paper"]);
+    assert!(code == 1 && stderr.contains("--seed, --model would change them"), "{code}: {stderr}");
+    unchanged("a resume with other settings");
+    // The same settings, restated, are not a change; --steps extends the budget.
+    let (code, stderr) = xtask(&["train", valid.to_str().unwrap(), "--resume", "--out", r, "--steps", "3", "--seed", "0", "--model", "fast"]);
+    assert_eq!(code, 0, "{stderr}");
+    assert!(run.join("checkpoints/step-00000003.ckpt").is_file(), "the resumed run did not train to step 3: {:?}", listing(&run));
+    // --force starts over: the old run's checkpoints are gone.
+    let (code, stderr) = xtask(&["train", valid.to_str().unwrap(), "--out", r, "--steps", "1", "--force"]);
+    assert_eq!(code, 0, "{stderr}");
+    let ckpts: Vec<PathBuf> = listing(&run).into_iter().filter(|p| p.extension().is_some_and(|e| e == "ckpt")).collect();
+    assert_eq!(ckpts, vec![run.join("checkpoints/step-00000001.ckpt")], "--force kept the old run's checkpoints");
 }
 
 #[test]
