@@ -82,6 +82,16 @@ pub fn run(args: CrosscheckArgs) -> anyhow::Result<()> {
     if args.views == 0 {
         bail!("--views 0: at least one view is needed");
     }
+    if args.max_groups < 2 {
+        bail!("--max-groups {}: at least 2 groups are needed (the noise is estimated from independent groups)", args.max_groups);
+    }
+    // The harness compares RGB images: Mitsuba's RGB variants, on the CPU or a CUDA GPU. Checked
+    // here, before anything is written (an unknown variant used to fail only in the harness,
+    // after the export).
+    const VARIANTS: [&str; 5] = ["scalar_rgb", "llvm_rgb", "llvm_ad_rgb", "cuda_rgb", "cuda_ad_rgb"];
+    if !VARIANTS.contains(&args.variant.as_str()) {
+        bail!("--variant {}: the cross-check needs one of Mitsuba's RGB variants: {}", args.variant, VARIANTS.join(", "));
+    }
     let scene_path = resolve_scene(&args.scene)?;
     let name = scene_path.file_stem().and_then(|s| s.to_str()).unwrap_or("scene").to_string();
     let out = args.out.clone().unwrap_or_else(|| root.join("out/crosscheck").join(&name));
@@ -115,7 +125,7 @@ pub fn run(args: CrosscheckArgs) -> anyhow::Result<()> {
         environment_map: args.environment_map.clone(),
     };
     settings.validate()?;
-    let groups = reference_groups(settings.spp, args.max_groups.max(2));
+    let groups = reference_groups(settings.spp, args.max_groups);
     if groups < 2 {
         bail!("--spp {} is prime above --max-groups {}: choose an spp with a divisor between 2 and {}", args.spp, args.max_groups, args.max_groups);
     }

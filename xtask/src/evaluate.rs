@@ -23,8 +23,9 @@ pub struct EvalArgs {
     /// at; 1 = the dataset's full resolution). Must divide the image size.
     #[arg(long)]
     pub downscale: Option<u32>,
-    /// The scene the dataset was rendered from, for exact depth ground truth at even
-    /// downscale factors (default: found through the dataset's render_config.json).
+    /// The scene the dataset was rendered from (a file, or the name of a scene in `scenes/`),
+    /// for exact depth ground truth at even downscale factors (default: found through the
+    /// dataset's render_config.json).
     #[arg(long)]
     pub scene: Option<PathBuf>,
     /// Grid cells along the scene box's longest side of the mesh measured against the scene's
@@ -113,7 +114,7 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         grid_views: args.grids,
         max_views: args.max_views,
         downscale: args.downscale,
-        scene: args.scene.clone(),
+        scene: crate::render::resolve_scene_option(args.scene.as_deref())?,
         mesh: (!args.no_mesh).then_some(eval::mesh_eval::MeshEvalOptions { resolution: args.mesh_resolution, ..eval::mesh_eval::MeshEvalOptions::standard() }),
     };
     anyhow::ensure!(

@@ -117,8 +117,22 @@ fn main() -> std::process::ExitCode {
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("error: {e:#}");
+            eprintln!("error: {}", error_message(&e));
             std::process::ExitCode::from(1)
         }
     }
+}
+
+/// The error and its causes in one line, `outer: inner: …` (anyhow's `{:#}`), less the causes
+/// a message already ends with: most of our errors write their source into their own message
+/// (`{path}: {source}`), which `{:#}` would print twice.
+fn error_message(e: &anyhow::Error) -> String {
+    let mut msg = e.to_string();
+    for cause in e.chain().skip(1) {
+        let c = cause.to_string();
+        if !msg.ends_with(&c) {
+            msg = format!("{msg}: {c}");
+        }
+    }
+    msg
 }

@@ -28,7 +28,8 @@ pub struct MeshArgs {
     /// dataset was rendered from is found).
     #[arg(long)]
     pub no_metrics: bool,
-    /// The scene the dataset was rendered from (default: found through its render_config.json).
+    /// The scene the dataset was rendered from: a file, or the name of a scene in `scenes/`
+    /// (default: found through its render_config.json).
     #[arg(long)]
     pub scene: Option<PathBuf>,
     /// Points sampled on each mesh for the metrics.
@@ -81,7 +82,7 @@ pub fn run(args: MeshArgs) -> anyhow::Result<()> {
     let metrics = if args.no_metrics {
         None
     } else {
-        match scene_reference(&dataset, args.scene.as_deref())? {
+        match scene_reference(&dataset, crate::render::resolve_scene_option(args.scene.as_deref())?.as_deref())? {
             Ok(reference) => {
                 let (m, fraction) = compare_with_reference(&extracted.mesh, &reference, args.samples)?;
                 Some(MeshBlock {

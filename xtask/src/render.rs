@@ -84,14 +84,16 @@ pub struct MergeArgs {
     /// The dataset folder to write (must not exist or be empty).
     #[arg(long)]
     pub out: PathBuf,
-    /// The scene file the shards were rendered from (default: the path they recorded).
+    /// The scene file the shards were rendered from, or the name of a scene in `scenes/`
+    /// (default: the path they recorded).
     #[arg(long)]
     pub scene: Option<PathBuf>,
 }
 
 /// Merges shard folders into one dataset folder.
 pub fn run_merge(args: MergeArgs) -> anyhow::Result<()> {
-    let sum = pathtracer::shard::merge_shards(&args.shards, &args.out, args.scene.as_deref())
+    let scene = resolve_scene_option(args.scene.as_deref())?;
+    let sum = pathtracer::shard::merge_shards(&args.shards, &args.out, scene.as_deref())
         .with_context(|| format!("merging {} shards into {}", args.shards.len(), args.out.display()))?;
     println!("dataset: {}", sum.out.display());
     println!("{} views merged from {} shards; near {:.3}, far {:.3}", sum.views_total, args.shards.len(), sum.facts.near, sum.facts.far);
@@ -177,7 +179,16 @@ pub fn resolve_scene(scene: &str) -> anyhow::Result<PathBuf> {
             if known.is_empty() { "none".to_string() } else { known.join(", ") }
         );
     }
+    if p.is_dir() {
+        bail!("scene {} is a folder, not a glTF file (.gltf or .glb)", p.display());
+    }
     bail!("scene file {} does not exist", p.display())
+}
+
+/// [`resolve_scene`] for an optional `--scene` path option: a file, or the name of a scene in
+/// `scenes/`, as `render` takes it.
+pub fn resolve_scene_option(scene: Option<&Path>) -> anyhow::Result<Option<PathBuf>> {
+    scene.map(|s| resolve_scene(&s.to_string_lossy())).transpose()
 }
 
 /// Parses `W` or `WxH`.

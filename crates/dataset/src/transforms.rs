@@ -249,6 +249,9 @@ impl Dataset {
     /// present. Every frame's image must exist and have the size the intrinsics say; poses must
     /// be finite rigid transforms.
     pub fn load(root: &Path) -> Result<Self, DatasetError> {
+        if root.is_file() {
+            return Err(DatasetError::invalid(root, "is a file, not a dataset folder (give the folder that holds transforms_train.json)"));
+        }
         if !root.is_dir() {
             return Err(DatasetError::invalid(root, "dataset folder does not exist"));
         }

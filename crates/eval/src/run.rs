@@ -324,6 +324,10 @@ pub fn evaluate_run(
     report.resolution = resolution;
     report.notes.extend(note);
     report.notes.extend(gt_note);
+    // Every input is read before the first output (the mesh's files) is written, so a bad
+    // metrics file leaves the run as it was.
+    let metrics_path = run_dir.join("metrics.jsonl");
+    let curve = if metrics_path.exists() { read_metrics_jsonl(&metrics_path)? } else { Vec::new() };
     if let Some(mesh_opts) = &opts.mesh {
         match crate::mesh_eval::scene_reference(&dataset, opts.scene.as_deref())? {
             Ok(reference) => {
@@ -338,8 +342,6 @@ pub fn evaluate_run(
             Err(why) => report.notes.push(format!("no mesh metrics: {why}")),
         }
     }
-    let metrics_path = run_dir.join("metrics.jsonl");
-    let curve = if metrics_path.exists() { read_metrics_jsonl(&metrics_path)? } else { Vec::new() };
     let name = run_name(run_dir);
     let grids: Vec<ViewInput<'_>> = kept.iter().map(view_input).collect();
     let report_md = write_report(run_dir, &name, &report, &curve, &grids)?;

@@ -424,10 +424,8 @@ pub(crate) fn render_dataset_sharded(
     cfg.validate()?;
     let source = SceneSource::from_scene(scene_path)?;
     let scene = crate::import::load_gltf(scene_path, &crate::import::ImportOptions::default())?;
+    // The import logged its warnings (naming the file) as it found them.
     let mut renderer = crate::render::Renderer::new(scene, &crate::accel::AccelParams::medium_build())?;
-    for w in &renderer.scene().warnings {
-        tracing::warn!("{}: {w}", scene_path.display());
-    }
     let settings = crate::render::RenderSettings {
         spp: cfg.spp,
         max_bounces: cfg.max_bounces,

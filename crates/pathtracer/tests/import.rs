@@ -750,3 +750,22 @@ fn byte_flips_in_glb_never_panic() {
     }
     assert!(errors > 0 && oks > 0, "{errors} errors, {oks} successes");
 }
+
+/// A `.glb` file without the GLB magic is refused as such, naming the file and what it starts
+/// with, instead of being read as JSON (whose parser then spoke of an unexpected value); a
+/// valid one loads whatever the case of its extension.
+#[test]
+fn a_glb_without_the_magic_is_refused_as_not_binary_gltf() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/import");
+    let glb = std::fs::read(dir.join("valid_triangle.glb")).unwrap();
+    let tmp = tempfile::tempdir().unwrap();
+    let mut bad = glb.clone();
+    bad[..4].copy_from_slice(b"gLTF");
+    let path = tmp.path().join("bad.glb");
+    std::fs::write(&path, &bad).unwrap();
+    let e = load_gltf(&path, &ImportOptions::default()).unwrap_err().to_string();
+    assert!(e.contains("bad.glb") && e.contains("not a binary glTF") && e.contains("'gLTF'"), "{e}");
+    let upper = tmp.path().join("fine.GLB");
+    std::fs::write(&upper, &glb).unwrap();
+    assert!(load_gltf(&upper, &ImportOptions::default()).is_ok());
+}

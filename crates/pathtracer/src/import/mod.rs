@@ -98,6 +98,10 @@ pub fn load_gltf(path: &Path, options: &ImportOptions) -> Result<Scene, PathTrac
         ));
     }
     let bytes = std::fs::read(path).map_err(|e| PathTracerError::import(path, format!("cannot read scene file: {e}")))?;
+    if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("glb")) && !glb::is_glb(&bytes) {
+        let head: String = bytes.iter().take(4).map(|b| if b.is_ascii_graphic() { *b as char } else { '.' }).collect();
+        return Err(PathTracerError::import(path, format!("not a binary glTF (.glb): the file starts with '{head}', not the GLB magic 'glTF'")));
+    }
     let base_dir = path.parent().unwrap_or(Path::new(""));
     load_gltf_from_slice(&bytes, Some(base_dir), &path.display().to_string(), options)
 }
@@ -149,6 +153,7 @@ pub fn load_gltf_from_slice(
         gltf::json::deserialize::from_slice(json_bytes).map_err(|e| err(format!("invalid glTF JSON: {e}")))?;
     let raw: serde_json::Value = serde_json::from_slice(json_bytes).unwrap_or(serde_json::Value::Null);
 
+    check_version(&root.asset).map_err(err)?;
     let mut warnings = Vec::new();
     check_extensions(&root, &mut warnings).map_err(err)?;
     // Our own check replaces the gltf crate's (which only knows its compiled-in features).
@@ -180,6 +185,20 @@ pub fn load_gltf_from_slice(
     importer.load_materials()?;
     importer.traverse()?;
     importer.finish(name)
+}
+
+/// Refuses an asset of another major glTF version than 2 (`asset.version`, and
+/// `asset.minVersion` when given, are `major.minor`): its meaning may differ from what this
+/// importer reads (glTF 2.0 §3.2: a loader rejects a major version it does not support).
+fn check_version(asset: &gltf::json::Asset) -> Result<(), String> {
+    let major = |v: &str| v.split('.').next().and_then(|m| m.trim().parse::<u32>().ok());
+    for (field, v) in [("asset.version", Some(asset.version.as_str())), ("asset.minVersion", asset.min_version.as_deref())] {
+        let Some(v) = v else { continue };
+        if major(v) != Some(2) {
+            return Err(format!("{field} is \"{v}\": only glTF 2.x is supported"));
+        }
+    }
+    Ok(())
 }
 
 /// Checks `extensionsRequired` (error for anything unsupported) and `extensionsUsed` (warning

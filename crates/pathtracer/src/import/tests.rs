@@ -385,3 +385,26 @@ fn malformed_extension_values_name_the_file_material_and_field() {
         assert!(e.contains("material 0: normalTexture.extensions.KHR_texture_transform: ") && e.contains(expect), "{e}");
     }
 }
+
+/// Only glTF 2.x is read: another major version in `asset.version` or `asset.minVersion` is
+/// refused, naming the field, rather than read as if it were 2.0.
+#[test]
+fn other_major_gltf_versions_are_refused() {
+    let with_asset = |asset: Value| {
+        let mut v: Value = serde_json::from_slice(&file(&f32_bytes(&TRI), triangle_body(json!([]), &[]))).unwrap();
+        v["asset"] = asset;
+        serde_json::to_vec(&v).unwrap()
+    };
+    for (asset, field) in [
+        (json!({"version": "3.0"}), "asset.version is \"3.0\""),
+        (json!({"version": "1.0"}), "asset.version is \"1.0\""),
+        (json!({"version": "two"}), "asset.version is \"two\""),
+        (json!({"version": "2.0", "minVersion": "3.0"}), "asset.minVersion is \"3.0\""),
+    ] {
+        let e = load(&with_asset(asset)).unwrap_err().to_string();
+        assert!(e.starts_with("unit.gltf: ") && e.contains(field) && e.contains("only glTF 2.x"), "{e}");
+    }
+    for asset in [json!({"version": "2.0"}), json!({"version": "2.1", "minVersion": "2.0"})] {
+        assert_eq!(load(&with_asset(asset)).unwrap().mesh.indices.len(), 1);
+    }
+}
