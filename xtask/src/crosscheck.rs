@@ -65,6 +65,16 @@ pub struct CrosscheckArgs {
 
 /// Runs the cross-check; fails when the harness reports a failed criterion.
 pub fn run(args: CrosscheckArgs) -> anyhow::Result<()> {
+    if args.max_groups < 2 {
+        bail!("--max-groups {}: at least 2 groups are needed (the noise is estimated from independent groups)", args.max_groups);
+    }
+    // The harness compares RGB images: Mitsuba's RGB variants, on the CPU or a CUDA GPU. Checked
+    // here, before anything is written (an unknown variant used to fail only in the harness,
+    // after the export).
+    const VARIANTS: [&str; 5] = ["scalar_rgb", "llvm_rgb", "llvm_ad_rgb", "cuda_rgb", "cuda_ad_rgb"];
+    if !VARIANTS.contains(&args.variant.as_str()) {
+        bail!("--variant {}: the cross-check needs one of Mitsuba's RGB variants: {}", args.variant, VARIANTS.join(", "));
+    }
     let root = repo_root();
     let python = root.join(".venv/bin/python");
     if !python.is_file() {
@@ -81,16 +91,6 @@ pub fn run(args: CrosscheckArgs) -> anyhow::Result<()> {
     }
     if args.views == 0 {
         bail!("--views 0: at least one view is needed");
-    }
-    if args.max_groups < 2 {
-        bail!("--max-groups {}: at least 2 groups are needed (the noise is estimated from independent groups)", args.max_groups);
-    }
-    // The harness compares RGB images: Mitsuba's RGB variants, on the CPU or a CUDA GPU. Checked
-    // here, before anything is written (an unknown variant used to fail only in the harness,
-    // after the export).
-    const VARIANTS: [&str; 5] = ["scalar_rgb", "llvm_rgb", "llvm_ad_rgb", "cuda_rgb", "cuda_ad_rgb"];
-    if !VARIANTS.contains(&args.variant.as_str()) {
-        bail!("--variant {}: the cross-check needs one of Mitsuba's RGB variants: {}", args.variant, VARIANTS.join(", "));
     }
     let scene_path = resolve_scene(&args.scene)?;
     let name = scene_path.file_stem().and_then(|s| s.to_str()).unwrap_or("scene").to_string();

@@ -315,6 +315,55 @@ fn unparsable_options_exit_1_naming_the_option() {
     assert_eq!(code, 0, "render --help: {stdout_or_err}");
 }
 
+/// Inputs of the wrong kind say what they are, and an error's cause is printed once (errors
+/// that write their source into their own message printed it twice through anyhow's chain).
+#[test]
+fn inputs_of_the_wrong_kind_are_named_and_causes_printed_once() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("out");
+    let (t, o) = (tmp.path().to_str().unwrap(), out.to_str().unwrap());
+    let file = dataset_corpus().join("valid_blender/transforms_train.json");
+    let cases: [(&[&str], &str); 5] = [
+        (&["render", t, "--out", o], "is a folder, not a glTF file"),
+        (&["train", file.to_str().unwrap(), "--out", o, "--steps", "1"], "is a file, not a dataset folder"),
+        (&["crosscheck", "cornell", "--out", o, "--variant", "cuda_bogus"], "--variant cuda_bogus: the cross-check needs one of Mitsuba's RGB variants"),
+        (&["crosscheck", "cornell", "--out", o, "--max-groups", "0"], "--max-groups 0: at least 2 groups"),
+        (&["train", "--config", "/nonexistent/train.json", "--out", o], "/nonexistent/train.json"),
+    ];
+    for (args, what) in cases {
+        let stderr = assert_refused(args, what, &out);
+        assert!(stderr.matches("os error").count() <= 1, "{args:?}: a cause printed twice:\n{stderr}");
+    }
+}
+
+/// A run whose `metrics.jsonl` is malformed fails evaluation before any output (the mesh's
+/// files included: eval wrote them first) is written into it; with the file restored the same
+/// evaluation writes the mesh, so the run is one that has a surface to mesh.
+#[test]
+fn eval_with_a_malformed_metrics_file_writes_nothing() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (ds, run) = (tmp.path().join("ds"), tmp.path().join("run"));
+    let (d, r) = (ds.to_str().unwrap(), run.to_str().unwrap());
+    for args in [
+        &["render", "tabletop", "--out", d, "--res", "16", "--train", "3", "--val", "1", "--test", "1", "--spp", "2"][..],
+        &["train", d, "--out", r, "--steps", "100"],
+    ] {
+        let (code, stderr) = xtask(args);
+        assert_eq!(code, 0, "{args:?}: {stderr}");
+    }
+    let metrics = std::fs::read(run.join("metrics.jsonl")).unwrap();
+    std::fs::write(run.join("metrics.jsonl"), "{\"step\": oops\n").unwrap();
+    let before = listing(&run);
+    let eval = ["eval", r, "--split", "test", "--mesh-resolution", "8", "--grids", "0"];
+    let (code, stderr) = xtask(&eval);
+    assert!(code == 1 && stderr.contains("metrics.jsonl:1"), "{code}: {stderr}");
+    assert_eq!(listing(&run), before, "eval wrote into the run before failing");
+    std::fs::write(run.join("metrics.jsonl"), metrics).unwrap();
+    let (code, stderr) = xtask(&eval);
+    assert_eq!(code, 0, "{stderr}");
+    assert!(run.join("mesh.ply").is_file(), "the valid evaluation wrote no mesh: {:?}", listing(&run));
+}
+
 #[test]
 fn render_nerf_and_eval_with_no_views_exit_1_and_write_nothing() {
     let tmp = tempfile::tempdir().unwrap();
