@@ -364,6 +364,22 @@ fn eval_with_a_malformed_metrics_file_writes_nothing() {
     assert!(run.join("mesh.ply").is_file(), "the valid evaluation wrote no mesh: {:?}", listing(&run));
 }
 
+/// A checkpoint that does not hold the model its run's config describes is named in the
+/// error (it said only "parameter 0: expected …"), on loading and on resuming.
+#[test]
+fn a_checkpoint_that_does_not_fit_the_config_is_named() {
+    let tmp = tempfile::tempdir().unwrap();
+    let run = train_valid_blender(tmp.path(), "run");
+    let mut cfg: serde_json::Value = serde_json::from_slice(&std::fs::read(run.join("config.json")).unwrap()).unwrap();
+    cfg["model"]["density_width"] = serde_json::json!(32);
+    std::fs::write(run.join("config.json"), cfg.to_string()).unwrap();
+    let r = run.to_str().unwrap();
+    for args in [&["render-nerf", r, "--split", "train"][..], &["train", "--resume", "--out", r, "--steps", "3"]] {
+        let (code, stderr) = xtask(args);
+        assert!(code == 1 && stderr.contains("checkpoints/step-00000002.ckpt: parameter"), "{args:?}: {code}: {stderr}");
+    }
+}
+
 #[test]
 fn render_nerf_and_eval_with_no_views_exit_1_and_write_nothing() {
     let tmp = tempfile::tempdir().unwrap();

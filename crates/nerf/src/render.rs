@@ -72,7 +72,9 @@ impl RunModel {
         let path = checkpoint::latest(run_dir).ok_or_else(|| checkpoint::CheckpointError::Missing(run_dir.into()))?;
         let state = checkpoint::load(&path)?;
         let mut model = config.model.init(&bounds, config.seed).map_err(TrainError::Invalid)?;
-        model.load_state(&state).map_err(TrainError::Invalid)?;
+        model.load_state(&state).map_err(|e| {
+            TrainError::Invalid(format!("{}: {e} (the checkpoint does not hold the model {} describes)", path.display(), CONFIG_FILE))
+        })?;
         let steps = state.scalars.get("trainer.step").copied().unwrap_or(0.0) as u64;
         let wall_s = state.scalars.get("trainer.wall_s").copied().unwrap_or(0.0);
         Ok(Self { config, model, checkpoint: path, steps, wall_s })

@@ -769,3 +769,17 @@ fn a_glb_without_the_magic_is_refused_as_not_binary_gltf() {
     std::fs::write(&upper, &glb).unwrap();
     assert!(load_gltf(&upper, &ImportOptions::default()).is_ok());
 }
+
+/// An image file that is not a decodable PNG is named in the error by its URI (the file to
+/// open), not only by its glTF index.
+#[test]
+fn a_corrupt_texture_file_is_named_by_its_uri() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/import");
+    let tmp = tempfile::tempdir().unwrap();
+    std::fs::copy(dir.join("missing_image.gltf"), tmp.path().join("scene.gltf")).unwrap();
+    let mut png = vec![0x89, b'P', b'N', b'G', 0x0d, 0x0a, 0x1a, 0x0a];
+    png.extend_from_slice(b"garbage, not chunks");
+    std::fs::write(tmp.path().join("no_such_texture.png"), &png).unwrap();
+    let e = load_gltf(&tmp.path().join("scene.gltf"), &ImportOptions::default()).unwrap_err().to_string();
+    assert!(e.contains("scene.gltf") && e.contains("image 0 ('no_such_texture.png')") && e.contains("cannot decode"), "{e}");
+}

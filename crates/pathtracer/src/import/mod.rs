@@ -395,8 +395,14 @@ impl Importer<'_> {
         if let Some(&t) = self.texture_cache.get(&(image, srgb)) {
             return Ok(t);
         }
-        let what = format!("image {image}");
         let source = self.doc.as_json().images.get(image).map(|im| (im.uri.clone(), im.buffer_view.map(|v| v.value())));
+        // A file image is named by its URI too (the file a user would open), an embedded one
+        // by its buffer view; long `data:` URIs are not quoted.
+        let what = match &source {
+            Some((Some(uri), _)) if !uri.starts_with("data:") => format!("image {image} ('{uri}')"),
+            Some((None, Some(view))) => format!("image {image} (bufferView {view})"),
+            _ => format!("image {image}"),
+        };
         let bytes = match source {
             Some((Some(uri), _)) => self.read_uri(&uri, &what)?,
             Some((None, Some(view))) => accessor::view_bytes(self.doc.as_json(), &self.buffers, view)
