@@ -12,7 +12,10 @@
 //! keeps complete views and renders the others.
 
 use crate::error::DatasetError;
-use crate::images::{GroundTruth, RgbaImage, linear_to_srgb, write_exr_rgba, write_ground_truth, write_npy_f32, write_png_mask, write_png_rgba};
+use crate::images::{
+    GroundTruth, RgbaImage, check_npy_f32, linear_to_srgb, read_exr_rgba, read_ground_truth, read_png_rgba, write_exr_rgba, write_ground_truth,
+    write_npy_f32, write_png_mask, write_png_rgba,
+};
 use crate::transforms::{SplitKind, nerfstudio_files};
 use serde::de::DeserializeOwned;
 use std::path::{Path, PathBuf};
@@ -35,6 +38,31 @@ pub fn view_files(split: SplitKind, index: u32) -> [String; 6] {
 /// Whether all files of view `index` of `split` exist in `out`.
 pub fn view_complete(out: &Path, split: SplitKind, index: u32) -> bool {
     view_files(split, index).iter().all(|f| out.join(f).is_file())
+}
+
+/// Reads back one view's files ([`view_files`], joined to the folder) as a resumed render or a
+/// merge is about to keep them: each must decode, at `width` × `height`. Returns the ground
+/// truth, or the first file that is damaged (our writes are atomic, so only outside damage, a
+/// truncated copy or a disk error, gets here).
+pub fn check_view(files: &[PathBuf; 6], width: u32, height: u32) -> Result<GroundTruth, DatasetError> {
+    let size = |path: &Path, w: u32, h: u32| {
+        if (w, h) == (width, height) {
+            Ok(())
+        } else {
+            Err(DatasetError::invalid(path, format!("is {w}x{h}, the view is {width}x{height}")))
+        }
+    };
+    for k in [0, 5] {
+        let img = read_png_rgba(&files[k])?;
+        size(&files[k], img.width, img.height)?;
+    }
+    let color = read_exr_rgba(&files[1])?;
+    size(&files[1], color.width, color.height)?;
+    let gt = read_ground_truth(&files[2])?;
+    size(&files[2], gt.width, gt.height)?;
+    check_npy_f32(&files[3], width, height)?;
+    check_npy_f32(&files[4], width, height)?;
+    Ok(gt)
 }
 
 /// Whether `name` is one of the files a dataset render writes inside a split folder.

@@ -240,21 +240,43 @@ pub fn read_ground_truth(path: &Path) -> Result<GroundTruth, DatasetError> {
 /// depth from `.npy` files in scene units times `depth_unit_scale_factor`).
 pub fn write_npy_f32(path: &Path, width: u32, height: u32, values: &[f32]) -> Result<(), DatasetError> {
     check_len(path, values.len(), width, height, 1)?;
-    let mut header =
-        format!("{{'descr': '<f4', 'fortran_order': False, 'shape': ({height}, {width}), }}");
+    let mut out = npy_f32_prefix(width, height);
+    out.reserve(values.len() * 4);
+    for v in values {
+        out.extend_from_slice(&v.to_le_bytes());
+    }
+    atomic_write(path, &out)
+}
+
+/// The bytes before the values of the `.npy` file [`write_npy_f32`] writes for a (`height`,
+/// `width`) array: magic, version, header length and the header, padded to 64 bytes.
+fn npy_f32_prefix(width: u32, height: u32) -> Vec<u8> {
+    let mut header = format!("{{'descr': '<f4', 'fortran_order': False, 'shape': ({height}, {width}), }}");
     // Magic (6) + version (2) + header length (2) + header + '\n' is padded to 64 bytes.
     while (10 + header.len() + 1) % 64 != 0 {
         header.push(' ');
     }
     header.push('\n');
-    let mut out = Vec::with_capacity(10 + header.len() + values.len() * 4);
+    let mut out = Vec::with_capacity(10 + header.len());
     out.extend_from_slice(b"\x93NUMPY\x01\x00");
     out.extend_from_slice(&(header.len() as u16).to_le_bytes());
     out.extend_from_slice(header.as_bytes());
-    for v in values {
-        out.extend_from_slice(&v.to_le_bytes());
+    out
+}
+
+/// Checks that `path` is the whole `.npy` file [`write_npy_f32`] writes for a (`height`,
+/// `width`) array: the same header and exactly `width · height` float32 values after it.
+pub fn check_npy_f32(path: &Path, width: u32, height: u32) -> Result<(), DatasetError> {
+    let bytes = read(path)?;
+    let prefix = npy_f32_prefix(width, height);
+    let want = prefix.len() + width as usize * height as usize * 4;
+    if !bytes.starts_with(&prefix) || bytes.len() != want {
+        return Err(DatasetError::invalid(
+            path,
+            format!("not a whole {height}x{width} float32 .npy array ({} bytes, {want} expected)", bytes.len()),
+        ));
     }
-    atomic_write(path, &out)
+    Ok(())
 }
 
 #[cfg(test)]

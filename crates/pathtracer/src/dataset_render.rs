@@ -10,7 +10,8 @@
 //! (`transforms_{train,val,test}.json` with the scene facts, nerfstudio's `transforms.json`) are
 //! written last.
 //!
-//! Resume: a view whose four files exist is kept, the others are rendered. Every view's
+//! Resume: a view whose files all exist and read back whole at the view's size is kept, the
+//! others (a damaged file included) are rendered. Every view's
 //! randomness is keyed by (seed, split, view index) only ([`view_key`]), so a resumed dataset is
 //! byte-identical to an uninterrupted one, whatever the thread count. A folder holding a dataset
 //! rendered with different settings (or another environment map: its bytes are hashed into
@@ -515,9 +516,23 @@ pub(crate) fn render_dataset_part(
     dataset::io::atomic_write_json(&out.join(RENDER_CONFIG_FILE), &record)?;
 
     let start = std::time::Instant::now();
-    let finished = |split, k| dataset::folder::view_complete(out, split, k);
     let mine = |p: usize| shard.is_none_or(|s| s.owns(p as u64));
-    let reused = rig.views().enumerate().filter(|(p, (s, k, _))| mine(*p) && finished(*s, *k)).count() as u64;
+    // The views an earlier run finished, read back whole (their ground truth kept for the
+    // distance range); a view with a damaged file is rendered again.
+    let mut kept: std::collections::HashMap<(SplitKind, u32), GroundTruth> = std::collections::HashMap::new();
+    for (split, k, camera) in rig.views().enumerate().filter(|(p, _)| mine(*p)).map(|(_, v)| v) {
+        let files = view_files(split, k).map(|f| out.join(f));
+        if files.iter().all(|f| f.is_file()) {
+            let (w, h) = (camera.intrinsics.width, camera.intrinsics.height);
+            match dataset::folder::check_view(&files, w, h) {
+                Ok(gt) => {
+                    kept.insert((split, k), gt);
+                }
+                Err(e) => tracing::warn!("{e}: rendering view {} {k} again", split.name()),
+            }
+        }
+    }
+    let reused = kept.len() as u64;
     let total = rig.views().enumerate().filter(|(p, _)| mine(*p)).count() as u64;
     progress(ProgressEvent::Started { total, reused, rig: rig.kind });
 
@@ -525,8 +540,7 @@ pub(crate) fn render_dataset_part(
     let mut samples = 0u64;
     for (split, k, camera) in rig.views().enumerate().filter(|(p, _)| mine(*p)).map(|(_, v)| v) {
         let files = view_files(split, k).map(|f| out.join(f));
-        if files.iter().all(|f| f.is_file()) {
-            let gt = dataset::read_ground_truth(&files[2])?;
+        if let Some(gt) = kept.remove(&(split, k)) {
             range.add(&gt);
             continue;
         }
@@ -837,9 +851,16 @@ mod tests {
         assert_eq!(fa.len(), 7 * 6 + 5);
         assert_eq!(fa, files(&b), "thread count changed the output");
 
-        // Delete one view's PNG and another's GT: the rerun renders just those two.
+        // Delete one view's PNG and another's GT, and damage three more views' files (an EXR
+        // cut short, a PNG of garbage, a depth array one value short): the rerun renders just
+        // those five.
         std::fs::remove_file(b.join("val/r_1.png")).unwrap();
         std::fs::remove_file(b.join("train/r_0_gt.exr")).unwrap();
+        let exr = std::fs::read(b.join("train/r_1.exr")).unwrap();
+        std::fs::write(b.join("train/r_1.exr"), &exr[..exr.len() / 2]).unwrap();
+        std::fs::write(b.join("test/r_0.png"), b"not a png").unwrap();
+        let npy = std::fs::read(b.join("val/r_0_depth.npy")).unwrap();
+        std::fs::write(b.join("val/r_0_depth.npy"), &npy[..npy.len() - 4]).unwrap();
         std::fs::remove_file(b.join("transforms.json")).unwrap();
         std::fs::write(b.join("val/.r_1.png.99999.tmp"), b"half a png").unwrap();
         let mut events = Vec::new();
@@ -848,8 +869,8 @@ mod tests {
         let opts = RunOptions { threads: Some(2), force: false };
         let r = SphereRenderer { centre: s.origin };
         let sum = render_dataset_with(&s, &src, &r, &b, &cfg, &opts, &mut |e| events.push(e), &AtomicBool::new(false)).unwrap();
-        assert_eq!((sum.views_rendered, sum.views_reused), (2, 5));
-        assert_eq!(events.len(), 3);
+        assert_eq!((sum.views_rendered, sum.views_reused), (5, 2));
+        assert_eq!(events.len(), 1 + 5, "Started, then one ViewRendered per view rendered");
         let fb: Vec<_> = files(&b).into_iter().filter(|f| f.0 != RENDER_CONFIG_FILE).collect();
         let fa2: Vec<_> = fa.iter().filter(|f| f.0 != RENDER_CONFIG_FILE).cloned().collect();
         assert_eq!(fa2, fb, "resumed output differs");

@@ -215,6 +215,11 @@ pub fn merge_shards(shards: &[PathBuf], out: &Path, scene: Option<&Path>) -> Res
                     return Err(err(format!("shard {} ({}) lacks {f}", manifest.shard, dir.display())));
                 }
             }
+            // Read back whole, as a resumed render keeps a view: a damaged file is refused
+            // here rather than copied into the dataset.
+            let files = view_files(split, k).map(|f| dir.join(f));
+            dataset::folder::check_view(&files, record.config.width, record.config.height)
+                .map_err(|e| err(format!("shard {} ({}): {e}; render the shard again", manifest.shard, dir.display())))?;
         }
         records.push((dir.clone(), record, bytes, manifest));
     }

@@ -64,6 +64,10 @@ fn bad_shard_sets_are_refused_and_nothing_is_written() {
     let incomplete = tmp.path().join("incomplete");
     shard(&cfg, &incomplete, "1/2");
     std::fs::remove_file(incomplete.join("val/r_0.png")).unwrap();
+    let damaged = tmp.path().join("damaged");
+    shard(&cfg, &damaged, "1/2");
+    let exr = std::fs::read(damaged.join("val/r_0.exr")).unwrap();
+    std::fs::write(damaged.join("val/r_0.exr"), &exr[..40]).unwrap();
 
     let out = tmp.path().join("out");
     let cases: Vec<(Vec<PathBuf>, &str)> = vec![
@@ -73,6 +77,7 @@ fn bad_shard_sets_are_refused_and_nothing_is_written() {
         (vec![dirs[0].clone(), three.clone()], "is one of 3 shards"),
         (vec![dirs[0].clone(), unfinished.clone()], "has not finished"),
         (vec![dirs[0].clone(), incomplete.clone()], "lacks val/r_0.png"),
+        (vec![dirs[0].clone(), damaged.clone()], "val/r_0.exr"),
     ];
     for (set, what) in cases {
         let e = merge_shards(&set, &out, None).unwrap_err().to_string();
