@@ -94,7 +94,16 @@ impl Importer<'_> {
         let what = || format!("node {}{}", node.index(), name_suffix(node.name()));
         let (t, r, s) = match raw {
             Some(raw) => {
-                if let Some(m) = f64_array::<16>(raw.get("matrix")) {
+                if let Some(matrix) = raw.get("matrix") {
+                    // glTF 2.0 §5.25: a node has either a matrix or TRS properties, never both
+                    // (which would win is undefined), and a matrix is 16 numbers.
+                    let trs: Vec<&str> = ["translation", "rotation", "scale"].into_iter().filter(|k| raw.get(*k).is_some()).collect();
+                    if !trs.is_empty() {
+                        return Err(self.error(format!("{}: has both a matrix and {} (glTF allows one or the other)", what(), trs.join(", "))));
+                    }
+                    let Some(m) = f64_array::<16>(Some(matrix)) else {
+                        return Err(self.error(format!("{}: matrix must be 16 numbers", what())));
+                    };
                     return Ok(DMat4::from_cols_array(&m));
                 }
                 (

@@ -408,3 +408,25 @@ fn other_major_gltf_versions_are_refused() {
         assert_eq!(load(&with_asset(asset)).unwrap().mesh.indices.len(), 1);
     }
 }
+
+/// A node with both a matrix and TRS properties (which one applies is undefined) is refused,
+/// naming the node and the properties; a matrix alone and TRS alone load.
+#[test]
+fn a_node_with_both_matrix_and_trs_is_refused() {
+    let with_node = |node: Value| {
+        let mut body = triangle_body(json!([]), &[]);
+        body["nodes"] = json!([node]);
+        file(&f32_bytes(&TRI), body)
+    };
+    let m = json!([1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1]);
+    for (extra, named) in [(json!({"scale": [2, 2, 2]}), "scale"), (json!({"translation": [0, 1, 0], "rotation": [0, 0, 0, 1]}), "translation, rotation")] {
+        let mut node = json!({"mesh": 0, "matrix": m});
+        for (k, v) in extra.as_object().unwrap() {
+            node[k] = v.clone();
+        }
+        let e = load(&with_node(node)).unwrap_err().to_string();
+        assert!(e.contains("node 0") && e.contains(&format!("has both a matrix and {named}")), "{e}");
+    }
+    assert!(load(&with_node(json!({"mesh": 0, "matrix": m}))).is_ok());
+    assert!(load(&with_node(json!({"mesh": 0, "scale": [2, 2, 2]}))).is_ok());
+}
