@@ -410,7 +410,8 @@ fn other_major_gltf_versions_are_refused() {
 }
 
 /// A node with both a matrix and TRS properties (which one applies is undefined) is refused,
-/// naming the node and the properties; a matrix alone and TRS alone load.
+/// naming the node and the properties; a matrix alone and TRS alone load; a matrix or TRS
+/// property of the wrong length is refused.
 #[test]
 fn a_node_with_both_matrix_and_trs_is_refused() {
     let with_node = |node: Value| {
@@ -429,4 +430,15 @@ fn a_node_with_both_matrix_and_trs_is_refused() {
     }
     assert!(load(&with_node(json!({"mesh": 0, "matrix": m}))).is_ok());
     assert!(load(&with_node(json!({"mesh": 0, "scale": [2, 2, 2]}))).is_ok());
+    // A matrix or TRS property of the wrong length is refused too (by the JSON schema, before
+    // our own checks), never read as the default.
+    for node in [
+        json!({"mesh": 0, "translation": [1, 2]}),
+        json!({"mesh": 0, "rotation": [0, 0, 1]}),
+        json!({"mesh": 0, "scale": [2, 2, 2, 2]}),
+        json!({"mesh": 0, "matrix": [1, 0, 0, 1]}),
+    ] {
+        let e = load(&with_node(node.clone())).unwrap_err().to_string();
+        assert!(e.starts_with("unit.gltf: invalid glTF JSON"), "{node}: {e}");
+    }
 }
