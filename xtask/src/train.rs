@@ -30,7 +30,8 @@ pub struct TrainArgs {
     /// refused).
     #[arg(long)]
     pub resume: bool,
-    /// Replace a run already in --out (the folder is removed first); without it such a run is
+    /// Replace a run already in --out (its config, metrics, checkpoints and the outputs of
+    /// eval, mesh and render-nerf are removed first; other files stay); without it such a run is
     /// refused, so that a new run never mixes with an old one's checkpoints and outputs.
     #[arg(long, conflicts_with = "resume")]
     pub force: bool,
@@ -166,6 +167,48 @@ fn holds_run(dir: &std::path::Path) -> bool {
     dir.join(nerf::train::CONFIG_FILE).exists() || nerf::checkpoint::latest(dir).is_some()
 }
 
+/// What a run and the commands that read it (`eval`, `mesh`, `render-nerf`) write into its
+/// folder: what `--force` removes. Other files in the folder are left alone.
+const RUN_OUTPUTS: [&str; 11] = [
+    nerf::train::CONFIG_FILE,
+    "metrics.jsonl",
+    "checkpoints",
+    "renders",
+    "eval.json",
+    "report.json",
+    "report.md",
+    "mesh.ply",
+    "mesh.json",
+    "mesh_error.png",
+    "speed_vs_error.png",
+];
+
+/// `--force`: removes the run in `dir` ([`RUN_OUTPUTS`], the per-view `grid_*.png` pictures
+/// and stale temporaries), after checking that its `config.json`, if any, is a training run's
+/// config: a folder that is not a run is never emptied.
+fn remove_run(dir: &std::path::Path) -> anyhow::Result<()> {
+    let config = dir.join(nerf::train::CONFIG_FILE);
+    if config.exists() {
+        TrainConfig::read(&config).map_err(|e| {
+            anyhow::anyhow!("--force: {} is not a training run's config ({e}); --force replaces a run, not other files", config.display())
+        })?;
+    }
+    let entries = std::fs::read_dir(dir).with_context(|| format!("reading {}", dir.display()))?;
+    for e in entries.flatten() {
+        let name = e.file_name().to_string_lossy().into_owned();
+        let ours = RUN_OUTPUTS.contains(&name.as_str())
+            || (name.starts_with("grid_") && name.ends_with(".png"))
+            || (name.starts_with('.') && name.ends_with(".tmp"));
+        if !ours {
+            continue;
+        }
+        let path = e.path();
+        let removed = if path.is_dir() { std::fs::remove_dir_all(&path) } else { std::fs::remove_file(&path) };
+        removed.with_context(|| format!("removing {} (--force)", path.display()))?;
+    }
+    Ok(())
+}
+
 /// The trainer of `--resume`: the run's recorded config, whose budget `--steps` and `--time`
 /// may replace; any flag that would change another setting is refused rather than ignored.
 fn resume_trainer(args: &TrainArgs) -> anyhow::Result<Trainer> {
@@ -223,7 +266,7 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
                 "{} already holds a training run (config.json or checkpoints): continue it with --resume, replace it with --force, or train into a new --out",
                 args.out.display()
             );
-            std::fs::remove_dir_all(&args.out).with_context(|| format!("removing the run in {} (--force)", args.out.display()))?;
+            remove_run(&args.out)?;
         }
         Trainer::new(cfg, &args.out, false)?
     };

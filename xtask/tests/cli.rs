@@ -258,11 +258,23 @@ fn an_existing_run_is_refused_replaced_or_resumed_never_mixed() {
     let (code, stderr) = xtask(&["train", valid.to_str().unwrap(), "--resume", "--out", r, "--steps", "3", "--seed", "0", "--model", "fast"]);
     assert_eq!(code, 0, "{stderr}");
     assert!(run.join("checkpoints/step-00000003.ckpt").is_file(), "the resumed run did not train to step 3: {:?}", listing(&run));
-    // --force starts over: the old run's checkpoints are gone.
+    // --force starts over: the old run's checkpoints and outputs are gone, a file the run did
+    // not write stays.
+    std::fs::write(run.join("notes.txt"), "mine").unwrap();
+    std::fs::write(run.join("report.md"), "an old report").unwrap();
     let (code, stderr) = xtask(&["train", valid.to_str().unwrap(), "--out", r, "--steps", "1", "--force"]);
     assert_eq!(code, 0, "{stderr}");
     let ckpts: Vec<PathBuf> = listing(&run).into_iter().filter(|p| p.extension().is_some_and(|e| e == "ckpt")).collect();
     assert_eq!(ckpts, vec![run.join("checkpoints/step-00000001.ckpt")], "--force kept the old run's checkpoints");
+    assert!(!run.join("report.md").exists(), "--force kept the old run's report");
+    assert_eq!(std::fs::read_to_string(run.join("notes.txt")).unwrap(), "mine", "--force removed a file the run did not write");
+    // A folder whose config.json is not a run's is never emptied by --force.
+    let foreign = tmp.path().join("foreign");
+    std::fs::create_dir_all(&foreign).unwrap();
+    std::fs::write(foreign.join("config.json"), r#"{"editor": "vim"}"#).unwrap();
+    let (code, stderr) = xtask(&["train", valid.to_str().unwrap(), "--out", foreign.to_str().unwrap(), "--steps", "1", "--force"]);
+    assert!(code == 1 && stderr.contains("is not a training run's config"), "{code}: {stderr}");
+    assert_eq!(std::fs::read_to_string(foreign.join("config.json")).unwrap(), r#"{"editor": "vim"}"#);
 }
 
 #[test]
