@@ -128,12 +128,7 @@ fn build_config(args: &TrainArgs) -> anyhow::Result<TrainConfig> {
         }
         cfg.dataset = d.clone();
     }
-    if let Some(s) = args.steps {
-        cfg.steps = Some(s);
-    }
-    if let Some(t) = &args.time {
-        cfg.time_budget_s = Some(parse_duration(t)?);
-    }
+    apply_budget(args, &mut cfg)?;
     if cfg.steps.is_none() && cfg.time_budget_s.is_none() {
         cfg.time_budget_s = Some(300.0);
     }
@@ -160,6 +155,17 @@ fn build_config(args: &TrainArgs) -> anyhow::Result<TrainConfig> {
         }
     }
     Ok(cfg)
+}
+
+/// `--steps` and `--time`, where given, as the budget of `cfg` (a fresh run's or a resumed one's).
+fn apply_budget(args: &TrainArgs, cfg: &mut TrainConfig) -> anyhow::Result<()> {
+    if let Some(s) = args.steps {
+        cfg.steps = Some(s);
+    }
+    if let Some(t) = &args.time {
+        cfg.time_budget_s = Some(parse_duration(t)?);
+    }
+    Ok(())
 }
 
 /// Whether `dir` holds a training run: its `config.json` or a checkpoint.
@@ -243,12 +249,7 @@ fn resume_trainer(args: &TrainArgs) -> anyhow::Result<Trainer> {
         cfg.downscale,
         changed.join(", ")
     );
-    if let Some(s) = args.steps {
-        cfg.steps = Some(s);
-    }
-    if let Some(t) = &args.time {
-        cfg.time_budget_s = Some(parse_duration(t)?);
-    }
+    apply_budget(args, &mut cfg)?;
     cfg.check().map_err(|e| anyhow::anyhow!("{}: {e}", config_path.display()))?;
     Trainer::new(cfg, out, true).with_context(|| format!("resuming {}", out.display()))
 }

@@ -142,7 +142,7 @@ fn metrics(run: &Path) -> Vec<String> {
 /// The final checkpoint's arrays and its scalars except the training clock.
 fn final_state(run: &Path) -> (u64, nerf::checkpoint::StateDict) {
     let step = *checkpoints(run).last().expect("no checkpoint");
-    let mut s = nerf::checkpoint::load_latest(run).unwrap();
+    let (_, mut s) = nerf::checkpoint::load_latest(run).unwrap();
     for k in ["trainer.wall_s", "trainer.window.time"] {
         s.scalars.remove(k);
     }

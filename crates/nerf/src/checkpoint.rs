@@ -177,10 +177,11 @@ pub fn load(path: &Path) -> Result<StateDict, CheckpointError> {
     StateDict::from_bytes(path, &bytes)
 }
 
-/// Loads the newest checkpoint of a run.
-pub fn load_latest(run_dir: &Path) -> Result<StateDict, CheckpointError> {
+/// Loads the newest checkpoint of a run, with its path (for messages that name it).
+pub fn load_latest(run_dir: &Path) -> Result<(PathBuf, StateDict), CheckpointError> {
     let p = latest(run_dir).ok_or_else(|| CheckpointError::Missing(run_dir.into()))?;
-    load(&p)
+    let s = load(&p)?;
+    Ok((p, s))
 }
 
 #[cfg(test)]

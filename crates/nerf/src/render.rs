@@ -69,8 +69,7 @@ impl RunModel {
             .bounds
             .clone()
             .ok_or_else(|| TrainError::Invalid("config.json has no resolved bounds".into()))?;
-        let path = checkpoint::latest(run_dir).ok_or_else(|| checkpoint::CheckpointError::Missing(run_dir.into()))?;
-        let state = checkpoint::load(&path)?;
+        let (path, state) = checkpoint::load_latest(run_dir)?;
         let mut model = config.model.init(&bounds, config.seed).map_err(TrainError::Invalid)?;
         model.load_state(&state).map_err(|e| {
             TrainError::Invalid(format!("{}: {e} (the checkpoint does not hold the model {} describes)", path.display(), CONFIG_FILE))

@@ -524,8 +524,7 @@ impl Trainer {
                     t.config.dataset.display()
                 )));
             }
-            let path = checkpoint::latest(run_dir).ok_or_else(|| checkpoint::CheckpointError::Missing(run_dir.into()))?;
-            let s = checkpoint::load(&path)?;
+            let (path, s) = checkpoint::load_latest(run_dir)?;
             t.load_state(&s).map_err(|e| match e {
                 TrainError::Invalid(m) => TrainError::Invalid(format!("{}: {m}", path.display())),
                 e => e,

@@ -521,8 +521,8 @@ pub(crate) fn render_dataset_part(
     // distance range); a view with a damaged file is rendered again.
     let mut kept: std::collections::HashMap<(SplitKind, u32), GroundTruth> = std::collections::HashMap::new();
     for (split, k, camera) in rig.views().enumerate().filter(|(p, _)| mine(*p)).map(|(_, v)| v) {
-        let files = view_files(split, k).map(|f| out.join(f));
-        if files.iter().all(|f| f.is_file()) {
+        if dataset::folder::view_complete(out, split, k) {
+            let files = view_files(split, k).map(|f| out.join(f));
             let (w, h) = (camera.intrinsics.width, camera.intrinsics.height);
             match dataset::folder::check_view(&files, w, h) {
                 Ok(gt) => {

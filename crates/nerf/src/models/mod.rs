@@ -40,9 +40,14 @@ impl ModelConfig {
     }
     /// Builds the model, its parameters a function of `seed`; errors on invalid settings.
     pub fn init(&self, bounds: &SceneBounds, seed: u64) -> Result<Model, String> {
-        self.check()?;
         Ok(match self {
-            ModelConfig::Paper(c) => Model::Paper(Box::new(paper::PaperModel::new(c.clone(), bounds.clone(), seed))),
+            // `FastModel::new` checks its settings and bounds itself; the paper model's
+            // constructor cannot fail, so they are checked here.
+            ModelConfig::Paper(c) => {
+                c.check()?;
+                bounds.check()?;
+                Model::Paper(Box::new(paper::PaperModel::new(c.clone(), bounds.clone(), seed)))
+            }
             ModelConfig::Fast(c) => Model::Fast(Box::new(fast::FastModel::new(c.clone(), bounds.clone(), seed)?)),
         })
     }
