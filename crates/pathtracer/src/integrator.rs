@@ -11,6 +11,10 @@
 //!   over the sphere) is nearly always the worse strategy against the BSDF's (for a Lambertian
 //!   surface, cosine sampling of a constant environment has no variance but visibility) and
 //!   would cost a shadow ray per vertex, usually occluded in closed scenes.
+//! - Caustic paths (camera → a surface that is not sharp → a caster → a punctual light, see
+//!   [`crate::caustics`]) are left to the light tracer when [`PathIntegrator::caustics`] is
+//!   set (as [`crate::render::Renderer::render_view`] does when it traces them): at such a
+//!   second vertex the punctual lights' estimate is skipped, everything else is unchanged.
 //! - `max_bounces` counts scattering events: 0 shows emitters and the environment only,
 //!   1 is direct lighting, `n` adds paths with up to `n` surface reflections.
 //! - Russian roulette from the third vertex on, with survival probability
@@ -37,10 +41,11 @@
 
 use crate::accel::{Accel, Hit};
 use crate::geometry::{Frame, Ray, hit_point_error, offset_ray_origin};
+use crate::caustics::CausticPaths;
 use crate::light::{EmissiveTriangles, Environment, punctual_incidence};
-use crate::material::{SurfaceAttributes, base_color, emission, facing_normals, normal_mapped, resolve, shading_frame, triangle_tangent};
+use crate::material::{BsdfAt, SurfaceAttributes, SurfaceMaterial, base_color, emission, facing_normals, normal_mapped, resolve, shading_frame, triangle_tangent};
 use crate::sampler::{Sampler, power_heuristic, splitmix64};
-use crate::scene::{AlphaMode, Scene};
+use crate::scene::{AlphaMode, Material, Scene};
 use glam::{Vec2, Vec3, Vec4};
 
 /// Where each of a path vertex's numbers lies in its block of sampler dimensions: a spare
@@ -201,6 +206,24 @@ pub fn interaction(scene: &Scene, ray: &Ray, hit: &Hit) -> Interaction {
     }
 }
 
+/// The shading frame and the BSDF seen from `wo` (unit, world) at a path vertex: the
+/// interpolated normal, normal-mapped when the material has a normal texture, flipped and
+/// bent by [`shading_frame`]. Shared by the path tracer and the caustic light tracer so that
+/// both evaluate a vertex alike.
+#[inline]
+pub fn vertex_bsdf(scene: &Scene, si: &Interaction, mat: &Material, surf: &SurfaceMaterial, wo: Vec3) -> (Frame, BsdfAt) {
+    let ns = match &mat.normal_texture {
+        Some((r, _)) => {
+            let tangent = tangent_at(scene, si.prim, si.b, r.tex_coord, si.ng_front);
+            normal_mapped(mat, &scene.textures, &si.attr, si.ns_front, tangent)
+        }
+        None => si.ns_front,
+    };
+    let frame = shading_frame(ns, si.n.dot(si.ns_front) < 0.0, wo);
+    let bsdf = surf.bsdf.at(frame.to_local(wo));
+    (frame, bsdf)
+}
+
 /// A path tracer over one scene (see the module docs).
 pub struct PathIntegrator<'a> {
     /// The scene.
@@ -209,6 +232,10 @@ pub struct PathIntegrator<'a> {
     pub accel: &'a Accel,
     /// Its emissive triangles.
     pub emitters: &'a EmissiveTriangles,
+    /// When set, the light tracer of [`crate::caustics`] estimates the caustic paths
+    /// (camera → non-sharp surface → caster → punctual light) and this integrator leaves
+    /// them out; `None`: every path is estimated here.
+    pub caustics: Option<&'a CausticPaths>,
     /// Settings.
     pub settings: IntegratorSettings,
 }
@@ -267,6 +294,7 @@ impl PathIntegrator<'_> {
         let mut hit = first;
         let mut prev_bsdf_pdf = 0.0f32;
         let mut depth = 0u32;
+        let mut prev_material = u32::MAX;
         loop {
             let si = interaction(scene, &ray, &hit);
             let Some(mat) = scene.materials.get(si.material as usize) else { break };
@@ -290,24 +318,17 @@ impl PathIntegrator<'_> {
             // computed only where it is used (the same numbers as drawing all eight in order).
             let dim = sampler.skip(VERTEX_DIMENSIONS);
 
-            let wo = -ray.direction;
-            let ns = match &mat.normal_texture {
-                Some((r, _)) => {
-                    let tangent = tangent_at(scene, si.prim, si.b, r.tex_coord, si.ng_front);
-                    normal_mapped(mat, &scene.textures, &si.attr, si.ns_front, tangent)
-                }
-                None => si.ns_front,
-            };
-            let frame = shading_frame(ns, si.n.dot(si.ns_front) < 0.0, wo);
-            let wo_l = frame.to_local(wo);
-            let bsdf = surf.bsdf.at(wo_l);
+            let (frame, bsdf) = vertex_bsdf(scene, &si, mat, &surf, -ray.direction);
             // Every ray leaving this vertex is checked to leave on the `ng` side first, and
             // `offset_ray_origin` depends on the direction only through that side: one origin
             // serves them all (bit-identical to offsetting per ray).
             let origin = offset_ray_origin(si.p, si.p_err, si.ng, si.ng);
 
-            // Punctual lights: deterministic, all of them.
-            for light in &scene.lights {
+            // Punctual lights: deterministic, all of them, unless this is a caustic vertex
+            // whose punctual light the light tracer estimates instead ([`crate::caustics`]).
+            let caustic = depth == 1 && self.caustics.is_some_and(|c| c.is_caustic_pair(prev_material, si.material));
+            prev_material = si.material;
+            for light in scene.lights.iter().filter(|_| !caustic) {
                 let Some(inc) = punctual_incidence(light, si.p) else { continue };
                 if inc.wi.dot(si.ng) <= 0.0 {
                     continue;

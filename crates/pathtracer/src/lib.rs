@@ -4,7 +4,8 @@
 //!
 //! Layers: [`import`] (glTF → flat [`scene::Scene`]), [`accel`] (obvhs BVH behind one type,
 //! watertight ray-triangle test in [`geometry`]), [`sampler`] (counter-based randomness),
-//! [`texture`], [`material`], [`light`], [`integrator`] (radiance of one ray), [`render`]
+//! [`texture`], [`material`], [`light`], [`integrator`] (radiance of one ray), [`caustics`]
+//! (caustic paths traced from the lights), [`render`]
 //! (the shared per-view driver), [`rig`] (camera placement) and [`dataset_render`] (writing a
 //! dataset folder with resume and progress). For geometry metrics, [`reference`] gives the
 //! scene's camera-visible triangles in world space and [`nearest`] exact closest-point queries
@@ -17,6 +18,7 @@
 //! ```
 
 pub mod accel;
+pub mod caustics;
 pub mod dataset_render;
 pub mod error;
 pub mod export;
@@ -41,4 +43,4 @@ pub use error::PathTracerError;
 /// Renderer name, version and description; datasets record it with the hash of the renderer's
 /// output on a probe scene appended ([`version::renderer_version`]), which changes whenever the
 /// output can.
-pub const RENDERER_VERSION: &str = concat!("pathtracer ", env!("CARGO_PKG_VERSION"), " (padded Owen-scrambled Sobol' sampler, split emitter edges, glTF rig baseline 0.1 x depth, BVH box test from t = 0, emitter choice and point from one 2D sample, f32 camera rays per sample)");
+pub const RENDERER_VERSION: &str = concat!("pathtracer ", env!("CARGO_PKG_VERSION"), " (padded Owen-scrambled Sobol' sampler, split emitter edges, glTF rig baseline 0.1 x depth, BVH box test from t = 0, emitter choice and point from one 2D sample, f32 camera rays per sample, caustic paths light-traced)");

@@ -18,6 +18,10 @@
 //!   camera samples; views without such pixels (or scenes without emitters) render exactly as
 //!   before. The corners are traced once per view, so which pixels are split does not depend
 //!   on any random number (the estimate stays unbiased).
+//! - Caustics: when the scene has casters that a punctual light reaches and `max_bounces ≥ 2`,
+//!   the caustic paths are traced from the lights instead ([`crate::caustics`]; light path `k`
+//!   draws from its own stratified set, keyed by `splitmix64(seed ⊕ CAUSTIC_SEED_KEY)` and
+//!   the view) and their sum is added to each pixel's mean in `f64`, in path order.
 //! - Alpha: with a transparent background, the fraction of the pixel's samples whose camera
 //!   ray hit geometry (coverage), and RGB is premultiplied (misses add zero). With an opaque
 //!   background, misses add the environment radiance and alpha is 1.
@@ -37,6 +41,7 @@
 
 use crate::PathTracerError;
 use crate::accel::{Accel, AccelParams, Hit};
+use crate::caustics::CausticPaths;
 use crate::geometry::{Ray, ray_triangle_plane_distance_f64};
 use crate::integrator::{IntegratorSettings, PathIntegrator, interaction};
 use crate::light::{EmissiveTriangles, Environment, EnvironmentMap};
@@ -62,6 +67,8 @@ pub struct SampleRays {
     cy: f32,
     inv_fx: f32,
     inv_fy: f32,
+    fx: f32,
+    fy: f32,
 }
 
 impl SampleRays {
@@ -78,7 +85,31 @@ impl SampleRays {
             cy: k.cy as f32,
             inv_fx: (1.0 / k.fl_x) as f32,
             inv_fy: (1.0 / k.fl_y) as f32,
+            fx: k.fl_x as f32,
+            fy: k.fl_y as f32,
         }
+    }
+
+    /// The image point of the (scene-local) point `p` with the cosine between its direction
+    /// and the optical axis and its distance from the camera: `(px, py, cos θ, distance)`
+    /// such that [`SampleRays::ray`]`(px, py)` points at `p`; `None` behind the camera.
+    #[inline]
+    #[allow(clippy::neg_cmp_op_on_partial_ord)] // (also rejects NaN)
+    pub fn project(&self, p: Vec3) -> Option<(f32, f32, f32, f32)> {
+        let v = p - self.origin;
+        let (a, b, c) = (v.dot(self.x), v.dot(self.y), -v.dot(self.z));
+        let dist = v.length();
+        if !(c > 0.0) || !(dist > 0.0) {
+            return None;
+        }
+        Some((self.cx + a / c * self.fx, self.cy - b / c * self.fy, c / dist, dist))
+    }
+
+    /// The density per steradian of a camera ray uniform over one pixel, at angle `θ` from
+    /// the optical axis (`cos_theta`): `f_x f_y / cos³ θ`.
+    #[inline]
+    pub fn pixel_density(&self, cos_theta: f32) -> f32 {
+        self.fx * self.fy / (cos_theta * cos_theta * cos_theta)
     }
 
     /// The ray through image point (`px`, `py`) (pixels from the top-left corner).
@@ -232,6 +263,9 @@ pub struct Renderer {
     scene: Scene,
     accel: Accel,
     emitters: EmissiveTriangles,
+    caustics: CausticPaths,
+    /// Whether [`Renderer::render_view`] traces caustic paths from the lights (default on).
+    caustic_light_tracing: bool,
     /// Equirectangular environment map lighting the scene (scaled by
     /// [`RenderSettings::environment`]); `None`: the constant environment.
     environment_map: Option<Arc<EnvironmentMap>>,
@@ -243,6 +277,7 @@ impl std::fmt::Debug for Renderer {
             .field("scene", &self.scene.name)
             .field("triangles", &self.scene.mesh.indices.len())
             .field("emissive_triangles", &self.emitters.len())
+            .field("caustic_casters", &self.caustics.spheres().len())
             .field("accel", &self.accel)
             .finish()
     }
@@ -326,7 +361,20 @@ impl Renderer {
         validate_scene(&scene)?;
         let accel = Accel::build(&scene, accel)?;
         let emitters = EmissiveTriangles::build(&scene);
-        Ok(Renderer { scene, accel, emitters, environment_map: None })
+        let caustics = CausticPaths::build(&scene);
+        Ok(Renderer { scene, accel, emitters, caustics, caustic_light_tracing: true, environment_map: None })
+    }
+
+    /// Turns the caustic light tracer ([`crate::caustics`]) on (the default) or off: off,
+    /// every path is estimated by the path tracer (the same expectation, with the caustics'
+    /// noise; for tests and comparisons).
+    pub fn set_caustic_light_tracing(&mut self, on: bool) {
+        self.caustic_light_tracing = on;
+    }
+
+    /// The caustic light tracer's casters and lights.
+    pub fn caustics(&self) -> &CausticPaths {
+        &self.caustics
     }
 
     /// The scene.
@@ -377,7 +425,7 @@ impl Renderer {
 
     /// The path integrator for `settings`.
     pub fn integrator(&self, settings: &RenderSettings) -> PathIntegrator<'_> {
-        PathIntegrator { scene: &self.scene, accel: &self.accel, emitters: &self.emitters, settings: settings.integrator_settings(self.environment_map.clone()) }
+        PathIntegrator { scene: &self.scene, accel: &self.accel, emitters: &self.emitters, caustics: None, settings: settings.integrator_settings(self.environment_map.clone()) }
     }
 
     /// A world-space (`f64`) ray moved into the scene's local `f32` frame.
@@ -390,7 +438,7 @@ impl Renderer {
     /// the hit, its `f64` distance and the shading normal facing the ray.
     pub fn trace_primary(&self, ray: &dataset::Ray) -> Option<PrimaryHit> {
         let local = self.local_ray(ray);
-        let integ = PathIntegrator { scene: &self.scene, accel: &self.accel, emitters: &self.emitters, settings: RenderSettings::preview(0).integrator_settings(None) };
+        let integ = PathIntegrator { scene: &self.scene, accel: &self.accel, emitters: &self.emitters, caustics: None, settings: RenderSettings::preview(0).integrator_settings(None) };
         let hit = integ.intersect(&local)?;
         let m = &self.scene.mesh;
         let p = m.indices[hit.prim as usize].map(|i| m.positions[i as usize]);
@@ -438,13 +486,21 @@ impl Renderer {
     /// samples: black, alpha 0; a negative or non-finite environment is treated as 0).
     pub fn render_view(&self, camera: &Camera, view_index: u32, settings: &RenderSettings) -> ViewOutput {
         let (w, h) = (camera.intrinsics.width, camera.intrinsics.height);
-        let integ = self.integrator(settings);
+        let mut integ = self.integrator(settings);
         let spp = settings.spp;
+        // Caustic paths from the light's side ([`crate::caustics`]), left out of the path
+        // tracer's estimate when there are any.
+        let light_paths = if self.caustic_light_tracing { self.caustics.light_paths(w as u64 * h as u64, spp, settings.max_bounces) } else { 0 };
+        if light_paths > 0 {
+            integ.caustics = Some(&self.caustics);
+        }
         let edges = self.emitter_edges(camera, &integ, spp);
         let edge_seed = splitmix64(settings.seed ^ EDGE_SEED_KEY);
         let rays = SampleRays::new(camera, self.scene.origin);
         struct PixelOut {
             rgba: [f32; 4],
+            /// The pixel's mean radiance in `f64` (`rgba`'s RGB before rounding).
+            rgb_sum: [f64; 3],
             gt: Option<PixelTruth>,
             nonfinite: u64,
         }
@@ -493,13 +549,15 @@ impl Renderer {
                         }
                         let inv = if spp > 0 { 1.0 / spp as f64 } else { 0.0 };
                         let alpha = if settings.transparent_background { hits as f64 * inv } else if spp > 0 { 1.0 } else { 0.0 };
-                        let rgba = [(sum[0] * inv) as f32, (sum[1] * inv) as f32, (sum[2] * inv) as f32, alpha as f32];
+                        let rgb_sum = [sum[0] * inv, sum[1] * inv, sum[2] * inv];
+                        let rgba = [rgb_sum[0] as f32, rgb_sum[1] as f32, rgb_sum[2] as f32, alpha as f32];
                         let gt = self.pixel_ground_truth(camera, i, j);
-                        PixelOut { rgba, gt, nonfinite }
+                        PixelOut { rgba, rgb_sum, gt, nonfinite }
                     })
                     .collect()
             })
             .collect();
+        let (caustic, caustic_nonfinite) = self.caustics.render(&integ, camera, settings.seed, view_index, light_paths);
         let n = w as usize * h as usize;
         let mut color = RgbaImage::new(w, h);
         let mut gt = GroundTruth { width: w, height: h, depth: vec![0.0; n], distance: vec![0.0; n], normal: vec![0.0; 3 * n], alpha: vec![0.0; n] };
@@ -509,6 +567,11 @@ impl Renderer {
             for (i, px) in row.iter().enumerate() {
                 let k = j * w as usize + i;
                 color.data[4 * k..4 * k + 4].copy_from_slice(&px.rgba);
+                if light_paths > 0 {
+                    for (out, (pt, lt)) in color.data[4 * k..4 * k + 3].iter_mut().zip(px.rgb_sum.iter().zip(&caustic[k])) {
+                        *out = (pt + lt) as f32;
+                    }
+                }
                 nonfinite += px.nonfinite;
                 if let Some((depth, dist, normal, d64)) = px.gt {
                     gt.depth[k] = depth;
@@ -522,7 +585,7 @@ impl Renderer {
                 }
             }
         }
-        ViewOutput { color, ground_truth: gt, samples: n as u64 * spp as u64, nonfinite_samples: nonfinite, distance_range: range }
+        ViewOutput { color, ground_truth: gt, samples: n as u64 * spp as u64, nonfinite_samples: nonfinite + caustic_nonfinite, distance_range: range }
     }
 
     /// The pixels of `camera` on an edge of a directly seen emitter, and how many camera rays
@@ -1303,14 +1366,18 @@ mod tests {
         let mut b = Builder::new();
         let m = b.material(0.7, 0.0, false);
         let e = b.material(0.0, 4.0, true);
+        // A polished metal box: a caster, so the caustic light tracer runs too.
+        b.materials.push(Material { metallic_factor: 1.0, roughness_factor: 0.2, ..Material::gltf_default() });
+        let metal = b.materials.len() as u32 - 1;
         b.quad([Vec3::new(-3.0, 0.0, 3.0), Vec3::new(3.0, 0.0, 3.0), Vec3::new(3.0, 0.0, -3.0), Vec3::new(-3.0, 0.0, -3.0)], 2, m);
-        b.aabox(Vec3::new(-0.5, 0.0, -0.5), Vec3::new(0.5, 1.0, 0.5), false, m);
+        b.aabox(Vec3::new(-0.5, 0.0, -0.5), Vec3::new(0.5, 1.0, 0.5), false, metal);
         b.quad([Vec3::new(-0.3, 2.0, -0.3), Vec3::new(0.3, 2.0, -0.3), Vec3::new(0.3, 2.0, 0.3), Vec3::new(-0.3, 2.0, 0.3)], 1, e);
         b.lights.push(Light::Spot { position: Vec3::new(2.0, 3.0, 1.0), direction: Vec3::new(-2.0, -3.0, -1.0).normalize(), intensity: Vec3::splat(30.0), inner_cone_angle: 0.3, outer_cone_angle: 0.6, range: None });
         b.lights.push(Light::Directional { direction: Vec3::new(0.3, -1.0, 0.2).normalize(), illuminance: Vec3::new(1.0, 0.9, 0.8) });
         let r = Renderer::new(b.build(DVec3::new(5.0, 0.0, -5.0)), &AccelParams::medium_build()).unwrap();
+        assert_eq!(r.caustics().spheres().len(), 1);
         let cam = camera(24, 16, 55.0, DVec3::new(8.0, 2.5, -1.5), DVec3::new(5.0, 0.5, -5.0));
-        let s = settings(4, 4, 0.5, true);
+        let s = settings(64, 4, 0.5, true);
         let render_with = |threads: usize| {
             let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
             pool.install(|| r.render_view(&cam, 3, &s))
@@ -1529,6 +1596,106 @@ mod tests {
             assert_eq!(got.origin, want.origin, "point ({px}, {py})");
             let angle = got.direction.as_dvec3().angle_between(want.direction.as_dvec3());
             assert!(angle < 4e-7 && (got.direction.length() - 1.0).abs() < 1e-6, "point ({px}, {py}): {angle:e} rad");
+        }
+    }
+
+    /// A diffuse floor lit by a punctual light directly and through a mirror (GGX at the
+    /// smallest α, white metal: reflectance 1): with two bounces the floor's irradiance is the
+    /// light's plus its mirror image's where the reflection point lies on the mirror, in
+    /// closed form for a point, a spot (inside its inner cone) and a directional light. The
+    /// mirrored term is a caustic path, estimated by the light tracer; the path tracer alone
+    /// finds the mirror's lobe too rarely to compare.
+    #[test]
+    fn light_traced_mirror_caustic_matches_the_mirror_image_of_the_light() {
+        let (x_m, top, pos) = (1.0f32, 0.4f32, Vec3::new(0.3, 0.8, 0.0));
+        let to_sun = Vec3::new(-1.0, 1.2, 0.1).normalize();
+        let lights = [
+            Light::Point { position: pos, intensity: Vec3::splat(1.0), range: None },
+            Light::Spot { position: pos, direction: -Vec3::Y, intensity: Vec3::splat(1.0), inner_cone_angle: 1.4, outer_cone_angle: 1.5, range: None },
+            Light::Directional { direction: -to_sun, illuminance: Vec3::splat(1.0) },
+        ];
+        for light in lights {
+            let mut b = Builder::new();
+            let floor = b.material(0.5, 0.0, false);
+            let mut mirror = Material::gltf_default();
+            mirror.metallic_factor = 1.0;
+            mirror.roughness_factor = 0.0;
+            b.materials.push(mirror);
+            let mirror = b.materials.len() as u32 - 1;
+            b.quad([Vec3::new(-2.0, 0.0, 1.5), Vec3::new(x_m, 0.0, 1.5), Vec3::new(x_m, 0.0, -1.5), Vec3::new(-2.0, 0.0, -1.5)], 4, floor);
+            b.quad([Vec3::new(x_m, 0.0, -1.0), Vec3::new(x_m, 0.0, 1.0), Vec3::new(x_m, top, 1.0), Vec3::new(x_m, top, -1.0)], 2, mirror);
+            b.lights.push(light);
+            let mut r = Renderer::new(b.build(DVec3::ZERO), &AccelParams::medium_build()).unwrap();
+            assert_eq!(r.caustics().spheres().len(), 1, "the mirror is the one caster");
+            let cam = camera(32, 32, 50.0, DVec3::new(0.1, 2.2, 0.01), DVec3::new(0.1, 0.0, 0.0));
+            let s = settings(256, 2, 0.0, false);
+            // Irradiance at floor point q from a light at `at` (a position, or a unit
+            // direction towards a directional light): E = cos / r² or cos.
+            let irradiance = |q: Vec3, at: Vec3| -> (f64, Vec3) {
+                match light {
+                    Light::Directional { .. } => (at.y as f64, at),
+                    _ => {
+                        let d = at - q;
+                        ((d.y / d.length()) as f64 / d.length_squared() as f64, d)
+                    }
+                }
+            };
+            let (real, image) = match light {
+                Light::Directional { .. } => (to_sun, to_sun * Vec3::new(-1.0, 1.0, 1.0)),
+                _ => (pos, pos.with_x(2.0 * x_m - pos.x)),
+            };
+            // The closed-form radiance at a floor point, whether the mirror term is on there,
+            // and that term.
+            let closed = |q: Vec3| -> (f64, bool, f64) {
+                let direct = irradiance(q, real).0;
+                let (e, m) = irradiance(q, image);
+                let p = q + m * ((x_m - q.x) / m.x);
+                let on = m.x > 0.0 && p.y > 0.0 && p.y < top && p.z.abs() < 1.0;
+                let mirrored = if on { e } else { 0.0 };
+                (0.5 / PI64 * (direct + mirrored), on, 0.5 / PI64 * mirrored)
+            };
+            let floor_point = |px: f64, py: f64| {
+                let ray = cam.pixel_ray(px, py);
+                let t = -ray.origin.y / ray.direction.y;
+                (ray.origin + ray.direction * t).as_vec3()
+            };
+            // Floor pixels wholly inside the mirrored patch or wholly outside it (corners and
+            // centre agree), away from the mirror's foot.
+            let side = |i: u32, j: u32| {
+                let on = [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, 1.0), (0.5, 0.5)].map(|(a, b)| closed(floor_point(i as f64 + a, j as f64 + b)).1);
+                let q = floor_point(i as f64 + 0.5, j as f64 + 0.5);
+                (on.iter().all(|&c| c == on[0]) && q.x < x_m - 0.05).then_some(on[0])
+            };
+            let mut sums = [[0.0f64; 3]; 2]; // [inside, outside][rendered, closed form, its mirrored term]
+            let mut counts = [0usize; 2];
+            let renders: Vec<ViewOutput> = (0..2).map(|k| r.render_view(&cam, k, &s)).collect();
+            r.set_caustic_light_tracing(false);
+            let off = r.render_view(&cam, 0, &s);
+            let mut off_mirrored = 0.0;
+            for j in 0..32u32 {
+                for i in 0..32u32 {
+                    let Some(inside) = side(i, j) else { continue };
+                    let slot = if inside { 0 } else { 1 };
+                    let (c, _, m) = closed(floor_point(i as f64 + 0.5, j as f64 + 0.5));
+                    let k = 4 * (j * 32 + i) as usize;
+                    counts[slot] += 1;
+                    sums[slot][1] += c;
+                    sums[slot][2] += m;
+                    for out in &renders {
+                        sums[slot][0] += out.color.data[k] as f64 / renders.len() as f64;
+                    }
+                    if inside {
+                        off_mirrored += off.color.data[k] as f64 - (c - m);
+                    }
+                }
+            }
+            assert!(counts[0] > 50 && counts[1] > 100, "{light:?}: pixels inside / outside the mirrored patch: {counts:?}");
+            let outside = sums[1][0] / sums[1][1];
+            // The mirrored light alone: what the rendered patch holds beyond the direct term.
+            let mirrored = (sums[0][0] - (sums[0][1] - sums[0][2])) / sums[0][2];
+            eprintln!("{light:?}: mirrored light {mirrored:.4}, direct only {outside:.4}; path tracer alone: mirrored {:.4} ({counts:?} pixels)", off_mirrored / sums[0][2]);
+            assert!((outside - 1.0).abs() < 0.01, "{light:?}: direct light only: rendered / closed form = {outside}");
+            assert!((mirrored - 1.0).abs() < 0.02, "{light:?}: mirrored light: rendered / closed form = {mirrored}");
         }
     }
 }
