@@ -87,6 +87,8 @@ pub const MAX_CASTERS: usize = 16;
 pub const CAUSTIC_SEED_KEY: u64 = 0x6361_7573_7469_6373;
 /// Light paths per parallel task.
 const CHUNK: u64 = 4096;
+/// Tasks whose splats are held at once.
+const BATCH_CHUNKS: u64 = 64;
 
 /// Whether a material is a caster: its specular lobe can be narrow (GGX `α`, from the
 /// roughness factor × the smallest G of its metallic-roughness texture, below
@@ -227,25 +229,25 @@ impl CausticPaths {
             return (image, 0);
         }
         let key = Sampler::new(splitmix64(seed ^ CAUSTIC_SEED_KEY), view, 0, 0);
-        let chunks: Vec<Vec<(u32, [f32; 3])>> = (0..n.div_ceil(CHUNK))
-            .into_par_iter()
-            .map(|c| {
-                (c * CHUNK..((c + 1) * CHUNK).min(n))
-                    .filter_map(|k| self.trace(integ, rays, width, height, &key.with_sample(k as u32)))
-                    .map(|(pixel, v)| (pixel, v.to_array()))
-                    .collect()
-            })
-            .collect();
         let mut nonfinite = 0u64;
         let inv = 1.0 / n as f64;
-        for (pixel, v) in chunks.iter().flatten() {
-            if v.iter().all(|x| x.is_finite()) {
-                let px = &mut image[*pixel as usize];
-                for c in 0..3 {
-                    px[c] += v[c] as f64 * inv;
+        // Chunks in parallel, a bounded batch at a time (the splats of a 800×800, 128 spp
+        // view would otherwise be held at once), summed in path order.
+        let chunks = n.div_ceil(CHUNK);
+        for batch in (0..chunks).step_by(BATCH_CHUNKS as usize) {
+            let splats: Vec<Vec<(u32, Vec3)>> = (batch..(batch + BATCH_CHUNKS).min(chunks))
+                .into_par_iter()
+                .map(|c| (c * CHUNK..((c + 1) * CHUNK).min(n)).filter_map(|k| self.trace(integ, rays, width, height, &key.with_sample(k as u32))).collect())
+                .collect();
+            for &(pixel, v) in splats.iter().flatten() {
+                if v.is_finite() {
+                    let px = &mut image[pixel as usize];
+                    for (acc, x) in px.iter_mut().zip(v.to_array()) {
+                        *acc += x as f64 * inv;
+                    }
+                } else {
+                    nonfinite += 1;
                 }
-            } else {
-                nonfinite += 1;
             }
         }
         (image, nonfinite)

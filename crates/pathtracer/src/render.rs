@@ -1698,4 +1698,46 @@ mod tests {
             assert!((mirrored - 1.0).abs() < 0.02, "{light:?}: mirrored light: rendered / closed form = {mirrored}");
         }
     }
+
+    /// The partition is complete with longer paths too (4 bounces: the path tracer keeps the
+    /// caustic paths of three and more vertices and everything else): a glossy metal box on a
+    /// diffuse floor under a point and a directional light renders the same mean over the
+    /// pixels its caustic reaches with and without the light tracer, within the renders'
+    /// noise (from 16 seeds each). The caustic is about 4.5 % of those pixels' radiance and
+    /// the path tracer's estimate of it is heavy-tailed, so this catches a caustic counted
+    /// twice or not at all (about 11 standard errors), not a small error in its value: the
+    /// mirror's closed form above does that.
+    #[test]
+    fn the_light_tracer_and_the_path_tracer_agree_on_a_glossy_scene() {
+        let mut b = Builder::new();
+        let floor = b.material(0.6, 0.0, false);
+        b.materials.push(Material { metallic_factor: 1.0, roughness_factor: 0.15, base_color_factor: Vec4::new(0.95, 0.8, 0.5, 1.0), ..Material::gltf_default() });
+        let metal = b.materials.len() as u32 - 1;
+        b.quad([Vec3::new(-3.0, 0.0, 3.0), Vec3::new(3.0, 0.0, 3.0), Vec3::new(3.0, 0.0, -3.0), Vec3::new(-3.0, 0.0, -3.0)], 2, floor);
+        b.aabox(Vec3::new(-0.4, 0.0, -0.4), Vec3::new(0.4, 0.7, 0.4), false, metal);
+        b.lights.push(Light::Point { position: Vec3::new(1.2, 1.5, 0.8), intensity: Vec3::splat(3.0), range: None });
+        b.lights.push(Light::Directional { direction: Vec3::new(-0.5, -1.0, 0.3).normalize(), illuminance: Vec3::splat(1.0) });
+        let mut r = Renderer::new(b.build(DVec3::ZERO), &AccelParams::medium_build()).unwrap();
+        assert_eq!(r.caustics().spheres().len(), 1);
+        let cam = camera(24, 24, 60.0, DVec3::new(-2.0, 2.0, -2.5), DVec3::new(0.0, 0.2, 0.0));
+        let s = settings(512, 4, 0.1, false);
+        // The pixels the caustic reaches (an independent light-traced image, another seed).
+        let (caustic, _) = r.caustics().render(&r.integrator(&s), &cam, 99, 0, 1 << 16);
+        let mask: Vec<bool> = caustic.iter().map(|c| c.iter().sum::<f64>() > 0.0).collect();
+        let lit = mask.iter().filter(|&&m| m).count();
+        assert!(lit > 50, "{lit} pixels see the caustic");
+        let stats = |r: &Renderer| {
+            let mean = |v: &ViewOutput| v.color.data.chunks(4).zip(&mask).filter(|(_, m)| **m).map(|(p, _)| (p[0] + p[1] + p[2]) as f64).sum::<f64>() / (3 * lit) as f64;
+            let means: Vec<f64> = (0..16).map(|k| mean(&r.render_view(&cam, k, &s))).collect();
+            let m = means.iter().sum::<f64>() / 16.0;
+            let var = means.iter().map(|x| (x - m).powi(2)).sum::<f64>() / 15.0;
+            (m, var / 16.0)
+        };
+        let (on, se2_on) = stats(&r);
+        r.set_caustic_light_tracing(false);
+        let (off, se2_off) = stats(&r);
+        let se = (se2_on + se2_off).sqrt();
+        eprintln!("caustic pixels ({lit}): mean with the light tracer {on:.5} (SE {:.1e}), without {off:.5} (SE {:.1e})", se2_on.sqrt(), se2_off.sqrt());
+        assert!((on - off).abs() < 4.0 * se + 1e-4 * on, "with {on}, without {off}, SE {se}");
+    }
 }
