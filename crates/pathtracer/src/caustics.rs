@@ -61,7 +61,7 @@ use crate::accel::Hit;
 use crate::geometry::{Frame, Ray, offset_ray_origin};
 use crate::integrator::{PathIntegrator, interaction, vertex_bsdf};
 use crate::light::punctual_incidence;
-use crate::material::{MIN_ALPHA, f0_from_ior, resolve};
+use crate::material::{MIN_ALPHA, max_dielectric_f0, min_roughness_texel, resolve};
 use crate::render::SampleRays;
 use crate::sampler::{Sampler, sample_concentric_disk, splitmix64};
 use crate::scene::{Light, Material, Scene, Texture};
@@ -102,18 +102,12 @@ const BATCH_CHUNKS: u64 = 64;
 /// `α = 0.02` (roughness 0.14): on `deep`, whose globe (α 0.04, F0 0.04) was one, tracing its
 /// caustic cost 14 % of the render time and left its error unchanged.
 pub fn is_caster(material: &Material, textures: &[Texture]) -> bool {
-    let dielectric = (f0_from_ior(material.ior) * material.specular_color_factor.max_element()).min(1.0) * material.specular_factor.max(0.0);
+    let dielectric = max_dielectric_f0(material) * material.specular_factor.max(0.0);
     let f0 = if material.metallic_factor > 0.0 { material.base_color_factor.truncate().max_element().max(dielectric) } else { dielectric };
     if !(f0 > 0.0) {
         return false;
     }
-    let min_g = material
-        .metallic_roughness_texture
-        .and_then(|t| textures.get(t.texture as usize))
-        .map(|t| t.texels.iter().map(|x| x.y).fold(f32::INFINITY, f32::min))
-        .filter(|g| g.is_finite())
-        .unwrap_or(1.0);
-    let r = (material.roughness_factor * min_g).clamp(0.0, 1.0);
+    let r = (material.roughness_factor * min_roughness_texel(material, textures)).clamp(0.0, 1.0);
     let alpha = (r * r).max(MIN_ALPHA);
     alpha < CASTER_ALPHA && f0 >= CASTER_F0_PER_ALPHA * alpha
 }

@@ -588,19 +588,32 @@ pub fn is_view_dependent_textured(material: &Material, textures: &[Texture]) -> 
     if !(material.specular_factor > 0.0) {
         return false;
     }
-    let min_g = material
-        .metallic_roughness_texture
-        .and_then(|t| textures.get(t.texture as usize))
-        .map(|t| t.texels.iter().map(|x| x.y).fold(f32::INFINITY, f32::min))
-        .filter(|g| g.is_finite())
-        .unwrap_or(1.0);
-    let f0_max = (f0_from_ior(material.ior) * material.specular_color_factor.max_element()).min(1.0);
+    let min_g = min_roughness_texel(material, textures);
+    let f0_max = max_dielectric_f0(material);
     let threshold = if f0_max > DIELECTRIC_F0 {
         VIEW_DEPENDENT_ROUGHNESS * (f0_max / DIELECTRIC_F0).powf(0.25)
     } else {
         VIEW_DEPENDENT_ROUGHNESS
     };
     material.roughness_factor * min_g.clamp(0.0, 1.0) < threshold
+}
+
+/// The smallest G (roughness) channel of a material's metallic-roughness texture, or 1 without
+/// one (texture references that `textures` lacks are ignored): the roughness factor times it
+/// is the smallest roughness the material can have.
+pub fn min_roughness_texel(material: &Material, textures: &[Texture]) -> f32 {
+    material
+        .metallic_roughness_texture
+        .and_then(|t| textures.get(t.texture as usize))
+        .map(|t| t.texels.iter().map(|x| x.y).fold(f32::INFINITY, f32::min))
+        .filter(|g| g.is_finite())
+        .unwrap_or(1.0)
+}
+
+/// The largest normal-incidence reflectance of a material's dielectric layer before its
+/// specular weight: `((ior − 1)/(ior + 1))² × max(specular colour factor)`, capped at 1.
+pub fn max_dielectric_f0(material: &Material) -> f32 {
+    (f0_from_ior(material.ior) * material.specular_color_factor.max_element()).min(1.0)
 }
 
 /// Whether any material used by some triangle of `scene` is view-dependent
