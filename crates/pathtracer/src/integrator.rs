@@ -11,10 +11,11 @@
 //!   over the sphere) is nearly always the worse strategy against the BSDF's (for a Lambertian
 //!   surface, cosine sampling of a constant environment has no variance but visibility) and
 //!   would cost a shadow ray per vertex, usually occluded in closed scenes.
-//! - Caustic paths (camera → a surface that is not sharp → a caster → a punctual light, see
-//!   [`crate::caustics`]) are left to the light tracer when [`PathIntegrator::caustics`] is
-//!   set (as [`crate::render::Renderer::render_view`] does when it traces them): at such a
-//!   second vertex the punctual lights' estimate is skipped, everything else is unchanged.
+//! - Caustic paths (camera → 1 to 3 surfaces that are not sharp → a caster → a punctual
+//!   light, see [`crate::caustics`]) are left to the light tracer when
+//!   [`PathIntegrator::caustics`] is set (as [`crate::render::Renderer::render_view`] does
+//!   when it traces them): at such a caster vertex the punctual lights' estimate is skipped,
+//!   everything else is unchanged.
 //! - `max_bounces` counts scattering events: 0 shows emitters and the environment only,
 //!   1 is direct lighting, `n` adds paths with up to `n` surface reflections.
 //! - Russian roulette from the third vertex on, with survival probability
@@ -233,8 +234,8 @@ pub struct PathIntegrator<'a> {
     /// Its emissive triangles.
     pub emitters: &'a EmissiveTriangles,
     /// When set, the light tracer of [`crate::caustics`] estimates the caustic paths
-    /// (camera → non-sharp surface → caster → punctual light) and this integrator leaves
-    /// them out; `None`: every path is estimated here.
+    /// (camera → surfaces that are not sharp → caster → punctual light) and this integrator
+    /// leaves them out; `None`: every path is estimated here.
     pub caustics: Option<&'a CausticPaths>,
     /// Settings.
     pub settings: IntegratorSettings,
@@ -294,7 +295,8 @@ impl PathIntegrator<'_> {
         let mut hit = first;
         let mut prev_bsdf_pdf = 0.0f32;
         let mut depth = 0u32;
-        let mut prev_material = u32::MAX;
+        // Whether no vertex so far is sharp (see [`crate::caustics`]).
+        let mut all_rough = true;
         loop {
             let si = interaction(scene, &ray, &hit);
             let Some(mat) = scene.materials.get(si.material as usize) else { break };
@@ -326,8 +328,8 @@ impl PathIntegrator<'_> {
 
             // Punctual lights: deterministic, all of them, unless this is a caustic vertex
             // whose punctual light the light tracer estimates instead ([`crate::caustics`]).
-            let caustic = depth == 1 && self.caustics.is_some_and(|c| c.is_caustic_pair(prev_material, si.material));
-            prev_material = si.material;
+            let caustic = all_rough && self.caustics.is_some_and(|c| c.is_caustic_vertex(depth + 1, si.material));
+            all_rough &= self.caustics.is_some_and(|c| !c.is_sharp(si.material));
             for light in scene.lights.iter().filter(|_| !caustic) {
                 let Some(inc) = punctual_incidence(light, si.p) else { continue };
                 if inc.wi.dot(si.ng) <= 0.0 {
