@@ -73,7 +73,6 @@ use crate::material::{MIN_ALPHA, max_dielectric_f0, min_roughness_texel, resolve
 use crate::render::SampleRays;
 use crate::sampler::{Sampler, sample_concentric_disk, splitmix64};
 use crate::scene::{Light, Material, Scene, Texture};
-use dataset::Camera;
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 use std::f32::consts::PI;
@@ -148,7 +147,8 @@ pub struct CausticPaths {
     emitters: Vec<Emitter>,
     /// Inclusive running sums of the emitters' selection weights, normalised.
     cdf: Vec<f32>,
-    /// Centre and radius of a sphere around the scene (directional light rays start outside).
+    /// Centre and radius of a sphere around the scene's triangles ([`Scene::bounds`]):
+    /// directional light rays start outside it.
     scene_sphere: (Vec3, f32),
 }
 
@@ -158,9 +158,8 @@ impl CausticPaths {
         let caster: Vec<bool> = scene.materials.iter().map(|m| is_caster(m, &scene.textures)).collect();
         let sharp: Vec<bool> = scene.materials.iter().map(|m| is_sharp(m, &scene.textures)).collect();
         let spheres = group(caster_spheres(scene, &caster));
-        let finite = scene.mesh.positions.iter().filter(|p| p.is_finite());
-        let (lo, hi) = finite.fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(lo, hi), p| (lo.min(*p), hi.max(*p)));
-        let scene_sphere = if lo.x <= hi.x { (0.5 * (lo + hi), 0.5 * (hi - lo).length()) } else { (Vec3::ZERO, 0.0) };
+        let b = &scene.bounds;
+        let scene_sphere = if b.is_empty() { (Vec3::ZERO, 0.0) } else { (b.center(), 0.5 * b.diagonal()) };
         let mut emitters = Vec::new();
         let mut weights = Vec::new();
         if !spheres.is_empty() {
@@ -232,13 +231,13 @@ impl CausticPaths {
         ((pixels as f64 * spp as f64 * LIGHT_PATHS_PER_SAMPLE).ceil() as u64).min(u32::MAX as u64)
     }
 
-    /// Traces `n` light paths of view `view` of `camera` and returns each pixel's caustic
-    /// radiance (row-major RGB, `f64`), with the count of non-finite path values (dropped).
-    /// `integ` must be the view's integrator.
-    pub fn render(&self, integ: &PathIntegrator<'_>, camera: &Camera, seed: u64, view: u32, n: u64) -> (Vec<[f64; 3]>, u64) {
-        let (width, height) = (camera.intrinsics.width, camera.intrinsics.height);
-        let rays = &SampleRays::new(camera, integ.scene.origin);
-        let mut image = vec![[0.0f64; 3]; width as usize * height as usize];
+    /// Traces `n` light paths of view `view` and returns each pixel's caustic radiance
+    /// (row-major RGB, `f64`; zero when `n` is 0), with the count of non-finite path values
+    /// (dropped). `integ` must be the view's integrator, `rays` its camera rays and `size` its
+    /// width and height.
+    pub fn render(&self, integ: &PathIntegrator<'_>, rays: &SampleRays, size: (u32, u32), seed: u64, view: u32, n: u64) -> (Vec<[f64; 3]>, u64) {
+        let eye = Eye { integ, rays, size };
+        let mut image = vec![[0.0f64; 3]; size.0 as usize * size.1 as usize];
         if n == 0 {
             return (image, 0);
         }
@@ -255,7 +254,7 @@ impl CausticPaths {
                 .map(|c| {
                     let mut out = Vec::new();
                     for k in c * CHUNK..((c + 1) * CHUNK).min(n) {
-                        self.trace(integ, rays, width, height, max_vertices, &key.with_sample(k as u32), &mut out);
+                        self.trace(&eye, max_vertices, &key.with_sample(k as u32), &mut out);
                     }
                     out
                 })
@@ -276,8 +275,8 @@ impl CausticPaths {
 
     /// One light path: the pixels its vertices after the caster land in, with their values
     /// (times `N`), pushed to `out`.
-    #[allow(clippy::too_many_arguments)]
-    fn trace(&self, integ: &PathIntegrator<'_>, rays: &SampleRays, width: u32, height: u32, max_vertices: u32, sampler: &Sampler, out: &mut Vec<(u32, Vec3)>) {
+    fn trace(&self, eye: &Eye<'_>, max_vertices: u32, sampler: &Sampler, out: &mut Vec<(u32, Vec3)>) {
+        let integ = eye.integ;
         let scene = integ.scene;
         // The light, in proportion to its weight.
         let u_light = sampler.get_1d(0);
@@ -337,8 +336,9 @@ impl CausticPaths {
         for j in 2..=max_vertices {
             // A direction from z_{j−1} by its BSDF seen from the light's side, and its hit z_j.
             let Some(mat) = scene.materials.get(cur_si.material as usize) else { return };
-            let surf_l = resolve(mat, &scene.textures, &cur_si.attr);
-            let (frame_l, bsdf_l) = vertex_bsdf(scene, &cur_si, mat, &surf_l, -arrival);
+            // (The material at z_{j−1} depends on its point only, not on the side it is seen from.)
+            let surf = resolve(mat, &scene.textures, &cur_si.attr);
+            let (frame_l, bsdf_l) = vertex_bsdf(scene, &cur_si, mat, &surf, -arrival);
             let Some(bs) = bsdf_l.sample(sampler.get_2d(3 + 2 * (j - 2))) else { return };
             let wb = frame_l.to_world(bs.wi).normalize();
             if !(wb.dot(cur_si.ng) > 0.0) {
@@ -347,13 +347,12 @@ impl CausticPaths {
             let ray_b = Ray::new(offset_ray_origin(cur_si.p, cur_si.p_err, cur_si.ng, cur_si.ng), wb);
             let Some(next) = integ.intersect(&ray_b) else { return };
             let next_si = interaction(scene, &ray_b, &next);
-            if self.sharp.get(next_si.material as usize).copied().unwrap_or(true) {
+            if self.is_sharp(next_si.material) {
                 return;
             }
             // The path tracer's f at z_{j−1}, seen from z_j, towards z_{j−2} or the light.
             let seen = Ray::new(next_si.p, -wb);
             let cur_pt = interaction(scene, &seen, &Hit { prim: cur.prim, t: next.t, b: cur.b, front: seen.direction.dot(cur_si.ng_front) < 0.0 });
-            let surf = resolve(mat, &scene.textures, &cur_pt.attr);
             let (frame, bsdf) = vertex_bsdf(scene, &cur_pt, mat, &surf, wb);
             if !(toward_prev.dot(cur_pt.ng) > 0.0) {
                 return;
@@ -365,7 +364,7 @@ impl CausticPaths {
             }
             beta *= f * g;
             let p_next = ray_b.origin + wb * next.t;
-            if let Some(splat) = connect(integ, rays, (width, height), &self.sharp, next.prim, p_next, cur_pt.p, beta) {
+            if let Some(splat) = self.connect(eye, next.prim, p_next, cur_pt.p, beta) {
                 out.push(splat);
             }
             (cur, cur_si, arrival, toward_prev) = (next, next_si, wb, -wb);
@@ -377,44 +376,52 @@ impl CausticPaths {
     fn is_caster(&self, m: u32) -> bool {
         self.caster.get(m as usize).copied().unwrap_or(false)
     }
+
+    /// The camera's end of a caustic path: the light-path vertex `p` (on triangle `prim`) seen by
+    /// the camera ray through its image point, the path tracer's f there towards `toward` (the
+    /// next vertex on the light's side), and the pixel it falls in with
+    /// `beta · f · W · |cos| / d²`; `None` when the camera does not see `p` first, `p` is off the
+    /// image or on a sharp material.
+    fn connect(&self, eye: &Eye<'_>, prim: u32, p: Vec3, toward: Vec3, beta: Vec3) -> Option<(u32, Vec3)> {
+        let (integ, rays, (width, height)) = (eye.integ, eye.rays, eye.size);
+        let scene = integ.scene;
+        let (px, py, cos_c, dist_c) = rays.project(p)?;
+        if !(px >= 0.0 && py >= 0.0 && px < width as f32 && py < height as f32) {
+            return None;
+        }
+        let ray_c = rays.ray(px, py);
+        let hit1 = integ.intersect(&ray_c)?;
+        if hit1.prim != prim && !((hit1.t - dist_c).abs() <= 1e-4 * dist_c) {
+            return None;
+        }
+        let si1 = interaction(scene, &ray_c, &hit1);
+        if self.is_sharp(si1.material) {
+            return None;
+        }
+        let mat1 = scene.materials.get(si1.material as usize)?;
+        let surf1 = resolve(mat1, &scene.textures, &si1.attr);
+        let (frame1, bsdf1) = vertex_bsdf(scene, &si1, mat1, &surf1, -ray_c.direction);
+        let origin1 = offset_ray_origin(si1.p, si1.p_err, si1.ng, si1.ng);
+        let wi1 = (toward - origin1).normalize_or_zero();
+        if !(wi1.dot(si1.ng) > 0.0) {
+            return None;
+        }
+        let (f1, _) = bsdf1.evaluate_pdf(frame1.to_local(wi1));
+        if !(f1.max_element() > 0.0) {
+            return None;
+        }
+        let cos1_c = si1.ng.dot(-ray_c.direction).abs();
+        let value = beta * f1 * (rays.pixel_density(cos_c) * cos1_c / (dist_c * dist_c));
+        Some((py as u32 * width + px as u32, value))
+    }
 }
 
-/// The camera's end of a caustic path: the light-path vertex `p` (on triangle `prim`) seen by
-/// the camera ray through its image point, the path tracer's f there towards `toward` (the
-/// next vertex on the light's side), and the pixel it falls in with
-/// `beta · f · W · |cos| / d²`; `None` when the camera does not see `p` first, `p` is off the
-/// image or on a sharp material.
-#[allow(clippy::too_many_arguments)]
-fn connect(integ: &PathIntegrator<'_>, rays: &SampleRays, (width, height): (u32, u32), sharp: &[bool], prim: u32, p: Vec3, toward: Vec3, beta: Vec3) -> Option<(u32, Vec3)> {
-    let scene = integ.scene;
-    let (px, py, cos_c, dist_c) = rays.project(p)?;
-    if !(px >= 0.0 && py >= 0.0 && px < width as f32 && py < height as f32) {
-        return None;
-    }
-    let ray_c = rays.ray(px, py);
-    let hit1 = integ.intersect(&ray_c)?;
-    if hit1.prim != prim && !((hit1.t - dist_c).abs() <= 1e-4 * dist_c) {
-        return None;
-    }
-    let si1 = interaction(scene, &ray_c, &hit1);
-    if sharp.get(si1.material as usize).copied().unwrap_or(true) {
-        return None;
-    }
-    let mat1 = scene.materials.get(si1.material as usize)?;
-    let surf1 = resolve(mat1, &scene.textures, &si1.attr);
-    let (frame1, bsdf1) = vertex_bsdf(scene, &si1, mat1, &surf1, -ray_c.direction);
-    let origin1 = offset_ray_origin(si1.p, si1.p_err, si1.ng, si1.ng);
-    let wi1 = (toward - origin1).normalize_or_zero();
-    if !(wi1.dot(si1.ng) > 0.0) {
-        return None;
-    }
-    let (f1, _) = bsdf1.evaluate_pdf(frame1.to_local(wi1));
-    if !(f1.max_element() > 0.0) {
-        return None;
-    }
-    let cos1_c = si1.ng.dot(-ray_c.direction).abs();
-    let value = beta * f1 * (rays.pixel_density(cos_c) * cos1_c / (dist_c * dist_c));
-    Some((py as u32 * width + px as u32, value))
+/// The camera's side of one view, shared by its light paths: the view's integrator, its camera
+/// rays and its width and height.
+struct Eye<'a> {
+    integ: &'a PathIntegrator<'a>,
+    rays: &'a SampleRays,
+    size: (u32, u32),
 }
 
 /// The running sums `cdf` and a uniform `u`: the chosen index and `u` rescaled within it.

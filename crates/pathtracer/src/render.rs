@@ -498,9 +498,9 @@ impl Renderer {
         let edge_seed = splitmix64(settings.seed ^ EDGE_SEED_KEY);
         let rays = SampleRays::new(camera, self.scene.origin);
         struct PixelOut {
-            rgba: [f32; 4],
-            /// The pixel's mean radiance in `f64` (`rgba`'s RGB before rounding).
-            rgb_sum: [f64; 3],
+            /// The mean radiance of the pixel's path samples.
+            rgb: [f64; 3],
+            alpha: f32,
             gt: Option<PixelTruth>,
             nonfinite: u64,
         }
@@ -549,15 +549,13 @@ impl Renderer {
                         }
                         let inv = if spp > 0 { 1.0 / spp as f64 } else { 0.0 };
                         let alpha = if settings.transparent_background { hits as f64 * inv } else if spp > 0 { 1.0 } else { 0.0 };
-                        let rgb_sum = [sum[0] * inv, sum[1] * inv, sum[2] * inv];
-                        let rgba = [rgb_sum[0] as f32, rgb_sum[1] as f32, rgb_sum[2] as f32, alpha as f32];
                         let gt = self.pixel_ground_truth(camera, i, j);
-                        PixelOut { rgba, rgb_sum, gt, nonfinite }
+                        PixelOut { rgb: [sum[0] * inv, sum[1] * inv, sum[2] * inv], alpha: alpha as f32, gt, nonfinite }
                     })
                     .collect()
             })
             .collect();
-        let (caustic, caustic_nonfinite) = self.caustics.render(&integ, camera, settings.seed, view_index, light_paths);
+        let (caustic, caustic_nonfinite) = self.caustics.render(&integ, &rays, (w, h), settings.seed, view_index, light_paths);
         let n = w as usize * h as usize;
         let mut color = RgbaImage::new(w, h);
         let mut gt = GroundTruth { width: w, height: h, depth: vec![0.0; n], distance: vec![0.0; n], normal: vec![0.0; 3 * n], alpha: vec![0.0; n] };
@@ -566,12 +564,11 @@ impl Renderer {
         for (j, row) in rows.iter().enumerate() {
             for (i, px) in row.iter().enumerate() {
                 let k = j * w as usize + i;
-                color.data[4 * k..4 * k + 4].copy_from_slice(&px.rgba);
-                if light_paths > 0 {
-                    for (out, (pt, lt)) in color.data[4 * k..4 * k + 3].iter_mut().zip(px.rgb_sum.iter().zip(&caustic[k])) {
-                        *out = (pt + lt) as f32;
-                    }
+                // The path samples' mean plus the light paths' (zero without them).
+                for (out, (pt, lt)) in color.data[4 * k..4 * k + 3].iter_mut().zip(px.rgb.iter().zip(&caustic[k])) {
+                    *out = (pt + lt) as f32;
                 }
+                color.data[4 * k + 3] = px.alpha;
                 nonfinite += px.nonfinite;
                 if let Some((depth, dist, normal, d64)) = px.gt {
                     gt.depth[k] = depth;
@@ -1725,7 +1722,7 @@ mod tests {
         let cam = camera(24, 24, 60.0, DVec3::new(-2.0, 2.0, -2.5), DVec3::new(0.0, 0.2, 0.0));
         let s = settings(512, 4, 0.1, false);
         // The pixels the caustic reaches (an independent light-traced image, another seed).
-        let (caustic, _) = r.caustics().render(&r.integrator(&s), &cam, 99, 0, 1 << 16);
+        let (caustic, _) = r.caustics().render(&r.integrator(&s), &SampleRays::new(&cam, r.scene().origin), (24, 24), 99, 0, 1 << 16);
         let mask: Vec<bool> = caustic.iter().map(|c| c.iter().sum::<f64>() > 0.0).collect();
         let lit = mask.iter().filter(|&&m| m).count();
         assert!(lit > 50, "{lit} pixels see the caustic");
