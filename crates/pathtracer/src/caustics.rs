@@ -17,7 +17,7 @@
 //!   `x₁ … x_{n−1}` (`x₁` the first surface the camera ray hits) of materials that are not
 //!   *sharp*;
 //! - casters are materials whose specular lobe can be narrow and bright: GGX `α` below
-//!   [`CASTER_ALPHA`] (roughness ≈ 0.32) and `F0 / α ≥` [`CASTER_F0_PER_ALPHA`]
+//!   [`CASTER_ALPHA`] (roughness ≈ 0.45) and `F0 / α ≥` [`CASTER_F0_PER_ALPHA`]
 //!   ([`is_caster`]); sharp materials are the metallic casters, whose whole reflection is
 //!   that narrow lobe (the path tracer samples their reflections well, and a light tracer
 //!   could not connect through them);
@@ -30,12 +30,15 @@
 //!   2.8e-4, for 2 % more time); on `tabletop` they made no difference.
 //!
 //! **The estimator.** Per view, `N = ⌈width · height · spp · LIGHT_PATHS_PER_SAMPLE⌉` light
-//! paths: a punctual light in proportion to its intensity times the solid angle of the
-//! casters from it (for a directional light, its illuminance times their cross-section); a
-//! direction towards a caster's bounding sphere, uniform in the cone of spheres (a point
-//! light; the sphere chosen in proportion to its solid angle) or a uniform point on a
-//! sphere's cross-section disk (a directional light; chosen in proportion to the disk's
-//! area); its first hit `z₁`, kept when it is a caster; then, for `j = 2, 3, …` up to
+//! paths, or none when a pilot's paths rarely reach the image
+//! ([`CausticPaths::paths_for_view`], [`MIN_YIELD`]): a punctual light in proportion to its
+//! intensity times the casters' solid angle from it (for a directional light, its illuminance
+//! times their area across the beam); a caster triangle in proportion to how strongly that
+//! light can light it ([`light_weight`]: its solid angle from the light or its projected
+//! area, zero where the light cannot reach its front), and a point `z₁` uniform on it, of
+//! area density `A₁ = P(triangle) / area`; `z₁` is kept when the ray from the light towards
+//! it hits it first. (The first version aimed cones at the casters' bounding spheres: on
+//! `thin`, whose casters are wires and a spring, 92 % of those rays missed them.) Then, for `j = 2, 3, …` up to
 //! `min(max_bounces, MAX_CAUSTIC_VERTICES)`, a direction from `z_{j−1}`'s BSDF seen from the
 //! light's side and its first hit `z_j`, the path ending at a sharp `z_j`. Each `z_j` in the
 //! image whose camera ray hits it first is connected to the camera: the path
@@ -52,7 +55,9 @@
 //! `z_i z_{i+1}` at its two ends and `cosᶜ`, `d` those of the camera's segment at `z_j`.
 //!
 //! **Determinism.** Light path `k` of view `v` draws its numbers from
-//! `Sampler::new(splitmix64(seed ⊕ CAUSTIC_SEED_KEY), v, 0, k)` (one stratified set per view);
+//! `Sampler::new(splitmix64(seed ⊕ CAUSTIC_SEED_KEY), v, 0, k)` (one stratified set per view;
+//! the pilot's from pixel index 1): dimension 0 the light, 1 the triangle, 2–3 the point on
+//! it, `4 + 2 (j − 2)` the BSDF direction at `z_{j−1}`;
 //! paths are traced in fixed chunks in parallel and their contributions summed in `f64` in
 //! path order, so the image is bit-identical for any thread count.
 //!
@@ -66,20 +71,20 @@
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 use crate::accel::Hit;
-use crate::geometry::{Frame, Ray, offset_ray_origin};
+use crate::geometry::{Ray, offset_ray_origin};
 use crate::integrator::{PathIntegrator, interaction, vertex_bsdf};
 use crate::light::punctual_incidence;
 use crate::material::{MIN_ALPHA, max_dielectric_f0, min_roughness_texel, resolve};
 use crate::render::SampleRays;
-use crate::sampler::{Sampler, sample_concentric_disk, splitmix64};
+use crate::sampler::{Sampler, splitmix64};
 use crate::scene::{Light, Material, Scene, Texture};
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
-use std::f32::consts::PI;
 
-/// GGX `α` below which a reflecting material can be a caster (roughness ≈ 0.32), see
-/// [`is_caster`].
-pub const CASTER_ALPHA: f32 = 0.1;
+/// GGX `α` below which a reflecting material can be a caster (roughness ≈ 0.45), see
+/// [`is_caster`]. At 0.1 (the first cut), `thin`'s copper (α 0.16) was left to the path
+/// tracer and held most of its noise: its light tracing halved `thin`'s variance × time.
+pub const CASTER_ALPHA: f32 = 0.2;
 /// Least `F0 / α` of a caster (see [`is_caster`]).
 pub const CASTER_F0_PER_ALPHA: f32 = 2.0;
 /// Light paths per camera sample of a view (when the scene has casters and punctual lights).
@@ -88,8 +93,18 @@ pub const CASTER_F0_PER_ALPHA: f32 = 2.0;
 /// within 15 % of each other and 4.1–4.6x (`tabletop`), 2.0–2.1x (`materials`) better than the
 /// path tracer alone; 0.5 and 1 cost more time than they removed noise.
 pub const LIGHT_PATHS_PER_SAMPLE: f64 = 0.125;
-/// Most caster spheres kept: more glossy objects are grouped by position into that many.
-pub const MAX_CASTERS: usize = 16;
+/// Light paths of the pilot that decides whether a view is light-traced
+/// ([`CausticPaths::paths_for_view`]).
+pub const PILOT_PATHS: u64 = 4096;
+/// Least camera connections per light path (the pixels its vertices land in) for a view to be
+/// light-traced. Light paths that rarely reach the image cost their rays and remove little
+/// noise: on `deep` (0.05 per path, from its brass) tracing them
+/// cost 15 % of the samples per second and left the error unchanged; on `tabletop` (0.18),
+/// `thin` (0.26) and `materials` (0.28) they remove most of the noise.
+pub const MIN_YIELD: f64 = 0.1;
+/// Most entries (caster triangles × punctual lights) of per-light caster tables; beyond it
+/// every light draws its triangles from one table of their areas.
+pub const MAX_TABLE_ENTRIES: usize = 1 << 22;
 /// Sampler seed key of the light paths (`splitmix64(seed ^ CAUSTIC_SEED_KEY)`).
 pub const CAUSTIC_SEED_KEY: u64 = 0x6361_7573_7469_6373;
 /// Most vertices of a caustic path (the caster included): longer ones stay with the path
@@ -131,11 +146,8 @@ pub fn is_sharp(material: &Material, textures: &[Texture]) -> bool {
 #[derive(Clone, Debug)]
 struct Emitter {
     light: usize,
-    /// Cones from a point or spot light towards the casters' spheres: axis, `cos θmax`,
-    /// `1 − cos θmax`, and the running sum of their solid angles.
-    cones: Vec<(Vec3, f32, f32, f32)>,
-    /// Directional light: running sums of the spheres' cross-section areas `π r²`.
-    disks: Vec<f32>,
+    /// Which of [`CausticPaths::tables`] its caster triangles are drawn from.
+    table: usize,
 }
 
 /// The caustic light tracer of one scene (see the module docs).
@@ -143,7 +155,15 @@ struct Emitter {
 pub struct CausticPaths {
     caster: Vec<bool>,
     sharp: Vec<bool>,
-    spheres: Vec<(Vec3, f32)>,
+    /// The caster triangles (mesh triangle indices; finite, of positive area), their corners
+    /// and their areas.
+    triangles: Vec<u32>,
+    corners: Vec<[Vec3; 3]>,
+    areas: Vec<f32>,
+    /// Inclusive running sums of the caster triangles' selection weights: one table per light
+    /// ([`light_weight`]), or a single table of their areas shared by every light when
+    /// per-light tables would hold more than [`MAX_TABLE_ENTRIES`] entries.
+    tables: Vec<Vec<f64>>,
     emitters: Vec<Emitter>,
     /// Inclusive running sums of the emitters' selection weights, normalised.
     cdf: Vec<f32>,
@@ -153,40 +173,67 @@ pub struct CausticPaths {
 }
 
 impl CausticPaths {
-    /// The casters, their bounding spheres and the punctual lights that can reach them.
+    /// The caster triangles and the punctual lights that can reach them.
     pub fn build(scene: &Scene) -> Self {
+        Self::build_with_limit(scene, MAX_TABLE_ENTRIES)
+    }
+
+    /// [`CausticPaths::build`] with per-light tables up to `limit` entries in all.
+    pub(crate) fn build_with_limit(scene: &Scene, limit: usize) -> Self {
         let caster: Vec<bool> = scene.materials.iter().map(|m| is_caster(m, &scene.textures)).collect();
         let sharp: Vec<bool> = scene.materials.iter().map(|m| is_sharp(m, &scene.textures)).collect();
-        let spheres = group(caster_spheres(scene, &caster));
+        let m = &scene.mesh;
+        let (mut triangles, mut corners, mut areas) = (Vec::new(), Vec::new(), Vec::new());
+        for t in 0..m.indices.len() {
+            let Some(&k) = m.material.get(t) else { continue };
+            if !caster.get(k as usize).copied().unwrap_or(false) {
+                continue;
+            }
+            let Some(p) = triangle_positions(scene, t as u32) else { continue };
+            let area = 0.5 * (p[1] - p[0]).cross(p[2] - p[0]).length();
+            if area > 0.0 && area.is_finite() {
+                triangles.push(t as u32);
+                corners.push(p);
+                areas.push(area);
+            }
+        }
         let b = &scene.bounds;
         let scene_sphere = if b.is_empty() { (Vec3::ZERO, 0.0) } else { (b.center(), 0.5 * b.diagonal()) };
+        let shared = triangles.len().saturating_mul(scene.lights.len()) > limit;
+        let running = |w: &mut dyn Iterator<Item = f64>| {
+            let mut acc = 0.0f64;
+            w.map(|x| {
+                acc += x;
+                acc
+            })
+            .collect::<Vec<f64>>()
+        };
+        let mut tables = Vec::new();
+        if shared {
+            tables.push(running(&mut areas.iter().map(|&a| a as f64)));
+        }
         let mut emitters = Vec::new();
         let mut weights = Vec::new();
-        if !spheres.is_empty() {
-            for (k, light) in scene.lights.iter().enumerate() {
-                let (e, w) = match *light {
-                    Light::Point { position, intensity, .. } | Light::Spot { position, intensity, .. } => {
-                        let cones = cones_from(position, &spheres);
-                        let total = cones.last().map_or(0.0, |c| c.3);
-                        (Emitter { light: k, cones, disks: Vec::new() }, intensity.max_element() * total)
-                    }
-                    Light::Directional { illuminance, .. } => {
-                        let mut acc = 0.0f32;
-                        let disks = spheres
-                            .iter()
-                            .map(|&(_, r)| {
-                                acc += PI * r * r;
-                                acc
-                            })
-                            .collect();
-                        (Emitter { light: k, cones: Vec::new(), disks }, illuminance.max_element() * acc)
-                    }
-                };
-                if w.is_finite() && w > 0.0 {
-                    emitters.push(e);
-                    weights.push(w as f64);
-                }
+        for (k, light) in scene.lights.iter().enumerate() {
+            let double_sided = |t: u32| m.material.get(t as usize).and_then(|&i| scene.materials.get(i as usize)).is_some_and(|mat| mat.double_sided);
+            let w: Vec<f64> = triangles.iter().zip(&corners).map(|(&t, &p)| light_weight(light, p, double_sided(t))).collect();
+            let total: f64 = w.iter().sum();
+            let power = match *light {
+                Light::Point { intensity, .. } | Light::Spot { intensity, .. } => intensity.max_element(),
+                Light::Directional { illuminance, .. } => illuminance.max_element(),
+            };
+            let weight = power as f64 * total;
+            if !(weight.is_finite() && weight > 0.0) {
+                continue;
             }
+            let table = if shared {
+                0
+            } else {
+                tables.push(running(&mut w.into_iter()));
+                tables.len() - 1
+            };
+            emitters.push(Emitter { light: k, table });
+            weights.push(weight);
         }
         let total: f64 = weights.iter().sum();
         let mut acc = 0.0f64;
@@ -197,7 +244,7 @@ impl CausticPaths {
                 (acc / total) as f32
             })
             .collect();
-        Self { caster, sharp, spheres, emitters, cdf, scene_sphere }
+        Self { caster, sharp, triangles, corners, areas, tables, emitters, cdf, scene_sphere }
     }
 
     /// Whether material `m` is sharp (a light path stops there; a caustic path has none
@@ -216,9 +263,16 @@ impl CausticPaths {
         (2..=MAX_CAUSTIC_VERTICES).contains(&vertex) && self.is_caster(m)
     }
 
-    /// The casters' bounding spheres (centre, radius; scene-local frame).
-    pub fn spheres(&self) -> &[(Vec3, f32)] {
-        &self.spheres
+    /// The punctual lights the light paths start from (indices into the scene's lights), in
+    /// the order [`CausticPaths::sample_caster_point`] numbers them.
+    #[cfg(test)]
+    pub(crate) fn emitter_lights(&self) -> Vec<usize> {
+        self.emitters.iter().map(|e| e.light).collect()
+    }
+
+    /// How many caster triangles the light paths start on.
+    pub fn caster_triangles(&self) -> usize {
+        self.triangles.len()
     }
 
     /// How many light paths a view of `pixels` pixels at `spp` samples traces with
@@ -241,8 +295,8 @@ impl CausticPaths {
         if n == 0 {
             return (image, 0);
         }
-        let key = Sampler::new(splitmix64(seed ^ CAUSTIC_SEED_KEY), view, 0, 0);
         let max_vertices = integ.settings.max_bounces.min(MAX_CAUSTIC_VERTICES);
+        let key = Sampler::new(splitmix64(seed ^ CAUSTIC_SEED_KEY), view, 0, 0);
         let mut nonfinite = 0u64;
         let inv = 1.0 / n as f64;
         // Chunks in parallel, a bounded batch at a time (the splats of a 800×800, 128 spp
@@ -273,6 +327,34 @@ impl CausticPaths {
         (image, nonfinite)
     }
 
+    /// Whether view `view` is worth light-tracing: `n` (its count, [`CausticPaths::light_paths`])
+    /// when a pilot's light paths reach its image at least [`MIN_YIELD`] times per path, else
+    /// 0 (the path tracer then estimates every path). The pilot is [`PILOT_PATHS`] paths of
+    /// their own random numbers (sampler pixel index 1), so the decision does not depend on
+    /// the paths that are summed and the estimate stays unbiased; its paths are traced in fixed
+    /// chunks, so the decision is the same for any thread count. `integ`, `rays` and `size` are
+    /// the view's, as for [`CausticPaths::render`].
+    pub fn paths_for_view(&self, integ: &PathIntegrator<'_>, rays: &SampleRays, size: (u32, u32), seed: u64, view: u32, n: u64) -> u64 {
+        if n == 0 {
+            return 0;
+        }
+        let eye = Eye { integ, rays, size };
+        let max_vertices = integ.settings.max_bounces.min(MAX_CAUSTIC_VERTICES);
+        let key = Sampler::new(splitmix64(seed ^ CAUSTIC_SEED_KEY), view, 1, 0);
+        const PILOT_CHUNK: u64 = 256;
+        let splats: u64 = (0..PILOT_PATHS.div_ceil(PILOT_CHUNK))
+            .into_par_iter()
+            .map(|c| {
+                let mut out = Vec::new();
+                for k in c * PILOT_CHUNK..((c + 1) * PILOT_CHUNK).min(PILOT_PATHS) {
+                    self.trace(&eye, max_vertices, &key.with_sample(k as u32), &mut out);
+                }
+                out.len() as u64
+            })
+            .sum();
+        if splats as f64 >= MIN_YIELD * PILOT_PATHS as f64 { n } else { 0 }
+    }
+
     /// One light path: the pixels its vertices after the caster land in, with their values
     /// (times `N`), pushed to `out`.
     fn trace(&self, eye: &Eye<'_>, max_vertices: u32, sampler: &Sampler, out: &mut Vec<(u32, Vec3)>) {
@@ -284,47 +366,36 @@ impl CausticPaths {
         let p_light = self.cdf[e] - if e == 0 { 0.0 } else { self.cdf[e - 1] };
         let emitter = &self.emitters[e];
         let light = &scene.lights[emitter.light];
-        // A ray towards the casters, and the density of its first hit per unit area, less the
-        // cosine there: per steradian at the light / distance² (point, spot), or per unit
-        // area across the beam (directional).
-        let u = sampler.get_2d(1);
-        let (ray_l, density, infinite) = match *light {
+        // A point on a caster triangle (the triangle by the light's table, the point uniform on
+        // it), its density per unit area, and the ray from the light through it.
+        let Some((prim, z, p_area)) = self.sample_caster_point(e, sampler.get_1d(1), sampler.get_2d(2)) else { return };
+        let (ray_l, expected) = match *light {
             Light::Point { position, .. } | Light::Spot { position, .. } => {
-                let d = sample_cones(&emitter.cones, u);
-                let Some(&(.., total)) = emitter.cones.last() else { return };
-                let count = emitter.cones.iter().filter(|c| d.dot(c.0) >= c.1).count();
-                (Ray::new(position, d), count as f32 / total, false)
+                let d = z - position;
+                let dist = d.length();
+                (Ray::new(position, d / dist), dist)
             }
             Light::Directional { direction, .. } => {
                 let d = direction.normalize_or_zero();
-                let Some(&total) = emitter.disks.last() else { return };
-                let (k, v) = pick(&emitter.disks, u.x);
-                let (centre, r) = self.spheres[k];
-                let frame = Frame::from_normal(d);
-                let q = sample_concentric_disk(Vec2::new(v, u.y)) * r;
-                let on_disk = centre + frame.s * q.x + frame.t * q.y;
-                let back = (self.scene_sphere.0 - on_disk).length() + self.scene_sphere.1 + r;
-                let origin = on_disk - d * (2.0 * back + 1.0);
-                let count = self
-                    .spheres
-                    .iter()
-                    .filter(|(c, r)| {
-                        let v = *c - on_disk;
-                        (v - d * v.dot(d)).length_squared() <= r * r
-                    })
-                    .count();
-                (Ray::new(origin, d), count as f32 / total, true)
+                let back = 2.0 * ((self.scene_sphere.0 - z).length() + self.scene_sphere.1) + 1.0;
+                (Ray::new(z - d * back, d), back)
             }
         };
+        if !(ray_l.direction.is_finite() && expected > 0.0 && expected.is_finite()) {
+            return;
+        }
+        // The light reaches the point when the ray's first hit is it (its triangle, or another
+        // caster at the same distance, as at a shared edge).
         let Some(hit) = integ.intersect(&ray_l) else { return };
+        if hit.prim != prim && !((hit.t - expected).abs() <= 1e-4 * expected) {
+            return;
+        }
         let si = interaction(scene, &ray_l, &hit);
         if !self.is_caster(si.material) {
             return;
         }
-        let cos_l = si.ng.dot(ray_l.direction).abs();
-        let area = if infinite { density * cos_l } else { density * cos_l / (hit.t * hit.t) };
         let Some(inc) = punctual_incidence(light, si.p) else { return };
-        let denom = p_light * area;
+        let denom = p_light * p_area;
         if !(denom > 0.0) {
             return;
         }
@@ -339,7 +410,7 @@ impl CausticPaths {
             // (The material at z_{j−1} depends on its point only, not on the side it is seen from.)
             let surf = resolve(mat, &scene.textures, &cur_si.attr);
             let (frame_l, bsdf_l) = vertex_bsdf(scene, &cur_si, mat, &surf, -arrival);
-            let Some(bs) = bsdf_l.sample(sampler.get_2d(3 + 2 * (j - 2))) else { return };
+            let Some(bs) = bsdf_l.sample(sampler.get_2d(4 + 2 * (j - 2))) else { return };
             let wb = frame_l.to_world(bs.wi).normalize();
             if !(wb.dot(cur_si.ng) > 0.0) {
                 return;
@@ -369,6 +440,25 @@ impl CausticPaths {
             }
             (cur, cur_si, arrival, toward_prev) = (next, next_si, wb, -wb);
         }
+    }
+
+    /// A caster triangle drawn from `emitter`'s table with `u` (in proportion to its weight), a
+    /// point uniform on it from `v`, and the point's density per unit area, `P(triangle) /
+    /// area`; `None` when the table is empty.
+    pub(crate) fn sample_caster_point(&self, emitter: usize, u: f32, v: Vec2) -> Option<(u32, Vec3, f32)> {
+        let table = self.tables.get(self.emitters.get(emitter)?.table)?;
+        let total = *table.last()?;
+        let x = u as f64 * total;
+        // The first running sum above x: never a triangle of zero weight.
+        let i = table.partition_point(|&c| c <= x).min(table.len() - 1);
+        let weight = table[i] - if i == 0 { 0.0 } else { table[i - 1] };
+        let prim = self.triangles[i];
+        let p = self.corners[i];
+        let su = v.x.sqrt();
+        let (b1, b2) = (v.y * su, 1.0 - su);
+        let z = p[0] * (1.0 - b1 - b2) + p[1] * b1 + p[2] * b2;
+        let p_area = (weight / total) as f32 / self.areas[i];
+        (p_area > 0.0 && p_area.is_finite()).then_some((prim, z, p_area))
     }
 
     /// Whether material `m` is a caster.
@@ -424,216 +514,74 @@ struct Eye<'a> {
     size: (u32, u32),
 }
 
-/// The running sums `cdf` and a uniform `u`: the chosen index and `u` rescaled within it.
-fn pick(cdf: &[f32], u: f32) -> (usize, f32) {
-    let total = cdf[cdf.len() - 1];
-    let x = u * total;
-    let k = cdf.iter().position(|&c| x < c).unwrap_or(cdf.len() - 1);
-    let lo = if k == 0 { 0.0 } else { cdf[k - 1] };
-    let width = cdf[k] - lo;
-    (k, if width > 0.0 { ((x - lo) / width).clamp(0.0, 1.0 - f32::EPSILON) } else { 0.5 })
-}
-
-/// The cones from `p` towards `spheres`: axis, `cos θmax`, `1 − cos θmax` and the running
-/// sum of their solid angles; a sphere holding `p` is the whole sphere of directions.
-fn cones_from(p: Vec3, spheres: &[(Vec3, f32)]) -> Vec<(Vec3, f32, f32, f32)> {
-    let mut total = 0.0f32;
-    spheres
-        .iter()
-        .filter_map(|&(c, r)| {
-            let d = c - p;
-            let dist2 = d.length_squared();
-            let (axis, cos_max, omc) = if dist2 <= r * r || !(dist2 > 0.0) {
-                (Vec3::Z, -1.0, 2.0)
-            } else {
-                let sin2 = r * r / dist2;
-                let cos_max = (1.0 - sin2).sqrt();
-                (d / dist2.sqrt(), cos_max, sin2 / (1.0 + cos_max))
-            };
-            let omega = 2.0 * PI * omc;
-            if !(omega > 0.0) || !axis.is_finite() {
-                return None;
-            }
-            total += omega;
-            Some((axis, cos_max, omc, total))
-        })
-        .collect()
-}
-
-/// A direction uniform in one of `cones`, the cone chosen in proportion to its solid angle.
-fn sample_cones(cones: &[(Vec3, f32, f32, f32)], u: Vec2) -> Vec3 {
-    let sums: Vec<f32> = cones.iter().map(|c| c.3).collect();
-    let (k, v) = pick(&sums, u.x);
-    let (axis, _, omc, _) = cones[k];
-    // cos θ = 1 − v (1 − cos θmax); sin² θ = a (2 − a) with a = v (1 − cos θmax).
-    let a = v * omc;
-    let cos_t = 1.0 - a;
-    let sin_t = (a * (2.0 - a)).max(0.0).sqrt();
-    let phi = 2.0 * PI * u.y;
-    Frame::from_normal(axis).to_world(Vec3::new(sin_t * phi.cos(), sin_t * phi.sin(), cos_t)).normalize()
-}
-
-fn find(parent: &mut [u32], mut i: u32) -> u32 {
-    while parent[i as usize] != i {
-        let g = parent[parent[i as usize] as usize];
-        parent[i as usize] = g;
-        i = g;
-    }
-    i
-}
-
-fn union(parent: &mut [u32], a: u32, b: u32) {
-    let (ra, rb) = (find(parent, a), find(parent, b));
-    if ra != rb {
-        // The smaller root wins, so the result does not depend on the order of the unions.
-        let (lo, hi) = if ra < rb { (ra, rb) } else { (rb, ra) };
-        parent[hi as usize] = lo;
-    }
-}
-
-/// Bounding spheres of the casters' objects: their triangles joined along edges and where
-/// vertices share a position (meshes split at seams or flat-shaded), in order of each
-/// object's first vertex.
-fn caster_spheres(scene: &Scene, caster: &[bool]) -> Vec<(Vec3, f32)> {
+/// The corners of triangle `t` (scene-local frame), `None` when an index is out of range or
+/// a corner is not finite.
+fn triangle_positions(scene: &Scene, t: u32) -> Option<[Vec3; 3]> {
     let m = &scene.mesh;
-    let nv = m.positions.len();
-    let is_caster = |t: usize| m.material.get(t).and_then(|&k| caster.get(k as usize)).copied().unwrap_or(false);
-    let mut parent: Vec<u32> = (0..nv as u32).collect();
-    let mut used = vec![false; nv];
-    for (t, tri) in m.indices.iter().enumerate() {
-        if !is_caster(t) || tri.iter().any(|&i| i as usize >= nv || !m.positions[i as usize].is_finite()) {
-            continue;
-        }
-        for &i in tri {
-            used[i as usize] = true;
-        }
-        union(&mut parent, tri[0], tri[1]);
-        union(&mut parent, tri[0], tri[2]);
-    }
-    let mut by_position: Vec<u32> = (0..nv as u32).filter(|&i| used[i as usize]).collect();
-    let key = |i: u32| m.positions[i as usize].to_array().map(f32::to_bits);
-    by_position.sort_unstable_by_key(|&i| (key(i), i));
-    for w in by_position.windows(2) {
-        if key(w[0]) == key(w[1]) {
-            union(&mut parent, w[0], w[1]);
-        }
-    }
-    let mut slot = vec![u32::MAX; nv];
-    let mut boxes: Vec<(Vec3, Vec3)> = Vec::new();
-    for i in (0..nv).filter(|&i| used[i]) {
-        let r = find(&mut parent, i as u32) as usize;
-        let p = m.positions[i];
-        if slot[r] == u32::MAX {
-            slot[r] = boxes.len() as u32;
-            boxes.push((p, p));
-        } else {
-            let b = &mut boxes[slot[r] as usize];
-            b.0 = b.0.min(p);
-            b.1 = b.1.max(p);
-        }
-    }
-    let mut spheres: Vec<(Vec3, f32)> = boxes.iter().map(|&(lo, hi)| (0.5 * (lo + hi), 0.0)).collect();
-    for i in (0..nv).filter(|&i| used[i]) {
-        let r = find(&mut parent, i as u32) as usize;
-        let s = &mut spheres[slot[r] as usize];
-        // Padded by a few ulps of the coordinates so that rounding never leaves a vertex out.
-        let pad = 4.0 * f32::EPSILON * m.positions[i].abs().max_element().max(s.0.abs().max_element());
-        s.1 = s.1.max((m.positions[i] - s.0).length() + pad);
-    }
-    spheres
+    let idx = m.indices.get(t as usize)?;
+    let p = [m.positions.get(idx[0] as usize)?, m.positions.get(idx[1] as usize)?, m.positions.get(idx[2] as usize)?].map(|v| *v);
+    p.iter().all(|v| v.is_finite()).then_some(p)
 }
 
-/// At most [`MAX_CASTERS`] spheres: more are sorted along a Morton curve of their centres and
-/// cut into that many runs of consecutive spheres, each run bounded by one sphere.
-fn group(spheres: Vec<(Vec3, f32)>) -> Vec<(Vec3, f32)> {
-    let spheres: Vec<(Vec3, f32)> = spheres.into_iter().filter(|(c, r)| c.is_finite() && r.is_finite()).collect();
-    if spheres.len() <= MAX_CASTERS {
-        return spheres;
+/// How strongly `light` can light a caster triangle with corners `p`, the weight it is drawn
+/// with: zero exactly where the light cannot reach its front (a single-sided triangle seen from
+/// behind, or one wholly outside a spot light's cone or a light's range); else, for a point or
+/// spot light, the triangle's solid angle from it (Van Oosterom and Strackee 1983, in `f64`),
+/// and for a directional light its area projected across the beam.
+pub(crate) fn light_weight(light: &Light, p: [Vec3; 3], double_sided: bool) -> f64 {
+    let [a, b, c] = p.map(|v| v.as_dvec3());
+    let n = (b - a).cross(c - a);
+    match *light {
+        Light::Point { position, range, .. } | Light::Spot { position, range, .. } => {
+            let q = position.as_dvec3();
+            let side = n.dot(q - a);
+            if !(side > 0.0 || (double_sided && side < 0.0)) {
+                return 0.0;
+            }
+            // The triangle's bounding sphere about its centroid, for the range and cone tests.
+            let centre = (a + b + c) / 3.0;
+            let radius = [a, b, c].iter().map(|v| (*v - centre).length()).fold(0.0, f64::max);
+            let to = centre - q;
+            let dist = to.length();
+            if range.is_some_and(|r| dist - radius > r as f64) {
+                return 0.0;
+            }
+            if let Light::Spot { direction, outer_cone_angle, .. } = *light
+                && dist > radius
+            {
+                let off_axis = (to.dot(direction.as_dvec3()) / dist).clamp(-1.0, 1.0).acos();
+                let half = (radius / dist).asin();
+                if off_axis - half > outer_cone_angle as f64 {
+                    return 0.0;
+                }
+            }
+            let (ra, rb, rc) = (a - q, b - q, c - q);
+            let (la, lb, lc) = (ra.length(), rb.length(), rc.length());
+            let num = ra.dot(rb.cross(rc)).abs();
+            let den = la * lb * lc + ra.dot(rb) * lc + ra.dot(rc) * lb + rb.dot(rc) * la;
+            let omega = 2.0 * num.atan2(den);
+            if omega.is_finite() { omega.max(0.0) } else { 0.0 }
+        }
+        Light::Directional { direction, .. } => {
+            // Light travelling along `direction` meets the front face where it opposes `n`.
+            let facing = -n.dot(direction.as_dvec3());
+            let projected = 0.5 * if double_sided { facing.abs() } else { facing.max(0.0) } / direction.as_dvec3().length().max(f64::MIN_POSITIVE);
+            if projected.is_finite() { projected } else { 0.0 }
+        }
     }
-    let (lo, hi) = spheres.iter().fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(lo, hi), (c, _)| (lo.min(*c), hi.max(*c)));
-    let ext = (hi - lo).max(Vec3::splat(f32::MIN_POSITIVE));
-    let morton = |c: Vec3| {
-        let q = ((c - lo) / ext * 1023.0).clamp(Vec3::ZERO, Vec3::splat(1023.0)).as_uvec3();
-        let spread = |mut x: u32| {
-            x &= 0x3ff;
-            x = (x | (x << 16)) & 0x030000ff;
-            x = (x | (x << 8)) & 0x0300f00f;
-            x = (x | (x << 4)) & 0x030c30c3;
-            (x | (x << 2)) & 0x09249249
-        };
-        spread(q.x) | (spread(q.y) << 1) | (spread(q.z) << 2)
-    };
-    let mut order: Vec<(u32, usize)> = spheres.iter().enumerate().map(|(i, (c, _))| (morton(*c), i)).collect();
-    order.sort_unstable();
-    let n = order.len();
-    (0..MAX_CASTERS)
-        .map(|g| {
-            let run = &order[g * n / MAX_CASTERS..(g + 1) * n / MAX_CASTERS];
-            let (blo, bhi) = run.iter().fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(a, b), &(_, i)| {
-                let (c, r) = spheres[i];
-                (a.min(c - Vec3::splat(r)), b.max(c + Vec3::splat(r)))
-            });
-            let centre = 0.5 * (blo + bhi);
-            let radius = run.iter().map(|&(_, i)| (spheres[i].0 - centre).length() + spheres[i].1).fold(0.0f32, f32::max);
-            (centre, radius * (1.0 + 4.0 * f32::EPSILON))
-        })
-        .collect()
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
 
-    fn uniform(state: &mut u64) -> f32 {
-        *state = splitmix64(*state);
-        (*state >> 40) as f32 / (1u64 << 24) as f32
-    }
-
-    /// The density of [`sample_cones`] is `count / Σ Ω`: it integrates to one over the sphere,
-    /// every sample lies in a cone, and `E[1 / pdf]` over the samples is the solid angle of the
-    /// cones' union (measured independently by uniform sphere sampling).
-    #[test]
-    fn cone_sampling_density_integrates_to_one_and_matches_its_samples() {
-        let spheres = [(Vec3::new(0.0, 0.0, 3.0), 1.0), (Vec3::new(0.5, 0.2, 2.5), 0.6), (Vec3::new(-2.0, 0.0, 1.0), 0.3)];
-        let cones = cones_from(Vec3::ZERO, &spheres);
-        let total = cones.last().unwrap().3;
-        let pdf = |d: Vec3| cones.iter().filter(|c| d.dot(c.0) >= c.1).count() as f64 / total as f64;
-        let (mut s, n) = (7u64, 400_000);
-        let (mut integral, mut union) = (0.0f64, 0.0f64);
-        for _ in 0..n {
-            let z = 1.0 - 2.0 * uniform(&mut s);
-            let phi = 2.0 * PI * uniform(&mut s);
-            let r = (1.0 - z * z).max(0.0).sqrt();
-            let p = pdf(Vec3::new(r * phi.cos(), r * phi.sin(), z));
-            integral += p;
-            union += (p > 0.0) as u32 as f64;
-        }
-        let sphere = 4.0 * std::f64::consts::PI / n as f64;
-        let (integral, union) = (integral * sphere, union * sphere);
-        assert!((integral - 1.0).abs() < 0.02, "∫ pdf = {integral}");
-        let m = 200_000;
-        let mut est = 0.0f64;
-        for _ in 0..m {
-            let d = sample_cones(&cones, Vec2::new(uniform(&mut s), uniform(&mut s)));
-            assert!((d.length() - 1.0).abs() < 1e-5);
-            let p = pdf(d);
-            assert!(p > 0.0, "a sample outside every cone: {d}");
-            est += 1.0 / p;
-        }
-        let est = est / m as f64;
-        assert!((est - union).abs() < 0.02 * union, "E[1/pdf] = {est}, the union's solid angle {union}");
-        // A light inside a sphere: the whole sphere of directions, uniformly.
-        let inside = cones_from(Vec3::new(0.0, 0.0, 2.8), &spheres[..1]);
-        assert!((inside[0].3 - 4.0 * PI).abs() < 1e-4 && inside[0].1 == -1.0);
-    }
-
     #[test]
     fn casters_are_narrow_bright_lobes_and_sharp_ones_are_metal() {
         let m = |metallic: f32, roughness: f32| Material { metallic_factor: metallic, roughness_factor: roughness, ..Material::gltf_default() };
-        // Metals: narrow enough (α < 0.1) is bright enough.
+        // Metals: narrow enough (α < 0.2, roughness < 0.447) is bright enough.
         assert!(is_caster(&m(1.0, 0.05), &[]) && is_sharp(&m(1.0, 0.05), &[]));
-        assert!(is_caster(&m(1.0, 0.3), &[]));
-        assert!(!is_caster(&m(1.0, 0.35), &[]));
+        assert!(is_caster(&m(1.0, 0.44), &[]));
+        assert!(!is_caster(&m(1.0, 0.45), &[]));
         // A dark metal's lobe is dim: F0 0.05 needs α ≤ 0.025.
         let dark = Material { base_color_factor: glam::Vec4::new(0.05, 0.05, 0.05, 1.0), ..m(1.0, 0.2) };
         assert!(!is_caster(&dark, &[]));
@@ -642,17 +590,5 @@ mod tests {
         assert!(!is_caster(&m(0.0, 0.2), &[]));
         // No specular layer, no caster.
         assert!(!is_caster(&Material { specular_factor: 0.0, ..m(0.0, 0.0) }, &[]));
-    }
-
-    #[test]
-    fn many_casters_are_grouped_into_spheres_that_bound_them() {
-        let mut s = 3u64;
-        let spheres: Vec<(Vec3, f32)> =
-            (0..100).map(|_| (Vec3::new(uniform(&mut s), uniform(&mut s), uniform(&mut s)) * 10.0, 0.1 + uniform(&mut s) * 0.2)).collect();
-        let groups = group(spheres.clone());
-        assert_eq!(groups.len(), MAX_CASTERS);
-        for (c, r) in &spheres {
-            assert!(groups.iter().any(|(gc, gr)| (*c - *gc).length() + r <= *gr), "sphere {c} {r} is in no group");
-        }
     }
 }

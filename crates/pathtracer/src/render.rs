@@ -277,7 +277,7 @@ impl std::fmt::Debug for Renderer {
             .field("scene", &self.scene.name)
             .field("triangles", &self.scene.mesh.indices.len())
             .field("emissive_triangles", &self.emitters.len())
-            .field("caustic_casters", &self.caustics.spheres().len())
+            .field("caustic_caster_triangles", &self.caustics.caster_triangles())
             .field("accel", &self.accel)
             .finish()
     }
@@ -490,13 +490,14 @@ impl Renderer {
         let spp = settings.spp;
         // Caustic paths from the light's side ([`crate::caustics`]), left out of the path
         // tracer's estimate when there are any.
+        let rays = SampleRays::new(camera, self.scene.origin);
         let light_paths = if self.caustic_light_tracing { self.caustics.light_paths(w as u64 * h as u64, spp, settings.max_bounces) } else { 0 };
+        let light_paths = self.caustics.paths_for_view(&integ, &rays, (w, h), settings.seed, view_index, light_paths);
         if light_paths > 0 {
             integ.caustics = Some(&self.caustics);
         }
         let edges = self.emitter_edges(camera, &integ, spp);
         let edge_seed = splitmix64(settings.seed ^ EDGE_SEED_KEY);
-        let rays = SampleRays::new(camera, self.scene.origin);
         struct PixelOut {
             /// The mean radiance of the pixel's path samples.
             rgb: [f64; 3],
@@ -1372,7 +1373,7 @@ mod tests {
         b.lights.push(Light::Spot { position: Vec3::new(2.0, 3.0, 1.0), direction: Vec3::new(-2.0, -3.0, -1.0).normalize(), intensity: Vec3::splat(30.0), inner_cone_angle: 0.3, outer_cone_angle: 0.6, range: None });
         b.lights.push(Light::Directional { direction: Vec3::new(0.3, -1.0, 0.2).normalize(), illuminance: Vec3::new(1.0, 0.9, 0.8) });
         let r = Renderer::new(b.build(DVec3::new(5.0, 0.0, -5.0)), &AccelParams::medium_build()).unwrap();
-        assert_eq!(r.caustics().spheres().len(), 1);
+        assert_eq!(r.caustics().caster_triangles(), r.scene().mesh.material.iter().filter(|&&k| k == metal).count());
         let cam = camera(24, 16, 55.0, DVec3::new(8.0, 2.5, -1.5), DVec3::new(5.0, 0.5, -5.0));
         let s = settings(64, 4, 0.5, true);
         let render_with = |threads: usize| {
@@ -1623,7 +1624,8 @@ mod tests {
             b.quad([Vec3::new(x_m, 0.0, -1.0), Vec3::new(x_m, 0.0, 1.0), Vec3::new(x_m, top, 1.0), Vec3::new(x_m, top, -1.0)], 2, mirror);
             b.lights.push(light);
             let mut r = Renderer::new(b.build(DVec3::ZERO), &AccelParams::medium_build()).unwrap();
-            assert_eq!(r.caustics().spheres().len(), 1, "the mirror is the one caster");
+            let mirror_triangles = r.scene().mesh.material.iter().filter(|&&k| k == mirror).count();
+            assert!(mirror_triangles > 0 && r.caustics().caster_triangles() == mirror_triangles, "the mirror is the one caster");
             let cam = camera(32, 32, 50.0, DVec3::new(0.1, 2.2, 0.01), DVec3::new(0.1, 0.0, 0.0));
             let s = settings(256, 2, 0.0, false);
             // Irradiance at floor point q from a light at `at` (a position, or a unit
@@ -1696,6 +1698,151 @@ mod tests {
         }
     }
 
+    /// A scene of caster triangles for the sampling tests: a single-sided metal box (faces
+    /// outward) and a double-sided tilted metal quad, under a point, a spot and a directional
+    /// light.
+    fn caster_builder() -> Builder {
+        let mut b = Builder::new();
+        b.materials.push(Material { metallic_factor: 1.0, roughness_factor: 0.1, ..Material::gltf_default() });
+        b.materials.push(Material { metallic_factor: 1.0, roughness_factor: 0.1, double_sided: true, ..Material::gltf_default() });
+        b.aabox(Vec3::new(-0.5, 0.0, -0.5), Vec3::new(0.5, 1.0, 0.5), false, 0);
+        b.quad([Vec3::new(1.0, 0.0, -1.0), Vec3::new(2.0, 0.5, -1.0), Vec3::new(2.0, 0.5, 0.0), Vec3::new(1.0, 0.0, 0.0)], 3, 1);
+        b.lights.push(Light::Point { position: Vec3::new(2.0, 3.0, 1.0), intensity: Vec3::splat(5.0), range: None });
+        b.lights.push(Light::Spot { position: Vec3::new(-2.0, 2.0, 0.0), direction: Vec3::new(1.0, -0.8, 0.0).normalize(), intensity: Vec3::splat(5.0), inner_cone_angle: 0.1, outer_cone_angle: 0.3, range: None });
+        b.lights.push(Light::Directional { direction: Vec3::new(0.3, -1.0, 0.2).normalize(), illuminance: Vec3::ONE });
+        b
+    }
+
+    /// The light tracer's first vertex is drawn with the density it claims: for every light,
+    /// `E[g(z) / p_A(z)]` over the drawn points is `∫ g dA` over the caster triangles the light
+    /// can reach (`g = 1`: their area; `g = x`: their first moment, which also checks that
+    /// points are uniform on each triangle), every point lies on the triangle it names, and no
+    /// triangle the light cannot reach is drawn. Which triangles a point or directional light
+    /// reaches is worked out here from their faces, not from the sampler's weights; with the
+    /// per-light tables given up (a limit of 0), every light draws by area from all of them.
+    #[test]
+    fn caster_points_are_drawn_with_the_density_they_claim() {
+        let scene = caster_builder().build(DVec3::ZERO);
+        let tri = |t: u32| scene.mesh.indices[t as usize].map(|i| scene.mesh.positions[i as usize]);
+        let double = |t: u32| scene.materials[scene.mesh.material[t as usize] as usize].double_sided;
+        let count = scene.mesh.indices.len() as u32;
+        for (limit, shared) in [(usize::MAX, false), (0, true)] {
+            let c = crate::caustics::CausticPaths::build_with_limit(&scene, limit);
+            assert_eq!(c.caster_triangles(), count as usize);
+            let lights = c.emitter_lights();
+            assert_eq!(lights.len(), 3, "every light reaches a caster");
+            for (e, &l) in lights.iter().enumerate() {
+                let light = &scene.lights[l];
+                // The triangles this light's table can draw.
+                let reached = |t: u32| {
+                    if shared {
+                        return true;
+                    }
+                    let p = tri(t);
+                    let n = (p[1] - p[0]).cross(p[2] - p[0]);
+                    let side = match *light {
+                        Light::Point { position, .. } | Light::Spot { position, .. } => n.dot(position - p[0]),
+                        Light::Directional { direction, .. } => -n.dot(direction),
+                    };
+                    match *light {
+                        // The spot's cone is the sampler's own conservative test: checked for
+                        // consistency only (`E[1/p]` against the triangles it draws).
+                        Light::Spot { .. } => crate::caustics::light_weight(light, p, double(t)) > 0.0,
+                        _ => side > 0.0 || (double(t) && side < 0.0),
+                    }
+                };
+                let area = |t: u32| {
+                    let p = tri(t);
+                    0.5 * (p[1] - p[0]).cross(p[2] - p[0]).length() as f64
+                };
+                let exact_area: f64 = (0..count).filter(|&t| reached(t)).map(area).sum();
+                let exact_x: f64 = (0..count).filter(|&t| reached(t)).map(|t| area(t) * tri(t).iter().map(|v| v.x as f64).sum::<f64>() / 3.0).sum();
+                assert!(exact_area > 0.0);
+                let (mut s_area, mut s_x, n) = (0.0f64, 0.0f64, 200_000u32);
+                let mut state = 11u64 + e as u64;
+                let mut uniform = || {
+                    state = crate::sampler::splitmix64(state);
+                    (state >> 40) as f32 / (1u64 << 24) as f32
+                };
+                for _ in 0..n {
+                    let (t, z, p_area) = c.sample_caster_point(e, uniform(), Vec2::new(uniform(), uniform())).expect("a caster point");
+                    assert!(reached(t), "light {l} drew triangle {t}, which it cannot reach");
+                    let p = tri(t);
+                    // On the triangle: in its plane and inside its edges.
+                    let nrm = (p[1] - p[0]).cross(p[2] - p[0]);
+                    for k in 0..3 {
+                        let edge = (p[(k + 1) % 3] - p[k]).cross(z - p[k]).dot(nrm);
+                        assert!(edge >= -1e-5 * nrm.length_squared(), "point {z} outside triangle {t}");
+                    }
+                    assert!(nrm.normalize().dot(z - p[0]).abs() < 1e-5);
+                    s_area += 1.0 / p_area as f64;
+                    s_x += z.x as f64 / p_area as f64;
+                }
+                let (s_area, s_x) = (s_area / n as f64, s_x / n as f64);
+                assert!((s_area - exact_area).abs() < 0.01 * exact_area, "light {l}, shared {shared}: E[1/p] = {s_area}, area {exact_area}");
+                assert!((s_x - exact_x).abs() < 0.01 * exact_area, "light {l}, shared {shared}: E[x/p] = {s_x}, ∫x dA = {exact_x}");
+            }
+        }
+    }
+
+    /// A view that the light paths rarely reach (its pilot's paths land in it less than
+    /// `MIN_YIELD` times per path) is left to the path tracer: here a camera looking up into
+    /// the empty sky renders exactly as with the light tracer switched off, while one looking
+    /// at the floor around the casters traces all its light paths.
+    #[test]
+    fn views_the_light_paths_miss_are_left_to_the_path_tracer() {
+        let mut b = caster_builder();
+        let floor = b.material(0.6, 0.0, false);
+        b.quad([Vec3::new(-4.0, 0.0, 4.0), Vec3::new(4.0, 0.0, 4.0), Vec3::new(4.0, 0.0, -4.0), Vec3::new(-4.0, 0.0, -4.0)], 2, floor);
+        let mut r = Renderer::new(b.build(DVec3::ZERO), &AccelParams::medium_build()).unwrap();
+        let s = settings(8, 4, 0.1, false);
+        let paths_for = |r: &Renderer, cam: &Camera| {
+            let (w, h) = (cam.intrinsics.width, cam.intrinsics.height);
+            let n = r.caustics().light_paths(w as u64 * h as u64, s.spp, s.max_bounces);
+            (n, r.caustics().paths_for_view(&r.integrator(&s), &SampleRays::new(cam, r.scene().origin), (w, h), s.seed, 0, n))
+        };
+        let floor_cam = camera(24, 24, 60.0, DVec3::new(3.0, 3.0, 3.0), DVec3::new(0.5, 0.0, -0.5));
+        let (n, traced) = paths_for(&r, &floor_cam);
+        assert!(n > 0 && traced == n, "the floor view traces its {n} light paths ({traced})");
+        let sky_cam = camera(24, 24, 40.0, DVec3::new(0.0, 3.0, 0.0), DVec3::new(0.1, 10.0, 0.0));
+        let (n, traced) = paths_for(&r, &sky_cam);
+        assert!(n > 0 && traced == 0, "the sky view traces none of its {n} light paths ({traced})");
+        let with = r.render_view(&sky_cam, 0, &s);
+        r.set_caustic_light_tracing(false);
+        let without = r.render_view(&sky_cam, 0, &s);
+        assert_eq!(crate::version::view_hash(&with), crate::version::view_hash(&without));
+    }
+
+    /// The weights caster triangles are drawn with are exact solid angles and projected
+    /// areas: a closed box of inward faces around a point light subtends 4π; seen from outside,
+    /// a single-sided box's faces towards a light subtend as much as the faces away from it
+    /// (every ray through the box crosses one of each), so double-sided faces weigh twice as
+    /// much; for a directional light the same holds for the projected areas.
+    #[test]
+    fn caster_weights_are_exact_solid_angles_and_projected_areas() {
+        use crate::caustics::light_weight;
+        let box_tris = |inward: bool| {
+            let mut b = Builder::new();
+            b.aabox(Vec3::new(-0.5, -0.3, -0.7), Vec3::new(0.6, 0.4, 0.2), inward, 0);
+            b.mesh.indices.iter().map(|i| i.map(|k| b.mesh.positions[k as usize])).collect::<Vec<_>>()
+        };
+        let inside = Light::Point { position: Vec3::new(0.1, 0.05, -0.2), intensity: Vec3::ONE, range: None };
+        let total: f64 = box_tris(true).iter().map(|&p| light_weight(&inside, p, false)).sum();
+        assert!((total - 4.0 * PI64).abs() < 1e-5, "Σ Ω = {total}");
+        for light in [
+            Light::Point { position: Vec3::new(2.0, 1.5, 1.0), intensity: Vec3::ONE, range: None },
+            Light::Directional { direction: Vec3::new(-0.4, -1.0, 0.3).normalize(), illuminance: Vec3::ONE },
+        ] {
+            let tris = box_tris(false);
+            let front: f64 = tris.iter().map(|&p| light_weight(&light, p, false)).sum();
+            let both: f64 = tris.iter().map(|&p| light_weight(&light, p, true)).sum();
+            assert!(front > 0.0 && (both - 2.0 * front).abs() < 1e-5 * both, "{light:?}: front {front}, double-sided {both}");
+        }
+        // A light beyond its range reaches nothing.
+        let far = Light::Point { position: Vec3::new(20.0, 0.0, 0.0), intensity: Vec3::ONE, range: Some(5.0) };
+        assert!(box_tris(false).iter().all(|&p| light_weight(&far, p, true) == 0.0));
+    }
+
     /// The partition holds with longer paths (4 bounces: caustic paths of 2 to 4 vertices go
     /// to the light tracer, everything else stays): a glossy metal box between a diffuse
     /// floor and wall, under a point and a directional light, renders the same mean over the
@@ -1718,7 +1865,7 @@ mod tests {
         b.lights.push(Light::Point { position: Vec3::new(1.2, 1.5, 0.8), intensity: Vec3::splat(3.0), range: None });
         b.lights.push(Light::Directional { direction: Vec3::new(-0.5, -1.0, 0.3).normalize(), illuminance: Vec3::splat(1.0) });
         let mut r = Renderer::new(b.build(DVec3::ZERO), &AccelParams::medium_build()).unwrap();
-        assert_eq!(r.caustics().spheres().len(), 1);
+        assert_eq!(r.caustics().caster_triangles(), r.scene().mesh.material.iter().filter(|&&k| k == metal).count());
         let cam = camera(24, 24, 60.0, DVec3::new(-2.0, 2.0, -2.5), DVec3::new(0.0, 0.2, 0.0));
         let s = settings(512, 4, 0.1, false);
         // The pixels the caustic reaches (an independent light-traced image, another seed).
