@@ -88,13 +88,15 @@ pub const CASTER_ALPHA: f32 = 0.2;
 /// Least `F0 / α` of a caster (see [`is_caster`]).
 pub const CASTER_F0_PER_ALPHA: f32 = 2.0;
 /// Light paths per camera sample of a view (when the scene has casters and punctual lights).
-/// Measured on `tabletop` and `materials` (64×64, 64 spp, 16 seeds; variance of a render
-/// over the pixels less the noisiest 0.1 %, times its time): 0.0625, 0.125 and 0.25 were
-/// within 15 % of each other and 4.1–4.6x (`tabletop`), 2.0–2.1x (`materials`) better than the
-/// path tracer alone; 0.5 and 1 cost more time than they removed noise.
-pub const LIGHT_PATHS_PER_SAMPLE: f64 = 0.125;
-/// Light paths of the pilot that decides whether a view is light-traced
-/// ([`CausticPaths::paths_for_view`]).
+/// Measured with the caster triangles drawn per light (128 px, 64 spp, 8 seeds; variance of
+/// a render over the pixels less the noisiest 0.1 %, times its time): 0.0625 was 5–8 % better
+/// than 0.125 on `materials`, `tabletop` and `thin`, and 0.25 12–25 % worse. (With cones
+/// towards bounding spheres, 0.125 had been best: a spot light's cone then sent many paths
+/// where it does not shine, which ended at once.)
+pub const LIGHT_PATHS_PER_SAMPLE: f64 = 0.0625;
+/// Most light paths of the pilot that decides whether a view is light-traced
+/// ([`CausticPaths::paths_for_view`]): a sixteenth of the view's light paths, at least 256
+/// (or all of them) and at most this many.
 pub const PILOT_PATHS: u64 = 4096;
 /// Least camera connections per light path (the pixels its vertices land in) for a view to be
 /// light-traced. Light paths that rarely reach the image cost their rays and remove little
@@ -329,11 +331,12 @@ impl CausticPaths {
 
     /// Whether view `view` is worth light-tracing: `n` (its count, [`CausticPaths::light_paths`])
     /// when a pilot's light paths reach its image at least [`MIN_YIELD`] times per path, else
-    /// 0 (the path tracer then estimates every path). The pilot is [`PILOT_PATHS`] paths of
-    /// their own random numbers (sampler pixel index 1), so the decision does not depend on
-    /// the paths that are summed and the estimate stays unbiased; its paths are traced in fixed
-    /// chunks, so the decision is the same for any thread count. `integ`, `rays` and `size` are
-    /// the view's, as for [`CausticPaths::render`].
+    /// 0 (the path tracer then estimates every path). The pilot is `n / 16` paths (at least
+    /// 256 or `n`, at most [`PILOT_PATHS`]) of their own random numbers (sampler pixel index
+    /// 1), so the decision does not depend on the paths that are summed and the estimate stays
+    /// unbiased; its paths are traced in fixed chunks, so the decision is the same for any
+    /// thread count. `integ`, `rays` and `size` are the view's, as for
+    /// [`CausticPaths::render`].
     pub fn paths_for_view(&self, integ: &PathIntegrator<'_>, rays: &SampleRays, size: (u32, u32), seed: u64, view: u32, n: u64) -> u64 {
         if n == 0 {
             return 0;
@@ -341,18 +344,19 @@ impl CausticPaths {
         let eye = Eye { integ, rays, size };
         let max_vertices = integ.settings.max_bounces.min(MAX_CAUSTIC_VERTICES);
         let key = Sampler::new(splitmix64(seed ^ CAUSTIC_SEED_KEY), view, 1, 0);
+        let pilot = (n / 16).clamp(n.min(256), PILOT_PATHS);
         const PILOT_CHUNK: u64 = 256;
-        let splats: u64 = (0..PILOT_PATHS.div_ceil(PILOT_CHUNK))
+        let splats: u64 = (0..pilot.div_ceil(PILOT_CHUNK))
             .into_par_iter()
             .map(|c| {
                 let mut out = Vec::new();
-                for k in c * PILOT_CHUNK..((c + 1) * PILOT_CHUNK).min(PILOT_PATHS) {
+                for k in c * PILOT_CHUNK..((c + 1) * PILOT_CHUNK).min(pilot) {
                     self.trace(&eye, max_vertices, &key.with_sample(k as u32), &mut out);
                 }
                 out.len() as u64
             })
             .sum();
-        if splats as f64 >= MIN_YIELD * PILOT_PATHS as f64 { n } else { 0 }
+        if splats as f64 >= MIN_YIELD * pilot as f64 { n } else { 0 }
     }
 
     /// One light path: the pixels its vertices after the caster land in, with their values
