@@ -15,9 +15,11 @@ BSDF modes:
 - `diffuse`: every material as Mitsuba's native `diffuse` with its base colour (a cheaper
   model than ours for non-Lambertian materials: a lower bound on Mitsuba's time).
 
-Russian roulette as ours: ours starts it at the third surface vertex (bounce depth >= 2),
-Mitsuba's `path` when its depth counter exceeds `rr_depth`, i.e. rr_depth 2 (Mitsuba's
-default 5 would never terminate a path early at max_depth 5 and make its samples costlier).
+Russian roulette from the same vertex as ours: ours starts it at the third surface vertex
+(bounce depth >= 2), Mitsuba's `path` when its depth counter exceeds `rr_depth`, i.e. rr_depth 2
+(Mitsuba's default 5 would never terminate a path early at max_depth 5 and make its samples
+costlier). The survival probabilities differ: ours min(1, 2 x the largest throughput
+component), Mitsuba's min(0.95, the largest throughput component x eta^2).
 
 Timing: `mi.render` plus evaluation of the image (dr.eval + sync); the first render of each
 scene and mode (scene upload, JIT compilation, kernel caching) is reported separately as

@@ -711,7 +711,7 @@ fn bench_render_mitsuba(ours: &[OursQuick], runs: usize, mitsuba: bool, report: 
         .context("reading bench.py's output")?;
     report.line(format!(
         "vs Mitsuba 3: same camera (the quick rig's first train view) at {CMP_WIDTH} px wide, {CMP_SPP} spp, our max_bounces {} = \
-         Mitsuba max_depth {} (Russian roulette from the third vertex on both: rr_depth 2), environment {:?} as an opaque \
+         Mitsuba max_depth {} (Russian roulette from the third vertex on both: rr_depth 2; ours survives with min(1, 2 x max throughput), Mitsuba with min(0.95, max throughput)), environment {:?} as an opaque \
          background (both show it and the emitters the camera sees); medians of {runs} timed renders (Mitsuba's after a first one for \
          JIT compilation; Mitsuba with its default `independent` sampler, with `ldsampler`, its counterpart of our padded \
          Owen-scrambled Sobol' sampler, and with `multijitter`). MSE = mean squared RGB error of one render against our {CMP_REF_SPP}-spp reference, less that \

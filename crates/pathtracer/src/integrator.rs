@@ -19,7 +19,7 @@
 //! - `max_bounces` counts scattering events: 0 shows emitters and the environment only,
 //!   1 is direct lighting, `n` adds paths with up to `n` surface reflections.
 //! - Russian roulette from the third vertex on, with survival probability
-//!   `min(1, max throughput component)`.
+//!   `min(1, ROULETTE_SCALE · max throughput component)` ([`ROULETTE_SCALE`]).
 //! - Camera rays that miss return the environment radiance, or zero with `primary_hit =
 //!   false` when the background is transparent (the environment still lights the scene).
 //!   An environment map is sampled with its own density ([`Environment::sample`] /
@@ -61,6 +61,14 @@ const DIM_BSDF: u32 = 5;
 const DIM_ROULETTE: u32 = 7;
 /// Sampler dimensions every path vertex reserves (the block above).
 const VERTEX_DIMENSIONS: u32 = DIM_ROULETTE + 1;
+
+/// Russian roulette's survival probability over the path's largest throughput component
+/// (capped at 1). pbrt and Mitsuba use 1; 2 keeps paths whose throughput is between ½ and 1
+/// alive. Measured (128 px, 64 spp, 16 seeds; a render's variance times its time, 4 bounces):
+/// 9 % better on `cornell`, 7.5 % on `deep`, 2.5–4.5 % on `materials`, `tabletop` and `thin`;
+/// at 8 bounces 16 % on `cornell` and 8 % on `tabletop`. (1.5 and 3 were within 1 % of 2 on
+/// `cornell`; no roulette at all, 6 %.)
+pub const ROULETTE_SCALE: f32 = 2.0;
 
 /// Fraction of a shadow ray's length left unchecked at its far end (pbrt's ShadowEpsilon).
 pub const SHADOW_EPSILON: f32 = 1e-4;
@@ -386,7 +394,7 @@ impl PathIntegrator<'_> {
             beta *= bs.weight;
             prev_bsdf_pdf = bs.pdf;
             if depth >= 2 {
-                let survive = beta.max_element().min(1.0);
+                let survive = (ROULETTE_SCALE * beta.max_element()).min(1.0);
                 if !(survive > 0.0) || sampler.get_1d(dim + DIM_ROULETTE) >= survive {
                     break;
                 }

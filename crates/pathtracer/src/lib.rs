@@ -43,4 +43,4 @@ pub use error::PathTracerError;
 /// Renderer name, version and description; datasets record it with the hash of the renderer's
 /// output on a probe scene appended ([`version::renderer_version`]), which changes whenever the
 /// output can.
-pub const RENDERER_VERSION: &str = concat!("pathtracer ", env!("CARGO_PKG_VERSION"), " (padded Owen-scrambled Sobol' sampler, split emitter edges, glTF rig baseline 0.1 x depth, BVH box test from t = 0, emitter choice and point from one 2D sample, f32 camera rays per sample, caustic paths light-traced from caster triangles)");
+pub const RENDERER_VERSION: &str = concat!("pathtracer ", env!("CARGO_PKG_VERSION"), " (padded Owen-scrambled Sobol' sampler, split emitter edges, glTF rig baseline 0.1 x depth, BVH box test from t = 0, emitter choice and point from one 2D sample, f32 camera rays per sample, caustic paths light-traced from caster triangles, Russian roulette at 2x throughput)");
