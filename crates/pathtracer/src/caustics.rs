@@ -157,10 +157,8 @@ struct Emitter {
 pub struct CausticPaths {
     caster: Vec<bool>,
     sharp: Vec<bool>,
-    /// The caster triangles (mesh triangle indices; finite, of positive area), their corners
-    /// and their areas.
+    /// The caster triangles (mesh triangle indices; finite, of positive area) and their areas.
     triangles: Vec<u32>,
-    corners: Vec<[Vec3; 3]>,
     areas: Vec<f32>,
     /// Inclusive running sums of the caster triangles' selection weights: one table per light
     /// ([`light_weight`]), or a single table of their areas shared by every light when
@@ -185,7 +183,7 @@ impl CausticPaths {
         let caster: Vec<bool> = scene.materials.iter().map(|m| is_caster(m, &scene.textures)).collect();
         let sharp: Vec<bool> = scene.materials.iter().map(|m| is_sharp(m, &scene.textures)).collect();
         let m = &scene.mesh;
-        let (mut triangles, mut corners, mut areas) = (Vec::new(), Vec::new(), Vec::new());
+        let (mut triangles, mut areas) = (Vec::new(), Vec::new());
         for t in 0..m.indices.len() {
             let Some(&k) = m.material.get(t) else { continue };
             if !caster.get(k as usize).copied().unwrap_or(false) {
@@ -195,7 +193,6 @@ impl CausticPaths {
             let area = 0.5 * (p[1] - p[0]).cross(p[2] - p[0]).length();
             if area > 0.0 && area.is_finite() {
                 triangles.push(t as u32);
-                corners.push(p);
                 areas.push(area);
             }
         }
@@ -218,7 +215,8 @@ impl CausticPaths {
         let mut weights = Vec::new();
         for (k, light) in scene.lights.iter().enumerate() {
             let double_sided = |t: u32| m.material.get(t as usize).and_then(|&i| scene.materials.get(i as usize)).is_some_and(|mat| mat.double_sided);
-            let w: Vec<f64> = triangles.iter().zip(&corners).map(|(&t, &p)| light_weight(light, p, double_sided(t))).collect();
+            let w: Vec<f64> =
+                triangles.iter().map(|&t| triangle_positions(scene, t).map_or(0.0, |p| light_weight(light, p, double_sided(t)))).collect();
             let total: f64 = w.iter().sum();
             let power = match *light {
                 Light::Point { intensity, .. } | Light::Spot { intensity, .. } => intensity.max_element(),
@@ -246,7 +244,7 @@ impl CausticPaths {
                 (acc / total) as f32
             })
             .collect();
-        Self { caster, sharp, triangles, corners, areas, tables, emitters, cdf, scene_sphere }
+        Self { caster, sharp, triangles, areas, tables, emitters, cdf, scene_sphere }
     }
 
     /// Whether material `m` is sharp (a light path stops there; a caustic path has none
@@ -372,7 +370,7 @@ impl CausticPaths {
         let light = &scene.lights[emitter.light];
         // A point on a caster triangle (the triangle by the light's table, the point uniform on
         // it), its density per unit area, and the ray from the light through it.
-        let Some((prim, z, p_area)) = self.sample_caster_point(e, sampler.get_1d(1), sampler.get_2d(2)) else { return };
+        let Some((prim, z, p_area)) = self.sample_caster_point(scene, e, sampler.get_1d(1), sampler.get_2d(2)) else { return };
         let (ray_l, expected) = match *light {
             Light::Point { position, .. } | Light::Spot { position, .. } => {
                 let d = z - position;
@@ -449,7 +447,7 @@ impl CausticPaths {
     /// A caster triangle drawn from `emitter`'s table with `u` (in proportion to its weight), a
     /// point uniform on it from `v`, and the point's density per unit area, `P(triangle) /
     /// area`; `None` when the table is empty.
-    pub(crate) fn sample_caster_point(&self, emitter: usize, u: f32, v: Vec2) -> Option<(u32, Vec3, f32)> {
+    pub(crate) fn sample_caster_point(&self, scene: &Scene, emitter: usize, u: f32, v: Vec2) -> Option<(u32, Vec3, f32)> {
         let table = self.tables.get(self.emitters.get(emitter)?.table)?;
         let total = *table.last()?;
         let x = u as f64 * total;
@@ -457,7 +455,7 @@ impl CausticPaths {
         let i = table.partition_point(|&c| c <= x).min(table.len() - 1);
         let weight = table[i] - if i == 0 { 0.0 } else { table[i - 1] };
         let prim = self.triangles[i];
-        let p = self.corners[i];
+        let p = triangle_positions(scene, prim)?;
         let su = v.x.sqrt();
         let (b1, b2) = (v.y * su, 1.0 - su);
         let z = p[0] * (1.0 - b1 - b2) + p[1] * b1 + p[2] * b2;

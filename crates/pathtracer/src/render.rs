@@ -1765,7 +1765,7 @@ mod tests {
                     (state >> 40) as f32 / (1u64 << 24) as f32
                 };
                 for _ in 0..n {
-                    let (t, z, p_area) = c.sample_caster_point(e, uniform(), Vec2::new(uniform(), uniform())).expect("a caster point");
+                    let (t, z, p_area) = c.sample_caster_point(&scene, e, uniform(), Vec2::new(uniform(), uniform())).expect("a caster point");
                     assert!(reached(t), "light {l} drew triangle {t}, which it cannot reach");
                     let p = tri(t);
                     // On the triangle: in its plane and inside its edges.
