@@ -38,10 +38,11 @@
 //! area, zero where the light cannot reach its front), and a point `z₁` uniform on it, of
 //! area density `A₁ = P(triangle) / area`; `z₁` is kept when the ray from the light towards
 //! it hits it first. (The first version aimed cones at the casters' bounding spheres: on
-//! `thin`, whose casters are wires and a spring, 92 % of those rays missed them.) Then, for `j = 2, 3, …` up to
-//! `min(max_bounces, MAX_CAUSTIC_VERTICES)`, a direction from `z_{j−1}`'s BSDF seen from the
-//! light's side and its first hit `z_j`, the path ending at a sharp `z_j`. Each `z_j` in the
-//! image whose camera ray hits it first is connected to the camera: the path
+//! `thin`, whose casters are wires and a spring, 92 % of those rays missed them.) Then, for
+//! `j = 2, 3, …` up to `min(max_bounces, MAX_CAUSTIC_VERTICES)`, a direction from
+//! `z_{j−1}`'s BSDF seen from the light's side and its first hit `z_j`, the path ending at a
+//! sharp `z_j`. Each `z_j` in the image whose camera ray hits it first is connected to the
+//! camera: the path
 //! `camera → z_j → … → z₁ → light` of `j` vertices. Its value is computed as the path tracer
 //! would compute it (the camera ray's hit, the shading frames and BSDFs seen from the
 //! camera's side, [`crate::light::punctual_incidence`]) and its density converted to the path
@@ -100,9 +101,9 @@ pub const LIGHT_PATHS_PER_SAMPLE: f64 = 0.0625;
 pub const PILOT_PATHS: u64 = 4096;
 /// Least camera connections per light path (the pixels its vertices land in) for a view to be
 /// light-traced. Light paths that rarely reach the image cost their rays and remove little
-/// noise: on `deep` (0.05 per path, from its brass) tracing them
-/// cost 15 % of the samples per second and left the error unchanged; on `tabletop` (0.18),
-/// `thin` (0.26) and `materials` (0.28) they remove most of the noise.
+/// noise: on `deep` (0.05 per path, from its brass) tracing them cost 15 % of the samples per
+/// second and left the error unchanged; on `tabletop` (0.18), `thin` (0.26) and `materials`
+/// (0.28) they remove most of the noise.
 pub const MIN_YIELD: f64 = 0.1;
 /// Most entries (caster triangles × punctual lights) of per-light caster tables; beyond it
 /// every light draws its triangles from one table of their areas.
@@ -215,8 +216,9 @@ impl CausticPaths {
         let mut weights = Vec::new();
         for (k, light) in scene.lights.iter().enumerate() {
             let double_sided = |t: u32| m.material.get(t as usize).and_then(|&i| scene.materials.get(i as usize)).is_some_and(|mat| mat.double_sided);
+            // In parallel, in triangle order; summed in that order.
             let w: Vec<f64> =
-                triangles.iter().map(|&t| triangle_positions(scene, t).map_or(0.0, |p| light_weight(light, p, double_sided(t)))).collect();
+                triangles.par_iter().map(|&t| triangle_positions(scene, t).map_or(0.0, |p| light_weight(light, p, double_sided(t)))).collect();
             let total: f64 = w.iter().sum();
             let power = match *light {
                 Light::Point { intensity, .. } | Light::Spot { intensity, .. } => intensity.max_element(),
