@@ -1376,6 +1376,13 @@ mod tests {
         assert_eq!(r.caustics().caster_triangles(), r.scene().mesh.material.iter().filter(|&&k| k == metal).count());
         let cam = camera(24, 16, 55.0, DVec3::new(8.0, 2.5, -1.5), DVec3::new(5.0, 0.5, -5.0));
         let s = settings(64, 4, 0.5, true);
+        // The light tracer and its pilot run in this view, at each thread count.
+        let light_paths = |threads: usize| {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            let n = r.caustics().light_paths(24 * 16, s.spp, s.max_bounces);
+            pool.install(|| r.caustics().paths_for_view(&r.integrator(&s), &SampleRays::new(&cam, r.scene().origin), (24, 16), s.seed, 3, n))
+        };
+        assert!(light_paths(1) > 0 && light_paths(1) == light_paths(2), "the view is light-traced");
         let render_with = |threads: usize| {
             let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
             pool.install(|| r.render_view(&cam, 3, &s))
@@ -1873,6 +1880,12 @@ mod tests {
         let mask: Vec<bool> = caustic.iter().map(|c| c.iter().sum::<f64>() > 0.0).collect();
         let lit = mask.iter().filter(|&&m| m).count();
         assert!(lit > 50, "{lit} pixels see the caustic");
+        // Every seed's view is light-traced (its pilot keeps the light tracer), so the two
+        // sides below differ in how they estimate the caustic.
+        for k in 0..16 {
+            let n = r.caustics().light_paths(24 * 24, s.spp, s.max_bounces);
+            assert!(r.caustics().paths_for_view(&r.integrator(&s), &SampleRays::new(&cam, r.scene().origin), (24, 24), s.seed, k, n) > 0);
+        }
         let stats = |r: &Renderer| {
             let mean = |v: &ViewOutput| v.color.data.chunks(4).zip(&mask).filter(|(_, m)| **m).map(|(p, _)| (p[0] + p[1] + p[2]) as f64).sum::<f64>() / (3 * lit) as f64;
             let means: Vec<f64> = (0..16).map(|k| mean(&r.render_view(&cam, k, &s))).collect();
