@@ -72,12 +72,12 @@
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 use crate::accel::Hit;
-use crate::geometry::{Ray, offset_ray_origin};
+use crate::geometry::{Ray, hit_point_error, offset_ray_origin};
 use crate::integrator::{PathIntegrator, interaction, vertex_bsdf};
 use crate::light::punctual_incidence;
 use crate::material::{MIN_ALPHA, max_dielectric_f0, min_roughness_texel, resolve};
 use crate::render::SampleRays;
-use crate::sampler::{Sampler, splitmix64};
+use crate::sampler::{Sampler, sample_uniform_triangle, splitmix64};
 use crate::scene::{Light, Material, Scene, Texture};
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
@@ -458,9 +458,7 @@ impl CausticPaths {
         let weight = table[i] - if i == 0 { 0.0 } else { table[i - 1] };
         let prim = self.triangles[i];
         let p = triangle_positions(scene, prim)?;
-        let su = v.x.sqrt();
-        let (b1, b2) = (v.y * su, 1.0 - su);
-        let z = p[0] * (1.0 - b1 - b2) + p[1] * b1 + p[2] * b2;
+        let (z, _) = hit_point_error(p, sample_uniform_triangle(v));
         let p_area = (weight / total) as f32 / self.areas[i];
         (p_area > 0.0 && p_area.is_finite()).then_some((prim, z, p_area))
     }
