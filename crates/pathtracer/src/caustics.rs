@@ -214,8 +214,8 @@ impl CausticPaths {
         }
         let mut emitters = Vec::new();
         let mut weights = Vec::new();
+        let double_sided = |t: u32| m.material.get(t as usize).and_then(|&i| scene.materials.get(i as usize)).is_some_and(|mat| mat.double_sided);
         for (k, light) in scene.lights.iter().enumerate() {
-            let double_sided = |t: u32| m.material.get(t as usize).and_then(|&i| scene.materials.get(i as usize)).is_some_and(|mat| mat.double_sided);
             // In parallel, in triangle order; summed in that order.
             let w: Vec<f64> =
                 triangles.par_iter().map(|&t| triangle_positions(scene, t).map_or(0.0, |p| light_weight(light, p, double_sided(t)))).collect();
@@ -329,15 +329,16 @@ impl CausticPaths {
         (image, nonfinite)
     }
 
-    /// Whether view `view` is worth light-tracing: `n` (its count, [`CausticPaths::light_paths`])
-    /// when a pilot's light paths reach its image at least [`MIN_YIELD`] times per path, else
-    /// 0 (the path tracer then estimates every path). The pilot is `n / 16` paths (at least
+    /// How many light paths view `view` at `spp` samples traces: its count
+    /// ([`CausticPaths::light_paths`], `n`) when a pilot's light paths reach its image at least
+    /// [`MIN_YIELD`] times per path, else 0 (the path tracer then estimates every path). The pilot is `n / 16` paths (at least
     /// 256 or `n`, at most [`PILOT_PATHS`]) of their own random numbers (sampler pixel index
     /// 1), so the decision does not depend on the paths that are summed and the estimate stays
     /// unbiased; its paths are traced in fixed chunks, so the decision is the same for any
     /// thread count. `integ`, `rays` and `size` are the view's, as for
     /// [`CausticPaths::render`].
-    pub fn paths_for_view(&self, integ: &PathIntegrator<'_>, rays: &SampleRays, size: (u32, u32), seed: u64, view: u32, n: u64) -> u64 {
+    pub fn paths_for_view(&self, integ: &PathIntegrator<'_>, rays: &SampleRays, size: (u32, u32), seed: u64, view: u32, spp: u32) -> u64 {
+        let n = self.light_paths(size.0 as u64 * size.1 as u64, spp, integ.settings.max_bounces);
         if n == 0 {
             return 0;
         }

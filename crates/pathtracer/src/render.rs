@@ -491,8 +491,7 @@ impl Renderer {
         // Caustic paths from the light's side ([`crate::caustics`]), left out of the path
         // tracer's estimate when there are any.
         let rays = SampleRays::new(camera, self.scene.origin);
-        let light_paths = if self.caustic_light_tracing { self.caustics.light_paths(w as u64 * h as u64, spp, settings.max_bounces) } else { 0 };
-        let light_paths = self.caustics.paths_for_view(&integ, &rays, (w, h), settings.seed, view_index, light_paths);
+        let light_paths = if self.caustic_light_tracing { self.caustics.paths_for_view(&integ, &rays, (w, h), settings.seed, view_index, spp) } else { 0 };
         if light_paths > 0 {
             integ.caustics = Some(&self.caustics);
         }
@@ -1379,8 +1378,7 @@ mod tests {
         // The light tracer and its pilot run in this view, at each thread count.
         let light_paths = |threads: usize| {
             let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
-            let n = r.caustics().light_paths(24 * 16, s.spp, s.max_bounces);
-            pool.install(|| r.caustics().paths_for_view(&r.integrator(&s), &SampleRays::new(&cam, r.scene().origin), (24, 16), s.seed, 3, n))
+            pool.install(|| r.caustics().paths_for_view(&r.integrator(&s), &SampleRays::new(&cam, r.scene().origin), (24, 16), s.seed, 3, s.spp))
         };
         assert!(light_paths(1) > 0 && light_paths(1) == light_paths(2), "the view is light-traced");
         let render_with = |threads: usize| {
@@ -1806,7 +1804,7 @@ mod tests {
         let paths_for = |r: &Renderer, cam: &Camera| {
             let (w, h) = (cam.intrinsics.width, cam.intrinsics.height);
             let n = r.caustics().light_paths(w as u64 * h as u64, s.spp, s.max_bounces);
-            (n, r.caustics().paths_for_view(&r.integrator(&s), &SampleRays::new(cam, r.scene().origin), (w, h), s.seed, 0, n))
+            (n, r.caustics().paths_for_view(&r.integrator(&s), &SampleRays::new(cam, r.scene().origin), (w, h), s.seed, 0, s.spp))
         };
         let floor_cam = camera(24, 24, 60.0, DVec3::new(3.0, 3.0, 3.0), DVec3::new(0.5, 0.0, -0.5));
         let (n, traced) = paths_for(&r, &floor_cam);
@@ -1883,8 +1881,7 @@ mod tests {
         // Every seed's view is light-traced (its pilot keeps the light tracer), so the two
         // sides below differ in how they estimate the caustic.
         for k in 0..16 {
-            let n = r.caustics().light_paths(24 * 24, s.spp, s.max_bounces);
-            assert!(r.caustics().paths_for_view(&r.integrator(&s), &SampleRays::new(&cam, r.scene().origin), (24, 24), s.seed, k, n) > 0);
+            assert!(r.caustics().paths_for_view(&r.integrator(&s), &SampleRays::new(&cam, r.scene().origin), (24, 24), s.seed, k, s.spp) > 0);
         }
         let stats = |r: &Renderer| {
             let mean = |v: &ViewOutput| v.color.data.chunks(4).zip(&mask).filter(|(_, m)| **m).map(|(p, _)| (p[0] + p[1] + p[2]) as f64).sum::<f64>() / (3 * lit) as f64;
