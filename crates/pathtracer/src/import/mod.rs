@@ -368,7 +368,7 @@ impl Importer<'_> {
             .collect();
         for (i, uri, byte_length) in sources {
             let what = format!("buffer {i}");
-            let data = match uri {
+            let mut data = match uri {
                 Some(uri) => self.read_uri(&uri, &what)?,
                 None => match bin {
                     Some(bin) if i == 0 => bin.to_vec(),
@@ -385,6 +385,10 @@ impl Importer<'_> {
                     data.len()
                 )));
             }
+            // The buffer is its first `byteLength` bytes (a GLB binary chunk is padded to 4
+            // bytes, a file may be longer): a bufferView reaching past `byteLength` is out of
+            // range, as glTF-Validator reports it, instead of reading the bytes beyond.
+            data.truncate(usize::try_from(byte_length).unwrap_or(usize::MAX));
             self.buffers.push(data);
         }
         Ok(())

@@ -110,6 +110,18 @@ fn position_accessor_out_of_range_is_an_error_not_a_panic() {
 }
 
 #[test]
+fn a_buffer_view_past_the_buffers_byte_length_is_refused() {
+    // The data URI holds the triangle's 36 bytes, but the buffer declares only 24 of them.
+    let mut bytes: Value = serde_json::from_slice(&file(&f32_bytes(&TRI), triangle_body(json!([]), &[]))).unwrap();
+    bytes["buffers"][0]["byteLength"] = json!(24);
+    let e = load(&serde_json::to_vec(&bytes).unwrap()).unwrap_err().to_string();
+    assert!(e.contains("unit.gltf") && e.contains("bufferView 0") && e.contains("out of range of buffer 0 (24 bytes)"), "{e}");
+    // Declared in full, the same file loads.
+    bytes["buffers"][0]["byteLength"] = json!(36);
+    assert_eq!(load(&serde_json::to_vec(&bytes).unwrap()).unwrap().mesh.indices.len(), 1);
+}
+
+#[test]
 fn position_min_max_missing_is_only_a_warning() {
     let mut body = triangle_body(json!([]), &[]);
     body["accessors"][0].as_object_mut().unwrap().remove("min");
