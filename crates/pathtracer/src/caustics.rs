@@ -331,9 +331,9 @@ impl CausticPaths {
 
     /// How many light paths view `view` at `spp` samples traces: its count
     /// ([`CausticPaths::light_paths`], `n`) when a pilot's light paths reach its image at least
-    /// [`MIN_YIELD`] times per path, else 0 (the path tracer then estimates every path). The pilot is `n / 16` paths (at least
-    /// 256 or `n`, at most [`PILOT_PATHS`]) of their own random numbers (sampler pixel index
-    /// 1), so the decision does not depend on the paths that are summed and the estimate stays
+    /// [`MIN_YIELD`] times per path, else 0 (the path tracer then estimates every path). The
+    /// pilot is `n / 16` paths (at least 256 or `n`, at most [`PILOT_PATHS`]) of their own
+    /// random numbers (sampler pixel index 1), so the decision does not depend on the paths that are summed and the estimate stays
     /// unbiased; its paths are traced in fixed chunks, so the decision is the same for any
     /// thread count. `integ`, `rays` and `size` are the view's, as for
     /// [`CausticPaths::render`].

@@ -1380,7 +1380,8 @@ mod tests {
             let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
             pool.install(|| r.caustics().paths_for_view(&r.integrator(&s), &SampleRays::new(&cam, r.scene().origin), (24, 16), s.seed, 3, s.spp))
         };
-        assert!(light_paths(1) > 0 && light_paths(1) == light_paths(2), "the view is light-traced");
+        let one_thread = light_paths(1);
+        assert!(one_thread > 0 && one_thread == light_paths(2), "the view is light-traced");
         let render_with = |threads: usize| {
             let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
             pool.install(|| r.render_view(&cam, 3, &s))
