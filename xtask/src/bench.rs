@@ -94,6 +94,78 @@ pub fn build_profile() -> &'static str {
     if cfg!(debug_assertions) { "dev" } else { "release" }
 }
 
+/// The CPU the benchmark ran on, as Linux's `/proc/cpuinfo` names it (first processor), so that
+/// figures from different machines are told apart: a cloud VM often reports only a family
+/// ("AMD EPYC"), so the vendor's family, model and stepping numbers and the per-core L2 size
+/// (`cache size`) are kept, with the widest vector extension detected at run time.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct CpuInfo {
+    pub model_name: String,
+    pub vendor: String,
+    pub family: Option<u32>,
+    pub model: Option<u32>,
+    pub stepping: Option<u32>,
+    pub cache: String,
+    pub logical_cpus: usize,
+    /// "avx512f", "avx2", "sse2" or "" (not x86-64).
+    pub widest_simd: &'static str,
+}
+
+impl CpuInfo {
+    /// This machine's description (fields left empty where `/proc/cpuinfo` is missing).
+    pub fn detect() -> Self {
+        Self::parse(&std::fs::read_to_string("/proc/cpuinfo").unwrap_or_default())
+    }
+
+    /// The description from the text of a `/proc/cpuinfo`: its first processor's block.
+    pub fn parse(cpuinfo: &str) -> Self {
+        let first = cpuinfo.split("\n\n").next().unwrap_or("");
+        let field = |key: &str| {
+            first.lines().find_map(|l| {
+                let (k, v) = l.split_once(':')?;
+                (k.trim() == key).then(|| v.trim().to_string())
+            })
+        };
+        let number = |key: &str| field(key).and_then(|v| v.parse().ok());
+        #[cfg(target_arch = "x86_64")]
+        let widest_simd = if std::arch::is_x86_feature_detected!("avx512f") {
+            "avx512f"
+        } else if std::arch::is_x86_feature_detected!("avx2") {
+            "avx2"
+        } else {
+            "sse2"
+        };
+        #[cfg(not(target_arch = "x86_64"))]
+        let widest_simd = "";
+        CpuInfo {
+            model_name: field("model name").unwrap_or_else(|| "unknown".into()),
+            vendor: field("vendor_id").unwrap_or_default(),
+            family: number("cpu family"),
+            model: number("model"),
+            stepping: number("stepping"),
+            cache: field("cache size").unwrap_or_default(),
+            logical_cpus: std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1),
+            widest_simd,
+        }
+    }
+
+    /// One line: `AMD EPYC (AuthenticAMD family 25 model 17 stepping 1, cache 1024 KB, 2 CPUs, avx512f)`.
+    pub fn summary(&self) -> String {
+        let num = |n: Option<u32>| n.map_or("?".to_string(), |n| n.to_string());
+        format!(
+            "{} ({} family {} model {} stepping {}, cache {}, {} CPUs, {})",
+            self.model_name,
+            if self.vendor.is_empty() { "unknown vendor" } else { &self.vendor },
+            num(self.family),
+            num(self.model),
+            num(self.stepping),
+            if self.cache.is_empty() { "?" } else { &self.cache },
+            self.logical_cpus,
+            if self.widest_simd.is_empty() { "no x86 SIMD" } else { self.widest_simd }
+        )
+    }
+}
+
 /// In a dev build, builds the workspace in the release profile (`cargo build --release
 /// --workspace --locked` from the repository root: the same features as every other build, so
 /// nothing is rebuilt twice) and runs this same command line with the release `xtask`, returning
@@ -263,6 +335,8 @@ fn bench_render(args: &RenderBenchArgs) -> anyhow::Result<()> {
     }
     let threads = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1);
     let mut report = Report::default();
+    let cpu = CpuInfo::detect();
+    report.line(format!("cpu: {}", cpu.summary()));
     report.line(format!(
         "bench render: profile {}, {threads} threads; medians of {RENDER_RUNS} runs (IQR = quartiles); BVH = obvhs medium_build; \
          primary = 256x256 pixel-centre closest hits; shadow = any-hit rays from those hits to every punctual light and one emitter \
@@ -388,6 +462,7 @@ fn bench_render(args: &RenderBenchArgs) -> anyhow::Result<()> {
     let comparisons = bench_render_mitsuba(&ours_quick, cmp_runs, !args.no_mitsuba, &mut report)?;
     let json = serde_json::json!({
         "profile": build_profile(),
+        "cpu": cpu,
         "threads": threads,
         "child_box_test": simd,
         "runs": RENDER_RUNS,
@@ -438,6 +513,8 @@ fn bench_scaling(args: &ScalingBenchArgs) -> anyhow::Result<()> {
     std::fs::create_dir_all(&stress_dir).with_context(|| format!("creating {}", stress_dir.display()))?;
     let threads = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1);
     let mut report = Report::default();
+    let cpu = CpuInfo::detect();
+    report.line(format!("cpu: {}", cpu.summary()));
     report.line(format!(
         "bench scaling: profile {}, {threads} threads; generated stress scenes (scenegen::stress: a floor and 16 UV spheres \
          tessellated to the count); BVH = obvhs medium_build, medians of 3 builds; B/tri = bytes of nodes (with their quantised child boxes) and packed \
@@ -528,6 +605,7 @@ fn bench_scaling(args: &ScalingBenchArgs) -> anyhow::Result<()> {
     }
     let json = serde_json::json!({
         "profile": build_profile(),
+        "cpu": cpu,
         "threads": threads,
         "runs": RENDER_RUNS,
         "width": SCALING_WIDTH,
@@ -821,6 +899,21 @@ fn bench_render_mitsuba(ours: &[OursQuick], runs: usize, mitsuba: bool, report: 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_cpu_is_read_from_the_first_processor_of_proc_cpuinfo() {
+        let text = "processor\t: 0\nvendor_id\t: AuthenticAMD\ncpu family\t: 25\nmodel\t\t: 17\nmodel name\t: AMD EPYC\n\
+                    stepping\t: 1\ncache size\t: 1024 KB\nflags\t\t: fpu avx2\n\nprocessor\t: 1\nvendor_id\t: Other\nmodel\t\t: 99\n";
+        let cpu = CpuInfo::parse(text);
+        assert_eq!((cpu.model_name.as_str(), cpu.vendor.as_str()), ("AMD EPYC", "AuthenticAMD"));
+        assert_eq!((cpu.family, cpu.model, cpu.stepping), (Some(25), Some(17), Some(1)));
+        assert_eq!(cpu.cache, "1024 KB");
+        assert!(cpu.summary().starts_with("AMD EPYC (AuthenticAMD family 25 model 17 stepping 1, cache 1024 KB, "), "{}", cpu.summary());
+        // No /proc/cpuinfo (another OS): named as unknown, not an error.
+        let none = CpuInfo::parse("");
+        assert_eq!((none.model_name.as_str(), none.family), ("unknown", None));
+        assert!(none.summary().starts_with("unknown (unknown vendor family ? model ? stepping ?, cache ?, "), "{}", none.summary());
+    }
 
     #[test]
     fn the_noisiest_reference_pixels_are_left_out_of_the_error() {

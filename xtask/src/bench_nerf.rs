@@ -116,6 +116,8 @@ struct RandomAccessLimits {
 #[derive(serde::Serialize)]
 struct NerfBenchJson {
     profile: &'static str,
+    /// The machine ([`crate::bench::CpuInfo`]).
+    cpu: crate::bench::CpuInfo,
     dataset: String,
     gemm_peak_gflops: f64,
     burn_matmul_gflops: f64,
@@ -148,6 +150,8 @@ struct ModelLine {
 /// full-size render times; writes `bench-nerf.json` into `--out`.
 pub fn run(args: NerfBenchArgs) -> anyhow::Result<()> {
     println!("profile: {}", crate::bench::build_profile());
+    let cpu = crate::bench::CpuInfo::detect();
+    println!("cpu: {}", cpu.summary());
     let tmp = tempfile::Builder::new().prefix("nerf-bench-").tempdir()?;
     let dir = tmp.path().to_path_buf();
     // With --resume-run, a copy of the run (config and latest checkpoint) to continue.
@@ -180,6 +184,7 @@ pub fn run(args: NerfBenchArgs) -> anyhow::Result<()> {
     networks_fused_vs_burn(peak);
     let mut json = NerfBenchJson {
         profile: crate::bench::build_profile(),
+        cpu,
         dataset: data.display().to_string(),
         gemm_peak_gflops: peak,
         burn_matmul_gflops: burn_peak,
