@@ -374,16 +374,22 @@ pub struct SceneBounds {
 impl SceneBounds {
     /// Refuses bounds no model can use (the config file may come from a user): a box with a
     /// non-finite corner or a side that is not positive, or a near/far range that is not
-    /// finite with `0 ≤ near < far`.
+    /// finite with `0 ≤ near < far`. The error names where the bounds came from (`source`):
+    /// bounds derived from a dataset's cameras fail when the cameras are placed absurdly (one
+    /// at 10³⁰ m puts their common look-at point where `f32` cannot hold a box of the assumed
+    /// radius).
     pub fn check(&self) -> Result<(), String> {
         for k in 0..3 {
             let (lo, hi) = (self.aabb_min[k], self.aabb_max[k]);
             if !(lo.is_finite() && hi.is_finite() && lo < hi && (hi - lo).is_finite()) {
-                return Err(format!("bounds: the box must have finite corners with aabb_min < aabb_max on every axis, not {lo} .. {hi} on axis {k}"));
+                return Err(format!(
+                    "bounds (from {}): the box must have finite corners with aabb_min < aabb_max on every axis, not {lo} .. {hi} on axis {k}",
+                    self.source
+                ));
             }
         }
         if !(self.near.is_finite() && self.far.is_finite() && self.near >= 0.0 && self.near < self.far) {
-            return Err(format!("bounds: need finite 0 ≤ near < far, not near {} far {}", self.near, self.far));
+            return Err(format!("bounds (from {}): need finite 0 ≤ near < far, not near {} far {}", self.source, self.near, self.far));
         }
         Ok(())
     }
@@ -680,5 +686,20 @@ mod tests {
         assert!((mixed_share(&[alpha], &[m]) - 1.0 / 3.0).abs() < 1e-12, "3 covered pixels, 1 mixed");
         // Slices of the wrong length add nothing and do not panic.
         assert!(!mixed_pixels(w, h, &[0.5; 3], Some(&[1.0; 3]), f, 16.0).iter().any(|m| *m));
+    }
+
+    /// Bounds derived from cameras placed absurdly (one 10³⁰ m away) are refused, and the error
+    /// says they came from the cameras, not from a file the user wrote.
+    #[test]
+    fn absurd_camera_positions_give_bounds_that_are_refused_naming_the_cameras() {
+        let intr = dataset::Intrinsics::from_fov_x(16, 16, 0.7);
+        let at = |x: f64| Camera::new(intr, Camera::look_at(DVec3::new(x, 0.0, 4.0), DVec3::ZERO, DVec3::Y)).unwrap();
+        let sane = [at(0.0), at(2.0), at(-2.0)];
+        assert!(SceneBounds::from_cameras(&sane, 1.0).check().is_ok());
+        // The first camera moved 10³⁰ m along x, looking the same way.
+        let mut far = at(0.0);
+        far.c2w.w_axis.x = 1e30;
+        let err = SceneBounds::from_cameras(&[at(0.0), at(2.0), far], 1.0).check().unwrap_err();
+        assert!(err.starts_with("bounds (from cameras (no scene facts)"), "{err}");
     }
 }
