@@ -112,21 +112,9 @@ pub struct CpuInfo {
 }
 
 impl CpuInfo {
-    /// This machine's description (fields left empty where `/proc/cpuinfo` is missing).
+    /// This machine's description: its `/proc/cpuinfo` (fields left empty where that file is
+    /// missing), its CPU count and the widest SIMD it has.
     pub fn detect() -> Self {
-        Self::parse(&std::fs::read_to_string("/proc/cpuinfo").unwrap_or_default())
-    }
-
-    /// The description from the text of a `/proc/cpuinfo`: its first processor's block.
-    pub fn parse(cpuinfo: &str) -> Self {
-        let first = cpuinfo.split("\n\n").next().unwrap_or("");
-        let field = |key: &str| {
-            first.lines().find_map(|l| {
-                let (k, v) = l.split_once(':')?;
-                (k.trim() == key).then(|| v.trim().to_string())
-            })
-        };
-        let number = |key: &str| field(key).and_then(|v| v.parse().ok());
         #[cfg(target_arch = "x86_64")]
         let widest_simd = if std::arch::is_x86_feature_detected!("avx512f") {
             "avx512f"
@@ -137,6 +125,21 @@ impl CpuInfo {
         };
         #[cfg(not(target_arch = "x86_64"))]
         let widest_simd = "";
+        let logical_cpus = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1);
+        Self::parse(&std::fs::read_to_string("/proc/cpuinfo").unwrap_or_default(), logical_cpus, widest_simd)
+    }
+
+    /// The description from the text of a `/proc/cpuinfo` (its first processor's block), with
+    /// the CPU count and SIMD level detected elsewhere.
+    pub fn parse(cpuinfo: &str, logical_cpus: usize, widest_simd: &'static str) -> Self {
+        let first = cpuinfo.split("\n\n").next().unwrap_or("");
+        let field = |key: &str| {
+            first.lines().find_map(|l| {
+                let (k, v) = l.split_once(':')?;
+                (k.trim() == key).then(|| v.trim().to_string())
+            })
+        };
+        let number = |key: &str| field(key).and_then(|v| v.parse().ok());
         CpuInfo {
             model_name: field("model name").unwrap_or_else(|| "unknown".into()),
             vendor: field("vendor_id").unwrap_or_default(),
@@ -144,7 +147,7 @@ impl CpuInfo {
             model: number("model"),
             stepping: number("stepping"),
             cache: field("cache size").unwrap_or_default(),
-            logical_cpus: std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1),
+            logical_cpus,
             widest_simd,
         }
     }
@@ -333,9 +336,9 @@ fn bench_render(args: &RenderBenchArgs) -> anyhow::Result<()> {
     if scenes.is_empty() {
         anyhow::bail!("no scenes in {} (`cargo xtask gen-scenes` writes them)", dir.display());
     }
-    let threads = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1);
-    let mut report = Report::default();
     let cpu = CpuInfo::detect();
+    let threads = cpu.logical_cpus;
+    let mut report = Report::default();
     report.line(format!("cpu: {}", cpu.summary()));
     report.line(format!(
         "bench render: profile {}, {threads} threads; medians of {RENDER_RUNS} runs (IQR = quartiles); BVH = obvhs medium_build; \
@@ -511,9 +514,9 @@ fn bench_scaling(args: &ScalingBenchArgs) -> anyhow::Result<()> {
     let out = out_dir(&args.out);
     let stress_dir = out.join("stress");
     std::fs::create_dir_all(&stress_dir).with_context(|| format!("creating {}", stress_dir.display()))?;
-    let threads = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1);
-    let mut report = Report::default();
     let cpu = CpuInfo::detect();
+    let threads = cpu.logical_cpus;
+    let mut report = Report::default();
     report.line(format!("cpu: {}", cpu.summary()));
     report.line(format!(
         "bench scaling: profile {}, {threads} threads; generated stress scenes (scenegen::stress: a floor and 16 UV spheres \
@@ -904,15 +907,15 @@ mod tests {
     fn the_cpu_is_read_from_the_first_processor_of_proc_cpuinfo() {
         let text = "processor\t: 0\nvendor_id\t: AuthenticAMD\ncpu family\t: 25\nmodel\t\t: 17\nmodel name\t: AMD EPYC\n\
                     stepping\t: 1\ncache size\t: 1024 KB\nflags\t\t: fpu avx2\n\nprocessor\t: 1\nvendor_id\t: Other\nmodel\t\t: 99\n";
-        let cpu = CpuInfo::parse(text);
+        let cpu = CpuInfo::parse(text, 2, "avx512f");
         assert_eq!((cpu.model_name.as_str(), cpu.vendor.as_str()), ("AMD EPYC", "AuthenticAMD"));
         assert_eq!((cpu.family, cpu.model, cpu.stepping), (Some(25), Some(17), Some(1)));
         assert_eq!(cpu.cache, "1024 KB");
-        assert!(cpu.summary().starts_with("AMD EPYC (AuthenticAMD family 25 model 17 stepping 1, cache 1024 KB, "), "{}", cpu.summary());
+        assert_eq!(cpu.summary(), "AMD EPYC (AuthenticAMD family 25 model 17 stepping 1, cache 1024 KB, 2 CPUs, avx512f)");
         // No /proc/cpuinfo (another OS): named as unknown, not an error.
-        let none = CpuInfo::parse("");
+        let none = CpuInfo::parse("", 1, "");
         assert_eq!((none.model_name.as_str(), none.family), ("unknown", None));
-        assert!(none.summary().starts_with("unknown (unknown vendor family ? model ? stepping ?, cache ?, "), "{}", none.summary());
+        assert_eq!(none.summary(), "unknown (unknown vendor family ? model ? stepping ?, cache ?, 1 CPUs, no x86 SIMD)");
     }
 
     #[test]
