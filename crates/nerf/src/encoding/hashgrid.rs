@@ -279,6 +279,93 @@ impl HashGrid {
         self.backward_dispatch(points, d_out, grad, Some(touched));
     }
 
+    /// [`Self::backward_touched`] followed by [`Adam::step_sparse`] on the table, fused per
+    /// level: each level's gradient is summed into a per-thread scratch table and the level's
+    /// touched entries are updated (and the scratch cleared) straight away, while the gradient
+    /// is still in cache. The same sums in the same order and the same elementwise updates, so
+    /// `params` and the moments are bit-identical to the two calls in turn; the difference is
+    /// that no gradient the size of the whole table is written, left to go cold, and read back
+    /// (and the table's gradient needs `threads` levels' memory instead of `L`).
+    ///
+    /// # Shapes
+    /// As [`Self::backward`]; `adam` holds `L · T · F` moments.
+    pub fn backward_adam(&mut self, points: &[[f32; 3]], d_out: &[f32], adam: &mut Adam, lr: f32, scratch: &BackwardScratch) -> BackwardAdamStats {
+        match self.config.features_per_level {
+            1 => self.backward_adam_f::<1>(points, d_out, adam, lr, scratch),
+            2 => self.backward_adam_f::<2>(points, d_out, adam, lr, scratch),
+            4 => self.backward_adam_f::<4>(points, d_out, adam, lr, scratch),
+            8 => self.backward_adam_f::<8>(points, d_out, adam, lr, scratch),
+            f => panic!("unsupported features_per_level {f}"),
+        }
+    }
+
+    fn backward_adam_f<const F: usize>(&mut self, points: &[[f32; 3]], d_out: &[f32], adam: &mut Adam, lr: f32, scratch: &BackwardScratch) -> BackwardAdamStats {
+        use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
+        let start = std::time::Instant::now();
+        let n = points.len();
+        assert_eq!(d_out.len(), n * self.output_dim(), "d_out must hold N · L · F floats");
+        assert!(adam.m.len() == self.params.len() && adam.v.len() == self.params.len(), "Adam: length mismatch");
+        adam.step += 1;
+        let k = AdamStep::new(&adam.config, adam.step, lr);
+        if n == 0 {
+            return BackwardAdamStats::default();
+        }
+        let lvs = levels(&self.config);
+        let t = self.config.table_size();
+        let d_lvl = level_major::<F>(d_out, n, self.config.levels);
+        let copied = start.elapsed().as_secs_f64();
+        let (scatter_ns, adam_ns) = (AtomicU64::new(0), AtomicU64::new(0));
+        let slots = &scratch.slots;
+        let updated = self
+            .params
+            .par_chunks_mut(t * F)
+            .zip(adam.m.par_chunks_mut(t * F))
+            .zip(adam.v.par_chunks_mut(t * F))
+            .zip(d_lvl.par_chunks(n * F))
+            .zip(lvs.par_iter())
+            .with_max_len(1)
+            .map(|((((p, m), v), d_l), lv)| {
+                let t0 = std::time::Instant::now();
+                // A task runs on one thread and makes no nested rayon call, so its thread's
+                // slot is free; the lock makes that safe whatever pool this runs on.
+                let slot = &slots[rayon::current_thread_index().unwrap_or(0) % slots.len()];
+                let mut buf = slot.lock().unwrap_or_else(|poisoned| {
+                    // A panic in a level left the buffers in an unknown state: clear them.
+                    let mut b = poisoned.into_inner();
+                    b.grad.fill(0.0);
+                    b.touched.fill(false);
+                    b
+                });
+                let LevelBuffers { grad, touched } = &mut *buf;
+                if grad.len() != t * F || touched.len() != t {
+                    *grad = vec![0.0; t * F];
+                    *touched = vec![false; t];
+                }
+                if lv.dense {
+                    backward_level::<F, true, true>(points, lv, d_l, grad, touched);
+                } else {
+                    backward_level::<F, false, true>(points, lv, d_l, grad, touched);
+                }
+                let t1 = std::time::Instant::now();
+                let updated = p
+                    .chunks_mut(ADAM_ENTRIES * F)
+                    .zip(grad.chunks_mut(ADAM_ENTRIES * F))
+                    .zip(m.chunks_mut(ADAM_ENTRIES * F))
+                    .zip(v.chunks_mut(ADAM_ENTRIES * F))
+                    .zip(touched.chunks_mut(ADAM_ENTRIES))
+                    .map(|((((p, g), m), v), tch)| sparse_update(p, g, m, v, tch, F, &k))
+                    .sum::<usize>();
+                scatter_ns.fetch_add((t1 - t0).as_nanos() as u64, Relaxed);
+                adam_ns.fetch_add(t1.elapsed().as_nanos() as u64, Relaxed);
+                updated
+            })
+            .sum();
+        let levels_wall = start.elapsed().as_secs_f64() - copied;
+        let (s, a) = (scatter_ns.into_inner() as f64, adam_ns.into_inner() as f64);
+        let share = if s + a > 0.0 { s / (s + a) } else { 1.0 };
+        BackwardAdamStats { updated, backward_seconds: copied + levels_wall * share, adam_seconds: levels_wall * (1.0 - share) }
+    }
+
     fn backward_dispatch(&self, points: &[[f32; 3]], d_out: &[f32], grad: &mut [f32], touched: Option<&mut [bool]>) {
         match self.config.features_per_level {
             1 => self.backward_f::<1>(points, d_out, grad, touched),
@@ -330,28 +417,7 @@ impl HashGrid {
         if n == 0 {
             return;
         }
-        // Level-major copy of d_out ([L][N][F]) so that each level's task streams its own
-        // contiguous slice instead of one cache line per point; filled in parallel over fixed
-        // point chunks.
-        let mut d_lvl = vec![0f32; d_out.len()];
-        if self.config.levels > 1 {
-            let mut per_chunk: Vec<Vec<&mut [f32]>> = (0..n.div_ceil(POINT_CHUNK)).map(|_| Vec::new()).collect();
-            for lvl in d_lvl.chunks_mut(n * F) {
-                for (c, piece) in lvl.chunks_mut(POINT_CHUNK * F).enumerate() {
-                    per_chunk[c].push(piece);
-                }
-            }
-            per_chunk.into_par_iter().enumerate().for_each(|(c, mut pieces)| {
-                let rows = &d_out[c * POINT_CHUNK * lf..((c + 1) * POINT_CHUNK).min(n) * lf];
-                for (k, row) in rows.chunks_exact(lf).enumerate() {
-                    for (l, piece) in pieces.iter_mut().enumerate() {
-                        piece[k * F..k * F + F].copy_from_slice(&row[l * F..l * F + F]);
-                    }
-                }
-            });
-        } else {
-            d_lvl.copy_from_slice(d_out);
-        }
+        let d_lvl = level_major::<F>(d_out, n, self.config.levels);
         let t = self.config.table_size();
         match touched {
             None => grad.par_chunks_mut(tf).zip(d_lvl.par_chunks(n * F)).zip(lvs.par_iter()).with_max_len(1).for_each(
@@ -377,6 +443,80 @@ impl HashGrid {
                     }
                 }),
         }
+    }
+}
+
+/// `d_out` (`[N][L · F]`) copied level-major (`[L][N][F]`), so that each level's backward task
+/// streams its own contiguous slice instead of one cache line per point; filled in parallel over
+/// fixed point chunks.
+fn level_major<const F: usize>(d_out: &[f32], n: usize, levels: usize) -> Vec<f32> {
+    let lf = levels * F;
+    let mut d_lvl = vec![0f32; d_out.len()];
+    if levels > 1 {
+        let mut per_chunk: Vec<Vec<&mut [f32]>> = (0..n.div_ceil(POINT_CHUNK)).map(|_| Vec::new()).collect();
+        for lvl in d_lvl.chunks_mut(n * F) {
+            for (c, piece) in lvl.chunks_mut(POINT_CHUNK * F).enumerate() {
+                per_chunk[c].push(piece);
+            }
+        }
+        per_chunk.into_par_iter().enumerate().for_each(|(c, mut pieces)| {
+            let rows = &d_out[c * POINT_CHUNK * lf..((c + 1) * POINT_CHUNK).min(n) * lf];
+            for (k, row) in rows.chunks_exact(lf).enumerate() {
+                for (l, piece) in pieces.iter_mut().enumerate() {
+                    piece[k * F..k * F + F].copy_from_slice(&row[l * F..l * F + F]);
+                }
+            }
+        });
+    } else {
+        d_lvl.copy_from_slice(d_out);
+    }
+    d_lvl
+}
+
+/// One level's table gradient and touched flags, all zero (false) between uses.
+#[derive(Debug, Default)]
+struct LevelBuffers {
+    grad: Vec<f32>,
+    touched: Vec<bool>,
+}
+
+/// Working memory of [`HashGrid::backward_adam`]: one level's table gradient and touched
+/// flags per worker thread (a few MiB in all, instead of a gradient the size of the whole
+/// table), reused from step to step so that it stays in cache.
+#[derive(Debug)]
+pub struct BackwardScratch {
+    slots: Vec<std::sync::Mutex<LevelBuffers>>,
+}
+
+impl BackwardScratch {
+    /// Scratch for the current rayon pool's threads (buffers are sized on first use). In a
+    /// larger pool threads share slots, which is correct but waits on their locks.
+    pub fn new() -> Self {
+        Self { slots: (0..rayon::current_num_threads().max(1)).map(|_| Default::default()).collect() }
+    }
+}
+
+impl Default for BackwardScratch {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// What [`HashGrid::backward_adam`] did: the entries it updated, and its wall time split into
+/// the backward (the level-major copy of `d_out`, then each level's scatter) and the Adam
+/// updates. The fused level tasks' wall time is divided between the two in proportion to the
+/// CPU time each part of the tasks took.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct BackwardAdamStats {
+    pub updated: usize,
+    pub backward_seconds: f64,
+    pub adam_seconds: f64,
+}
+
+impl Clone for BackwardScratch {
+    /// A new, empty scratch (it holds no state between calls).
+    fn clone(&self) -> Self {
+        Self { slots: (0..self.slots.len()).map(|_| Default::default()).collect() }
     }
 }
 
@@ -797,6 +937,42 @@ impl AdamConfig {
     }
 }
 
+/// Table entries per task of the sparse Adam (indices within a chunk fit in `u16`).
+const ADAM_ENTRIES: usize = 1 << 14;
+const _: () = assert!(ADAM_ENTRIES <= 1 << 16, "entry indices are u16 within a chunk");
+
+/// The sparse Adam of up to [`ADAM_ENTRIES`] entries of `group` parameters: the entries flagged
+/// in `tch` are updated, their gradients zeroed and their flags cleared. Returns how many.
+fn sparse_update(p: &mut [f32], g: &mut [f32], m: &mut [f32], v: &mut [f32], tch: &mut [bool], group: usize, k: &AdamStep) -> usize {
+    // Two parameters per flag (the hash grid's two features) with AVX2: every group of four
+    // entries that has a touched one is updated eight lanes at once, the results kept only in
+    // the touched entries' lanes (the same operations in the same order as below, so the same
+    // bits).
+    #[cfg(target_arch = "x86_64")]
+    if group == 2 && simd::avx2() {
+        // SAFETY: AVX2 is present (checked at run time).
+        #[allow(unsafe_code)]
+        return unsafe { simd::adam_pairs_avx2(p, g, m, v, tch, k) };
+    }
+    // The touched entries' indices first, without a branch per flag (about a third of the
+    // flags are set, scattered, so a branch on each mispredicts often), then the updates in
+    // index order.
+    let mut list = [0u16; ADAM_ENTRIES];
+    let mut updated = 0;
+    for (e, hit) in tch.iter().enumerate() {
+        list[updated] = e as u16;
+        updated += *hit as usize;
+    }
+    tch.fill(false);
+    for &e in &list[..updated] {
+        let e = e as usize;
+        for i in e * group..(e + 1) * group {
+            k.update(std::mem::take(&mut g[i]), &mut p[i], &mut m[i], &mut v[i]);
+        }
+    }
+    updated
+}
+
 /// The numbers of one Adam step: the configuration's betas and epsilon, the learning rate and
 /// the bias corrections `c₁ = 1 − β₁ᵗ`, `c₂ = 1 − β₂ᵗ` (computed in `f64`) at step `t`.
 struct AdamStep {
@@ -896,44 +1072,14 @@ impl Adam {
         assert_eq!(touched.len() * group, params.len(), "one flag per group of parameters");
         self.step += 1;
         let k = AdamStep::new(&self.config, self.step, lr);
-        const ENTRIES: usize = 1 << 14;
-        const _: () = assert!(ENTRIES <= 1 << 16, "entry indices are u16 within a chunk");
-        let chunk = ENTRIES * group;
+        let chunk = ADAM_ENTRIES * group;
         params
             .par_chunks_mut(chunk)
             .zip(grads.par_chunks_mut(chunk))
             .zip(self.m.par_chunks_mut(chunk))
             .zip(self.v.par_chunks_mut(chunk))
-            .zip(touched.par_chunks_mut(ENTRIES))
-            .map(|((((p, g), m), v), tch)| {
-                // Two parameters per flag (the hash grid's two features) with AVX2: every group
-                // of four entries that has a touched one is updated eight lanes at once, the
-                // results kept only in the touched entries' lanes (the same operations in the
-                // same order as below, so the same bits).
-                #[cfg(target_arch = "x86_64")]
-                if group == 2 && simd::avx2() {
-                    // SAFETY: AVX2 is present (checked at run time).
-                    #[allow(unsafe_code)]
-                    return unsafe { simd::adam_pairs_avx2(p, g, m, v, tch, &k) };
-                }
-                // The touched entries' indices first, without a branch per flag (about a
-                // third of the flags are set, scattered, so a branch on each mispredicts
-                // often), then the updates in index order.
-                let mut list = [0u16; ENTRIES];
-                let mut updated = 0;
-                for (e, hit) in tch.iter().enumerate() {
-                    list[updated] = e as u16;
-                    updated += *hit as usize;
-                }
-                tch.fill(false);
-                for &e in &list[..updated] {
-                    let e = e as usize;
-                    for i in e * group..(e + 1) * group {
-                        k.update(std::mem::take(&mut g[i]), &mut p[i], &mut m[i], &mut v[i]);
-                    }
-                }
-                updated
-            })
+            .zip(touched.par_chunks_mut(ADAM_ENTRIES))
+            .map(|((((p, g), m), v), tch)| sparse_update(p, g, m, v, tch, group, &k))
             .sum()
     }
 }
@@ -1316,6 +1462,49 @@ mod tests {
             }
         }
         assert!(grad.iter().all(|v| *v == 0.0) && touched.iter().all(|t| !*t));
+    }
+
+    /// The fused backward and sparse Adam give exactly the parameters and moments of
+    /// `backward_touched` then `step_sparse`, step after step, for every feature count, with
+    /// dense and hashed levels, whatever the pool (including a scratch made for a smaller pool,
+    /// whose threads then share slots), and an empty batch still counts as a step.
+    #[test]
+    fn fused_backward_and_adam_equal_the_two_calls_bit_for_bit() {
+        fn run<const F: usize>() {
+            let c = cfg(4, F, 9, 3, 60); // levels 0–1 dense, 2–3 hashed
+            assert!(c.is_dense(0) && !c.is_dense(3));
+            let mut a = grid(c.clone(), 11, 1.0);
+            let mut b = a.clone();
+            let (mut adam_a, mut adam_b) = (Adam::new(AdamConfig::instant_ngp(0.01), c.n_params()), Adam::new(AdamConfig::instant_ngp(0.01), c.n_params()));
+            let mut grad = vec![0.0; c.n_params()];
+            let mut touched = vec![false; c.levels * c.table_size()];
+            let small = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
+            let scratch = small.install(BackwardScratch::new);
+            let pools = [1, 3].map(|t| rayon::ThreadPoolBuilder::new().num_threads(t).build().unwrap());
+            for step in 0..6u64 {
+                let n = if step == 2 { 0 } else { 40 + 17 * step as usize };
+                let pts = random_points(n, 100 + step);
+                let d_out: Vec<f32> = (0..n * c.output_dim()).map(|i| rnd(9_000 * step + i as u64) - 0.5).collect();
+                a.backward_touched(&pts, &d_out, &mut grad, &mut touched);
+                let want = adam_a.step_sparse(&mut a.params, &mut grad, &mut touched, F, 0.01 / (1 + step) as f32);
+                let got = pools[step as usize % 2].install(|| b.backward_adam(&pts, &d_out, &mut adam_b, 0.01 / (1 + step) as f32, &scratch));
+                assert_eq!(got.updated, want, "F = {F}, step {step}: entries updated");
+                assert!(got.backward_seconds >= 0.0 && got.adam_seconds >= 0.0);
+                let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                assert_eq!(bits(&a.params), bits(&b.params), "F = {F}, step {step}: params");
+                assert_eq!((bits(&adam_a.m), bits(&adam_a.v)), (bits(&adam_b.m), bits(&adam_b.v)), "F = {F}, step {step}: moments");
+                assert_eq!(adam_a.step, adam_b.step);
+            }
+            // the scratch is left cleared: every slot all zero and unflagged
+            for slot in &scratch.slots {
+                let buf = slot.lock().unwrap();
+                assert!(buf.grad.iter().all(|v| *v == 0.0) && buf.touched.iter().all(|t| !*t));
+            }
+        }
+        run::<1>();
+        run::<2>();
+        run::<4>();
+        run::<8>();
     }
 
     /// On-CPU time of the calling thread in seconds (Linux `schedstat`), insensitive to other

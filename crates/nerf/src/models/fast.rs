@@ -20,7 +20,7 @@ use super::{RayOutputs, StepStats, StepTimings, all_finite, check_adam, expected
 use crate::backend;
 use crate::checkpoint::StateDict;
 use crate::data::{RayBatch, SceneBounds};
-use crate::encoding::hashgrid::{Adam, AdamConfig, HashGrid, HashGridConfig};
+use crate::encoding::hashgrid::{Adam, AdamConfig, BackwardScratch, HashGrid, HashGridConfig};
 use crate::encoding::sh::{sh_encode, sh_output_dim};
 use crate::field::{AdamSettings, HashField, HashFieldConfig, MlpAdam, seeded_init};
 use crate::mlp::{GroupGrads, HashMlp};
@@ -235,10 +235,8 @@ pub struct FastModel {
     pub adam: MlpAdam,
     /// Occupancy grid over the scene box.
     pub occupancy: OccupancyGrid,
-    /// Hash-table gradient, all zeros between steps (the sparse Adam clears what it used).
-    grad: Vec<f32>,
-    /// Table entries touched this step, all false between steps.
-    touched: Vec<bool>,
+    /// The hash backward's per-thread gradient of one level ([`HashGrid::backward_adam`]).
+    scratch: BackwardScratch,
     /// The occupancy grid's empty-space distances ([`OccupancyGrid::blocks`]) and the
     /// occupancy bits they were computed from: used by marching while the bits are unchanged.
     empty_space: Option<(Vec<u64>, OccupancyBlocks)>,
@@ -318,8 +316,7 @@ impl FastModel {
             grid,
             adam,
             occupancy,
-            grad: vec![0.0; n],
-            touched: vec![false; hash.levels * hash.table_size()],
+            scratch: BackwardScratch::new(),
             empty_space: None,
             lr: 1e-2,
         })
@@ -499,18 +496,18 @@ impl FastModel {
         }
         let mut gp = grads.into_params(&self.field);
 
-        let t0 = Instant::now();
-        self.grid.backward_touched(&unit, &d_enc, &mut self.grad, &mut self.touched);
-        tm.phases.hash_backward = t0.elapsed().as_secs_f64();
-        tm.encoding += tm.phases.hash_backward;
+        // The hash tables' backward and their sparse Adam, fused per level (independent of the
+        // networks' Adam, which follows).
+        let hb = self.grid.backward_adam(&unit, &d_enc, &mut self.grid_adam, self.lr as f32, &self.scratch);
+        tm.phases.hash_backward = hb.backward_seconds;
+        tm.encoding += hb.backward_seconds;
+        tm.phases.adam_hash = hb.adam_seconds;
+        tm.optimizer += hb.adam_seconds;
+        let touched = hb.updated;
 
         let t0 = Instant::now();
         self.field = self.adam.step(self.lr, self.field.clone(), &mut gp);
         tm.phases.adam_mlp = t0.elapsed().as_secs_f64();
-        let t1 = Instant::now();
-        let f = self.config.features_per_level;
-        let touched = self.grid_adam.step_sparse(&mut self.grid.params, &mut self.grad, &mut self.touched, f, self.lr as f32);
-        tm.phases.adam_hash = t1.elapsed().as_secs_f64();
         tm.optimizer += t0.elapsed().as_secs_f64();
         stats(false, tm, touched)
     }

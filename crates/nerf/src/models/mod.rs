@@ -101,11 +101,14 @@ pub struct PhaseTimings {
     /// CPU seconds (summed over threads) of the sweep spent compositing, taking the loss and
     /// the compositing backward (inside `mlp_sweep`).
     pub composite_cpu: f64,
-    /// Hash-grid backward (scatter of the encoding's gradient into the table gradient).
+    /// Hash-grid backward (scatter of the encoding's gradient into the table gradient). The
+    /// `fast` model fuses it with the hash tables' sparse Adam level by level
+    /// ([`crate::encoding::HashGrid::backward_adam`]); the fused tasks' wall time is split
+    /// between this and `adam_hash` in proportion to the CPU time of each part.
     pub hash_backward: f64,
     /// burn Adam over the networks' parameters.
     pub adam_mlp: f64,
-    /// Sparse Adam over the touched hash-table entries.
+    /// Sparse Adam over the touched hash-table entries (see `hash_backward`).
     pub adam_hash: f64,
     /// Occupancy-grid update (every `grid_update_interval` steps).
     pub occupancy: f64,
