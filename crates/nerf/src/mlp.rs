@@ -308,6 +308,23 @@ impl HashMlp {
         groups: &[std::ops::Range<usize>],
         loss: impl Fn(usize, &[f32], &[[f32; 3]]) -> GroupGrads<R> + Sync,
     ) -> (Vec<f32>, HashMlpGrads, Vec<R>) {
+        self.train_groups_blocked(enc, sh, groups, self.enc_dims(), loss)
+    }
+
+    /// [`Self::train_groups`] with the gradient with respect to the encoding returned in
+    /// column blocks of `block` columns, `[enc_dims / block][n][block]`: for the hash
+    /// encoding with `block = F`, the level-major layout its backward reads
+    /// ([`crate::encoding::HashGrid::backward_adam`]), written while each group's gradient is
+    /// in cache instead of by a pass of its own. `block = enc_dims` is the row-major
+    /// `[n][enc_dims]` of [`Self::train_groups`].
+    pub fn train_groups_blocked<R: Send>(
+        &self,
+        enc: &[f32],
+        sh: &[f32],
+        groups: &[std::ops::Range<usize>],
+        block: usize,
+        loss: impl Fn(usize, &[f32], &[[f32; 3]]) -> GroupGrads<R> + Sync,
+    ) -> (Vec<f32>, HashMlpGrads, Vec<R>) {
         let n = self.check(enc, sh);
         let mut next = 0;
         for g in groups {
@@ -316,18 +333,22 @@ impl HashMlp {
         }
         assert_eq!(next, n, "the groups must cover all {n} samples");
         let (ed, sd) = (self.enc_dims(), self.dir_dims);
+        assert!(block >= 1 && ed % block == 0, "block {block} must divide the encoding's {ed} columns");
         let mut d_enc = vec![0.0; n * ed];
-        let mut pieces = Vec::with_capacity(groups.len());
-        let mut rest: &mut [f32] = &mut d_enc;
-        for g in groups {
-            let (head, tail) = std::mem::take(&mut rest).split_at_mut(g.len() * ed);
-            pieces.push(head);
-            rest = tail;
+        // Each group's rows of every column block.
+        let mut pieces: Vec<Vec<&mut [f32]>> = groups.iter().map(|_| Vec::with_capacity(ed / block)).collect();
+        for plane in d_enc.chunks_mut((n * block).max(1)) {
+            let mut rest = plane;
+            for (g, piece) in groups.iter().zip(pieces.iter_mut()) {
+                let (head, tail) = std::mem::take(&mut rest).split_at_mut(g.len() * block);
+                piece.push(head);
+                rest = tail;
+            }
         }
         let results: Vec<(HashMlpGrads, R)> = pieces
             .into_par_iter()
             .enumerate()
-            .map_init(Workspace::default, |ws, (gi, d_enc)| {
+            .map_init(Workspace::default, |ws, (gi, mut d_enc)| {
                 let range = groups[gi].clone();
                 let (s0, t) = (range.start, range.len());
                 let x = &enc[s0 * ed..(s0 + t) * ed];
@@ -337,7 +358,15 @@ impl HashMlp {
                 assert!(d_raw.len() == t && d_rgb.len() == t, "group {gi}: gradients for {} / {} samples, not {t}", d_raw.len(), d_rgb.len());
                 let mut g = self.zero_grads();
                 self.tile_backward(x, &cin, ws, &rgb, &d_raw, &d_rgb, &mut g);
-                d_enc.copy_from_slice(&ws.grad);
+                if let [all] = &mut d_enc[..] {
+                    all.copy_from_slice(&ws.grad);
+                } else {
+                    for (s, row) in ws.grad.chunks_exact(ed).enumerate() {
+                        for (b, piece) in d_enc.iter_mut().enumerate() {
+                            piece[s * block..(s + 1) * block].copy_from_slice(&row[b * block..(b + 1) * block]);
+                        }
+                    }
+                }
                 (g, value)
             })
             .collect();
@@ -1278,6 +1307,20 @@ mod tests {
             assert_close("bias gradient", &a.b, &b.b, 1e-5);
         }
         assert!(grads_g.is_finite());
+        // In column blocks: the same numbers, block-major, bit for bit.
+        let ed = mlp.enc_dims();
+        for block in [1, 2, ed] {
+            let (d_blk, _, _) = mlp.train_groups_blocked(&enc, &sh, &groups, block, |g, _, _| {
+                let r = groups[g].clone();
+                GroupGrads { d_raw: d_raw[r.clone()].to_vec(), d_rgb: d_rgb[r.clone()].to_vec(), value: () }
+            });
+            for (s, row) in d_enc_g.chunks_exact(ed).enumerate() {
+                for (c, v) in row.iter().enumerate() {
+                    let (b, j) = (c / block, c % block);
+                    assert_eq!(d_blk[(b * n + s) * block + j].to_bits(), v.to_bits(), "block {block}, sample {s}, column {c}");
+                }
+            }
+        }
     }
 
     /// Bit-identical results with 1 and 3 threads.

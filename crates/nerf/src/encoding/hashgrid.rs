@@ -287,23 +287,42 @@ impl HashGrid {
     /// that no gradient the size of the whole table is written, left to go cold, and read back
     /// (and the table's gradient needs `threads` levels' memory instead of `L`).
     ///
+    /// The encoding's gradient comes level-major, `d_lvl[(l · N + k) · F + j]` (as
+    /// [`crate::mlp::HashMlp::train_groups_blocked`] with `block = F` writes it, or
+    /// [`Self::level_major`] makes it from the row-major `d_out` of [`Self::backward`]), so that
+    /// each level's task streams its own contiguous slice.
+    ///
     /// # Shapes
-    /// As [`Self::backward`]; `adam` holds `L · T · F` moments.
-    pub fn backward_adam(&mut self, points: &[[f32; 3]], d_out: &[f32], adam: &mut Adam, lr: f32, scratch: &BackwardScratch) -> BackwardAdamStats {
+    /// `points`: `[N]`; `d_lvl`: `[L][N][F]`; `adam` holds `L · T · F` moments.
+    pub fn backward_adam(&mut self, points: &[[f32; 3]], d_lvl: &[f32], adam: &mut Adam, lr: f32, scratch: &BackwardScratch) -> BackwardAdamStats {
         match self.config.features_per_level {
-            1 => self.backward_adam_f::<1>(points, d_out, adam, lr, scratch),
-            2 => self.backward_adam_f::<2>(points, d_out, adam, lr, scratch),
-            4 => self.backward_adam_f::<4>(points, d_out, adam, lr, scratch),
-            8 => self.backward_adam_f::<8>(points, d_out, adam, lr, scratch),
+            1 => self.backward_adam_f::<1>(points, d_lvl, adam, lr, scratch),
+            2 => self.backward_adam_f::<2>(points, d_lvl, adam, lr, scratch),
+            4 => self.backward_adam_f::<4>(points, d_lvl, adam, lr, scratch),
+            8 => self.backward_adam_f::<8>(points, d_lvl, adam, lr, scratch),
             f => panic!("unsupported features_per_level {f}"),
         }
     }
 
-    fn backward_adam_f<const F: usize>(&mut self, points: &[[f32; 3]], d_out: &[f32], adam: &mut Adam, lr: f32, scratch: &BackwardScratch) -> BackwardAdamStats {
+    /// The row-major encoding gradient `d_out` (`[N][L · F]`) copied level-major
+    /// (`[L][N][F]`), the layout [`Self::backward_adam`] reads.
+    pub fn level_major(&self, d_out: &[f32]) -> Vec<f32> {
+        let n = d_out.len() / self.output_dim().max(1);
+        assert_eq!(d_out.len(), n * self.output_dim(), "d_out must hold N · L · F floats");
+        match self.config.features_per_level {
+            1 => level_major::<1>(d_out, n, self.config.levels),
+            2 => level_major::<2>(d_out, n, self.config.levels),
+            4 => level_major::<4>(d_out, n, self.config.levels),
+            8 => level_major::<8>(d_out, n, self.config.levels),
+            f => panic!("unsupported features_per_level {f}"),
+        }
+    }
+
+    fn backward_adam_f<const F: usize>(&mut self, points: &[[f32; 3]], d_lvl: &[f32], adam: &mut Adam, lr: f32, scratch: &BackwardScratch) -> BackwardAdamStats {
         use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
         let start = std::time::Instant::now();
         let n = points.len();
-        assert_eq!(d_out.len(), n * self.output_dim(), "d_out must hold N · L · F floats");
+        assert_eq!(d_lvl.len(), n * self.output_dim(), "d_lvl must hold L · N · F floats");
         assert!(adam.m.len() == self.params.len() && adam.v.len() == self.params.len(), "Adam: length mismatch");
         adam.step += 1;
         let k = AdamStep::new(&adam.config, adam.step, lr);
@@ -312,8 +331,6 @@ impl HashGrid {
         }
         let lvs = levels(&self.config);
         let t = self.config.table_size();
-        let d_lvl = level_major::<F>(d_out, n, self.config.levels);
-        let copied = start.elapsed().as_secs_f64();
         let (scatter_ns, adam_ns) = (AtomicU64::new(0), AtomicU64::new(0));
         let slots = &scratch.slots;
         let updated = self
@@ -360,10 +377,10 @@ impl HashGrid {
                 updated
             })
             .sum();
-        let levels_wall = start.elapsed().as_secs_f64() - copied;
+        let wall = start.elapsed().as_secs_f64();
         let (s, a) = (scatter_ns.into_inner() as f64, adam_ns.into_inner() as f64);
         let share = if s + a > 0.0 { s / (s + a) } else { 1.0 };
-        BackwardAdamStats { updated, backward_seconds: copied + levels_wall * share, adam_seconds: levels_wall * (1.0 - share) }
+        BackwardAdamStats { updated, backward_seconds: wall * share, adam_seconds: wall * (1.0 - share) }
     }
 
     fn backward_dispatch(&self, points: &[[f32; 3]], d_out: &[f32], grad: &mut [f32], touched: Option<&mut [bool]>) {
@@ -452,7 +469,7 @@ impl HashGrid {
 fn level_major<const F: usize>(d_out: &[f32], n: usize, levels: usize) -> Vec<f32> {
     let lf = levels * F;
     let mut d_lvl = vec![0f32; d_out.len()];
-    if levels > 1 {
+    if levels > 1 && n > 0 {
         let mut per_chunk: Vec<Vec<&mut [f32]>> = (0..n.div_ceil(POINT_CHUNK)).map(|_| Vec::new()).collect();
         for lvl in d_lvl.chunks_mut(n * F) {
             for (c, piece) in lvl.chunks_mut(POINT_CHUNK * F).enumerate() {
@@ -503,8 +520,7 @@ impl Default for BackwardScratch {
 }
 
 /// What [`HashGrid::backward_adam`] did: the entries it updated, and its wall time split into
-/// the backward (the level-major copy of `d_out`, then each level's scatter) and the Adam
-/// updates. The fused level tasks' wall time is divided between the two in proportion to the
+/// the backward (each level's scatter) and the Adam updates. The fused level tasks' wall time is divided between the two in proportion to the
 /// CPU time each part of the tasks took.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct BackwardAdamStats {
@@ -1487,7 +1503,8 @@ mod tests {
                 let d_out: Vec<f32> = (0..n * c.output_dim()).map(|i| rnd(9_000 * step + i as u64) - 0.5).collect();
                 a.backward_touched(&pts, &d_out, &mut grad, &mut touched);
                 let want = adam_a.step_sparse(&mut a.params, &mut grad, &mut touched, F, 0.01 / (1 + step) as f32);
-                let got = pools[step as usize % 2].install(|| b.backward_adam(&pts, &d_out, &mut adam_b, 0.01 / (1 + step) as f32, &scratch));
+                let d_lvl = b.level_major(&d_out);
+                let got = pools[step as usize % 2].install(|| b.backward_adam(&pts, &d_lvl, &mut adam_b, 0.01 / (1 + step) as f32, &scratch));
                 assert_eq!(got.updated, want, "F = {F}, step {step}: entries updated");
                 assert!(got.backward_seconds >= 0.0 && got.adam_seconds >= 0.0);
                 let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();

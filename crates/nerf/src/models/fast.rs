@@ -445,8 +445,10 @@ impl FastModel {
         }
 
         // Networks, compositing, loss and backward in one sweep over groups of whole rays
-        // ([`HashMlp::train_groups`]): each group stays in cache from the networks' forward
-        // to their backward. (Its time is counted as MLP time; rendering is inside it.)
+        // ([`HashMlp::train_groups_blocked`]): each group stays in cache from the networks'
+        // forward to their backward, and leaves its encoding gradient level-major (blocks of
+        // `F` columns), as the hash backward reads it. (Its time is counted as MLP time;
+        // rendering is inside it.)
         let t0 = Instant::now();
         let groups = ray_groups(&samples.offsets, crate::mlp::TILE);
         let sample_ranges: Vec<std::ops::Range<usize>> = groups.iter().map(|g| g.1.clone()).collect();
@@ -456,7 +458,7 @@ impl FastModel {
         let scale = 1.0 / (self.bounds.far - self.bounds.near).max(1e-6);
         // CPU nanoseconds of the groups' compositing, loss and compositing backward.
         let composite_ns = std::sync::atomic::AtomicU64::new(0);
-        let (d_enc, grads, parts) = mlp.train_groups(&enc, &sh, &sample_ranges, |gi, raw, rgb| {
+        let (d_enc, grads, parts) = mlp.train_groups_blocked(&enc, &sh, &sample_ranges, self.config.features_per_level, |gi, raw, rgb| {
             let tc = Instant::now();
             let (rays, smp) = (groups[gi].0.clone(), groups[gi].1.clone());
             let base = samples.offsets[rays.start];
