@@ -140,6 +140,18 @@ fn read_mlp(mlp: &Mlp, name: &str) -> Result<Stack, String> {
     Ok(Stack::new(layers))
 }
 
+/// Row `s` of `rows` (`[t][pieces.len() · B]`) split into blocks of `B` columns: block `b`
+/// goes to `pieces[b][s · B..(s + 1) · B]`.
+fn scatter_blocks<const B: usize>(rows: &[f32], pieces: &mut [&mut [f32]]) {
+    let width = pieces.len() * B;
+    for (s, row) in rows.chunks_exact(width).enumerate() {
+        for (piece, src) in pieces.iter_mut().zip(row.chunks_exact(B)) {
+            let dst: &mut [f32; B] = (&mut piece[s * B..(s + 1) * B]).try_into().expect("B floats");
+            dst.copy_from_slice(src);
+        }
+    }
+}
+
 impl HashMlp {
     /// The weights of a burn [`HashField`] (read from its tensors).
     pub fn from_field(field: &HashField) -> Result<Self, String> {
@@ -358,12 +370,19 @@ impl HashMlp {
                 assert!(d_raw.len() == t && d_rgb.len() == t, "group {gi}: gradients for {} / {} samples, not {t}", d_raw.len(), d_rgb.len());
                 let mut g = self.zero_grads();
                 self.tile_backward(x, &cin, ws, &rgb, &d_raw, &d_rgb, &mut g);
-                if let [all] = &mut d_enc[..] {
-                    all.copy_from_slice(&ws.grad);
-                } else {
-                    for (s, row) in ws.grad.chunks_exact(ed).enumerate() {
-                        for (b, piece) in d_enc.iter_mut().enumerate() {
-                            piece[s * block..(s + 1) * block].copy_from_slice(&row[b * block..(b + 1) * block]);
+                match &mut d_enc[..] {
+                    [all] => all.copy_from_slice(&ws.grad),
+                    // The hash grid's block sizes with the width known at compile time: a copy
+                    // of a run-time length is a call per block.
+                    pieces if block == 1 => scatter_blocks::<1>(&ws.grad, pieces),
+                    pieces if block == 2 => scatter_blocks::<2>(&ws.grad, pieces),
+                    pieces if block == 4 => scatter_blocks::<4>(&ws.grad, pieces),
+                    pieces if block == 8 => scatter_blocks::<8>(&ws.grad, pieces),
+                    pieces => {
+                        for (s, row) in ws.grad.chunks_exact(ed).enumerate() {
+                            for (b, piece) in pieces.iter_mut().enumerate() {
+                                piece[s * block..(s + 1) * block].copy_from_slice(&row[b * block..(b + 1) * block]);
+                            }
                         }
                     }
                 }
@@ -1309,7 +1328,8 @@ mod tests {
         assert!(grads_g.is_finite());
         // In column blocks: the same numbers, block-major, bit for bit.
         let ed = mlp.enc_dims();
-        for block in [1, 2, ed] {
+        assert!(ed % 4 == 0 && ed > 4, "the test covers blocks of the hash grid's sizes and others");
+        for block in (1..=ed).filter(|b| ed % b == 0) {
             let (d_blk, _, _) = mlp.train_groups_blocked(&enc, &sh, &groups, block, |g, _, _| {
                 let r = groups[g].clone();
                 GroupGrads { d_raw: d_raw[r.clone()].to_vec(), d_rgb: d_rgb[r.clone()].to_vec(), value: () }
