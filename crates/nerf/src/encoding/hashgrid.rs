@@ -294,7 +294,8 @@ impl HashGrid {
     ///
     /// # Shapes
     /// `points`: `[N]`; `d_lvl`: `[L][N][F]`; `adam` holds `L · T · F` moments.
-    pub fn backward_adam(&mut self, points: &[[f32; 3]], d_lvl: &[f32], adam: &mut Adam, lr: f32, scratch: &BackwardScratch) -> BackwardAdamStats {
+    pub fn backward_adam(&mut self, points: &[[f32; 3]], d_lvl: &[f32], adam: &mut Adam, lr: f32, scratch: &mut BackwardScratch) -> BackwardAdamStats {
+        scratch.fit(rayon::current_num_threads());
         match self.config.features_per_level {
             1 => self.backward_adam_f::<1>(points, d_lvl, adam, lr, scratch),
             2 => self.backward_adam_f::<2>(points, d_lvl, adam, lr, scratch),
@@ -343,8 +344,9 @@ impl HashGrid {
             .with_max_len(1)
             .map(|((((p, m), v), d_l), lv)| {
                 let t0 = std::time::Instant::now();
-                // A task runs on one thread and makes no nested rayon call, so its thread's
-                // slot is free; the lock makes that safe whatever pool this runs on.
+                // A task runs on one thread and makes no nested rayon call, and there is a
+                // slot per thread of the pool ([`BackwardScratch::fit`]), so its thread's slot
+                // is free; the lock makes that safe in every case.
                 let slot = &slots[rayon::current_thread_index().unwrap_or(0) % slots.len()];
                 let mut buf = slot.lock().unwrap_or_else(|poisoned| {
                     // A panic in a level left the buffers in an unknown state: clear them.
@@ -506,10 +508,19 @@ pub struct BackwardScratch {
 }
 
 impl BackwardScratch {
-    /// Scratch for the current rayon pool's threads (buffers are sized on first use). In a
-    /// larger pool threads share slots, which is correct but waits on their locks.
+    /// Scratch for the current rayon pool's threads (buffers are sized on first use; a call
+    /// from a larger pool adds slots).
     pub fn new() -> Self {
-        Self { slots: (0..rayon::current_num_threads().max(1)).map(|_| Default::default()).collect() }
+        let mut s = Self { slots: Vec::new() };
+        s.fit(rayon::current_num_threads());
+        s
+    }
+
+    /// At least one slot per thread of a pool of `threads`.
+    fn fit(&mut self, threads: usize) {
+        while self.slots.len() < threads.max(1) {
+            self.slots.push(Default::default());
+        }
     }
 }
 
@@ -1482,8 +1493,8 @@ mod tests {
 
     /// The fused backward and sparse Adam give exactly the parameters and moments of
     /// `backward_touched` then `step_sparse`, step after step, for every feature count, with
-    /// dense and hashed levels, whatever the pool (including a scratch made for a smaller pool,
-    /// whose threads then share slots), and an empty batch still counts as a step.
+    /// dense and hashed levels, whatever the pool (including a scratch made in a smaller pool,
+    /// which grows to the larger one's threads), and an empty batch still counts as a step.
     #[test]
     fn fused_backward_and_adam_equal_the_two_calls_bit_for_bit() {
         fn run<const F: usize>() {
@@ -1495,7 +1506,8 @@ mod tests {
             let mut grad = vec![0.0; c.n_params()];
             let mut touched = vec![false; c.levels * c.table_size()];
             let small = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
-            let scratch = small.install(BackwardScratch::new);
+            let mut scratch = small.install(BackwardScratch::new);
+            assert_eq!(scratch.slots.len(), 1);
             let pools = [1, 3].map(|t| rayon::ThreadPoolBuilder::new().num_threads(t).build().unwrap());
             for step in 0..6u64 {
                 let n = if step == 2 { 0 } else { 40 + 17 * step as usize };
@@ -1504,7 +1516,7 @@ mod tests {
                 a.backward_touched(&pts, &d_out, &mut grad, &mut touched);
                 let want = adam_a.step_sparse(&mut a.params, &mut grad, &mut touched, F, 0.01 / (1 + step) as f32);
                 let d_lvl = b.level_major(&d_out);
-                let got = pools[step as usize % 2].install(|| b.backward_adam(&pts, &d_lvl, &mut adam_b, 0.01 / (1 + step) as f32, &scratch));
+                let got = pools[step as usize % 2].install(|| b.backward_adam(&pts, &d_lvl, &mut adam_b, 0.01 / (1 + step) as f32, &mut scratch));
                 assert_eq!(got.updated, want, "F = {F}, step {step}: entries updated");
                 assert!(got.backward_seconds >= 0.0 && got.adam_seconds >= 0.0);
                 let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
@@ -1512,7 +1524,9 @@ mod tests {
                 assert_eq!((bits(&adam_a.m), bits(&adam_a.v)), (bits(&adam_b.m), bits(&adam_b.v)), "F = {F}, step {step}: moments");
                 assert_eq!(adam_a.step, adam_b.step);
             }
-            // the scratch is left cleared: every slot all zero and unflagged
+            // the scratch grew to the 3-thread pool and is left cleared: every slot all zero
+            // and unflagged
+            assert_eq!(scratch.slots.len(), 3);
             for slot in &scratch.slots {
                 let buf = slot.lock().unwrap();
                 assert!(buf.grad.iter().all(|v| *v == 0.0) && buf.touched.iter().all(|t| !*t));

@@ -500,7 +500,7 @@ impl FastModel {
 
         // The hash tables' backward and their sparse Adam, fused per level (independent of the
         // networks' Adam, which follows).
-        let hb = self.grid.backward_adam(&unit, &d_enc, &mut self.grid_adam, self.lr as f32, &self.scratch);
+        let hb = self.grid.backward_adam(&unit, &d_enc, &mut self.grid_adam, self.lr as f32, &mut self.scratch);
         tm.phases.hash_backward = hb.backward_seconds;
         tm.encoding += hb.backward_seconds;
         tm.phases.adam_hash = hb.adam_seconds;
