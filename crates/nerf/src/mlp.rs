@@ -1328,8 +1328,8 @@ mod tests {
         assert!(grads_g.is_finite());
         // In column blocks: the same numbers, block-major, bit for bit.
         let ed = mlp.enc_dims();
-        assert!(ed % 4 == 0 && ed > 4, "the test covers blocks of the hash grid's sizes and others");
-        for block in (1..=ed).filter(|b| ed % b == 0) {
+        assert!(ed.is_multiple_of(4) && ed > 4, "the test covers blocks of the hash grid's sizes and others");
+        for block in (1..=ed).filter(|b| ed.is_multiple_of(*b)) {
             let (d_blk, _, _) = mlp.train_groups_blocked(&enc, &sh, &groups, block, |g, _, _| {
                 let r = groups[g].clone();
                 GroupGrads { d_raw: d_raw[r.clone()].to_vec(), d_rgb: d_rgb[r.clone()].to_vec(), value: () }
