@@ -141,8 +141,8 @@ fn read_mlp(mlp: &Mlp, name: &str) -> Result<Stack, String> {
 }
 
 /// Row `s` of `rows` (`[t][pieces.len() · B]`) split into blocks of `B` columns: block `b`
-/// goes to `pieces[b][s · B..(s + 1) · B]`.
-fn scatter_blocks<const B: usize>(rows: &[f32], pieces: &mut [&mut [f32]]) {
+/// goes to `pieces[b][s · B..(s + 1) · B]`. Shared with the hash grid's level-major copy.
+pub(crate) fn scatter_blocks<const B: usize>(rows: &[f32], pieces: &mut [&mut [f32]]) {
     let width = pieces.len() * B;
     for (s, row) in rows.chunks_exact(width).enumerate() {
         for (piece, src) in pieces.iter_mut().zip(row.chunks_exact(B)) {
@@ -370,18 +370,18 @@ impl HashMlp {
                 assert!(d_raw.len() == t && d_rgb.len() == t, "group {gi}: gradients for {} / {} samples, not {t}", d_raw.len(), d_rgb.len());
                 let mut g = self.zero_grads();
                 self.tile_backward(x, &cin, ws, &rgb, &d_raw, &d_rgb, &mut g);
-                match &mut d_enc[..] {
-                    [all] => all.copy_from_slice(&ws.grad),
+                match (&mut d_enc[..], block) {
+                    ([all], _) => all.copy_from_slice(&ws.grad),
                     // The hash grid's block sizes with the width known at compile time: a copy
                     // of a run-time length is a call per block.
-                    pieces if block == 1 => scatter_blocks::<1>(&ws.grad, pieces),
-                    pieces if block == 2 => scatter_blocks::<2>(&ws.grad, pieces),
-                    pieces if block == 4 => scatter_blocks::<4>(&ws.grad, pieces),
-                    pieces if block == 8 => scatter_blocks::<8>(&ws.grad, pieces),
-                    pieces => {
+                    (pieces, 1) => scatter_blocks::<1>(&ws.grad, pieces),
+                    (pieces, 2) => scatter_blocks::<2>(&ws.grad, pieces),
+                    (pieces, 4) => scatter_blocks::<4>(&ws.grad, pieces),
+                    (pieces, 8) => scatter_blocks::<8>(&ws.grad, pieces),
+                    (pieces, _) => {
                         for (s, row) in ws.grad.chunks_exact(ed).enumerate() {
-                            for (b, piece) in pieces.iter_mut().enumerate() {
-                                piece[s * block..(s + 1) * block].copy_from_slice(&row[b * block..(b + 1) * block]);
+                            for (piece, src) in pieces.iter_mut().zip(row.chunks_exact(block)) {
+                                piece[s * block..(s + 1) * block].copy_from_slice(src);
                             }
                         }
                     }

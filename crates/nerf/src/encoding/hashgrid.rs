@@ -480,11 +480,7 @@ fn level_major<const F: usize>(d_out: &[f32], n: usize, levels: usize) -> Vec<f3
         }
         per_chunk.into_par_iter().enumerate().for_each(|(c, mut pieces)| {
             let rows = &d_out[c * POINT_CHUNK * lf..((c + 1) * POINT_CHUNK).min(n) * lf];
-            for (k, row) in rows.chunks_exact(lf).enumerate() {
-                for (l, piece) in pieces.iter_mut().enumerate() {
-                    piece[k * F..k * F + F].copy_from_slice(&row[l * F..l * F + F]);
-                }
-            }
+            crate::mlp::scatter_blocks::<F>(rows, &mut pieces);
         });
     } else {
         d_lvl.copy_from_slice(d_out);
@@ -531,20 +527,13 @@ impl Default for BackwardScratch {
 }
 
 /// What [`HashGrid::backward_adam`] did: the entries it updated, and its wall time split into
-/// the backward (each level's scatter) and the Adam updates. The fused level tasks' wall time is divided between the two in proportion to the
-/// CPU time each part of the tasks took.
+/// the backward (each level's scatter) and the Adam updates, in proportion to the CPU time each
+/// part of the fused level tasks took.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct BackwardAdamStats {
     pub updated: usize,
     pub backward_seconds: f64,
     pub adam_seconds: f64,
-}
-
-impl Clone for BackwardScratch {
-    /// A new, empty scratch (it holds no state between calls).
-    fn clone(&self) -> Self {
-        Self { slots: (0..self.slots.len()).map(|_| Default::default()).collect() }
-    }
 }
 
 /// One level of the forward: `out[k · stride + j] = enc_l(pts[k])[j]`.
