@@ -1038,10 +1038,23 @@ mod mm {
         }
         #[cfg(target_arch = "x86_64")]
         if std::arch::is_x86_feature_detected!("avx2") {
-            /// `plain` compiled for AVX2.
+            /// 8 lanes at a time with explicit AND and full stores: from `plain`, LLVM makes
+            /// masked stores of zeros (`vmaskmovps`), which AMD's cores run slowly (5 % of a
+            /// training step's CPU time on a Zen 4). The AND keeps `g`'s bits or gives +0.0, as
+            /// the select does.
             #[target_feature(enable = "avx2")]
             fn wide(d: &mut [f32], y: &[f32]) {
-                plain(d, y)
+                use std::arch::x86_64::*;
+                let (dc, yc) = (d.chunks_exact_mut(8), y.chunks_exact(8));
+                let n8 = yc.len() * 8;
+                for (g, y) in dc.zip(yc) {
+                    // SAFETY: each chunk holds 8 floats.
+                    unsafe {
+                        let keep = _mm256_cmp_ps::<_CMP_GT_OQ>(_mm256_loadu_ps(y.as_ptr()), _mm256_setzero_ps());
+                        _mm256_storeu_ps(g.as_mut_ptr(), _mm256_and_ps(_mm256_loadu_ps(g.as_ptr()), keep));
+                    }
+                }
+                plain(&mut d[n8..], &y[n8..]);
             }
             // SAFETY: the CPU has AVX2 (checked above).
             unsafe { wide(d, y) };
@@ -1355,6 +1368,24 @@ mod tests {
             pool.install(|| (mlp.forward(&enc, &sh), mlp.backward(&enc, &sh, &d_raw, &d_rgb)))
         };
         assert!(run(1) == run(3));
+    }
+
+    /// The ReLU's backward mask keeps a gradient exactly where the output is > 0 (NaN and ±0
+    /// outputs are not) and otherwise gives +0.0, bit for bit, at every length (vector tails).
+    #[test]
+    fn relu_mask_keeps_the_gradient_where_the_output_passed() {
+        let ys = [1.0f32, -1.0, 0.0, -0.0, f32::NAN, f32::INFINITY, f32::NEG_INFINITY, f32::MIN_POSITIVE / 4.0, -f32::MIN_POSITIVE / 4.0];
+        let gs = [2.5f32, -3.0, f32::NAN, -0.0, f32::INFINITY, 1e-40, -7.0];
+        for n in [0usize, 1, 7, 8, 9, 31, 64, 67] {
+            let y: Vec<f32> = (0..n).map(|i| ys[i % ys.len()]).collect();
+            let g: Vec<f32> = (0..n).map(|i| gs[(i * 5 + 1) % gs.len()]).collect();
+            let mut d = g.clone();
+            mm::relu_mask(&mut d, &y);
+            for i in 0..n {
+                let want = if y[i] > 0.0 { g[i] } else { 0.0 };
+                assert_eq!(d[i].to_bits(), want.to_bits(), "n {n}, element {i}: y {} g {}", y[i], g[i]);
+            }
+        }
     }
 
     #[test]
