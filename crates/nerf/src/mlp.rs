@@ -184,9 +184,10 @@ impl HashMlp {
         let mut rgb = vec![[0.0; 3]; n];
         raw.par_chunks_mut(TILE).zip(rgb.par_chunks_mut(TILE)).enumerate().for_each(|(c, (raw, rgb))| {
             let (s0, t) = (c * TILE, raw.len());
-            let mut ws = Workspace::default();
-            self.tile_forward(&enc[s0 * ed..(s0 + t) * ed], &sh[s0 * sd..(s0 + t) * sd], t, &mut ws);
-            let (r, c) = self.tile_outputs(&ws, t);
+            let (r, c) = with_workspace(|ws| {
+                self.tile_forward(&enc[s0 * ed..(s0 + t) * ed], &sh[s0 * sd..(s0 + t) * sd], t, ws);
+                self.tile_outputs(ws, t)
+            });
             raw.copy_from_slice(&r);
             rgb.copy_from_slice(&c);
         });
@@ -245,9 +246,9 @@ impl HashMlp {
         let (n, ed) = (self.samples_in(enc), self.enc_dims());
         let w0 = self.density_column();
         let mut raw = vec![0.0; n];
-        raw.par_chunks_mut(TILE).enumerate().for_each_init(Vec::new, |outs, (c, raw)| {
+        raw.par_chunks_mut(TILE).enumerate().for_each(|(c, raw)| {
             let s0 = c * TILE;
-            self.raw_density_tile(&enc[s0 * ed..(s0 + raw.len()) * ed], &w0, raw, outs);
+            with_workspace(|ws| self.raw_density_tile(&enc[s0 * ed..(s0 + raw.len()) * ed], &w0, raw, &mut ws.density));
         });
         raw
     }
@@ -260,11 +261,12 @@ impl HashMlp {
         let w0 = self.density_column();
         raw.clear();
         raw.resize(n, 0.0);
-        let mut outs = Vec::new();
-        for (c, raw) in raw.chunks_mut(TILE).enumerate() {
-            let s0 = c * TILE;
-            self.raw_density_tile(&enc[s0 * ed..(s0 + raw.len()) * ed], &w0, raw, &mut outs);
-        }
+        with_workspace(|ws| {
+            for (c, raw) in raw.chunks_mut(TILE).enumerate() {
+                let s0 = c * TILE;
+                self.raw_density_tile(&enc[s0 * ed..(s0 + raw.len()) * ed], &w0, raw, &mut ws.density);
+            }
+        });
     }
 
     /// Column 0 (the raw density's) of the density stack's last layer's weights, contiguous.
@@ -360,16 +362,16 @@ impl HashMlp {
         let results: Vec<(HashMlpGrads, R)> = pieces
             .into_par_iter()
             .enumerate()
-            .map_init(Workspace::default, |ws, (gi, mut d_enc)| {
+            .map(|(gi, mut d_enc)| with_workspace(|ws| {
                 let range = groups[gi].clone();
                 let (s0, t) = (range.start, range.len());
                 let x = &enc[s0 * ed..(s0 + t) * ed];
-                let cin = self.tile_forward(x, &sh[s0 * sd..(s0 + t) * sd], t, ws);
+                self.tile_forward(x, &sh[s0 * sd..(s0 + t) * sd], t, ws);
                 let (raw, rgb) = self.tile_outputs(ws, t);
                 let GroupGrads { d_raw, d_rgb, value } = loss(gi, &raw, &rgb);
                 assert!(d_raw.len() == t && d_rgb.len() == t, "group {gi}: gradients for {} / {} samples, not {t}", d_raw.len(), d_rgb.len());
                 let mut g = self.zero_grads();
-                self.tile_backward(x, &cin, ws, &rgb, &d_raw, &d_rgb, &mut g);
+                self.tile_backward(x, ws, &rgb, &d_raw, &d_rgb, &mut g);
                 match (&mut d_enc[..], block) {
                     ([all], _) => all.copy_from_slice(&ws.grad),
                     // The hash grid's block sizes with the width known at compile time: a copy
@@ -387,20 +389,19 @@ impl HashMlp {
                     }
                 }
                 (g, value)
-            })
+            }))
             .collect();
         let (partials, values): (Vec<HashMlpGrads>, Vec<R>) = results.into_iter().unzip();
         (d_enc, self.sum_grads(&partials), values)
     }
 
     /// The backward pass of one tile of `t` samples from its forward pass's activations `ws`
-    /// (input `x`, colour input `cin`, output `rgb` after the sigmoid): adds the parameter
-    /// gradients to `g` and leaves the gradient with respect to `x` in `ws.grad`.
-    #[allow(clippy::too_many_arguments)]
-    fn tile_backward(&self, x: &[f32], cin: &[f32], ws: &mut Workspace, rgb: &[[f32; 3]], d_raw: &[f32], d_rgb: &[[f32; 3]], g: &mut HashMlpGrads) {
+    /// (input `x`, output `rgb` after the sigmoid): adds the parameter gradients to `g` and
+    /// leaves the gradient with respect to `x` in `ws.grad`.
+    fn tile_backward(&self, x: &[f32], ws: &mut Workspace, rgb: &[[f32; 3]], d_raw: &[f32], d_rgb: &[[f32; 3]], g: &mut HashMlpGrads) {
         let t = rgb.len();
         let gd = self.geo_dims();
-        let Workspace { density, color, grad, spare } = ws;
+        let Workspace { density, color, cin, grad, spare } = ws;
         // Colour: d(pre-sigmoid) = d_rgb · s (1 − s).
         grad.resize(t * 3, 0.0);
         for k in 0..t {
@@ -448,24 +449,24 @@ impl HashMlp {
         n
     }
 
-    /// Forward pass of one tile of `t` samples into `ws`; returns the colour stack's input.
-    fn tile_forward(&self, x: &[f32], sh: &[f32], t: usize, ws: &mut Workspace) -> Vec<f32> {
+    /// Forward pass of one tile of `t` samples into `ws` (the colour stack's input into
+    /// `ws.cin`).
+    fn tile_forward(&self, x: &[f32], sh: &[f32], t: usize, ws: &mut Workspace) {
         forward_stack(&self.density, x, t, &mut ws.density);
         let (gd, sd) = (self.geo_dims(), self.dir_dims);
         let geo = ws.density.last().unwrap();
-        let cin = if sd == 0 {
-            geo.clone()
+        let cin = &mut ws.cin;
+        cin.clear();
+        if sd == 0 {
+            cin.extend_from_slice(&geo[..t * gd]);
         } else {
-            let mut cin = vec![0.0; t * (gd + sd)];
+            cin.reserve(t * (gd + sd));
             for k in 0..t {
-                let row = &mut cin[k * (gd + sd)..(k + 1) * (gd + sd)];
-                row[..gd].copy_from_slice(&geo[k * gd..(k + 1) * gd]);
-                row[gd..].copy_from_slice(&sh[k * sd..(k + 1) * sd]);
+                cin.extend_from_slice(&geo[k * gd..(k + 1) * gd]);
+                cin.extend_from_slice(&sh[k * sd..(k + 1) * sd]);
             }
-            cin
-        };
-        forward_stack(&self.color, &cin, t, &mut ws.color);
-        cin
+        }
+        forward_stack(&self.color, cin, t, &mut ws.color);
     }
 
     /// A tile's outputs from its forward pass: raw density (the first geometry feature) and
@@ -513,10 +514,29 @@ fn register_bias(out: &mut GradientsParams, b: &Param<Tensor<1>>, g: Vec<f32>, d
 struct Workspace {
     density: Vec<Vec<f32>>,
     color: Vec<Vec<f32>>,
+    /// The colour stack's input: the geometry features, then the direction encoding.
+    cin: Vec<f32>,
     /// The backward pass's gradient with respect to the current layer's output (in the end:
     /// to the tile's input), and the buffer its next layer's goes into.
     grad: Vec<f32>,
     spare: Vec<f32>,
+}
+
+thread_local! {
+    /// Each thread's [`Workspace`], kept between calls: a tile's buffers (about 0.7 MiB at the
+    /// fast model's sizes) were allocated afresh for every rayon task of every step, and the
+    /// allocator's page faults and zeroing showed in the step's profile.
+    static WORKSPACE: std::cell::Cell<Option<Box<Workspace>>> = const { std::cell::Cell::new(None) };
+}
+
+/// Runs `f` with this thread's [`Workspace`] (a fresh one when a caller up the stack on this
+/// thread holds it: rayon may run another task inside `f`). Every buffer of a workspace is
+/// written before it is read, so what an earlier call left in it never matters.
+fn with_workspace<T>(f: impl FnOnce(&mut Workspace) -> T) -> T {
+    let mut ws = WORKSPACE.take().unwrap_or_default();
+    let out = f(&mut ws);
+    WORKSPACE.set(Some(ws));
+    out
 }
 
 fn sigmoid(x: f32) -> f32 {
