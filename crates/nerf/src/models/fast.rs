@@ -262,21 +262,40 @@ const COMPACTION_FIRST_ROUND: usize = 4;
 /// thread whose groups finish early takes another's).
 const COMPACTION_GROUPS_PER_THREAD: usize = 4;
 
-/// One group's part of [`Parts::march_until_opaque`].
+/// One group's part of [`Parts::march_until_opaque`]: every sample it marched, in marching
+/// order (round by round, so a ray's samples are spread over the rounds), and which it kept.
 struct CompactionPiece {
     /// Samples kept per ray of the group (a prefix of each).
     kept: Vec<u32>,
-    /// The kept samples' intervals `[k]`, unit-cube points `[k]` and encodings `[k][L·F]`, in
-    /// ray order.
+    /// Per marched sample: its interval, its ray (index in the group), its unit-cube point,
+    /// its encoding `[L·F]` and whether it is kept.
     t_start: Vec<f32>,
     t_end: Vec<f32>,
+    ray_of: Vec<u32>,
     unit: Vec<[f32; 3]>,
     enc: Vec<f32>,
-    /// Samples marched (and encoded).
-    marched: usize,
-    /// CPU seconds of marching (with the unit points), the hash encoding, the density pass and
-    /// the gather.
-    cpu_s: [f64; 4],
+    keep: Vec<bool>,
+    /// CPU seconds of marching (with the unit points), the hash encoding and the density pass.
+    cpu_s: [f64; 3],
+}
+
+/// The kept samples of one [`CompactionPiece`], in ray order, written into its part of the
+/// step's arrays (`t_start` … `enc`, which hold exactly its kept samples).
+fn gather_kept(p: &CompactionPiece, dims: usize, t_start: &mut [f32], t_end: &mut [f32], unit: &mut [[f32; 3]], enc: &mut [f32]) {
+    // Each ray's next slot.
+    let mut at = Vec::with_capacity(p.kept.len());
+    let mut n = 0usize;
+    for &k in &p.kept {
+        at.push(n);
+        n += k as usize;
+    }
+    for (s, _) in p.keep.iter().enumerate().filter(|(_, k)| **k) {
+        let c = p.ray_of[s] as usize;
+        let j = at[c];
+        at[c] += 1;
+        (t_start[j], t_end[j], unit[j]) = (p.t_start[s], p.t_end[s], p.unit[s]);
+        enc[j * dims..(j + 1) * dims].copy_from_slice(&p.enc[s * dims..(s + 1) * dims]);
+    }
 }
 
 /// Weight below which a sample's colour is not evaluated at inference (it stays 0): a ray's
@@ -722,41 +741,52 @@ impl Parts<'_> {
         let per = n_rays.div_ceil(groups).max(1);
         let ranges: Vec<std::ops::Range<usize>> = (0..n_rays).step_by(per).map(|a| a..(a + per).min(n_rays)).collect();
         let pieces: Vec<CompactionPiece> = ranges.par_iter().map(|rays| self.compact_group(mlp, rays.clone(), origins, dirs, &opt, tau_stop)).collect();
-        // The pieces in ray order.
-        let t0 = Instant::now();
-        let n_kept: usize = pieces.iter().map(|p| p.t_start.len()).sum();
-        let mut kept = RaySamples::with_rays(n_rays);
-        kept.t_start.reserve(n_kept);
-        kept.t_end.reserve(n_kept);
-        kept.ray_index.reserve(n_kept);
-        let (mut unit, mut enc) = (Vec::with_capacity(n_kept), Vec::with_capacity(n_kept * dims));
-        let mut cpu = [0.0f64; 4];
-        let mut marched = 0;
-        for (p, rays) in pieces.iter().zip(&ranges) {
-            let mut a = 0;
-            for (r, &k) in rays.clone().zip(&p.kept) {
-                kept.t_start.extend_from_slice(&p.t_start[a..a + k as usize]);
-                kept.t_end.extend_from_slice(&p.t_end[a..a + k as usize]);
-                kept.ray_index.extend(std::iter::repeat_n(r as u32, k as usize));
-                kept.end_ray();
-                a += k as usize;
-            }
-            unit.extend_from_slice(&p.unit);
-            enc.extend_from_slice(&p.enc);
-            marched += p.marched;
-            cpu.iter_mut().zip(&p.cpu_s).for_each(|(a, b)| *a += b);
-        }
-        let merge = t0.elapsed().as_secs_f64();
         // The groups' wall time, split over the phases in proportion to their CPU time.
-        let wall = t_all.elapsed().as_secs_f64() - merge;
+        let wall = t_all.elapsed().as_secs_f64();
+        let mut cpu = [0.0f64; 3];
+        pieces.iter().for_each(|p| cpu.iter_mut().zip(&p.cpu_s).for_each(|(a, b)| *a += b));
         let total: f64 = cpu.iter().sum();
         let share = |x: f64| if total > 0.0 { wall * x / total } else { 0.0 };
         tm.phases.march += share(cpu[0]);
         tm.phases.hash_forward += share(cpu[1]);
         tm.phases.density_pass += share(cpu[2]);
-        tm.phases.gather += share(cpu[3]) + merge;
-        tm.encoding += share(cpu[0] + cpu[1] + cpu[3]) + merge;
+        tm.encoding += share(cpu[0] + cpu[1]);
         tm.mlp += share(cpu[2]);
+
+        // The kept samples in ray order: offsets and ray indices here, the rest gathered by
+        // each piece straight into its part of the step's arrays, the pieces in parallel.
+        let t0 = Instant::now();
+        let mut kept = RaySamples::with_rays(n_rays);
+        for (p, rays) in pieces.iter().zip(&ranges) {
+            for (r, &k) in rays.clone().zip(&p.kept) {
+                let end = kept.offsets[kept.offsets.len() - 1] + k;
+                kept.ray_index.extend(std::iter::repeat_n(r as u32, k as usize));
+                kept.offsets.push(end);
+            }
+        }
+        let n_kept = kept.ray_index.len();
+        kept.t_start = vec![0.0; n_kept];
+        kept.t_end = vec![0.0; n_kept];
+        let (mut unit, mut enc) = (vec![[0.0f32; 3]; n_kept], vec![0.0f32; n_kept * dims]);
+        let marched = pieces.iter().map(|p| p.t_start.len()).sum();
+        {
+            // Each piece's part of every array.
+            let mut parts = Vec::with_capacity(pieces.len());
+            let (mut ts, mut te, mut un, mut en) = (&mut kept.t_start[..], &mut kept.t_end[..], &mut unit[..], &mut enc[..]);
+            for p in &pieces {
+                let k: usize = p.kept.iter().map(|&k| k as usize).sum();
+                let (a, b) = std::mem::take(&mut ts).split_at_mut(k);
+                let (c, d) = std::mem::take(&mut te).split_at_mut(k);
+                let (e, f) = std::mem::take(&mut un).split_at_mut(k);
+                let (g, h) = std::mem::take(&mut en).split_at_mut(k * dims);
+                parts.push((p, a, c, e, g));
+                (ts, te, un, en) = (b, d, f, h);
+            }
+            parts.into_par_iter().for_each(|(p, a, c, e, g)| gather_kept(p, dims, a, c, e, g));
+        }
+        let gather = t0.elapsed().as_secs_f64();
+        tm.phases.gather += gather;
+        tm.encoding += gather;
         (kept, unit, enc, marched)
     }
 
@@ -771,10 +801,12 @@ impl Parts<'_> {
         let mut kept = vec![0u32; rays.len()];
         let mut live: Vec<usize> = (0..rays.len()).filter(|&c| !state[c].is_done()).collect();
         // Every marched sample, in marching order: interval, ray, point, encoding, kept or not.
-        let (mut ts, mut te, mut ray_of, mut keep) = (Vec::<f32>::new(), Vec::<f32>::new(), Vec::<u32>::new(), Vec::<bool>::new());
-        let (mut unit_rows, mut enc_rows, mut raw) = (Vec::<[f32; 3]>::new(), Vec::<f32>::new(), Vec::new());
+        // Room for the first two rounds of every ray (later rounds grow the vectors).
+        let cap = 2 * COMPACTION_FIRST_ROUND * rays.len();
+        let (mut ts, mut te, mut ray_of, mut keep) = (Vec::<f32>::with_capacity(cap), Vec::<f32>::with_capacity(cap), Vec::<u32>::with_capacity(cap), Vec::<bool>::with_capacity(cap));
+        let (mut unit_rows, mut enc_rows, mut raw) = (Vec::<[f32; 3]>::with_capacity(cap), Vec::<f32>::with_capacity(cap * dims), Vec::new());
         let mut spans = Vec::new();
-        let mut cpu_s = [0.0f64; 4];
+        let mut cpu_s = [0.0f64; 3];
         let mut round = COMPACTION_FIRST_ROUND;
         let mut rounds = 0usize;
         while !live.is_empty() {
@@ -822,25 +854,7 @@ impl Parts<'_> {
             cpu_s[1] += (t2 - t1).as_secs_f64();
             cpu_s[2] += (t3 - t2).as_secs_f64();
         }
-        // The kept samples, by ray (each ray's in marching order).
-        let t0 = Instant::now();
-        let mut at = Vec::with_capacity(kept.len());
-        let mut n_kept = 0usize;
-        for &k in &kept {
-            at.push(n_kept);
-            n_kept += k as usize;
-        }
-        let (mut k_ts, mut k_te, mut unit) = (vec![0.0f32; n_kept], vec![0.0f32; n_kept], vec![[0.0f32; 3]; n_kept]);
-        let mut enc = vec![0.0f32; n_kept * dims];
-        for (s, _) in keep.iter().enumerate().filter(|(_, k)| **k) {
-            let c = ray_of[s] as usize;
-            let j = at[c];
-            at[c] += 1;
-            (k_ts[j], k_te[j], unit[j]) = (ts[s], te[s], unit_rows[s]);
-            enc[j * dims..(j + 1) * dims].copy_from_slice(&enc_rows[s * dims..(s + 1) * dims]);
-        }
-        cpu_s[3] += t0.elapsed().as_secs_f64();
-        CompactionPiece { kept, t_start: k_ts, t_end: k_te, unit, enc, marched: ts.len(), cpu_s }
+        CompactionPiece { kept, t_start: ts, t_end: te, ray_of, unit: unit_rows, enc: enc_rows, keep, cpu_s }
     }
 
     fn step_size(&self) -> f32 {
