@@ -35,6 +35,10 @@ pub struct NerfBenchArgs {
     /// Only the render times (skips the training figures, whose paper steps take minutes).
     #[arg(long)]
     pub render_only: bool,
+    /// Only the fast model's training figures and roofline (skips the paper model's steps,
+    /// which take minutes, and the render times): for comparing builds step for step.
+    #[arg(long, conflicts_with = "render_only")]
+    pub fast_only: bool,
     /// Train on this dataset folder instead of the benchmark's synthetic 64x64 one.
     #[arg(long, conflicts_with = "resume_run")]
     pub dataset: Option<PathBuf>,
@@ -201,7 +205,7 @@ pub fn run(args: NerfBenchArgs) -> anyhow::Result<()> {
         phases: Vec::new(),
         paper: None,
     };
-    let models: &[(&str, u64, u64)] = if resumed.is_some() { &[("fast", 5, args.steps)] } else { &[("fast", 5, args.steps), ("paper", 1, 3)] };
+    let models: &[(&str, u64, u64)] = if resumed.is_some() || args.fast_only { &[("fast", 5, args.steps)] } else { &[("fast", 5, args.steps), ("paper", 1, 3)] };
     for &(kind, warmup, steps) in models {
         let mut t = match &resumed {
             Some((cfg, step)) => {
@@ -296,7 +300,9 @@ pub fn run(args: NerfBenchArgs) -> anyhow::Result<()> {
     let path = args.out.join("bench-nerf.json");
     dataset::io::atomic_write_json(&path, &json)?;
     println!("wrote {}", path.display());
-    render_times(&data, &dir, &args)?;
+    if !args.fast_only {
+        render_times(&data, &dir, &args)?;
+    }
     Ok(())
 }
 
