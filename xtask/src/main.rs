@@ -154,3 +154,29 @@ fn error_message(e: &anyhow::Error) -> String {
     }
     msg
 }
+
+#[cfg(test)]
+#[allow(unsafe_code)]
+mod allocator_tests {
+    /// [`super::MI_OPTION_PURGE_DECOMMITS`] is an enum index read off mimalloc's v2 and v3
+    /// headers: a newer major version must be checked again before it is trusted. In a process
+    /// that did not change it (tests do not run `main`), the option at that index holds
+    /// `purge_decommits`' default, 1 (its neighbours' are 2 and 0), or the number given in
+    /// `MIMALLOC_PURGE_DECOMMITS`. Only reads: the tests run on several threads, and setting an
+    /// option is not thread safe.
+    #[test]
+    fn the_purge_option_index_is_the_linked_mimallocs() {
+        // SAFETY: `mi_version` only returns a constant.
+        let version = unsafe { libmimalloc_sys::mi_version() };
+        assert!((200..400).contains(&(version / 100)), "mimalloc {version}: check MI_OPTION_PURGE_DECOMMITS against its mimalloc.h");
+        let want = match std::env::var("MIMALLOC_PURGE_DECOMMITS") {
+            Ok(v) => match v.trim().parse::<std::ffi::c_long>() {
+                Ok(n) => n,
+                Err(_) => return, // a word mimalloc reads its own way
+            },
+            Err(_) => 1,
+        };
+        // SAFETY: `mi_option_get` only reads the option.
+        assert_eq!(unsafe { libmimalloc_sys::mi_option_get(super::MI_OPTION_PURGE_DECOMMITS) }, want);
+    }
+}
