@@ -200,10 +200,12 @@ impl HashMlp {
     pub fn geometry(&self, enc: &[f32]) -> Vec<f32> {
         let (n, ed, gd) = (self.samples_in(enc), self.enc_dims(), self.geo_dims());
         let mut geo = vec![0.0; n * gd];
-        geo.par_chunks_mut(TILE * gd).enumerate().for_each_init(Vec::new, |outs, (c, out)| {
+        geo.par_chunks_mut(TILE * gd).enumerate().for_each(|(c, out)| {
             let (s0, t) = (c * TILE, out.len() / gd);
-            forward_stack(&self.density, &enc[s0 * ed..(s0 + t) * ed], t, outs);
-            out.copy_from_slice(outs.last().expect("the density stack has layers"));
+            with_workspace(|ws| {
+                forward_stack(&self.density, &enc[s0 * ed..(s0 + t) * ed], t, &mut ws.density);
+                out.copy_from_slice(ws.density.last().expect("the density stack has layers"));
+            });
         });
         geo
     }
@@ -222,19 +224,15 @@ impl HashMlp {
         let n = geo.len() / gd;
         assert_eq!(sh.len(), n * sd, "direction input for {n} samples of width {sd}");
         let mut rgb = vec![[0.0; 3]; n];
-        rgb.par_chunks_mut(TILE).enumerate().for_each_init(|| (Vec::new(), Vec::new()), |(cin, outs), (c, rgb)| {
+        rgb.par_chunks_mut(TILE).enumerate().for_each(|(c, rgb)| {
             let (s0, t) = (c * TILE, rgb.len());
-            cin.clear();
-            cin.resize(t * (gd + sd), 0.0);
-            for k in 0..t {
-                let row = &mut cin[k * (gd + sd)..(k + 1) * (gd + sd)];
-                row[..gd].copy_from_slice(&geo[(s0 + k) * gd..(s0 + k + 1) * gd]);
-                row[gd..].copy_from_slice(&sh[(s0 + k) * sd..(s0 + k + 1) * sd]);
-            }
-            forward_stack(&self.color, cin, t, outs);
-            for (o, v) in rgb.iter_mut().zip(outs.last().expect("the colour stack has layers").chunks_exact(3)) {
-                *o = [sigmoid(v[0]), sigmoid(v[1]), sigmoid(v[2])];
-            }
+            with_workspace(|ws| {
+                colour_input(&mut ws.cin, &geo[s0 * gd..(s0 + t) * gd], &sh[s0 * sd..(s0 + t) * sd], gd, sd);
+                forward_stack(&self.color, &ws.cin, t, &mut ws.color);
+                for (o, v) in rgb.iter_mut().zip(ws.color.last().expect("the colour stack has layers").chunks_exact(3)) {
+                    *o = [sigmoid(v[0]), sigmoid(v[1]), sigmoid(v[2])];
+                }
+            });
         });
         rgb
     }
@@ -454,19 +452,8 @@ impl HashMlp {
     fn tile_forward(&self, x: &[f32], sh: &[f32], t: usize, ws: &mut Workspace) {
         forward_stack(&self.density, x, t, &mut ws.density);
         let (gd, sd) = (self.geo_dims(), self.dir_dims);
-        let geo = ws.density.last().unwrap();
-        let cin = &mut ws.cin;
-        cin.clear();
-        if sd == 0 {
-            cin.extend_from_slice(&geo[..t * gd]);
-        } else {
-            cin.reserve(t * (gd + sd));
-            for k in 0..t {
-                cin.extend_from_slice(&geo[k * gd..(k + 1) * gd]);
-                cin.extend_from_slice(&sh[k * sd..(k + 1) * sd]);
-            }
-        }
-        forward_stack(&self.color, cin, t, &mut ws.color);
+        colour_input(&mut ws.cin, &ws.density.last().unwrap()[..t * gd], sh, gd, sd);
+        forward_stack(&self.color, &ws.cin, t, &mut ws.color);
     }
 
     /// A tile's outputs from its forward pass: raw density (the first geometry feature) and
@@ -537,6 +524,21 @@ fn with_workspace<T>(f: impl FnOnce(&mut Workspace) -> T) -> T {
     let out = f(&mut ws);
     WORKSPACE.set(Some(ws));
     out
+}
+
+/// The colour stack's input into `cin`: each sample's geometry features (`geo` `[t][gd]`)
+/// followed by its direction input (`sh` `[t][sd]`, empty when `sd` is 0).
+fn colour_input(cin: &mut Vec<f32>, geo: &[f32], sh: &[f32], gd: usize, sd: usize) {
+    cin.clear();
+    if sd == 0 {
+        cin.extend_from_slice(geo);
+        return;
+    }
+    cin.reserve(geo.len() + sh.len());
+    for (g, d) in geo.chunks_exact(gd).zip(sh.chunks_exact(sd)) {
+        cin.extend_from_slice(g);
+        cin.extend_from_slice(d);
+    }
 }
 
 fn sigmoid(x: f32) -> f32 {
