@@ -774,9 +774,8 @@ impl Parts<'_> {
         let mut kept = RaySamples::with_rays(n_rays);
         for (p, rays) in pieces.iter().zip(&ranges) {
             for (r, &k) in rays.clone().zip(&p.kept) {
-                let end = kept.offsets[kept.offsets.len() - 1] + k;
                 kept.ray_index.extend(std::iter::repeat_n(r as u32, k as usize));
-                kept.offsets.push(end);
+                kept.offsets.push(kept.ray_index.len() as u32);
             }
         }
         let n_kept = kept.ray_index.len();
@@ -788,8 +787,8 @@ impl Parts<'_> {
             // Each piece's part of every array.
             let mut parts = Vec::with_capacity(pieces.len());
             let (mut ts, mut te, mut un, mut en) = (&mut kept.t_start[..], &mut kept.t_end[..], &mut unit[..], &mut enc[..]);
-            for p in &pieces {
-                let k: usize = p.kept.iter().map(|&k| k as usize).sum();
+            for (p, rays) in pieces.iter().zip(&ranges) {
+                let k = (kept.offsets[rays.end] - kept.offsets[rays.start]) as usize;
                 let (a, b) = std::mem::take(&mut ts).split_at_mut(k);
                 let (c, d) = std::mem::take(&mut te).split_at_mut(k);
                 let (e, f) = std::mem::take(&mut un).split_at_mut(k);
