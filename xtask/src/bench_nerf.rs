@@ -52,6 +52,10 @@ pub struct NerfBenchArgs {
     /// Timed training steps of the fast model (after 5 warm-up steps, also with --resume-run).
     #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u64).range(1..=100000))]
     pub steps: u64,
+    /// Precision of the fast model's network products: fp32 (default) or bf16 (see `train
+    /// --mlp-precision`).
+    #[arg(long, value_parser = ["fp32", "bf16"])]
+    pub mlp_precision: Option<String>,
     /// Folder for `bench-nerf.json`.
     #[arg(long, default_value = "out/bench")]
     pub out: PathBuf,
@@ -210,6 +214,9 @@ pub fn run(args: NerfBenchArgs) -> anyhow::Result<()> {
         let mut t = match &resumed {
             Some((cfg, step)) => {
                 let mut cfg = cfg.clone();
+                if let (nerf::models::ModelConfig::Fast(f), Some(p)) = (&mut cfg.model, &args.mlp_precision) {
+                    f.mlp_precision = Some(p.clone());
+                }
                 cfg.steps = Some(step + warmup + steps);
                 cfg.time_budget_s = None;
                 cfg.val_max_views = 0;
@@ -226,6 +233,9 @@ pub fn run(args: NerfBenchArgs) -> anyhow::Result<()> {
             }
             None => {
                 let mut cfg = TrainConfig::preset(kind, data.clone()).map_err(anyhow::Error::msg)?;
+                if let (nerf::models::ModelConfig::Fast(f), Some(p)) = (&mut cfg.model, &args.mlp_precision) {
+                    f.mlp_precision = Some(p.clone());
+                }
                 cfg.steps = Some(warmup + steps);
                 cfg.val_max_views = 0;
                 Trainer::new(cfg, &dir.join(kind), false)?

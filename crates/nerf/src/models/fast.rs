@@ -124,6 +124,13 @@ pub struct FastConfig {
     /// blend apart. `None` (and configs written before this option): every ray gets the loss.
     #[config(default = "None")]
     pub distortion_mixed_footprints: Option<f32>,
+    /// Precision of the networks' products in training: `None` or `"fp32"` (and configs
+    /// written before this option): fp32 throughout; `"bf16"`: each product's inputs rounded
+    /// to bf16 and summed in fp32, weights and everything else fp32 ([`HashMlp::with_bf16`];
+    /// about twice the networks' rate, on CPUs with AVX512-BF16 only). Rendering and
+    /// evaluation stay fp32.
+    #[config(default = "None")]
+    pub mlp_precision: Option<String>,
     /// Adam β₁ (instant-ngp 0.9).
     #[config(default = 0.9)]
     pub beta1: f32,
@@ -185,7 +192,18 @@ impl FastConfig {
         {
             return bad("cone_angle", "a finite angle ≥ 0", &a);
         }
+        self.bf16_networks()?;
         check_adam("model", self.beta1, self.beta2, self.eps)
+    }
+
+    /// Whether the networks train in bf16 ([`Self::mlp_precision`]); an unknown precision is
+    /// an error naming the field. (Whether the CPU can is checked when the model is built.)
+    pub fn bf16_networks(&self) -> Result<bool, String> {
+        match self.mlp_precision.as_deref() {
+            None | Some("fp32") => Ok(false),
+            Some("bf16") => Ok(true),
+            Some(other) => Err(format!("model.mlp_precision must be \"fp32\" or \"bf16\", not \"{other}\"")),
+        }
     }
 
     fn hash_config(&self) -> HashGridConfig {
@@ -324,7 +342,10 @@ impl FastModel {
             update_fraction: 0.25,
             seed: stream_seed(seed, stream::OCCUPANCY),
         });
-        HashMlp::from_field(&field)?;
+        let mlp = HashMlp::from_field(&field)?;
+        if config.bf16_networks()? {
+            mlp.with_bf16()?;
+        }
         let adam = MlpAdam::new(&AdamSettings::new(config.beta1, config.beta2, config.eps));
         let grid_adam = Adam::new(AdamConfig { lr: 1e-2, beta1: config.beta1, beta2: config.beta2, eps: config.eps }, n);
         Ok(Self {
@@ -423,8 +444,10 @@ impl FastModel {
     pub fn train_step(&mut self, batch: &RayBatch, step: u64, seed: u64) -> StepStats {
         let mut tm = StepTimings::default();
         let t0 = Instant::now();
-        // The networks' weights, read once for the step (they change only in its Adam step).
+        // The networks' weights, read once for the step (they change only in its Adam step);
+        // in bf16 where configured (the sweep's products; the density-only passes stay fp32).
         let mlp = self.mlp();
+        let mlp = if self.config.bf16_networks().unwrap_or(false) { mlp.with_bf16().expect("bf16 support checked in new") } else { mlp };
         self.maybe_update_occupancy(step, &mlp);
         self.refresh_empty_space();
         tm.phases.occupancy = t0.elapsed().as_secs_f64();
@@ -1082,6 +1105,61 @@ impl Parts<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// `mlp_precision` takes fp32 or bf16 and nothing else; a bf16 model learns a constant
+    /// colour as the fp32 one does (its loss falls as far within a few per cent), or is refused
+    /// with a message naming AVX512-BF16 on a CPU without it.
+    #[test]
+    fn bf16_networks_train_like_fp32_or_are_refused() {
+        let bad = FastConfig::new().with_mlp_precision(Some("fp16".into()));
+        let e = bad.check().unwrap_err();
+        assert!(e.contains("model.mlp_precision") && e.contains("fp16"), "{e}");
+        let bounds = SceneBounds { aabb_min: [-1.0; 3], aabb_max: [1.0; 3], near: 0.5, far: 6.0, source: "test".into() };
+        let cfg = |p: &str| {
+            FastConfig::new()
+                .with_levels(4)
+                .with_log2_table_size(12)
+                .with_finest_resolution(64)
+                .with_grid_resolution(16)
+                .with_steps_per_diagonal(64)
+                .with_mlp_precision(Some(p.into()))
+        };
+        assert!(cfg("fp32").check().is_ok() && cfg("bf16").check().is_ok());
+        let n = 256;
+        let batch = RayBatch {
+            origins: vec![[0.0, 0.0, 3.0]; n],
+            dirs: (0..n)
+                .map(|i| {
+                    let (a, b) = ((i % 16) as f32 * 0.02 - 0.15, (i / 16) as f32 * 0.02 - 0.15);
+                    let l = (a * a + b * b + 1.0f32).sqrt();
+                    [a / l, b / l, -1.0 / l]
+                })
+                .collect(),
+            target: vec![[0.7, 0.3, 0.2]; n],
+            background: vec![[0.0; 3]; n],
+            ids: (0..n as u64).collect(),
+            mixed: Vec::new(),
+        };
+        let losses = |p: &str| -> Result<Vec<f32>, String> {
+            let mut m = FastModel::new(cfg(p), bounds.clone(), 3)?;
+            Ok((0..40).map(|step| m.train_step(&batch, step, 0).loss).collect())
+        };
+        let fp32 = losses("fp32").unwrap();
+        match losses("bf16") {
+            Err(e) => {
+                assert!(!crate::mlp::bf16::available() && e.contains("AVX512-BF16"), "{e}");
+                eprintln!("skipped the training comparison: {e}");
+            }
+            Ok(bf16) => {
+                assert!(crate::mlp::bf16::available());
+                assert!(bf16.iter().all(|l| l.is_finite()));
+                assert_ne!(fp32, bf16, "the bf16 run gave fp32's losses: its kernels did not run");
+                let (f0, f1, b1) = (fp32[0], fp32[39], bf16[39]);
+                assert!(f1 < 0.2 * f0, "fp32 learned too little: {f0} → {f1}");
+                assert!((b1 - f1).abs() <= 0.05 * f0, "bf16 ended at {b1}, fp32 at {f1} (from {f0})");
+            }
+        }
+    }
 
     /// Dropping the direction input keeps the hash tables, the density network and the
     /// occupancy grid exactly, and the new colour network computes the old one fed the SH
