@@ -1143,9 +1143,24 @@ mod mm {
     /// fallback's; the kernels sum it inside [`weight_grads_acc`]).
     pub fn col_sums_acc(c: &mut [f32], b: &[f32]) {
         assert!(!c.is_empty() && b.len().is_multiple_of(c.len()), "col_sums_acc shapes");
-        for row in b.chunks_exact(c.len()) {
-            c.iter_mut().zip(row).for_each(|(a, x)| *a += x);
+        #[inline(always)]
+        fn plain(c: &mut [f32], b: &[f32]) {
+            for row in b.chunks_exact(c.len()) {
+                c.iter_mut().zip(row).for_each(|(a, x)| *a += x);
+            }
         }
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            /// `plain` compiled for AVX2: the same additions in the same order.
+            #[target_feature(enable = "avx2")]
+            fn wide(c: &mut [f32], b: &[f32]) {
+                plain(c, b)
+            }
+            // SAFETY: the CPU has AVX2 (checked above).
+            unsafe { wide(c, b) };
+            return;
+        }
+        plain(c, b)
     }
 
     /// A gradient through a ReLU whose output was `y`: `d[i] = 0` where `y[i] ≤ 0` (the ReLU
