@@ -461,12 +461,16 @@ impl HashMlp {
         backward_stack(&self.density, x, density, grad, spare, t, &mut g.density, self.enc_dims(), (xb, xv, gv));
     }
 
+    /// The groups' gradients summed in group order, each layer on its own task (the same
+    /// additions in the same order as one loop over the groups: a serial tail of the sweep
+    /// while the other core waited).
     fn sum_grads(&self, partials: &[HashMlpGrads]) -> HashMlpGrads {
         let mut total = self.zero_grads();
-        for p in partials {
-            total.density.iter_mut().zip(&p.density).for_each(|(a, b)| a.add(b));
-            total.color.iter_mut().zip(&p.color).for_each(|(a, b)| a.add(b));
-        }
+        let HashMlpGrads { density, color } = &mut total;
+        rayon::join(
+            || density.par_iter_mut().enumerate().for_each(|(i, a)| partials.iter().for_each(|p| a.add(&p.density[i]))),
+            || color.par_iter_mut().enumerate().for_each(|(i, a)| partials.iter().for_each(|p| a.add(&p.color[i]))),
+        );
         total
     }
 

@@ -398,10 +398,6 @@ impl FastModel {
         self.parts().hash_encode(unit)
     }
 
-    fn sh_of(&self, ray_of: impl Iterator<Item = usize>, n: usize, dirs: &[[f32; 3]]) -> Vec<f32> {
-        self.parts().sh_of(ray_of, n, dirs)
-    }
-
     /// Updates the occupancy grid on update steps, with the networks' weights `mlp`.
     fn maybe_update_occupancy(&mut self, step: u64, mlp: &HashMlp) {
         let interval = self.config.grid_update_interval.max(1);
@@ -477,7 +473,7 @@ impl FastModel {
         };
         let t0 = Instant::now();
         let n = samples.len();
-        let sh = self.sh_of(samples.ray_index.iter().map(|&r| r as usize), n, &batch.dirs);
+        let sh = self.parts().sh_for(&samples.ray_index, &batch.dirs);
         tm.phases.gather += t0.elapsed().as_secs_f64();
         tm.encoding += t0.elapsed().as_secs_f64();
         if n == 0 {
@@ -535,7 +531,7 @@ impl FastModel {
         tm.phases.mlp_sweep = t0.elapsed().as_secs_f64();
         tm.mlp += tm.phases.mlp_sweep;
         let stats = |skipped, tm, touched| StepStats { loss, mse, samples: n, marched: n_marched, encoded: n_marched, touched, skipped_nonfinite: skipped, timings: tm };
-        if !loss.is_finite() || d_enc.len() != n * dims || !all_finite(&d_enc) || !grads.is_finite() {
+        if !loss.is_finite() || d_enc.len() != n * dims || !d_enc.par_chunks(1 << 16).all(all_finite) || !grads.is_finite() {
             return stats(true, tm, 0);
         }
         let mut gp = grads.into_params(&self.field);
@@ -941,17 +937,27 @@ impl Parts<'_> {
         enc
     }
 
-    /// SH `[n][deg²]` of each sample's ray direction (`ray_of[k]` is sample `k`'s ray), computed
-    /// once per ray.
-    fn sh_of(&self, ray_of: impl Iterator<Item = usize>, n: usize, dirs: &[[f32; 3]]) -> Vec<f32> {
-        if self.config.dir_dims() == 0 {
+
+    /// The direction inputs (SH of each ray's direction, `[n][dir_dims]`, empty without view
+    /// dependence) of the samples of rays `ray_index`, filled in parallel.
+    fn sh_for(&self, ray_index: &[u32], dirs: &[[f32; 3]]) -> Vec<f32> {
+        let shd = self.config.dir_dims();
+        if shd == 0 {
             return Vec::new();
         }
         let per_ray: Vec<[f32; 16]> = dirs.iter().map(|d| sh_encode(*d)).collect();
-        self.sh_gather(ray_of, n, &per_ray)
+        let mut sh = vec![0.0; ray_index.len() * shd];
+        const CHUNK: usize = 4096;
+        sh.par_chunks_mut(CHUNK * shd).zip(ray_index.par_chunks(CHUNK)).for_each(|(out, rays)| {
+            for (o, &r) in out.chunks_exact_mut(shd).zip(rays) {
+                o.copy_from_slice(&per_ray[r as usize][..shd]);
+            }
+        });
+        sh
     }
 
-    /// [`Self::sh_of`] from each ray's SH vector `per_ray` (computed once per ray).
+    /// The direction inputs of the samples of rays `ray_of` from each ray's SH vector `per_ray`
+    /// (computed once per ray).
     fn sh_gather(&self, ray_of: impl Iterator<Item = usize>, n: usize, per_ray: &[[f32; 16]]) -> Vec<f32> {
         let shd = self.config.dir_dims();
         if shd == 0 {
@@ -1251,7 +1257,7 @@ mod tests {
         let samples = m.march(&origins, &dirs, SampleMode::Deterministic);
         let unit = m.unit_points(&samples, None, &origins, &dirs);
         let enc = m.hash_encode(&unit);
-        let sh = m.sh_of(samples.ray_index.iter().map(|&r| r as usize), samples.len(), &dirs);
+        let sh = m.parts().sh_for(&samples.ray_index, &dirs);
         let (raw, rgb) = m.mlp().forward(&enc, &sh);
         let sigma: Vec<f32> = raw.iter().map(|x| ACT.forward(*x)).collect();
         let full = volrend::composite_forward_with(&samples.offsets, &sigma, &rgb, &samples.t_start, &samples.t_end, &vec![bg; n], volrend::CompositeOptions::INFERENCE);
