@@ -19,6 +19,11 @@
 //! separate forward pass, recomputes each tile's forward instead). Measured: `cargo xtask
 //! bench nerf` prints these kernels against burn on the same networks and batch.
 //!
+//! Mixed precision ([`HashMlp::with_bf16`], module [`bf16`]; opt-in, `model.mlp_precision`):
+//! on CPUs with AVX512-BF16 every product's inputs are rounded to bf16 and summed in fp32
+//! (`vdpbf16ps`, twice the fp32 FMA rate); weights, biases and everything kept between layers
+//! stay fp32.
+//!
 //! burn stays the owner of the parameters (initialisation, checkpoints, its Adam):
 //! [`HashMlp::from_field`] reads the weights before a step and [`HashMlpGrads::into_params`]
 //! hands the gradients back to burn's optimiser as [`GradientsParams`].
@@ -693,7 +698,7 @@ fn backward_stack_bf16(stack: &Stack, packs: &[Bf16Layer], x: &[f32], outs: &[Ve
 }
 
 /// Matrix products on row-major slices through the `gemm` crate (single-threaded: the
-/// callers parallelise over tiles). The only unsafe code of the crate: `gemm`'s entry point
+/// callers parallelise over tiles). Unsafe code (as in [`super::bf16`] and the hash grid's SIMD): `gemm`'s entry point
 /// takes raw pointers and strides, and each wrapper checks every slice's length against the
 /// shape first.
 #[allow(unsafe_code)]

@@ -369,30 +369,13 @@ mod tests {
             let mut xb = Vec::new();
             rows(&x, t, k, &mut xb);
             let wp = pack_weights(&w, k, n);
-            for relu in [false, true] {
-                let mut y = vec![f32::NAN; t * n];
-                dense(&mut y, &xb, kp, &wp, np, &b, t, n, relu);
-                let (xr, wr) = (rounded(&x), rounded(&w));
-                for s in 0..t {
-                    for j in 0..n {
-                        let mut sum = b[j] as f64;
-                        let mut mag = (b[j] as f64).abs();
-                        for i in 0..k {
-                            sum += xr[s * k + i] * wr[i * n + j];
-                            mag += (xr[s * k + i] * wr[i * n + j]).abs();
-                        }
-                        let want = if relu { sum.max(0.0) } else { sum };
-                        close(y[s * n + j], want, mag, k, &format!("dense {t}x{k}x{n} relu {relu} at ({s}, {j})"));
-                    }
-                }
-            }
-            // A narrower output read from the same packed weights (an input gradient needed for
-            // the first columns only).
-            if n > 2 {
-                let m = n - 2;
+            let (xr, wr) = (rounded(&x), rounded(&w));
+            // All `n` columns, with and without the ReLU, and the first `n − 2` only (an input
+            // gradient needed for the first columns reads the same packed weights).
+            let widths = if n > 2 { vec![(n, false), (n, true), (n - 2, false)] } else { vec![(n, false), (n, true)] };
+            for (m, relu) in widths {
                 let mut y = vec![f32::NAN; t * m];
-                dense(&mut y, &xb, kp, &wp, np, &b, t, m, false);
-                let (xr, wr) = (rounded(&x), rounded(&w));
+                dense(&mut y, &xb, kp, &wp, np, &b, t, m, relu);
                 for s in 0..t {
                     for j in 0..m {
                         let (mut sum, mut mag) = (b[j] as f64, (b[j] as f64).abs());
@@ -400,7 +383,8 @@ mod tests {
                             sum += xr[s * k + i] * wr[i * n + j];
                             mag += (xr[s * k + i] * wr[i * n + j]).abs();
                         }
-                        close(y[s * m + j], sum, mag, k, &format!("narrow dense {t}x{k}x{m} at ({s}, {j})"));
+                        let want = if relu { sum.max(0.0) } else { sum };
+                        close(y[s * m + j], want, mag, k, &format!("dense {t}x{k}x{n} (first {m} columns, relu {relu}) at ({s}, {j})"));
                     }
                 }
             }
