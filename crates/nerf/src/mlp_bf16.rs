@@ -347,6 +347,11 @@ mod tests {
         }
     }
 
+    /// `start + Σ a·b` over `terms` in f64, and `|start| + Σ |a·b|` (the scale of its rounding).
+    fn reference(start: f32, terms: impl Iterator<Item = (f64, f64)>) -> (f64, f64) {
+        terms.fold((start as f64, (start as f64).abs()), |(sum, mag), (a, b)| (sum + a * b, mag + (a * b).abs()))
+    }
+
     /// Every product's inputs rounded to bf16, summed in f64: what the kernels compute, up to
     /// fp32 summation error, which is bounded by `k · 2⁻²³` (plus slack) of the sum of the
     /// terms' magnitudes.
@@ -378,11 +383,7 @@ mod tests {
                 dense(&mut y, &xb, kp, &wp, np, &b, t, m, relu);
                 for s in 0..t {
                     for j in 0..m {
-                        let (mut sum, mut mag) = (b[j] as f64, (b[j] as f64).abs());
-                        for i in 0..k {
-                            sum += xr[s * k + i] * wr[i * n + j];
-                            mag += (xr[s * k + i] * wr[i * n + j]).abs();
-                        }
+                        let (sum, mag) = reference(b[j], (0..k).map(|i| (xr[s * k + i], wr[i * n + j])));
                         let want = if relu { sum.max(0.0) } else { sum };
                         close(y[s * m + j], want, mag, k, &format!("dense {t}x{k}x{n} (first {m} columns, relu {relu}) at ({s}, {j})"));
                     }
@@ -409,11 +410,7 @@ mod tests {
             let (xr, gr) = (rounded(&x), rounded(&g));
             for r in 0..k {
                 for j in 0..n {
-                    let (mut sum, mut mag) = (c0[r * n + j] as f64, (c0[r * n + j] as f64).abs());
-                    for s in 0..t {
-                        sum += xr[s * k + r] * gr[s * n + j];
-                        mag += (xr[s * k + r] * gr[s * n + j]).abs();
-                    }
+                    let (sum, mag) = reference(c0[r * n + j], (0..t).map(|s| (xr[s * k + r], gr[s * n + j])));
                     close(c[r * n + j], sum, mag, t, &format!("weight gradient {t}x{k}x{n} at ({r}, {j})"));
                 }
             }
