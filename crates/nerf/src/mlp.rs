@@ -203,10 +203,18 @@ impl HashMlp {
     /// [`Self::raw_density`] and [`Self::raw_density_serial`] (occupancy updates, the training
     /// step's density-only pass) stay fp32. Refused on a CPU without AVX512-BF16.
     pub fn with_bf16(self) -> Result<Self, String> {
-        if !bf16::available() {
-            return Err("bf16 networks need a CPU with AVX512-BF16 (e.g. Intel Sapphire Rapids, AMD Zen 4 or later); this one has none: use fp32".into());
-        }
+        Self::bf16_supported()?;
         Ok(Self { density: self.density.with_bf16(), color: self.color.with_bf16(), dir_dims: self.dir_dims })
+    }
+
+    /// Whether this CPU runs [`Self::with_bf16`]'s kernels: the error it would refuse with
+    /// otherwise.
+    pub fn bf16_supported() -> Result<(), String> {
+        if bf16::available() {
+            Ok(())
+        } else {
+            Err("bf16 networks need a CPU with AVX512-BF16 (e.g. Intel Sapphire Rapids, AMD Zen 4 or later); this one has none: use fp32".into())
+        }
     }
 
     /// Whether the products run in bf16 ([`Self::with_bf16`]).

@@ -342,9 +342,9 @@ impl FastModel {
             update_fraction: 0.25,
             seed: stream_seed(seed, stream::OCCUPANCY),
         });
-        let mlp = HashMlp::from_field(&field)?;
+        HashMlp::from_field(&field)?;
         if config.bf16_networks()? {
-            mlp.with_bf16()?;
+            HashMlp::bf16_supported()?;
         }
         let adam = MlpAdam::new(&AdamSettings::new(config.beta1, config.beta2, config.eps));
         let grid_adam = Adam::new(AdamConfig { lr: 1e-2, beta1: config.beta1, beta2: config.beta2, eps: config.eps }, n);
@@ -939,38 +939,32 @@ impl Parts<'_> {
 
 
     /// The direction inputs (SH of each ray's direction, `[n][dir_dims]`, empty without view
-    /// dependence) of the samples of rays `ray_index`, filled in parallel.
+    /// dependence) of the samples of rays `ray_index`.
     fn sh_for(&self, ray_index: &[u32], dirs: &[[f32; 3]]) -> Vec<f32> {
+        if self.config.dir_dims() == 0 {
+            return Vec::new();
+        }
+        let per_ray: Vec<[f32; 16]> = dirs.iter().map(|d| sh_encode(*d)).collect();
+        self.sh_rows(ray_index, &per_ray)
+    }
+
+    /// The direction inputs of the samples of rays `ray_of` (`[n][dir_dims]`, empty without
+    /// view dependence) from each ray's SH vector `per_ray` (computed once per ray), copied in
+    /// parallel chunks.
+    fn sh_rows(&self, ray_of: &[u32], per_ray: &[[f32; 16]]) -> Vec<f32> {
         let shd = self.config.dir_dims();
         if shd == 0 {
             return Vec::new();
         }
-        let per_ray: Vec<[f32; 16]> = dirs.iter().map(|d| sh_encode(*d)).collect();
-        let mut sh = vec![0.0; ray_index.len() * shd];
+        let mut sh = vec![0.0; ray_of.len() * shd];
         const CHUNK: usize = 4096;
-        sh.par_chunks_mut(CHUNK * shd).zip(ray_index.par_chunks(CHUNK)).for_each(|(out, rays)| {
+        sh.par_chunks_mut(CHUNK * shd).zip(ray_of.par_chunks(CHUNK)).for_each(|(out, rays)| {
             for (o, &r) in out.chunks_exact_mut(shd).zip(rays) {
                 o.copy_from_slice(&per_ray[r as usize][..shd]);
             }
         });
         sh
     }
-
-    /// The direction inputs of the samples of rays `ray_of` from each ray's SH vector `per_ray`
-    /// (computed once per ray).
-    fn sh_gather(&self, ray_of: impl Iterator<Item = usize>, n: usize, per_ray: &[[f32; 16]]) -> Vec<f32> {
-        let shd = self.config.dir_dims();
-        if shd == 0 {
-            return Vec::new();
-        }
-        let mut sh = vec![0.0; n * shd];
-        for (o, r) in sh.chunks_exact_mut(shd).zip(ray_of) {
-            o.copy_from_slice(&per_ray[r][..shd]);
-        }
-        sh
-    }
-
-
 
     /// [`FastModel::render_rays`] with the networks' weights `mlp`.
     fn render_rays(&self, mlp: &HashMlp, origins: &[[f32; 3]], dirs: &[[f32; 3]], background: [f32; 3]) -> RayOutputs {
@@ -1052,7 +1046,7 @@ impl Parts<'_> {
                     let w = (-acc).exp() * (1.0 - (-od).exp());
                     if w >= COLOR_MIN_WEIGHT {
                         shade.push(s);
-                        shade_ray.push(r);
+                        shade_ray.push(r as u32);
                     }
                     acc += od;
                 }
@@ -1064,7 +1058,7 @@ impl Parts<'_> {
                 for &k in &shade {
                     geo_s.extend_from_slice(&geo[k * gd..(k + 1) * gd]);
                 }
-                let sh = self.sh_gather(shade_ray.iter().copied(), shade.len(), &per_ray_sh);
+                let sh = self.sh_rows(&shade_ray, &per_ray_sh);
                 for (&k, c) in shade.iter().zip(mlp.color_of(&geo_s, &sh)) {
                     rgb[k] = c;
                 }
