@@ -23,21 +23,26 @@ mod train;
 #[global_allocator]
 static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
-/// mimalloc's `mi_option_purge_decommits`: index 5 of its `mi_option_e` (v2 and v3; the
+/// mimalloc's `mi_option_purge_delay`: index 15 of its `mi_option_e` (v2 and v3; the
 /// `libmimalloc-sys` pinned in `Cargo.toml` names no constant for it).
-const MI_OPTION_PURGE_DECOMMITS: libmimalloc_sys::mi_option_t = 5;
+const MI_OPTION_PURGE_DELAY: libmimalloc_sys::mi_option_t = 15;
 
-/// Memory mimalloc purges (freed and left unused for a while) is reset (`MADV_FREE`: the
-/// kernel takes the pages back when it needs them) instead of decommitted. With decommit, the
-/// fast model's step buffers (megabytes, freed and allocated again every step) were faulted
-/// in and zeroed by the kernel again and again: `bench nerf --fast-only` on the standard
-/// tabletop went from 1.21–1.23 to 1.32 M samples/s with this setting (`MIMALLOC_PURGE_DECOMMITS=0`,
-/// alternating runs). Called first in `main`, before any other thread exists.
+/// Memory mimalloc frees is kept for reuse and never purged (handed back to the kernel). The
+/// fast model's step buffers (megabytes, freed and allocated again every step) were otherwise
+/// purged between steps, and the next touch faulted a 2 MiB transparent huge page back in,
+/// zeroed by the kernel: 14 page faults (about 28 MiB zeroed) per training step late in a
+/// standard-tabletop run, none with this setting (`perf stat -e page-faults` of `bench nerf
+/// --fast-only --resume-run` at 100 and 300 steps). Its speed gain is within this machine's
+/// noise (ABBA pairs: +1 % late in training, ±4 % early). The price is that a process's
+/// resident memory stays at its peak (600 training steps: 351 → 367 MB). (Resetting instead
+/// of decommitting, `purge_decommits = 0`, the setting before this one, had removed the
+/// decommit's cost but not these faults.) Called first in `main`, before any other thread
+/// exists.
 #[allow(unsafe_code)]
 fn tune_allocator() {
     // SAFETY: `mi_option_set` only stores the option; it is not thread safe, and no other
     // thread exists yet.
-    unsafe { libmimalloc_sys::mi_option_set(MI_OPTION_PURGE_DECOMMITS, 0) }
+    unsafe { libmimalloc_sys::mi_option_set(MI_OPTION_PURGE_DELAY, -1) }
 }
 
 /// Exact-ground-truth NeRF: render datasets, train radiance fields, evaluate them.
@@ -158,25 +163,26 @@ fn error_message(e: &anyhow::Error) -> String {
 #[cfg(test)]
 #[allow(unsafe_code)]
 mod allocator_tests {
-    /// [`super::MI_OPTION_PURGE_DECOMMITS`] is an enum index read off mimalloc's v2 and v3
+    /// [`super::MI_OPTION_PURGE_DELAY`] is an enum index read off mimalloc's v2 and v3
     /// headers: a newer major version must be checked again before it is trusted. In a process
     /// that did not change it (tests do not run `main`), the option at that index holds
-    /// `purge_decommits`' default, 1 (its neighbours' are 2 and 0), or the number given in
-    /// `MIMALLOC_PURGE_DECOMMITS`. Only reads: the tests run on several threads, and setting an
+    /// `purge_delay`'s default (10 in v2, 1000 in v3; its neighbours' are 0 or 1, and 0), or
+    /// the number given in `MIMALLOC_PURGE_DELAY`. Only reads: the tests run on several threads, and setting an
     /// option is not thread safe.
     #[test]
     fn the_purge_option_index_is_the_linked_mimallocs() {
         // SAFETY: `mi_version` only returns a constant.
         let version = unsafe { libmimalloc_sys::mi_version() };
-        assert!((200..400).contains(&(version / 100)), "mimalloc {version}: check MI_OPTION_PURGE_DECOMMITS against its mimalloc.h");
-        let want = match std::env::var("MIMALLOC_PURGE_DECOMMITS") {
+        assert!((200..400).contains(&(version / 100)), "mimalloc {version}: check MI_OPTION_PURGE_DELAY against its mimalloc.h");
+        let want = match std::env::var("MIMALLOC_PURGE_DELAY") {
             Ok(v) => match v.trim().parse::<std::ffi::c_long>() {
                 Ok(n) => n,
                 Err(_) => return, // a word mimalloc reads its own way
             },
-            Err(_) => 1,
+            Err(_) if version >= 300 => 1000,
+            Err(_) => 10,
         };
         // SAFETY: `mi_option_get` only reads the option.
-        assert_eq!(unsafe { libmimalloc_sys::mi_option_get(super::MI_OPTION_PURGE_DECOMMITS) }, want);
+        assert_eq!(unsafe { libmimalloc_sys::mi_option_get(super::MI_OPTION_PURGE_DELAY) }, want);
     }
 }
