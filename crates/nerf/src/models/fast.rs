@@ -342,6 +342,7 @@ impl FastModel {
             update_fraction: 0.25,
             seed: stream_seed(seed, stream::OCCUPANCY),
         });
+        // The networks must have the fused kernels' shape (`mlp()` relies on it from here on).
         HashMlp::from_field(&field)?;
         if config.bf16_networks()? {
             HashMlp::bf16_supported()?;
