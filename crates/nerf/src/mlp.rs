@@ -706,9 +706,9 @@ fn backward_stack_bf16(stack: &Stack, packs: &[Bf16Layer], x: &[f32], outs: &[Ve
 }
 
 /// Matrix products on row-major slices through the `gemm` crate (single-threaded: the
-/// callers parallelise over tiles). Unsafe code (as in [`super::bf16`] and the hash grid's SIMD): `gemm`'s entry point
-/// takes raw pointers and strides, and each wrapper checks every slice's length against the
-/// shape first.
+/// callers parallelise over tiles). Unsafe code (as in [`super::bf16`] and the hash grid's
+/// SIMD): `gemm`'s entry point takes raw pointers and strides, and each wrapper checks every
+/// slice's length against the shape first.
 #[allow(unsafe_code)]
 mod mm {
     use gemm::{Parallelism, gemm};

@@ -7,7 +7,7 @@
 //! and are summed in fp32. Weights, biases, their gradients' sums over samples, and every
 //! activation and gradient kept between layers stay fp32 (fp32 master weights, as in
 //! mixed-precision training generally). So a layer's output differs from the fp32 one's by
-//! about 2⁻⁸ of the sum of its terms' magnitudes, which [`tests`] check against an f64
+//! about 2⁻⁸ of the sum of its terms' magnitudes, which the module's tests check against an f64
 //! reference.
 //!
 //! Layouts (`u16` = bf16 bits):

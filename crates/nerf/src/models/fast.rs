@@ -938,7 +938,6 @@ impl Parts<'_> {
         enc
     }
 
-
     /// The direction inputs (SH of each ray's direction, `[n][dir_dims]`, empty without view
     /// dependence) of the samples of rays `ray_index`.
     fn sh_for(&self, ray_index: &[u32], dirs: &[[f32; 3]]) -> Vec<f32> {
