@@ -13,9 +13,10 @@
 //!   would cost a shadow ray per vertex, usually occluded in closed scenes.
 //!   (A shadow ray to ONE punctual light per vertex, picked in proportion to the luminance of
 //!   its unoccluded contribution, as Mitsuba traces one ray to one sampled emitter, gave
-//!   4–10 % more samples/s on the multi-light scenes but 1.15x (`deep`) to 3.7x (`materials`)
-//!   the error at 64 spp: penumbrae, where the lights' visibilities differ. Measured at stop 55
-//!   with `xtask bench render`; not kept.)
+//!   5–15 % more samples/s on the multi-light scenes but 1.05x (`materials`, glTF) to 2.7x
+//!   (`thin`, Lambert) the error at 64 spp, from penumbrae, where the lights' visibilities
+//!   differ; at equal error it lost on every row but one. Measured at stop 55 with `xtask
+//!   bench render` (15 renders per row); not kept.)
 //! - Caustic paths (camera → 1 to 3 surfaces that are not sharp → a caster → a punctual
 //!   light, see [`crate::caustics`]) are left to the light tracer when
 //!   [`PathIntegrator::caustics`] is set (as [`crate::render::Renderer::render_view`] does
