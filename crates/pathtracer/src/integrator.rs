@@ -15,8 +15,8 @@
 //!   its unoccluded contribution, as Mitsuba traces one ray to one sampled emitter, gave
 //!   5–15 % more samples/s on the multi-light scenes but 1.05x (`materials`, glTF) to 2.7x
 //!   (`thin`, Lambert) the error at 64 spp, from penumbrae, where the lights' visibilities
-//!   differ; at equal error it lost on 22 of those scenes' 24 rows. Measured at stop 55 with `xtask
-//!   bench render` (15 renders per row); not kept.)
+//!   differ; at equal error it lost on 22 of those scenes' 24 rows. Measured at stop 55
+//!   with `xtask bench render` (15 renders per row); not kept.)
 //! - Caustic paths (camera → 1 to 3 surfaces that are not sharp → a caster → a punctual
 //!   light, see [`crate::caustics`]) are left to the light tracer when
 //!   [`PathIntegrator::caustics`] is set (as [`crate::render::Renderer::render_view`] does
