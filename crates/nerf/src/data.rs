@@ -534,7 +534,7 @@ pub mod synthetic {
         write_glossy(dir, size, counts, blender_layout, 0.0)
     }
 
-    /// [`write`] with a white sheen of strength `gloss` on every sphere (view-dependent
+    /// [`write()`] with a white sheen of strength `gloss` on every sphere (view-dependent
     /// colour when `gloss` > 0; the facts say so).
     pub fn write_glossy(dir: &Path, size: u32, counts: [usize; 3], blender_layout: bool, gloss: f64) -> Result<(), dataset::DatasetError> {
         let intr = Intrinsics::from_fov_x(size, size, 0.6911);

@@ -34,7 +34,7 @@
 //! ([`CausticPaths::paths_for_view`], [`MIN_YIELD`]): a punctual light in proportion to its
 //! intensity times the casters' solid angle from it (for a directional light, its illuminance
 //! times their area across the beam); a caster triangle in proportion to how strongly that
-//! light can light it ([`light_weight`]: its solid angle from the light or its projected
+//! light can light it (`light_weight`: its solid angle from the light or its projected
 //! area, zero where the light cannot reach its front), and a point `z₁` uniform on it, of
 //! area density `A₁ = P(triangle) / area`; `z₁` is kept when the ray from the light towards
 //! it hits it first. (The first version aimed cones at the casters' bounding spheres: on

@@ -7,7 +7,7 @@
 //! [`texture`], [`material`], [`light`], [`integrator`] (radiance of one ray), [`caustics`]
 //! (caustic paths traced from the lights), [`render`]
 //! (the shared per-view driver), [`rig`] (camera placement) and [`dataset_render`] (writing a
-//! dataset folder with resume and progress). For geometry metrics, [`reference`] gives the
+//! dataset folder with resume and progress). For geometry metrics, [`reference`](mod@reference) gives the
 //! scene's camera-visible triangles in world space and [`nearest`] exact closest-point queries
 //! on a triangle set (the BVH's point-query counterpart).
 //!

@@ -182,7 +182,7 @@ impl Sampler {
         d
     }
 
-    /// The next dimension as 32-bit fixed point ([`Sampler::u32_at`] of the next dimension).
+    /// The next dimension as 32-bit fixed point (`Sampler::u32_at` of the next dimension).
     #[inline]
     pub fn next_u32(&mut self) -> u32 {
         let d = self.skip(1);

@@ -1,7 +1,7 @@
 //! Input encodings in plain Rust over slices, each with an exact, deterministic backward where
 //! it has parameters:
 //! - [`hashgrid`]: the multiresolution hash encoding of instant-ngp (Müller et al. 2022) and the
-//!   [`Adam`](hashgrid::Adam) optimiser for its flat parameter table;
+//!   [`Adam`] optimiser for its flat parameter table;
 //! - [`sh`]: real spherical harmonics of a direction up to degree 4 (tiny-cuda-nn's);
 //! - [`frequency`]: the NeRF paper's positional encoding.
 

@@ -10,7 +10,7 @@
 //! 512 over the bounding cube [2048 · scale] (enough for the 64–400 pixel images trained on a
 //! CPU, and finer levels overfit the few views; `--model auto`, [`crate::auto`], derives it
 //! from the cameras), 64-wide networks, a 64³ occupancy
-//! grid over the scene box [128³] and a marching step of the cube's diagonal / 512 [/ 1024].
+//! grid over the scene box \[128³\] and a marching step of the cube's diagonal / 512 \[/ 1024\].
 //! With `view_dependent` false the colour network gets no direction input (Lambertian scenes).
 //! Training rays are compacted as in instant-ngp: a density-only pass finds where each ray
 //! becomes opaque, and only the samples before it are trained on.
@@ -554,12 +554,12 @@ impl FastModel {
     }
 
     /// Renders rays: marches the occupancy grid (no jitter), evaluates the density network in
-    /// rounds of [`INFERENCE_ROUND`] samples per ray that is still live (transmittance ≥ 1e-4
+    /// rounds of `INFERENCE_ROUND` samples per ray that is still live (transmittance ≥ 1e-4
     /// and samples left) and the colour network only for samples whose weight reaches
-    /// [`COLOR_MIN_WEIGHT`], then composites with [`volrend::CompositeOptions::INFERENCE`];
+    /// `COLOR_MIN_WEIGHT`, then composites with [`volrend::CompositeOptions::INFERENCE`];
     /// samples never evaluated lie past the termination point and get weight 0.
     ///
-    /// Rays go in chunks of [`RENDER_CHUNK`], one rayon task each (a chunk's result does not
+    /// Rays go in chunks of `RENDER_CHUNK`, one rayon task each (a chunk's result does not
     /// depend on the others or on the thread count, so the output is bit-identical for any
     /// pool), which keeps every buffer small and both cores busy (before, 8192-ray chunks in
     /// turn, each marched in full and evaluated in rounds of 16: 5.9 s for an 800×800 view,
