@@ -36,12 +36,11 @@
 //!   and thin −11 to +10 % over two pairs), but two samples' whole paths advanced together
 //!   (every query paired) 5–9 % fewer samples/s. The gain needs coherent rays, or lanes of SIMD
 //!   across paths.
-//! - the whole crate compiled for x86-64-v3 (`RUSTFLAGS=-C target-cpu=x86-64-v3`: AVX2, FMA and
-//!   VEX-encoded scalar code; the same bits, as Rust does not contract `a·b + c` into an FMA):
-//!   +15–20 % primary rays/s and +3–7 % samples/s on the quick views (2-core Zen 5, two
-//!   alternating pairs, stop 56). Not adopted: the build must run on any x86-64 CPU, and
-//!   choosing at run time for the whole path loop, not only this traversal kernel, would need
-//!   every function it calls inlined into one `#[target_feature]` function.
+//! - the whole crate compiled for x86-64-v3 (`RUSTFLAGS=-C target-cpu=x86-64-v3`): +15–20 %
+//!   primary rays/s and +3–7 % samples/s on the quick views (2-core Zen 5, stop 56), but the
+//!   build must run on any x86-64 CPU. What is kept instead: the whole path loop runs inside
+//!   pulp's `vectorize` at the level found at run time
+//!   ([`crate::integrator::PathIntegrator::radiance_split`]), which gave more.
 //!
 //! Shadow rays use the same traversal as an any-hit query that stops at the first accepted
 //! hit ([`Accel::occluded`]).
@@ -509,6 +508,15 @@ impl Accel {
         })
     }
 
+    /// pulp's x86-64-v3 level (AVX2, FMA) when this CPU has it and it is enabled (see
+    /// [`Accel::set_avx2`]): the level the path loop runs at
+    /// ([`crate::integrator::PathIntegrator::radiance_split`]).
+    #[cfg(target_arch = "x86_64")]
+    #[inline]
+    pub fn v3(&self) -> Option<pulp::x86::V3> {
+        self.avx2
+    }
+
     /// Which child-box test the queries use: `"avx2 8-wide"` or `"4-wide"` (SSE2 on x86-64).
     pub fn simd_level(&self) -> &'static str {
         #[cfg(target_arch = "x86_64")]
@@ -518,9 +526,10 @@ impl Accel {
         "4-wide"
     }
 
-    /// Turns the AVX2 child-box test off (`false`: the four-wide fallback, as on a CPU
-    /// without AVX2) or back on where the CPU has it. Answers are the same either way; this
-    /// exists to prove that and to measure the difference.
+    /// Turns the AVX2 level off (`false`: the four-wide child-box test and the path loop
+    /// compiled for baseline x86-64, as on a CPU without AVX2) or back on where the CPU has
+    /// it. Answers are the same either way; this exists to prove that and to measure the
+    /// difference.
     pub fn set_avx2(&mut self, enabled: bool) {
         #[cfg(target_arch = "x86_64")]
         {
@@ -569,6 +578,7 @@ impl Accel {
 
     /// The closest accepted hit with `t < t_max`. `alpha_test(prim, hit)` is consulted only
     /// for alpha-masked triangles and returns whether the surface is present there.
+    #[inline(always)]
     pub fn closest_hit<F: Fn(u32, &TriangleHit) -> bool>(&self, ray: &Ray, t_max: f32, alpha_test: F) -> Option<Hit> {
         #[cfg(target_arch = "x86_64")]
         if let Some(simd) = self.avx2 {
@@ -578,6 +588,7 @@ impl Accel {
     }
 
     /// Whether any accepted hit exists with `t < t_max` (shadow rays).
+    #[inline(always)]
     pub fn occluded<F: Fn(u32, &TriangleHit) -> bool>(&self, ray: &Ray, t_max: f32, alpha_test: F) -> bool {
         #[cfg(target_arch = "x86_64")]
         if let Some(simd) = self.avx2 {

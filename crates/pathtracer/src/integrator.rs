@@ -215,7 +215,7 @@ pub fn tangent_at(scene: &Scene, prim: u32, b: [f32; 3], tex_coord: u32, n: Vec3
 
 /// Builds the [`Interaction`] for `hit` of `ray` (hit point from barycentrics, normals
 /// facing the ray).
-#[inline]
+#[inline(always)]
 pub fn interaction(scene: &Scene, ray: &Ray, hit: &Hit) -> Interaction {
     let m = &scene.mesh;
     let idx = m.indices[hit.prim as usize];
@@ -244,7 +244,7 @@ pub fn interaction(scene: &Scene, ray: &Ray, hit: &Hit) -> Interaction {
 /// interpolated normal, normal-mapped when the material has a normal texture, flipped and
 /// bent by [`shading_frame`]. Shared by the path tracer and the caustic light tracer so that
 /// both evaluate a vertex alike.
-#[inline]
+#[inline(always)]
 pub fn vertex_bsdf(scene: &Scene, si: &Interaction, mat: &Material, surf: &SurfaceMaterial, wo: Vec3) -> (Frame, BsdfAt) {
     let ns = match &mat.normal_texture {
         Some((r, _)) => {
@@ -256,6 +256,23 @@ pub fn vertex_bsdf(scene: &Scene, si: &Interaction, mat: &Material, surf: &Surfa
     let frame = shading_frame(ns, si.n.dot(si.ns_front) < 0.0, wo);
     let bsdf = surf.bsdf.at(frame.to_local(wo));
     (frame, bsdf)
+}
+
+/// One path of [`PathIntegrator::radiance_split`], as a pulp operation: run inside
+/// `vectorize`, everything it inlines is compiled for the SIMD level found at run time.
+struct Path<'i, 'a, 's> {
+    integ: &'i PathIntegrator<'a>,
+    ray: &'i Ray,
+    sampler: &'s mut Sampler,
+    primary_emission: bool,
+}
+
+impl pulp::WithSimd for Path<'_, '_, '_> {
+    type Output = RadianceSample;
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _simd: S) -> RadianceSample {
+        self.integ.radiance_split_impl(self.ray, self.sampler, self.primary_emission)
+    }
 }
 
 /// A path tracer over one scene (see the module docs).
@@ -282,11 +299,13 @@ impl std::fmt::Debug for PathIntegrator<'_> {
 
 impl PathIntegrator<'_> {
     /// Closest hit honouring alpha masks and back-face culling.
+    #[inline(always)]
     pub fn intersect(&self, ray: &Ray) -> Option<Hit> {
         self.accel.closest_hit(ray, f32::INFINITY, |prim, h| alpha_test(self.scene, ray, prim, h.b))
     }
 
     /// Whether anything blocks `ray` before `t_max`.
+    #[inline(always)]
     pub fn occluded(&self, ray: &Ray, t_max: f32) -> bool {
         self.accel.occluded(ray, t_max, |prim, h| alpha_test(self.scene, ray, prim, h.b))
     }
@@ -314,7 +333,26 @@ impl PathIntegrator<'_> {
     /// left out when `primary_emission` is false (the caller then estimates that term
     /// separately, [`PathIntegrator::primary_emission`]); the random numbers drawn are the
     /// same either way.
+    ///
+    /// The path loop runs inside pulp's `vectorize` at the x86-64-v3 level (AVX2, FMA, VEX
+    /// encoding) where the CPU has it ([`Accel::v3`]), with the functions a vertex calls
+    /// (`interaction`, `vertex_bsdf`, the BSDF's `sample` and `evaluate_pdf`, the emitter
+    /// sample, the ray queries) inlined into it so that they are compiled at that level too;
+    /// elsewhere it runs compiled for baseline x86-64. The bits are the same either way (no
+    /// operation is contracted into an FMA); measured +6–14 % samples per CPU-second on the
+    /// quick views (2-core Zen 5, stop 56: cornell +10 %, deep +14 %, materials +8 %,
+    /// tabletop +7 %, thin +6 %).
     pub fn radiance_split(&self, ray: &Ray, sampler: &mut Sampler, primary_emission: bool) -> RadianceSample {
+        let path = Path { integ: self, ray, sampler, primary_emission };
+        #[cfg(target_arch = "x86_64")]
+        if let Some(simd) = self.accel.v3() {
+            return pulp::Simd::vectorize(simd, path);
+        }
+        pulp::WithSimd::with_simd(path, pulp::Scalar::new())
+    }
+
+    #[inline(always)]
+    fn radiance_split_impl(&self, ray: &Ray, sampler: &mut Sampler, primary_emission: bool) -> RadianceSample {
         let env = &self.settings.environment;
         let Some(first) = self.intersect(ray) else {
             let radiance = if self.settings.transparent_background { Vec3::ZERO } else { env.eval(ray.direction) };
@@ -447,6 +485,7 @@ impl PathIntegrator<'_> {
     /// One light-sampling estimate of the emissive triangles' direct light at `si`,
     /// MIS-weighted: `f · Le · w_light / pdf_light`. `origin` is the shadow ray's start,
     /// `offset_ray_origin(si.p, si.p_err, si.ng, si.ng)`.
+    #[inline(always)]
     fn emitter_nee(&self, si: &Interaction, frame: &Frame, origin: Vec3, bsdf: &crate::material::BsdfAt, es: crate::light::EmitterSample) -> Vec3 {
         let scene = self.scene;
         let m = &scene.mesh;

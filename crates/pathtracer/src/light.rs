@@ -435,6 +435,7 @@ impl EmissiveTriangles {
     /// thousands), the rescaled `u.x` would keep too few bits to place a point, so `spare()`
     /// (an independent uniform number) replaces it. Either way the point is uniform on the
     /// triangle, so the estimate is unbiased.
+    #[inline(always)]
     pub fn sample(&self, u: Vec2, spare: impl FnOnce() -> f32) -> Option<EmitterSample> {
         if self.prims.is_empty() {
             return None;

@@ -272,6 +272,7 @@ impl MetallicRoughness {
     }
 
     /// A visible normal for `wo` (Heitz 2018, isotropic α), or `None` if degenerate.
+    #[inline(always)]
     pub fn sample_visible_normal(&self, wo: Vec3, u: Vec2) -> Option<Vec3> {
         let a = self.alpha;
         let vh = Vec3::new(a * wo.x, a * wo.y, wo.z).normalize_or_zero();
@@ -338,7 +339,7 @@ impl BsdfAt {
     }
 
     /// [`Bsdf::evaluate`] and [`Bsdf::pdf`] at `wi`.
-    #[inline]
+    #[inline(always)]
     pub fn evaluate_pdf(&self, wi: Vec3) -> (Vec3, f32) {
         let wo = self.wo;
         if wo.z <= 0.0 || wi.z <= 0.0 {
@@ -355,7 +356,7 @@ impl BsdfAt {
     }
 
     /// [`Bsdf::sample`] with two uniform numbers.
-    #[inline]
+    #[inline(always)]
     pub fn sample(&self, u: Vec2) -> Option<BsdfSample> {
         let wo = self.wo;
         if wo.z <= 0.0 {
@@ -420,7 +421,7 @@ impl Bsdf {
 
     /// The BSDF seen from `wo`, with what depends only on `wo` computed once (for the
     /// several evaluations and the sample of one path vertex).
-    #[inline]
+    #[inline(always)]
     pub fn at(&self, wo: Vec3) -> BsdfAt {
         let (ps, sd_wo) = match self {
             Bsdf::MetallicRoughness(mr) if wo.z > 0.0 => (mr.specular_probability(wo), mr.smith_den(wo.z)),
@@ -513,7 +514,7 @@ pub fn metallic_roughness(material: &Material, textures: &[Texture], attr: &Surf
 /// The dielectric's Fresnel endpoints at a point ([`DielectricFresnel::new`]): specular
 /// weight = `specular_factor × specularTexture.A`, specular colour =
 /// `specular_color_factor × specularColorTexture.RGB`, and `ior`.
-#[inline]
+#[inline(always)]
 pub fn dielectric_fresnel(material: &Material, textures: &[Texture], attr: &SurfaceAttributes) -> DielectricFresnel {
     let mut weight = material.specular_factor;
     if let Some(t) = &material.specular_texture {
@@ -531,7 +532,7 @@ pub fn dielectric_fresnel(material: &Material, textures: &[Texture], attr: &Surf
 /// the dielectric's Fresnel endpoints ([`dielectric_fresnel`]), or [`Bsdf::Diffuse`] with the
 /// base colour when metallic and the specular weight (`F90`) are both 0 (where the two are
 /// identical).
-#[inline]
+#[inline(always)]
 pub fn resolve(material: &Material, textures: &[Texture], attr: &SurfaceAttributes) -> SurfaceMaterial {
     let albedo = base_color(material, textures, attr).truncate().clamp(Vec3::ZERO, Vec3::ONE);
     let albedo = if albedo.is_finite() { albedo } else { Vec3::ZERO };

@@ -1394,7 +1394,8 @@ mod tests {
         // A different view index or seed changes the noise.
         let c = r.render_view(&cam, 4, &s);
         assert_ne!(bits(&a.color.data), bits(&c.color.data));
-        // The four-wide child-box test (a CPU without AVX2) renders the same bits.
+        // The four-wide child-box test and the baseline x86-64 path loop (a CPU without AVX2)
+        // render the same bits.
         let mut r = r;
         r.accel.set_avx2(false);
         let d = r.render_view(&cam, 3, &s);
