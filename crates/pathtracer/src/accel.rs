@@ -508,13 +508,27 @@ impl Accel {
         })
     }
 
-    /// pulp's x86-64-v3 level (AVX2, FMA) when this CPU has it and it is enabled (see
-    /// [`Accel::set_avx2`]): the level the path loop runs at
-    /// ([`crate::integrator::PathIntegrator::radiance_split`]).
-    #[cfg(target_arch = "x86_64")]
-    #[inline]
-    pub fn v3(&self) -> Option<pulp::x86::V3> {
-        self.avx2
+    /// Runs `f` at pulp's x86-64-v3 level (AVX2, FMA, VEX encoding) when this CPU has it and
+    /// it is enabled (see [`Accel::set_avx2`]), else as compiled for the baseline: what `f`
+    /// inlines is compiled for that level. The path loop runs this way
+    /// ([`crate::integrator::PathIntegrator::radiance_split`]; the caustic light paths and the
+    /// pixel loop around it, run this way too, were no faster). The bits are the same at
+    /// either level: no operation is contracted into an FMA.
+    #[inline(always)]
+    pub fn at_level<R>(&self, f: impl FnOnce() -> R) -> R {
+        struct Op<F>(F);
+        impl<R, F: FnOnce() -> R> pulp::WithSimd for Op<F> {
+            type Output = R;
+            #[inline(always)]
+            fn with_simd<S: pulp::Simd>(self, _simd: S) -> R {
+                (self.0)()
+            }
+        }
+        #[cfg(target_arch = "x86_64")]
+        if let Some(simd) = self.avx2 {
+            return pulp::Simd::vectorize(simd, Op(f));
+        }
+        f()
     }
 
     /// Which child-box test the queries use: `"avx2 8-wide"` or `"4-wide"` (SSE2 on x86-64).

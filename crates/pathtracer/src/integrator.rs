@@ -262,23 +262,6 @@ pub fn vertex_bsdf(scene: &Scene, si: &Interaction, mat: &Material, surf: &Surfa
     (frame, bsdf)
 }
 
-/// One path of [`PathIntegrator::radiance_split`], as a pulp operation: run inside
-/// `vectorize`, everything it inlines is compiled for the SIMD level found at run time.
-struct Path<'i, 'a, 's> {
-    integ: &'i PathIntegrator<'a>,
-    ray: &'i Ray,
-    sampler: &'s mut Sampler,
-    primary_emission: bool,
-}
-
-impl pulp::WithSimd for Path<'_, '_, '_> {
-    type Output = RadianceSample;
-    #[inline(always)]
-    fn with_simd<S: pulp::Simd>(self, _simd: S) -> RadianceSample {
-        self.integ.radiance_split_impl(self.ray, self.sampler, self.primary_emission)
-    }
-}
-
 /// A path tracer over one scene (see the module docs).
 pub struct PathIntegrator<'a> {
     /// The scene.
@@ -339,7 +322,7 @@ impl PathIntegrator<'_> {
     /// same either way.
     ///
     /// The path loop runs inside pulp's `vectorize` at the x86-64-v3 level (AVX2, FMA, VEX
-    /// encoding) where the CPU has it ([`Accel::v3`]), with the functions a vertex calls
+    /// encoding) where the CPU has it ([`Accel::at_level`]), with the functions a vertex calls
     /// (`interaction`, `vertex_bsdf`, the BSDF's `sample` and `evaluate_pdf`, the emitter
     /// sample, the ray queries) inlined into it so that they are compiled at that level too;
     /// elsewhere it runs compiled for baseline x86-64. The bits are the same either way (no
@@ -347,12 +330,7 @@ impl PathIntegrator<'_> {
     /// quick views (2-core Zen 5, stop 56: cornell +10 %, deep +14 %, materials +8 %,
     /// tabletop +7 %, thin +6 %).
     pub fn radiance_split(&self, ray: &Ray, sampler: &mut Sampler, primary_emission: bool) -> RadianceSample {
-        let path = Path { integ: self, ray, sampler, primary_emission };
-        #[cfg(target_arch = "x86_64")]
-        if let Some(simd) = self.accel.v3() {
-            return pulp::Simd::vectorize(simd, path);
-        }
-        pulp::WithSimd::with_simd(path, pulp::Scalar::new())
+        self.accel.at_level(|| self.radiance_split_impl(ray, sampler, primary_emission))
     }
 
     #[inline(always)]
