@@ -516,16 +516,16 @@ impl Accel {
     /// either level: no operation is contracted into an FMA.
     #[inline(always)]
     pub fn at_level<R>(&self, f: impl FnOnce() -> R) -> R {
-        struct Op<F>(F);
-        impl<R, F: FnOnce() -> R> pulp::WithSimd for Op<F> {
-            type Output = R;
-            #[inline(always)]
-            fn with_simd<S: pulp::Simd>(self, _simd: S) -> R {
-                (self.0)()
-            }
-        }
         #[cfg(target_arch = "x86_64")]
         if let Some(simd) = self.avx2 {
+            struct Op<F>(F);
+            impl<R, F: FnOnce() -> R> pulp::WithSimd for Op<F> {
+                type Output = R;
+                #[inline(always)]
+                fn with_simd<S: pulp::Simd>(self, _simd: S) -> R {
+                    (self.0)()
+                }
+            }
             return pulp::Simd::vectorize(simd, Op(f));
         }
         f()
