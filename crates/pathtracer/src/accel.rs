@@ -370,37 +370,21 @@ fn traverse<K: ChildBoxTest, F: FnMut(usize) -> std::ops::ControlFlow<(), Option
     }
 }
 
-/// A closest-hit or any-hit query as a pulp operation, so that [`pulp::Simd::vectorize`]
-/// compiles the whole traversal (inlined into it) with AVX2 enabled.
+/// Runs `f` inside pulp's `vectorize` at the x86-64-v3 level `simd`: what `f` inlines (the
+/// whole traversal for a query, the whole path loop for [`Accel::at_level`]) is compiled with
+/// AVX2 and FMA enabled.
 #[cfg(target_arch = "x86_64")]
-struct Query<'a, K, F> {
-    accel: &'a Accel,
-    ray: &'a Ray,
-    t_max: f32,
-    alpha_test: F,
-    test: K,
-    /// Closest hit (else any hit).
-    closest: bool,
-}
-
-/// The answer of a [`Query`].
-#[cfg(target_arch = "x86_64")]
-struct QueryAnswer {
-    closest: Option<Hit>,
-    occluded: bool,
-}
-
-#[cfg(target_arch = "x86_64")]
-impl<K: ChildBoxTest, F: Fn(u32, &TriangleHit) -> bool> pulp::WithSimd for Query<'_, K, F> {
-    type Output = QueryAnswer;
-    #[inline(always)]
-    fn with_simd<S: pulp::Simd>(self, _simd: S) -> QueryAnswer {
-        if self.closest {
-            QueryAnswer { closest: self.accel.closest_hit_with(self.test, self.ray, self.t_max, self.alpha_test), occluded: false }
-        } else {
-            QueryAnswer { closest: None, occluded: self.accel.occluded_with(self.test, self.ray, self.t_max, self.alpha_test) }
+#[inline(always)]
+fn in_v3<R>(simd: pulp::x86::V3, f: impl FnOnce() -> R) -> R {
+    struct Op<F>(F);
+    impl<R, F: FnOnce() -> R> pulp::WithSimd for Op<F> {
+        type Output = R;
+        #[inline(always)]
+        fn with_simd<S: pulp::Simd>(self, _simd: S) -> R {
+            (self.0)()
         }
     }
+    pulp::Simd::vectorize(simd, Op(f))
 }
 
 /// The scene's BVH and the triangle data its leaves reference.
@@ -520,15 +504,7 @@ impl Accel {
     pub fn at_level<R>(&self, f: impl FnOnce() -> R) -> R {
         #[cfg(target_arch = "x86_64")]
         if let Some(simd) = self.avx2 {
-            struct Op<F>(F);
-            impl<R, F: FnOnce() -> R> pulp::WithSimd for Op<F> {
-                type Output = R;
-                #[inline(always)]
-                fn with_simd<S: pulp::Simd>(self, _simd: S) -> R {
-                    (self.0)()
-                }
-            }
-            return pulp::Simd::vectorize(simd, Op(f));
+            return in_v3(simd, f);
         }
         f()
     }
@@ -598,7 +574,7 @@ impl Accel {
     pub fn closest_hit<F: Fn(u32, &TriangleHit) -> bool>(&self, ray: &Ray, t_max: f32, alpha_test: F) -> Option<Hit> {
         #[cfg(target_arch = "x86_64")]
         if let Some(simd) = self.avx2 {
-            return pulp::Simd::vectorize(simd, Query { accel: self, ray, t_max, alpha_test, test: EightWide(simd), closest: true }).closest;
+            return in_v3(simd, || self.closest_hit_with(EightWide(simd), ray, t_max, alpha_test));
         }
         self.closest_hit_with(FourWide, ray, t_max, alpha_test)
     }
@@ -608,7 +584,7 @@ impl Accel {
     pub fn occluded<F: Fn(u32, &TriangleHit) -> bool>(&self, ray: &Ray, t_max: f32, alpha_test: F) -> bool {
         #[cfg(target_arch = "x86_64")]
         if let Some(simd) = self.avx2 {
-            return pulp::Simd::vectorize(simd, Query { accel: self, ray, t_max, alpha_test, test: EightWide(simd), closest: false }).occluded;
+            return in_v3(simd, || self.occluded_with(EightWide(simd), ray, t_max, alpha_test));
         }
         self.occluded_with(FourWide, ray, t_max, alpha_test)
     }
