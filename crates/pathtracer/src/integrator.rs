@@ -154,8 +154,10 @@ pub struct Interaction {
 pub fn surface_attributes(scene: &Scene, prim: u32, b: [f32; 3]) -> SurfaceAttributes {
     let m = &scene.mesh;
     let idx = m.indices[prim as usize];
-    // A missing attribute skips the lookups: the sums below are then exactly 0 (UVs) and
-    // `((0 + b₀) + b₁) + b₂` (colour), the same bits as interpolating the defaults.
+    // A missing attribute skips the lookups: UVs are then exactly 0 (the bits of
+    // interpolating the default) and the colour exactly white (the value of interpolating
+    // the default, without the rounding of `b₀ + b₁ + b₂`), so that an untextured material
+    // is the same at every point ([`crate::material::uniform_surface`]).
     let lerp2 = |v: &Vec<Vec2>| {
         if v.is_empty() {
             return Vec2::ZERO;
@@ -163,7 +165,7 @@ pub fn surface_attributes(scene: &Scene, prim: u32, b: [f32; 3]) -> SurfaceAttri
         (0..3).fold(Vec2::ZERO, |acc, k| acc + b[k] * v.get(idx[k] as usize).copied().unwrap_or(Vec2::ZERO))
     };
     let color = if m.colors.is_empty() {
-        Vec4::splat(((0.0 + b[0]) + b[1]) + b[2])
+        Vec4::ONE
     } else {
         (0..3).fold(Vec4::ZERO, |acc, k| acc + b[k] * m.colors.get(idx[k] as usize).copied().unwrap_or(Vec4::ONE))
     };
@@ -274,6 +276,10 @@ pub struct PathIntegrator<'a> {
     /// (camera → surfaces that are not sharp → caster → punctual light) and this integrator
     /// leaves them out; `None`: every path is estimated here.
     pub caustics: Option<&'a CausticPaths>,
+    /// Per material, the material resolved once where it is the same at every point
+    /// ([`crate::material::uniform_surface`]), else `None` (resolved per vertex). Empty: every
+    /// material is resolved per vertex (the same bits, slower).
+    pub uniform_surfaces: &'a [Option<SurfaceMaterial>],
     /// Settings.
     pub settings: IntegratorSettings,
 }
@@ -356,7 +362,10 @@ impl PathIntegrator<'_> {
         loop {
             let si = interaction(scene, &ray, &hit);
             let Some(mat) = scene.materials.get(si.material as usize) else { break };
-            let surf = resolve(mat, &scene.textures, &si.attr);
+            let surf = match self.uniform_surfaces.get(si.material as usize) {
+                Some(Some(surf)) => *surf,
+                _ => resolve(mat, &scene.textures, &si.attr),
+            };
             // Emission seen along the path.
             if surf.emission.max_element() > 0.0 {
                 if depth == 0 {

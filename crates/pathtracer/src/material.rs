@@ -546,6 +546,21 @@ pub fn resolve(material: &Material, textures: &[Texture], attr: &SurfaceAttribut
     SurfaceMaterial { bsdf, emission: emission(material, textures, attr) }
 }
 
+/// The material resolved once for every point of every triangle that uses it, when nothing
+/// [`resolve`] reads varies over the surface: no base-colour, metallic-roughness, specular,
+/// specular-colour or emissive texture, and (`vertex_colors` false) no COLOR_0, whose
+/// absence [`crate::integrator::surface_attributes`] reports as exactly white. `None` when
+/// something varies. Equal, bit for bit, to `resolve` at any point of such a material.
+pub fn uniform_surface(material: &Material, vertex_colors: bool) -> Option<SurfaceMaterial> {
+    let varies = vertex_colors
+        || material.base_color_texture.is_some()
+        || material.metallic_roughness_texture.is_some()
+        || material.specular_texture.is_some()
+        || material.specular_color_texture.is_some()
+        || material.emissive_texture.is_some();
+    (!varies).then(|| resolve(material, &[], &SurfaceAttributes { uv: [Vec2::ZERO; 2], color: Vec4::ONE }))
+}
+
 /// Perceptual roughness below which a dielectric's 4 % specular layer counts as
 /// view-dependent (see [`is_view_dependent`]).
 pub const VIEW_DEPENDENT_ROUGHNESS: f32 = 0.6;

@@ -45,6 +45,7 @@ use crate::caustics::CausticPaths;
 use crate::geometry::{Ray, ray_triangle_plane_distance_f64};
 use crate::integrator::{IntegratorSettings, PathIntegrator, interaction};
 use crate::light::{EmissiveTriangles, Environment, EnvironmentMap};
+use crate::material::SurfaceMaterial;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use crate::sampler::{Sampler, splitmix64};
@@ -263,6 +264,8 @@ pub struct Renderer {
     scene: Scene,
     accel: Accel,
     emitters: EmissiveTriangles,
+    /// Per material, [`crate::material::uniform_surface`].
+    uniform_surfaces: Vec<Option<SurfaceMaterial>>,
     caustics: CausticPaths,
     /// Whether [`Renderer::render_view`] traces caustic paths from the lights (default on).
     caustic_light_tracing: bool,
@@ -362,7 +365,9 @@ impl Renderer {
         let accel = Accel::build(&scene, accel)?;
         let emitters = EmissiveTriangles::build(&scene);
         let caustics = CausticPaths::build(&scene);
-        Ok(Renderer { scene, accel, emitters, caustics, caustic_light_tracing: true, environment_map: None })
+        let vertex_colors = !scene.mesh.colors.is_empty();
+        let uniform_surfaces = scene.materials.iter().map(|m| crate::material::uniform_surface(m, vertex_colors)).collect();
+        Ok(Renderer { scene, accel, emitters, uniform_surfaces, caustics, caustic_light_tracing: true, environment_map: None })
     }
 
     /// Turns the caustic light tracer ([`crate::caustics`]) on (the default) or off: off,
@@ -425,7 +430,14 @@ impl Renderer {
 
     /// The path integrator for `settings`.
     pub fn integrator(&self, settings: &RenderSettings) -> PathIntegrator<'_> {
-        PathIntegrator { scene: &self.scene, accel: &self.accel, emitters: &self.emitters, caustics: None, settings: settings.integrator_settings(self.environment_map.clone()) }
+        PathIntegrator {
+            scene: &self.scene,
+            accel: &self.accel,
+            emitters: &self.emitters,
+            caustics: None,
+            uniform_surfaces: &self.uniform_surfaces,
+            settings: settings.integrator_settings(self.environment_map.clone()),
+        }
     }
 
     /// A world-space (`f64`) ray moved into the scene's local `f32` frame.
@@ -438,7 +450,7 @@ impl Renderer {
     /// the hit, its `f64` distance and the shading normal facing the ray.
     pub fn trace_primary(&self, ray: &dataset::Ray) -> Option<PrimaryHit> {
         let local = self.local_ray(ray);
-        let integ = PathIntegrator { scene: &self.scene, accel: &self.accel, emitters: &self.emitters, caustics: None, settings: RenderSettings::preview(0).integrator_settings(None) };
+        let integ = self.integrator(&RenderSettings::preview(0));
         let hit = integ.intersect(&local)?;
         let m = &self.scene.mesh;
         let p = m.indices[hit.prim as usize].map(|i| m.positions[i as usize]);
