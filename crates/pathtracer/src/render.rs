@@ -40,7 +40,7 @@
 //!   `v / (1 + v)`. At 128 px and 64 spp (8 seeds, MSE against a 4096-spp render) it gave
 //!   MSE × time 1.07–1.13x better on `cornell`, 1.07x on `tabletop` and `thin`, none on
 //!   `deep` (its MSE fell 17–20 % but the time rose 20–25 %: samples move from cheap
-//!   background misses to long paths), and **2–6x worse on `materials`**, whose error is
+//!   background misses to long paths), and **2.4–7x worse on `materials`**, whose error is
 //!   fireflies in small highlights: a pixel inside a feature a pixel or two wide is judged
 //!   by neighbours outside it and starved. Allocating from a pixel's own pilot would see the
 //!   feature, but biases the estimate.
