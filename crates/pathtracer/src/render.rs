@@ -67,7 +67,7 @@ use std::sync::Arc;
 use crate::sampler::{Sampler, splitmix64};
 use crate::scene::{Light, Scene};
 use dataset::{Camera, GroundTruth, RgbaImage};
-use glam::{DVec3, Vec3};
+use glam::{DVec3, Vec3, Vec4};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -376,8 +376,14 @@ pub fn validate_scene(scene: &Scene) -> Result<(), PathTracerError> {
 
 impl Renderer {
     /// Validates the scene, builds its BVH (in parallel) and light tables.
-    pub fn new(scene: Scene, accel: &AccelParams) -> Result<Renderer, PathTracerError> {
+    pub fn new(mut scene: Scene, accel: &AccelParams) -> Result<Renderer, PathTracerError> {
         validate_scene(&scene)?;
+        // All-white vertex colours are glTF's default, the same as none (the importer fills
+        // white where a primitive has no COLOR_0): dropped, the colour at a hit is exactly 1
+        // (not the rounded sum of its barycentrics) and untextured materials resolve once.
+        if scene.mesh.colors.iter().all(|c| *c == Vec4::ONE) {
+            scene.mesh.colors = Vec::new();
+        }
         let accel = Accel::build(&scene, accel)?;
         let emitters = EmissiveTriangles::build(&scene);
         let caustics = CausticPaths::build(&scene);
