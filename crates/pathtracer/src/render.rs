@@ -67,7 +67,7 @@ use std::sync::Arc;
 use crate::sampler::{Sampler, splitmix64};
 use crate::scene::{Light, Scene};
 use dataset::{Camera, GroundTruth, RgbaImage};
-use glam::{DVec3, Vec3, Vec4};
+use glam::{DVec3, Vec2, Vec3, Vec4};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -383,6 +383,15 @@ impl Renderer {
         // (not the rounded sum of its barycentrics) and untextured materials resolve once.
         if scene.mesh.colors.iter().all(|c| *c == Vec4::ONE) {
             scene.mesh.colors = Vec::new();
+        }
+        // Likewise the texture coordinates the importer fills with zeros (an absent
+        // TEXCOORD_1), and all of them where no texture reads them: a hit then skips
+        // interpolating them (the same bits).
+        if scene.textures.is_empty() {
+            scene.mesh.uv0 = Vec::new();
+        }
+        if scene.textures.is_empty() || scene.mesh.uv1.iter().all(|v| *v == Vec2::ZERO) {
+            scene.mesh.uv1 = Vec::new();
         }
         let accel = Accel::build(&scene, accel)?;
         let emitters = EmissiveTriangles::build(&scene);
