@@ -360,6 +360,14 @@ impl PathIntegrator<'_> {
         // Whether no vertex so far is sharp (see [`crate::caustics`]).
         let mut all_rough = true;
         loop {
+            // Past the last scattering event only the emission this vertex shows counts: where
+            // its material emits nothing, the interaction is not even built (the same bits).
+            if depth >= self.settings.max_bounces {
+                let material = scene.mesh.material.get(hit.prim as usize).copied().unwrap_or(0);
+                if !scene.materials.get(material as usize).is_some_and(Material::is_emissive) {
+                    break;
+                }
+            }
             let si = interaction(scene, &ray, &hit);
             let Some(mat) = scene.materials.get(si.material as usize) else { break };
             let surf = match self.uniform_surfaces.get(si.material as usize) {
