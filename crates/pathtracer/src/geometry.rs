@@ -79,13 +79,17 @@ impl WatertightRay {
         }
         let a = d.abs();
         let kz = if a.x > a.y { if a.x > a.z { 0 } else { 2 } } else if a.y > a.z { 1 } else { 2 };
-        if d[kz] == 0.0 {
+        // The direction's components in the order (kx, ky, kz) = (kz + 1, kz + 2, kz) mod 3,
+        // by a swizzle ([`WatertightRay::permuted`]'s) instead of three indexings.
+        let p = match kz {
+            0 => d.yzx(),
+            1 => d.zxy(),
+            _ => d,
+        };
+        if p.z == 0.0 {
             return None;
         }
-        let kx = (kz + 1) % 3;
-        let ky = (kx + 1) % 3;
-        let dz = d[kz];
-        Some(Self { origin: ray.origin, kz: kz as u8, sx: -d[kx] / dz, sy: -d[ky] / dz, sz: 1.0 / dz })
+        Some(Self { origin: ray.origin, kz, sx: -p.x / p.z, sy: -p.y / p.z, sz: 1.0 / p.z })
     }
 
     /// The vertices translated to the origin (`v − origin`) with their components permuted
