@@ -552,23 +552,34 @@ impl Accel {
         bvh + self.tris.len() * size_of::<PackedTriangle>()
     }
 
+    /// The two forms of `ray` the traversal reads: obvhs's (box tests) and the watertight
+    /// test's. `None` when no hit is possible: a non-finite origin or direction, a zero
+    /// direction, or `t_max ≤ 0`.
     #[inline(always)]
-    fn obvhs_ray(ray: &Ray, t_max: f32) -> Option<obvhs::ray::Ray> {
-        if !ray.origin.is_finite() || !ray.direction.is_finite() || ray.direction == Vec3::ZERO || !(t_max > 0.0) {
+    fn query_rays(ray: &Ray, t_max: f32) -> Option<(obvhs::ray::Ray, WatertightRay)> {
+        // `v · 0` is ±0 for a finite `v` and NaN otherwise: one test for all six components.
+        let z = ray.origin * 0.0 + ray.direction * 0.0;
+        if !(z.x + z.y + z.z == 0.0) || ray.direction == Vec3::ZERO || !(t_max > 0.0) {
             return None;
         }
+        Some((Self::obvhs_ray(ray, t_max), WatertightRay::from_finite(ray)?))
+    }
+
+    /// obvhs's ray for a finite, non-zero `ray` ([`Accel::query_rays`]).
+    #[inline(always)]
+    fn obvhs_ray(ray: &Ray, t_max: f32) -> obvhs::ray::Ray {
         // `+ 0.0` turns −0 into +0: obvhs derives slab order from `d < 0` but the inverse
         // from the sign bit, which disagree for −0.
         let d = ray.direction + Vec3::ZERO;
         // obvhs's `safe_inverse` per component, here so that it inlines (`Ray::new` does not).
         let inv = |x: f32| if x.abs() <= f32::EPSILON { x.signum() / f32::EPSILON } else { 1.0 / x };
-        Some(obvhs::ray::Ray {
+        obvhs::ray::Ray {
             origin: Vec3A::from(ray.origin),
             direction: Vec3A::from(d),
             inv_direction: Vec3A::new(inv(d.x), inv(d.y), inv(d.z)),
             tmin: 0.0,
             tmax: t_max,
-        })
+        }
     }
 
     /// The closest accepted hit with `t < t_max`. `alpha_test(prim, hit)` is consulted only
@@ -596,8 +607,7 @@ impl Accel {
     #[inline(always)]
     fn closest_hit_with<K: ChildBoxTest, F: Fn(u32, &TriangleHit) -> bool>(&self, test: K, ray: &Ray, t_max: f32, alpha_test: F) -> Option<Hit> {
         let bvh = self.bvh.as_ref()?;
-        let oray = Self::obvhs_ray(ray, t_max)?;
-        let wr = WatertightRay::new(ray)?;
+        let (oray, wr) = Self::query_rays(ray, t_max)?;
         let mut best: Option<Hit> = None;
         let mut best_t = t_max;
         let dir = ray.direction;
@@ -634,8 +644,7 @@ impl Accel {
     #[inline(always)]
     fn occluded_with<K: ChildBoxTest, F: Fn(u32, &TriangleHit) -> bool>(&self, test: K, ray: &Ray, t_max: f32, alpha_test: F) -> bool {
         let Some(bvh) = self.bvh.as_ref() else { return false };
-        let Some(oray) = Self::obvhs_ray(ray, t_max) else { return false };
-        let Some(wr) = WatertightRay::new(ray) else { return false };
+        let Some((oray, wr)) = Self::query_rays(ray, t_max) else { return false };
         let dir = ray.direction;
         let mut hit = false;
         traverse(test, bvh, oray, |id| {

@@ -73,10 +73,16 @@ impl WatertightRay {
     /// non-finite direction (no triangle can be hit).
     #[inline]
     pub fn new(ray: &Ray) -> Option<Self> {
-        let d = ray.direction;
-        if !d.is_finite() || !ray.origin.is_finite() {
+        if !ray.direction.is_finite() || !ray.origin.is_finite() {
             return None;
         }
+        Self::from_finite(ray)
+    }
+
+    /// [`WatertightRay::new`] for a ray whose origin and direction are known to be finite.
+    #[inline(always)]
+    pub(crate) fn from_finite(ray: &Ray) -> Option<Self> {
+        let d = ray.direction;
         let a = d.abs();
         let kz = if a.x > a.y { if a.x > a.z { 0 } else { 2 } } else if a.y > a.z { 1 } else { 2 };
         // The direction's components in the order (kx, ky, kz) = (kz + 1, kz + 2, kz) mod 3,
