@@ -481,7 +481,15 @@ impl Renderer {
     /// the hit, its `f64` distance and the shading normal facing the ray.
     pub fn trace_primary(&self, ray: &dataset::Ray) -> Option<PrimaryHit> {
         let local = self.local_ray(ray);
-        let integ = self.integrator(&RenderSettings::preview(0));
+        // Closest hits only: no settings or environment map are read (none is cloned).
+        let integ = PathIntegrator {
+            scene: &self.scene,
+            accel: &self.accel,
+            emitters: &self.emitters,
+            caustics: None,
+            uniform_surfaces: &self.uniform_surfaces,
+            settings: RenderSettings::preview(0).integrator_settings(None),
+        };
         let hit = integ.intersect(&local)?;
         let m = &self.scene.mesh;
         let p = m.indices[hit.prim as usize].map(|i| m.positions[i as usize]);
