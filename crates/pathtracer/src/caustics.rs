@@ -75,7 +75,7 @@ use crate::accel::Hit;
 use crate::geometry::{Ray, hit_point_error, offset_ray_origin};
 use crate::integrator::{PathIntegrator, interaction, vertex_bsdf};
 use crate::light::punctual_incidence;
-use crate::material::{MIN_ALPHA, max_dielectric_f0, min_roughness_texel, resolve};
+use crate::material::{MIN_ALPHA, max_dielectric_f0, min_roughness_texel};
 use crate::render::SampleRays;
 use crate::sampler::{Sampler, sample_uniform_triangle, splitmix64};
 use crate::scene::{Light, Material, Scene, Texture};
@@ -413,7 +413,7 @@ impl CausticPaths {
             // A direction from z_{j−1} by its BSDF seen from the light's side, and its hit z_j.
             let Some(mat) = scene.materials.get(cur_si.material as usize) else { return };
             // (The material at z_{j−1} depends on its point only, not on the side it is seen from.)
-            let surf = resolve(mat, &scene.textures, &cur_si.attr);
+            let surf = integ.surface(mat, &cur_si);
             let (frame_l, bsdf_l) = vertex_bsdf(scene, &cur_si, mat, &surf, -arrival);
             let Some(bs) = bsdf_l.sample(sampler.get_2d(4 + 2 * (j - 2))) else { return };
             let wb = frame_l.to_world(bs.wi).normalize();
@@ -492,7 +492,7 @@ impl CausticPaths {
             return None;
         }
         let mat1 = scene.materials.get(si1.material as usize)?;
-        let surf1 = resolve(mat1, &scene.textures, &si1.attr);
+        let surf1 = integ.surface(mat1, &si1);
         let (frame1, bsdf1) = vertex_bsdf(scene, &si1, mat1, &surf1, -ray_c.direction);
         let origin1 = offset_ray_origin(si1.p, si1.p_err, si1.ng, si1.ng);
         let wi1 = (toward - origin1).normalize_or_zero();

@@ -310,6 +310,16 @@ impl PathIntegrator<'_> {
         self.accel.occluded(ray, t_max, |prim, h| alpha_test(self.scene, ray, prim, h.b))
     }
 
+    /// The material `mat` of `si` resolved at its point: from [`PathIntegrator::uniform_surfaces`]
+    /// where it is the same everywhere, else by [`resolve`] (the same bits either way).
+    #[inline(always)]
+    pub fn surface(&self, mat: &Material, si: &Interaction) -> SurfaceMaterial {
+        match self.uniform_surfaces.get(si.material as usize) {
+            Some(Some(surf)) => *surf,
+            _ => resolve(mat, &self.scene.textures, &si.attr),
+        }
+    }
+
     /// The radiance arriving at `ray.origin` from direction `−ray.direction` (unit).
     pub fn radiance(&self, ray: &Ray, sampler: &mut Sampler) -> RadianceSample {
         self.radiance_split(ray, sampler, true)
@@ -377,10 +387,7 @@ impl PathIntegrator<'_> {
             }
             let si = interaction(scene, &ray, &hit);
             let Some(mat) = scene.materials.get(si.material as usize) else { break };
-            let surf = match self.uniform_surfaces.get(si.material as usize) {
-                Some(Some(surf)) => *surf,
-                _ => resolve(mat, &scene.textures, &si.attr),
-            };
+            let surf = self.surface(mat, &si);
             // Emission seen along the path.
             if surf.emission.max_element() > 0.0 {
                 if depth == 0 {
