@@ -36,6 +36,27 @@
 //!     incident radiance × cosine in a closed, diffusely lit room, and what error is left
 //!     sits in shadow and wall edges finer than a cell and a bin; the mixture spends half
 //!     the well-stratified BSDF samples on the coarse guide.
+//!   - (stop 58, the same bench) The error by path length, glTF: MSE 3.1e-6 with
+//!     `max_bounces` 0, 4.9e-6 with 1, 8.1e-5 with 2, 1.70e-4 with 4. **97 % of `cornell`'s
+//!     error is indirect light**, about half of it the first indirect bounce; 16 emitter
+//!     samples at the camera vertex alone: MSE −0.7 %.
+//!   - Splitting at the camera vertex: `n` continuations per camera ray, the continuation's
+//!     numbers from sample `s·n + k` of the pixel's sequence (so the `spp·n` continuations of
+//!     a pixel are one stratified set), radiance their mean. With `spp` camera rays (n× the
+//!     paths) the MSE fell as 1/n (×0.455 at n = 2, ×0.217 at 4: what the camera sample
+//!     decides is almost error-free at 64 Sobol' camera samples), but the time rose almost as
+//!     much: the camera vertex is 13 % of a sample's time on `cornell`, which bounds the gain
+//!     (MSE × time 1.17x and 1.2x). With `spp` paths as `spp / n` camera rays, MSE × time at
+//!     n = 2 (glTF / Lambert): `cornell` 0.97 / 0.99x, `deep` 1.29 / 1.14x, `materials`
+//!     1.79 / 1.31x, `tabletop` 1.13 / 1.21x, **`thin` 0.79 / 0.69x** (its error is the
+//!     anti-aliasing of thin geometry, which fewer camera rays worsen); n = 4 was worse than
+//!     2 on 8 of 10 rows. Choosing n per view needs a pilot: variances from independent
+//!     samples (between and within a camera sample) misjudged every scene (the Sobol' points
+//!     remove most of the camera part's error and much of a short continuation's: it chose
+//!     n = 8 everywhere, 0.46–0.78x); two replicates per candidate at the render's own `spp`
+//!     on 128 pixels (3 % of the time) chose right on `cornell` and `thin` but single
+//!     fireflies decided it on `materials` and `tabletop`, and the path loop split into a
+//!     camera vertex and a continuation cost 2.6 % more instructions at n = 1. Not kept.
 //! - Light sampling alone (weight 1) at the last scattering vertex, so that its BSDF
 //!   continuation ray, traced only to find an emitter's MIS-weighted share, is skipped: the
 //!   same MSE on every scene (within 0.4 %) and within ±5 % samples/s (the run-to-run noise);
