@@ -762,17 +762,43 @@ fn bench_render_mitsuba(ours: &[OursQuick], runs: usize, mitsuba: bool, report: 
             "mse": Spread::of(&o.cmp.mse),
         })
     };
-    let only_ours = || ours.iter().map(|o| serde_json::json!({ "scene": o.scene, "model": o.model, "ours": ours_json(o) })).collect();
+    // Without Mitsuba's figures, ours alone: enough to compare two builds of ours (error ×
+    // time is what the equal-error target weighs).
+    let only_ours = |report: &mut Report| -> Vec<serde_json::Value> {
+        report.line(format!(
+            "ours alone ({} px, {} spp, medians of {} renders; MSE against our {}-spp reference as in the comparison):",
+            CMP_WIDTH,
+            CMP_SPP,
+            runs,
+            CMP_REF_SPP
+        ));
+        report.line(format!("{:<10} {:<10} {:>9} {:>11} {:>10} {:>21} {:>10}", "scene", "model", "ours Ms/s", "IQR", "ours MSE", "IQR", "MSE x s"));
+        for o in ours {
+            let rate: Vec<f64> = o.cmp.seconds.iter().map(|s| o.cmp.samples as f64 / s.max(1e-9) / 1e6).collect();
+            let (r, e, t) = (Spread::of(&rate), Spread::of(&o.cmp.mse), Spread::of(&o.cmp.seconds));
+            report.line(format!(
+                "{:<10} {:<10} {:>9.3} {:>11} {:>10.3e} {:>21} {:>10.3e}",
+                o.scene,
+                o.model,
+                r.median,
+                format!("{:.2}-{:.2}", r.q1, r.q3),
+                e.median,
+                format!("{:.3e}-{:.3e}", e.q1, e.q3),
+                e.median * t.median
+            ));
+        }
+        ours.iter().map(|o| serde_json::json!({ "scene": o.scene, "model": o.model, "ours": ours_json(o) })).collect()
+    };
     if !mitsuba {
         report.line("Mitsuba comparison skipped (--no-mitsuba)");
-        return Ok(only_ours());
+        return Ok(only_ours(report));
     }
     if !python.is_file() {
         report.line(format!(
             "Mitsuba comparison skipped: {} not found (python3 -m venv .venv && .venv/bin/pip install -r tests/mitsuba/requirements.txt)",
             python.display()
         ));
-        return Ok(only_ours());
+        return Ok(only_ours(report));
     }
     let mut cmd = std::process::Command::new(&python);
     cmd.arg(root.join("tests/mitsuba/bench.py")).arg("--runs").arg(runs.to_string());
@@ -782,7 +808,7 @@ fn bench_render_mitsuba(ours: &[OursQuick], runs: usize, mitsuba: bool, report: 
     let out = cmd.stderr(std::process::Stdio::inherit()).output().with_context(|| format!("running {}", python.display()))?;
     if !out.status.success() {
         report.line(format!("Mitsuba comparison failed ({}); our figures above stand", out.status));
-        return Ok(only_ours());
+        return Ok(only_ours(report));
     }
     let lines: Vec<serde_json::Value> = String::from_utf8_lossy(&out.stdout)
         .lines()
