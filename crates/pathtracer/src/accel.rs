@@ -40,8 +40,7 @@
 //!   primary rays/s and +3–7 % samples/s on the quick views (2-core Zen 5, stop 56), but the
 //!   build must run on any x86-64 CPU. What is kept instead: the whole path loop runs inside
 //!   pulp's `vectorize` at the level found at run time
-//!   ([`crate::integrator::PathIntegrator::radiance_split`]), which gave more.
-//!
+//!   ([`crate::integrator::PathIntegrator::radiance_split`]), which gave more;
 //! - the dominant axis chosen without branches and one branch on it per ray (the traversal
 //!   and triangle test compiled once per axis) instead of a `match` in every triangle test:
 //!   same bits, cachegrind's branch simulator counted 16 % fewer mispredicted branches on
