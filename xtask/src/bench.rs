@@ -697,6 +697,13 @@ struct CmpRun {
     mse: Vec<f64>,
 }
 
+impl CmpRun {
+    /// Samples per second of each timed render.
+    fn rate(&self) -> Spread {
+        Spread::of(&self.seconds.iter().map(|s| self.samples as f64 / s.max(1e-9)).collect::<Vec<_>>())
+    }
+}
+
 /// Renders our reference (`reference.npy`, RGB, two independent halves of [`CMP_REF_SPP`]; its
 /// noise, the mean squared half-difference / 4, goes to `reference_noise.json`) into the
 /// export folder and times `runs` renders of `settings` against it.
@@ -754,11 +761,10 @@ fn bench_render_mitsuba(ours: &[OursQuick], runs: usize, mitsuba: bool, report: 
     let quick = pathtracer::dataset_render::DatasetRenderConfig::preset(pathtracer::dataset_render::Preset::Quick);
     report.line("");
     let ours_json = |o: &OursQuick| {
-        let rate: Vec<f64> = o.cmp.seconds.iter().map(|s| o.cmp.samples as f64 / s.max(1e-9)).collect();
         serde_json::json!({
             "samples": o.cmp.samples,
             "seconds": Spread::of(&o.cmp.seconds),
-            "samples_per_s": Spread::of(&rate),
+            "samples_per_s": o.cmp.rate(),
             "mse": Spread::of(&o.cmp.mse),
         })
     };
@@ -774,14 +780,13 @@ fn bench_render_mitsuba(ours: &[OursQuick], runs: usize, mitsuba: bool, report: 
         ));
         report.line(format!("{:<10} {:<10} {:>9} {:>11} {:>10} {:>21} {:>10}", "scene", "model", "ours Ms/s", "IQR", "ours MSE", "IQR", "MSE x s"));
         for o in ours {
-            let rate: Vec<f64> = o.cmp.seconds.iter().map(|s| o.cmp.samples as f64 / s.max(1e-9) / 1e6).collect();
-            let (r, e, t) = (Spread::of(&rate), Spread::of(&o.cmp.mse), Spread::of(&o.cmp.seconds));
+            let (r, e, t) = (o.cmp.rate().scaled(1e-6), Spread::of(&o.cmp.mse), Spread::of(&o.cmp.seconds));
             report.line(format!(
                 "{:<10} {:<10} {:>9.3} {:>11} {:>10.3e} {:>21} {:>10.3e}",
                 o.scene,
                 o.model,
                 r.median,
-                format!("{:.2}-{:.2}", r.q1, r.q3),
+                r.iqr(2),
                 e.median,
                 format!("{:.3e}-{:.3e}", e.q1, e.q3),
                 e.median * t.median
@@ -844,7 +849,7 @@ fn bench_render_mitsuba(ours: &[OursQuick], runs: usize, mitsuba: bool, report: 
     for o in ours {
         let dir = o.export.display().to_string();
         let secs = Spread::of(&o.cmp.seconds);
-        let rate = Spread::of(&o.cmp.seconds.iter().map(|s| o.cmp.samples as f64 / s.max(1e-9)).collect::<Vec<_>>());
+        let rate = o.cmp.rate();
         let our_mse = Spread::of(&o.cmp.mse);
         let mut mitsuba = Vec::new();
         for t in lines.iter().filter(|t| t["export"].as_str() == Some(dir.as_str())) {

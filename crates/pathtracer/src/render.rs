@@ -465,13 +465,18 @@ impl Renderer {
 
     /// The path integrator for `settings`.
     pub fn integrator(&self, settings: &RenderSettings) -> PathIntegrator<'_> {
+        self.integrator_with(settings.integrator_settings(self.environment_map.clone()))
+    }
+
+    /// The path integrator over this renderer's scene with `settings`.
+    fn integrator_with(&self, settings: IntegratorSettings) -> PathIntegrator<'_> {
         PathIntegrator {
             scene: &self.scene,
             accel: &self.accel,
             emitters: &self.emitters,
             caustics: None,
             uniform_surfaces: &self.uniform_surfaces,
-            settings: settings.integrator_settings(self.environment_map.clone()),
+            settings,
         }
     }
 
@@ -486,14 +491,7 @@ impl Renderer {
     pub fn trace_primary(&self, ray: &dataset::Ray) -> Option<PrimaryHit> {
         let local = self.local_ray(ray);
         // Closest hits only: no settings or environment map are read (none is cloned).
-        let integ = PathIntegrator {
-            scene: &self.scene,
-            accel: &self.accel,
-            emitters: &self.emitters,
-            caustics: None,
-            uniform_surfaces: &self.uniform_surfaces,
-            settings: RenderSettings::preview(0).integrator_settings(None),
-        };
+        let integ = self.integrator_with(RenderSettings::preview(0).integrator_settings(None));
         let hit = integ.intersect(&local)?;
         let m = &self.scene.mesh;
         let p = m.indices[hit.prim as usize].map(|i| m.positions[i as usize]);
