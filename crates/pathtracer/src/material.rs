@@ -1191,6 +1191,44 @@ mod tests {
     }
 
     #[test]
+    fn uniform_surface_is_resolve_at_every_point_or_none() {
+        let mut m = Material::gltf_default();
+        m.metallic_factor = 0.3;
+        m.roughness_factor = 0.4;
+        m.base_color_factor = Vec4::new(0.2, 0.6, 0.9, 1.0);
+        m.emissive = Vec3::new(1.0, 2.0, 0.5);
+        m.specular_factor = 0.7;
+        m.specular_color_factor = Vec3::new(1.0, 0.5, 0.25);
+        m.ior = 1.8;
+        let r = |t| TextureRef { texture: t, tex_coord: 0, wrap_s: Wrap::Repeat, wrap_t: Wrap::Repeat, filter: Filter::Nearest, transform: None };
+        // A normal map changes the frame, not the resolved material.
+        m.normal_texture = Some((r(0), 1.0));
+        let tex = vec![Texture { width: 2, height: 1, texels: vec![Vec4::new(0.1, 0.9, 0.3, 0.5), Vec4::new(0.8, 0.2, 0.6, 1.0)] }];
+        let once = uniform_surface(&m, false).expect("untextured");
+        let mut rng = Sampler::new(11, 0, 0, 0);
+        for _ in 0..64 {
+            let attr = SurfaceAttributes { uv: [rng.next_2d() * 4.0, rng.next_2d() * 4.0], color: Vec4::ONE };
+            assert_eq!(resolve(&m, &tex, &attr), once);
+        }
+        // Vertex colours, or any texture resolve reads, make it vary.
+        assert!(uniform_surface(&m, true).is_none());
+        for slot in 0..5 {
+            let mut t = m.clone();
+            match slot {
+                0 => t.base_color_texture = Some(r(0)),
+                1 => t.metallic_roughness_texture = Some(r(0)),
+                2 => t.specular_texture = Some(r(0)),
+                3 => t.specular_color_texture = Some(r(0)),
+                _ => t.emissive_texture = Some(r(0)),
+            }
+            let (a, b) = ([Vec2::new(0.25, 0.5); 2], [Vec2::new(0.75, 0.5); 2]);
+            let at = |uv| resolve(&t, &tex, &SurfaceAttributes { uv, color: Vec4::ONE });
+            assert_ne!(at(a), at(b), "slot {slot}: the texture varies");
+            assert!(uniform_surface(&t, false).is_none(), "slot {slot}");
+        }
+    }
+
+    #[test]
     fn resolve_reads_specular_texture_alpha_colour_texture_and_ior() {
         let mut m = Material::gltf_default();
         m.metallic_factor = 0.0;
