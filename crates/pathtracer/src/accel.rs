@@ -48,6 +48,16 @@
 //!   there, most in the edge-sign test, the leaf loop, this `match` and back-face culling)
 //!   and 1.1 % fewer instructions, but in time `cornell` gained 0–1 %, `deep` lost 2 %,
 //!   `tabletop` 5–13 % and `thin` gained 2–5 % (three alternating pairs, stop 58).
+//! - spatial pre-splits of large triangles' boxes (obvhs's `split_aabbs_preset` and
+//!   `split_aabbs_precise` on the exact triangles, each piece's box then padded as below, so
+//!   that a ray still tests every triangle it touches: the same bits on all five scenes),
+//!   stop 59, samples per CPU-second in two alternating pairs: obvhs's preset splits 0–3 % of
+//!   the triangles (none of `cornell`'s 38) and changed nothing measurable (−3 to +2 %);
+//!   splitting more (38 → 70–90 references on `cornell`, 1.1–2.5x references elsewhere)
+//!   was slower everywhere, `cornell` −15 %, the others −3 to −20 %: a ray then tests a
+//!   triangle once per piece it enters, and the tree is deeper;
+//! - fat LTO for the whole bench binary (stop 59): no change (`cornell` −1 to +0.3 %, `deep`
+//!   −0.5 to −0.7 %).
 //!
 //! Shadow rays use the same traversal as an any-hit query that stops at the first accepted
 //! hit ([`Accel::occluded`]).
@@ -59,8 +69,9 @@
 //! through a triangle's extreme vertex (a box corner) to a miss, which would break
 //! watertightness. The BVH is therefore built over triangle boxes padded by
 //! `2·10⁻⁶ × (largest absolute coordinate of the scene)` (about 16 ulps) on every side, so
-//! rounding in the box test can no longer reject a box that the ray touches. (obvhs's
-//! spatial pre-splits need the exact triangles, so they are not offered.)
+//! rounding in the box test can no longer reject a box that the ray touches. (Spatial
+//! pre-splits, whose pieces' boxes would be padded the same way, were measured slower and are
+//! not offered; see above.)
 //!
 //! Hit rules, shared by closest-hit and any-hit queries:
 //! - A single-sided triangle hit from behind (`d · ((p₁−p₀)×(p₂−p₀)) ≥ 0`) is ignored: glTF
@@ -546,7 +557,7 @@ impl Accel {
         self.build_time
     }
 
-    /// Number of BVH primitive references (≥ the triangle count with pre-splits).
+    /// Number of BVH primitive references (one per triangle: no pre-splits, see the module docs).
     pub fn primitive_count(&self) -> usize {
         self.tris.len()
     }

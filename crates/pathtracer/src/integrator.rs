@@ -75,6 +75,40 @@
 //!   `deep` −4 %, the others within ±3 %), and sorting each batch's rays by direction (octant,
 //!   then 8³ bins) before intersecting them 10–15 % slower. One scalar path after another
 //!   is not what limits the speed; lanes of SIMD across paths (shading included) would be.
+//! - Where a sample's time goes (stop 59, 2-core Zen 5). Each part below was run twice in
+//!   place, the copy's result discarded through `black_box`, and its cost read as the extra
+//!   CPU time per sample (`cargo bench -p pathtracer --bench render -- SCENE --seconds 3`,
+//!   alternating with the unchanged build, two or three pairs; a copy runs with warm caches,
+//!   so the figures are lower bounds). Per sample of the quick views:
+//!
+//!   | scene | CPU µs | closest hits | shadow rays | closest-hit time | shadow-ray time | traversal in all |
+//!   |---|---|---|---|---|---|---|
+//!   | `cornell` | 1.26 | 4.04 | 2.51 | 0.27 (21 %) | 0.09 (7 %) | 29 % |
+//!   | `deep` | 0.75 | 2.04 | 3.27 | 0.20 (26 %) | 0.13 (18 %) | 44 % |
+//!   | `materials` | 0.66 | 1.96 | 1.52 | 0.19 (29 %) | 0.12 (18 %) | 47 % |
+//!   | `tabletop` | 0.58 | 1.78 | 1.02 | 0.19 (32 %) | 0.10 (16 %) | 48 % |
+//!   | `thin` | 0.40 | 1.64 | 0.76 | 0.12 (31 %) | 0.05 (12 %) | 43 % |
+//!
+//!   A closest hit costs 67 ns (`cornell`) to 104 ns (`tabletop`), a shadow ray 36–93 ns; the
+//!   triangle tests are 17 % of `cornell`'s time (9 % `deep`, 14 % `tabletop`) and the child-box
+//!   tests 6 % (13 %, 14 %). The rest, 0.14–0.22 µs per path vertex (600–900 cycles), is
+//!   shading; on `cornell`: the BSDF's sample 20 %, the emitter sample's estimate without its
+//!   shadow ray 17 %, the interaction 10 %, the BSDF set-up 8 %, the sampler's five numbers 5 %.
+//!   Divisions and square roots are 1.4 % of the instructions (about 160 per sample, callgrind
+//!   per instruction), so they are not what bounds it; the scalar code's `Vec3` moves and
+//!   branches are. The glTF BRDF's set-up and sample (`Bsdf::at` + `BsdfAt::sample`) alone take
+//!   73 ns per call at x86-64-v3 even when every call is independent of the last; a
+//!   structure-of-arrays copy of it in 8 AVX2 lanes (both lobes computed in every lane and
+//!   one selected, sine and cosine by polynomials; not bit-identical to the scalar code,
+//!   which it matched to the rounding of grazing directions) took **13.8 ns per sample (5.3x)**,
+//!   and the same copy run one lane at a time 56 ns (a microbenchmark, not kept).
+//!   What this says about the raw target (samples/s at least Mitsuba's): if shading cost
+//!   nothing, samples/s would rise at most by 1 / (traversal share): 3.4x on `cornell`,
+//!   2.1–2.3x elsewhere, which on stop 58's lowest rows (0.30x `cornell`, 0.22–0.28x the
+//!   others) reaches about 1.0x on `cornell` and 0.5–0.6x on the other four. Lanes of SIMD
+//!   across paths for the shading are necessary and not sufficient: the traversal must also
+//!   become about twice as fast per ray (or a sample trace fewer rays: ours follow paths
+//!   longer, [`ROULETTE_SCALE`], and trace one shadow ray per punctual light).
 //! - Caustic paths (camera → 1 to 3 surfaces that are not sharp → a caster → a punctual
 //!   light, see [`crate::caustics`]) are left to the light tracer when
 //!   [`PathIntegrator::caustics`] is set (as [`crate::render::Renderer::render_view`] does
