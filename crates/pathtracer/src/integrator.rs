@@ -101,7 +101,11 @@
 //!   structure-of-arrays copy of it in 8 AVX2 lanes (both lobes computed in every lane and
 //!   one selected, sine and cosine by polynomials; not bit-identical to the scalar code,
 //!   which it matched to the rounding of grazing directions) took **13.8 ns per sample (5.3x)**,
-//!   and the same copy run one lane at a time 56 ns (a microbenchmark, not kept).
+//!   and the same copy run one lane at a time 56 ns (a microbenchmark, not kept). In the
+//!   path loop, where a vertex's work is not independent of the last, neither piece of that
+//!   copy paid: polynomial sine and cosine alone gave `cornell` +1 %, `tabletop` +1 %, `deep`
+//!   −4 % samples per CPU-second, and with both lobes computed and one selected instead of a
+//!   branch every scene lost 2–10 %.
 //!   What this says about the raw target (samples/s at least Mitsuba's): if shading cost
 //!   nothing, samples/s would rise at most by 1 / (traversal share): 3.4x on `cornell`,
 //!   2.1–2.3x elsewhere, which on stop 58's lowest rows (0.30x `cornell`, 0.22–0.28x the
