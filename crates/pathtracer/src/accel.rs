@@ -54,7 +54,7 @@
 //!   stop 59, samples per CPU-second in two alternating pairs: obvhs's preset splits 0–3 % of
 //!   the triangles (none of `cornell`'s 38) and changed nothing measurable (−3 to +2 %);
 //!   splitting more (38 → 70–90 references on `cornell`, 1.1–2.5x references elsewhere)
-//!   was slower everywhere, `cornell` −15 %, the others −3 to −20 %: a ray then tests a
+//!   was slower everywhere, `cornell` −14 to −16 %, the others −2 to −20 %: a ray then tests a
 //!   triangle once per piece it enters, and the tree is deeper;
 //! - fat LTO for the whole bench binary (stop 59): no change (`cornell` −1 to +0.3 %, `deep`
 //!   −0.5 to −0.7 %).
