@@ -173,10 +173,12 @@ const VERTEX_DIMENSIONS: u32 = DIM_ROULETTE + 1;
 /// 9 % better on `cornell`, 7.5 % on `deep`, 2.5–4.5 % on `materials`, `tabletop` and `thin`;
 /// at 8 bounces 16 % on `cornell` and 8 % on `tabletop`. (1.5 and 3 were within 1 % of 2 on
 /// `cornell`; no roulette at all, 6 %.) Mitsuba's rule instead, survival `min(0.95, max
-/// throughput component)` (stop 59, `xtask bench render --scenes cornell,deep --runs 5`):
-/// samples/s +10 % on `cornell` and +2 % on `deep`, so against Mitsuba's `llvm_ad_rgb` 0.35x
-/// and 0.22x instead of 0.30x and 0.22x, but `cornell`'s MSE +20 % (equal error against
-/// `multijitter` 1.82x): the raw-speed gap is not in our longer paths.
+/// throughput component)` (stop 59, `xtask bench render --scenes cornell,deep --runs 5`,
+/// both rules in the same hour): samples/s +11 % on `cornell` and +2–4 % on `deep`, so
+/// against Mitsuba's `llvm_ad_rgb` `independent` 0.35x instead of 0.31x (`cornell`, glTF)
+/// and 0.22x as before (`deep`), but the MSE +19 % and +9 % (equal error against
+/// `multijitter` on `cornell` 1.82x instead of 1.94x): the raw-speed gap is not in our
+/// longer paths.
 pub const ROULETTE_SCALE: f32 = 2.0;
 
 /// Fraction of a shadow ray's length left unchecked at its far end (pbrt's ShadowEpsilon).
