@@ -923,21 +923,15 @@ fn bench_render_mitsuba(ours: &[OursQuick], runs: usize, mitsuba: bool, report: 
         }
         rows.push(serde_json::json!({ "scene": o.scene, "model": o.model, "ours": ours_json(o), "mitsuba": mitsuba }));
     }
-    if let Some((w, r, row)) = worst_speed {
-        report.line(format!(
-            "target raw samples/s >= 1.0x Mitsuba on every row: {} (lowest {w:.2}x, quartile range {:.2}-{:.2}x, {row})",
-            verdict(w, r, 1.0),
-            r[0],
-            r[1]
-        ));
-    }
-    if let Some((w, r, row)) = worst_eq {
-        report.line(format!(
-            "target >= 2x at equal error on every row: {} (lowest {w:.2}x, quartile range {:.2}-{:.2}x, {row})",
-            verdict(w, r, 2.0),
-            r[0],
-            r[1]
-        ));
+    for (worst, target, what) in [(worst_speed, 1.0, "raw samples/s >= 1.0x Mitsuba"), (worst_eq, 2.0, ">= 2x at equal error")] {
+        if let Some((w, r, row)) = worst {
+            report.line(format!(
+                "target {what} on every row: {} (lowest {w:.2}x, quartile range {:.2}-{:.2}x, {row})",
+                verdict(w, r, target),
+                r[0],
+                r[1]
+            ));
+        }
     }
     Ok(rows)
 }
