@@ -34,7 +34,7 @@
 
 use crate::geometry::Frame;
 use crate::light::luminance;
-use crate::sampler::sample_cosine_hemisphere;
+use crate::sampler::{sample_cosine_hemisphere, sin_cos};
 use crate::scene::{Material, Scene, Texture};
 use crate::texture::sample_ref;
 use glam::{Vec2, Vec3, Vec4};
@@ -214,7 +214,7 @@ impl MetallicRoughness {
         }
         let h = (wo + wi).normalize();
         let vh = wo.dot(h).clamp(0.0, 1.0);
-        let w5 = (1.0 - vh).powi(5);
+        let w5 = pow5(1.0 - vh);
         let spec = self.d(h) * self.vis(wi.z, wo.z);
         let rho = self.base_color;
         let fd = self.fresnel_dielectric(w5);
@@ -231,7 +231,7 @@ impl MetallicRoughness {
     fn f_cos_and_d(&self, wo: Vec3, wi: Vec3, sd_wo: f32) -> (Vec3, f32) {
         let h = (wo + wi).normalize();
         let vh = wo.dot(h).clamp(0.0, 1.0);
-        let w5 = (1.0 - vh).powi(5);
+        let w5 = pow5(1.0 - vh);
         let d = self.d(h);
         let spec = d * (1.0 / (self.smith_den(wi.z) * sd_wo));
         let rho = self.base_color;
@@ -251,7 +251,7 @@ impl MetallicRoughness {
             (false, _) => 0.0,
             (true, false) => 1.0,
             (true, true) => {
-                let w5 = (1.0 - wo.z.clamp(0.0, 1.0)).powi(5);
+                let w5 = pow5(1.0 - wo.z.clamp(0.0, 1.0));
                 let fd = self.fresnel_dielectric(w5).max_element();
                 let es = (1.0 - m) * fd + m * luminance(rho + (Vec3::ONE - rho) * w5);
                 let ed = (1.0 - m) * (1.0 - fd) * luminance(rho);
@@ -274,23 +274,35 @@ impl MetallicRoughness {
     /// A visible normal for `wo` (Heitz 2018, isotropic α), or `None` if degenerate.
     #[inline(always)]
     pub fn sample_visible_normal(&self, wo: Vec3, u: Vec2) -> Option<Vec3> {
-        let a = self.alpha;
-        let vh = Vec3::new(a * wo.x, a * wo.y, wo.z).normalize_or_zero();
-        if vh == Vec3::ZERO {
-            return None;
-        }
-        let lensq = vh.x * vh.x + vh.y * vh.y;
-        let t1 = if lensq > 0.0 { Vec3::new(-vh.y, vh.x, 0.0) / lensq.sqrt() } else { Vec3::X };
-        let t2 = vh.cross(t1);
-        let r = u.x.sqrt();
-        let phi = 2.0 * PI * u.y;
-        let p1 = r * phi.cos();
-        let s = 0.5 * (1.0 + vh.z);
-        let p2 = (1.0 - s) * (1.0 - p1 * p1).max(0.0).sqrt() + s * r * phi.sin();
-        let nh = p1 * t1 + p2 * t2 + (1.0 - p1 * p1 - p2 * p2).max(0.0).sqrt() * vh;
-        let h = Vec3::new(a * nh.x, a * nh.y, nh.z.max(0.0)).normalize_or_zero();
-        (h != Vec3::ZERO).then_some(h)
+        let (h, ok) = visible_normal(self.alpha, wo, u);
+        ok.then_some(h)
     }
+}
+
+/// `x⁵` as `x · (x²)²`: the product LLVM expands `powi(x, 5)` into, written out so that it is
+/// the same operations in a loop over lanes ([`sample_many`]).
+#[inline(always)]
+fn pow5(x: f32) -> f32 {
+    let x2 = x * x;
+    x * (x2 * x2)
+}
+
+/// [`MetallicRoughness::sample_visible_normal`] without branches on its data (selects only,
+/// so that a loop over lanes vectorises): the normal and whether it is valid.
+#[inline(always)]
+fn visible_normal(a: f32, wo: Vec3, u: Vec2) -> (Vec3, bool) {
+    let vh = Vec3::new(a * wo.x, a * wo.y, wo.z).normalize_or_zero();
+    let lensq = vh.x * vh.x + vh.y * vh.y;
+    let t1 = if lensq > 0.0 { Vec3::new(-vh.y, vh.x, 0.0) / lensq.sqrt() } else { Vec3::X };
+    let t2 = vh.cross(t1);
+    let r = u.x.sqrt();
+    let (sin, cos) = sin_cos(2.0 * PI * u.y);
+    let p1 = r * cos;
+    let s = 0.5 * (1.0 + vh.z);
+    let p2 = (1.0 - s) * (1.0 - p1 * p1).max(0.0).sqrt() + s * r * sin;
+    let nh = p1 * t1 + p2 * t2 + (1.0 - p1 * p1 - p2 * p2).max(0.0).sqrt() * vh;
+    let h = Vec3::new(a * nh.x, a * nh.y, nh.z.max(0.0)).normalize_or_zero();
+    (h, (vh != Vec3::ZERO) & (h != Vec3::ZERO))
 }
 
 /// A BSDF at one surface point. A closed set of models, dispatched with `match`.
@@ -355,40 +367,158 @@ impl BsdfAt {
         }
     }
 
-    /// [`Bsdf::sample`] with two uniform numbers.
+    /// [`Bsdf::sample`] with two uniform numbers (one lane of [`sample_many`]).
     #[inline(always)]
     pub fn sample(&self, u: Vec2) -> Option<BsdfSample> {
-        let wo = self.wo;
-        if wo.z <= 0.0 {
-            return None;
-        }
+        let (wi, weight, pdf, ok) = sample_lane(self.lane(u));
+        ok.then_some(BsdfSample { wi, weight, pdf })
+    }
+
+    /// What [`sample_lane`] reads of this BSDF, with the numbers `u`.
+    #[inline(always)]
+    fn lane(&self, u: Vec2) -> SampleLane {
         match &self.bsdf {
-            Bsdf::Diffuse { albedo } => {
-                let wi = sample_cosine_hemisphere(u);
-                let pdf = wi.z * FRAC_1_PI;
-                if pdf <= 0.0 {
-                    return None;
-                }
-                Some(BsdfSample { wi, weight: *albedo, pdf })
+            Bsdf::Diffuse { albedo } => SampleLane {
+                diffuse: true,
+                rho: *albedo,
+                metallic: 0.0,
+                alpha: 1.0,
+                f0: Vec3::ZERO,
+                f90: 0.0,
+                wo: self.wo,
+                ps: 0.0,
+                sd_wo: 1.0,
+                u,
+            },
+            Bsdf::MetallicRoughness(mr) => SampleLane {
+                diffuse: false,
+                rho: mr.base_color,
+                metallic: mr.metallic,
+                alpha: mr.alpha,
+                f0: mr.fresnel.f0,
+                f90: mr.fresnel.f90,
+                wo: self.wo,
+                ps: self.ps,
+                sd_wo: self.sd_wo,
+                u,
+            },
+        }
+    }
+}
+
+/// One BSDF sample's inputs as plain numbers (a lane of [`sample_many`]).
+#[derive(Clone, Copy)]
+struct SampleLane {
+    /// [`Bsdf::Diffuse`] (albedo `rho`), else [`Bsdf::MetallicRoughness`].
+    diffuse: bool,
+    rho: Vec3,
+    metallic: f32,
+    alpha: f32,
+    f0: Vec3,
+    f90: f32,
+    wo: Vec3,
+    ps: f32,
+    sd_wo: f32,
+    u: Vec2,
+}
+
+/// The BSDF sample of one lane: `(wi, weight, pdf, valid)`. Both models and both lobes of the
+/// metallic-roughness BRDF are computed and the lane's own selected, with no branch on the
+/// data, so that a loop over lanes vectorises ([`sample_many`]); the selected values are the
+/// operations the model's sampling describes (see [`MetallicRoughness`]).
+#[inline(always)]
+fn sample_lane(x: SampleLane) -> (Vec3, Vec3, f32, bool) {
+    let SampleLane { diffuse, rho, metallic, alpha, f0, f90, wo, ps, sd_wo, u } = x;
+    // Specular lobe: a visible normal, `wi` its reflection.
+    let specular = !diffuse & (u.x < ps);
+    let (h, h_ok) = visible_normal(alpha, wo, Vec2::new(u.x / ps, u.y));
+    let wi_s = (2.0 * wo.dot(h) * h - wo).normalize();
+    // Diffuse lobe (or the Lambertian model): cosine-weighted, `u.x` re-scaled for the lobe.
+    let u_d = if diffuse { u } else { Vec2::new(((u.x - ps) / (1.0 - ps)).min(1.0 - f32::EPSILON), u.y) };
+    let wi_d = sample_cosine_hemisphere(u_d);
+    let wi = if specular { wi_s } else { wi_d };
+    let mr = MetallicRoughness { base_color: rho, metallic, alpha, fresnel: DielectricFresnel { f0, f90 } };
+    let (f, d) = mr.f_cos_and_d(wo, wi, sd_wo);
+    let pdf_mr = ps * (d / (2.0 * sd_wo)) + (1.0 - ps) * wi.z * FRAC_1_PI;
+    let ok_mr = (!specular | h_ok) & (wi.z > 0.0) & (pdf_mr > 0.0) & pdf_mr.is_finite() & f.is_finite();
+    let pdf_d = wi_d.z * FRAC_1_PI;
+    let ok = !(wo.z <= 0.0) & if diffuse { !(pdf_d <= 0.0) } else { ok_mr };
+    if diffuse { (wi_d, rho, pdf_d, ok) } else { (wi, f / pdf_mr, pdf_mr, ok) }
+}
+
+/// Lanes of [`sample_many`]: eight, the `f32` lanes of an AVX2 register.
+const SAMPLE_LANES: usize = 8;
+
+/// `out[k] = bsdfs[k].sample(u[k])` for every `k` (the same bits), the samples drawn
+/// [`SAMPLE_LANES`] at a time: the inputs transposed into one array per number, one
+/// vectorised loop over the lanes ([`sample_lane`]), the results transposed back.
+#[inline(always)]
+pub fn sample_many(bsdfs: &[BsdfAt], u: &[Vec2], out: &mut [Option<BsdfSample>]) {
+    const L: usize = SAMPLE_LANES;
+    #[derive(Default)]
+    struct In {
+        diffuse: [bool; L],
+        rho: [[f32; L]; 3],
+        metallic: [f32; L],
+        alpha: [f32; L],
+        f0: [[f32; L]; 3],
+        f90: [f32; L],
+        wo: [[f32; L]; 3],
+        ps: [f32; L],
+        sd_wo: [f32; L],
+        u: [[f32; L]; 2],
+    }
+    #[derive(Default)]
+    struct Out {
+        wi: [[f32; L]; 3],
+        weight: [[f32; L]; 3],
+        pdf: [f32; L],
+        ok: [bool; L],
+    }
+    let n = bsdfs.len().min(u.len()).min(out.len());
+    for start in (0..n).step_by(L) {
+        let m = (n - start).min(L);
+        // Unused lanes hold zeros; their results are dropped.
+        let mut x = In::default();
+        for k in 0..m {
+            let l = bsdfs[start + k].lane(u[start + k]);
+            x.diffuse[k] = l.diffuse;
+            for c in 0..3 {
+                x.rho[c][k] = l.rho[c];
+                x.f0[c][k] = l.f0[c];
+                x.wo[c][k] = l.wo[c];
             }
-            Bsdf::MetallicRoughness(mr) => {
-                let ps = self.ps;
-                let wi = if u.x < ps {
-                    let h = mr.sample_visible_normal(wo, Vec2::new(u.x / ps, u.y))?;
-                    (2.0 * wo.dot(h) * h - wo).normalize()
-                } else {
-                    sample_cosine_hemisphere(Vec2::new(((u.x - ps) / (1.0 - ps)).min(1.0 - f32::EPSILON), u.y))
-                };
-                if !(wi.z > 0.0) {
-                    return None;
-                }
-                let (f, d) = mr.f_cos_and_d(wo, wi, self.sd_wo);
-                let pdf = ps * (d / (2.0 * self.sd_wo)) + (1.0 - ps) * wi.z * FRAC_1_PI;
-                if !(pdf > 0.0) || !pdf.is_finite() || !f.is_finite() {
-                    return None;
-                }
-                Some(BsdfSample { wi, weight: f / pdf, pdf })
+            (x.metallic[k], x.alpha[k], x.f90[k], x.ps[k], x.sd_wo[k]) = (l.metallic, l.alpha, l.f90, l.ps, l.sd_wo);
+            (x.u[0][k], x.u[1][k]) = (l.u.x, l.u.y);
+        }
+        let mut y = Out::default();
+        for k in 0..L {
+            let v3 = |a: &[[f32; L]; 3]| Vec3::new(a[0][k], a[1][k], a[2][k]);
+            let (wi, weight, pdf, ok) = sample_lane(SampleLane {
+                diffuse: x.diffuse[k],
+                rho: v3(&x.rho),
+                metallic: x.metallic[k],
+                alpha: x.alpha[k],
+                f0: v3(&x.f0),
+                f90: x.f90[k],
+                wo: v3(&x.wo),
+                ps: x.ps[k],
+                sd_wo: x.sd_wo[k],
+                u: Vec2::new(x.u[0][k], x.u[1][k]),
+            });
+            for c in 0..3 {
+                y.wi[c][k] = wi[c];
+                y.weight[c][k] = weight[c];
             }
+            y.pdf[k] = pdf;
+            y.ok[k] = ok;
+        }
+        for k in 0..m {
+            out[start + k] = y.ok[k].then(|| BsdfSample {
+                wi: Vec3::new(y.wi[0][k], y.wi[1][k], y.wi[2][k]),
+                weight: Vec3::new(y.weight[0][k], y.weight[1][k], y.weight[2][k]),
+                pdf: y.pdf[k],
+            });
         }
     }
 }
@@ -976,6 +1106,51 @@ mod tests {
                 assert!(s.weight.is_finite() && s.weight.min_element() >= 0.0);
             }
         }
+    }
+
+    #[test]
+    fn sample_many_is_sample_bit_for_bit() {
+        // Lambertian and glTF BSDFs mixed in one batch (dielectric and metal, mirror to rough,
+        // KHR_materials_specular colours and weight 0), `wo` from normal to grazing and below
+        // the surface, `u` at the lobes' boundaries and the domain's edges; batches of 0 to 19
+        // so that lanes are left over.
+        let mut rng = Sampler::new(3, 0, 0, 0);
+        let mut total = (0, 0);
+        for n in 0..20 {
+            let mut bsdfs = Vec::new();
+            let mut us = Vec::new();
+            for k in 0..n {
+                let wo = match k % 5 {
+                    0 => Vec3::Z,
+                    1 => Vec3::new(1.0, 0.0, 1e-4).normalize(),
+                    2 => Vec3::new(0.3, 0.2, -0.9).normalize(),
+                    _ => crate::sampler::sample_uniform_sphere(rng.next_2d()),
+                };
+                let bsdf = match k % 4 {
+                    0 => Bsdf::Diffuse { albedo: Vec3::new(rng.next_1d(), 0.5, 0.2) },
+                    1 => mr(rng.next_1d(), rng.next_1d(), rng.next_1d()),
+                    2 => Bsdf::MetallicRoughness(MetallicRoughness::with_fresnel(Vec3::new(0.9, 0.4, 0.1), 0.0, [0.0, 0.05, 1.0][k % 3], DielectricFresnel::new(1.8, Vec3::new(1.0, 0.5, 0.2), rng.next_1d()))),
+                    _ => mr(0.5, [0.0, 1.0][k % 2], 0.3),
+                };
+                let at = bsdf.at(wo);
+                let u = match k % 3 {
+                    0 => Vec2::new(at.ps, rng.next_1d()),
+                    1 => Vec2::new(1.0 - f32::EPSILON / 2.0, 0.0),
+                    _ => rng.next_2d(),
+                };
+                bsdfs.push(at);
+                us.push(u);
+            }
+            let mut out = vec![None; n];
+            sample_many(&bsdfs, &us, &mut out);
+            let key = |s: Option<BsdfSample>| s.map(|s| (s.wi.to_array().map(f32::to_bits), s.weight.to_array().map(f32::to_bits), s.pdf.to_bits()));
+            for k in 0..n {
+                assert_eq!(key(out[k]), key(bsdfs[k].sample(us[k])), "batch of {n}, lane {k}: {:?} at {:?}", bsdfs[k], us[k]);
+                total.0 += out[k].is_some() as u32;
+                total.1 += out[k].is_none() as u32;
+            }
+        }
+        assert!(total.0 > 50 && total.1 > 20, "{total:?} (samples, none)");
     }
 
     #[test]

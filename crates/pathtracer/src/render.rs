@@ -160,6 +160,10 @@ pub const EDGE_RAY_BUDGET: f64 = 0.25;
 /// channel, by more than this share of the brightest corner's largest channel.
 pub const EDGE_CONTRAST: f32 = 0.05;
 /// Mixed into the seed for the emission rays' sampler keys (independent of the path samples').
+/// Camera samples of a pixel traced together as one batch of paths
+/// ([`PathIntegrator::radiance_batch`]).
+pub const PATH_BATCH: usize = 64;
+
 const EDGE_SEED_KEY: u64 = 0x5EED_ED6E_E517_7E12;
 
 /// Emission rays per camera sample for `flagged` emitter-edge pixels out of `pixels`: the
@@ -538,6 +542,13 @@ impl Renderer {
     /// [`RenderSettings::validate`]; out-of-range values are clamped (spp 0 renders no
     /// samples: black, alpha 0; a negative or non-finite environment is treated as 0).
     pub fn render_view(&self, camera: &Camera, view_index: u32, settings: &RenderSettings) -> ViewOutput {
+        /// A batch's camera rays, samplers and results, reused across a row's pixels.
+        #[derive(Default)]
+        struct PathBatch {
+            rays: Vec<Ray>,
+            samplers: Vec<Sampler>,
+            out: Vec<crate::integrator::RadianceSample>,
+        }
         let (w, h) = (camera.intrinsics.width, camera.intrinsics.height);
         let mut integ = self.integrator(settings);
         let spp = settings.spp;
@@ -560,6 +571,7 @@ impl Renderer {
         let rows: Vec<Vec<PixelOut>> = (0..h)
             .into_par_iter()
             .map(|j| {
+                let mut batch = PathBatch::default();
                 (0..w)
                     .map(|i| {
                         let pixel = j as u64 * w as u64 + i as u64;
@@ -584,10 +596,21 @@ impl Renderer {
                             }
                         }
                         let pixel_sampler = Sampler::new(settings.seed, view_index, pixel, 0);
-                        for s in 0..spp {
-                            let mut sampler = pixel_sampler.with_sample(s);
-                            let u = sampler.next_2d();
-                            let r = integ.radiance_split(&rays.ray(i as f32 + u.x, j as f32 + u.y), &mut sampler, split.is_none());
+                        // The pixel's samples traced as batches of paths (the same bits as one
+                        // path at a time), summed in sample order.
+                        for s0 in (0..spp).step_by(PATH_BATCH) {
+                            let n = (spp - s0).min(PATH_BATCH as u32) as usize;
+                            batch.samplers.clear();
+                            batch.rays.clear();
+                            for s in s0..s0 + n as u32 {
+                                let mut sampler = pixel_sampler.with_sample(s);
+                                let u = sampler.next_2d();
+                                batch.rays.push(rays.ray(i as f32 + u.x, j as f32 + u.y));
+                                batch.samplers.push(sampler);
+                            }
+                            batch.out.resize(n, crate::integrator::RadianceSample { radiance: Vec3::ZERO, primary_hit: false });
+                            integ.radiance_batch(&batch.rays, &mut batch.samplers, split.is_none(), &mut batch.out);
+                        for r in &batch.out {
                             let mut rad = r.radiance;
                             if !rad.is_finite() {
                                 nonfinite += 1;
@@ -599,6 +622,7 @@ impl Renderer {
                             sum[0] += rad.x as f64;
                             sum[1] += rad.y as f64;
                             sum[2] += rad.z as f64;
+                        }
                         }
                         let inv = if spp > 0 { 1.0 / spp as f64 } else { 0.0 };
                         let alpha = if settings.transparent_background { hits as f64 * inv } else if spp > 0 { 1.0 } else { 0.0 };
@@ -1340,6 +1364,51 @@ mod tests {
             if le.max_element() > 0.0 { emitting += 1 } else if rest.max_element() > 0.0 { other += 1 }
         }
         assert!(emitting > 10 && other > 10, "{emitting} rays see an emitter, {other} others");
+    }
+
+    #[test]
+    fn a_batch_of_paths_is_each_path_traced_alone_bit_for_bit() {
+        // Lambertian, glTF (dielectric and metal, rough and smooth) and emitting surfaces, a
+        // point light and an environment: every path of a batch (batches of 1 to 70, so lanes
+        // are left over) equals the path traced alone, and so does the second half of the
+        // split at the camera vertex.
+        let mut b = Builder::new();
+        let lambert = b.material(0.7, 0.0, false);
+        let e = b.material(0.5, 3.0, true);
+        let mut gltf = |metallic: f32, roughness: f32| {
+            let mut m = Material::gltf_default();
+            (m.metallic_factor, m.roughness_factor) = (metallic, roughness);
+            m.base_color_factor = Vec4::new(0.8, 0.5, 0.3, 1.0);
+            b.materials.push(m);
+            b.materials.len() as u32 - 1
+        };
+        let (plastic, metal) = (gltf(0.0, 0.4), gltf(1.0, 0.15));
+        b.quad([Vec3::new(-3.0, 0.0, 3.0), Vec3::new(3.0, 0.0, 3.0), Vec3::new(3.0, 0.0, -3.0), Vec3::new(-3.0, 0.0, -3.0)], 2, plastic);
+        b.aabox(Vec3::new(-0.5, 0.0, -0.5), Vec3::new(0.5, 1.0, 0.5), false, metal);
+        b.aabox(Vec3::new(0.8, 0.0, -0.2), Vec3::new(1.2, 0.6, 0.2), false, lambert);
+        b.quad([Vec3::new(-0.3, 2.0, -0.3), Vec3::new(0.3, 2.0, -0.3), Vec3::new(0.3, 2.0, 0.3), Vec3::new(-0.3, 2.0, 0.3)], 1, e);
+        b.lights.push(Light::Point { position: Vec3::new(2.0, 3.0, 1.0), intensity: Vec3::splat(10.0), range: None });
+        let r = Renderer::new(b.build(DVec3::ZERO), &AccelParams::medium_build()).unwrap();
+        let integ = r.integrator(&settings(1, 6, 0.2, false));
+        let cam = camera(16, 16, 70.0, DVec3::new(2.5, 1.8, 2.0), DVec3::new(0.0, 0.7, 0.0));
+        let bits = |v: Vec3| v.to_array().map(f32::to_bits);
+        let mut k = 0u32;
+        let mut lit = 0;
+        for n in [1usize, 7, 8, 9, 64, 70] {
+            for primary_emission in [true, false] {
+                let rays: Vec<Ray> = (k..k + n as u32).map(|q| r.local_ray(&cam.pixel_ray((q % 16) as f64 + 0.3, ((q / 16) % 16) as f64 + 0.6))).collect();
+                let mut samplers: Vec<Sampler> = (k..k + n as u32).map(|q| Sampler::new(7, 0, q as u64, 0)).collect();
+                let mut out = vec![crate::integrator::RadianceSample { radiance: Vec3::NAN, primary_hit: false }; n];
+                integ.radiance_batch(&rays, &mut samplers, primary_emission, &mut out);
+                for (q, (ray, got)) in rays.iter().zip(&out).enumerate() {
+                    let alone = integ.radiance_split(ray, &mut Sampler::new(7, 0, (k + q as u32) as u64, 0), primary_emission);
+                    assert_eq!((bits(got.radiance), got.primary_hit), (bits(alone.radiance), alone.primary_hit), "batch of {n}, path {q}");
+                    lit += (alone.radiance.max_element() > 0.0) as u32;
+                }
+                k += n as u32;
+            }
+        }
+        assert!(lit > 100, "{lit} lit paths");
     }
 
     #[test]
