@@ -82,7 +82,14 @@
 //!   [`crate::sampler::sin_cos`], the same bits as one sample alone). Samples per CPU-second
 //!   against one path at a time (`cargo bench -p pathtracer --bench render`, two alternating
 //!   pairs, 2-core Zen 5): `cornell` +6 %, `deep` +4 %, `tabletop` +1–4 %; the batch without
-//!   the vectorised sample was 2–5 % slower than one path at a time.
+//!   the vectorised sample was 2–5 % slower than one path at a time. The emitter sample's
+//!   estimate in lanes too (the triangle, emission and vertex gathered per path, the geometry,
+//!   light pdf, BSDF value and MIS weight of eight samples in one vectorised loop, the shadow
+//!   rays after it) was slower than this: `cornell` −4 to −6 %, `deep` −3 to −5 %,
+//!   `tabletop` −1 % against the BSDF sample alone in lanes. Each sample moves about 57
+//!   numbers in and out of the lanes, and every lane pays the whole estimate where the
+//!   scalar code stops at the first zero factor (a light behind the surface, a BSDF value of
+//!   zero). Not kept.
 //! - Where a sample's time goes (stop 59, 2-core Zen 5). Each part below was run twice in
 //!   place, the copy's result discarded through `black_box`, and its cost read as the extra
 //!   CPU time per sample (`cargo bench -p pathtracer --bench render -- SCENE --seconds 3`,
