@@ -610,19 +610,19 @@ impl Renderer {
                             }
                             batch.out.resize(n, crate::integrator::RadianceSample { radiance: Vec3::ZERO, primary_hit: false });
                             integ.radiance_batch(&batch.rays, &mut batch.samplers, split.is_none(), &mut batch.out);
-                        for r in &batch.out {
-                            let mut rad = r.radiance;
-                            if !rad.is_finite() {
-                                nonfinite += 1;
-                                rad = Vec3::ZERO;
+                            for r in &batch.out {
+                                let mut rad = r.radiance;
+                                if !rad.is_finite() {
+                                    nonfinite += 1;
+                                    rad = Vec3::ZERO;
+                                }
+                                if r.primary_hit {
+                                    hits += 1;
+                                }
+                                sum[0] += rad.x as f64;
+                                sum[1] += rad.y as f64;
+                                sum[2] += rad.z as f64;
                             }
-                            if r.primary_hit {
-                                hits += 1;
-                            }
-                            sum[0] += rad.x as f64;
-                            sum[1] += rad.y as f64;
-                            sum[2] += rad.z as f64;
-                        }
                         }
                         let inv = if spp > 0 { 1.0 / spp as f64 } else { 0.0 };
                         let alpha = if settings.transparent_background { hits as f64 * inv } else if spp > 0 { 1.0 } else { 0.0 };
