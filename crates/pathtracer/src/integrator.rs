@@ -82,14 +82,22 @@
 //!   [`crate::sampler::sin_cos`], the same bits as one sample alone). Samples per CPU-second
 //!   against one path at a time (`cargo bench -p pathtracer --bench render`, two alternating
 //!   pairs, 2-core Zen 5): `cornell` +6 %, `deep` +4 %, `tabletop` +1–4 %; the batch without
-//!   the vectorised sample was 2–5 % slower than one path at a time. The emitter sample's
-//!   estimate in lanes too (the triangle, emission and vertex gathered per path, the geometry,
-//!   light pdf, BSDF value and MIS weight of eight samples in one vectorised loop, the shadow
-//!   rays after it) was slower than this: `cornell` −4 to −6 %, `deep` −3 to −5 %,
-//!   `tabletop` −1 % against the BSDF sample alone in lanes. Each sample moves about 57
-//!   numbers in and out of the lanes, and every lane pays the whole estimate where the
-//!   scalar code stops at the first zero factor (a light behind the surface, a BSDF value of
-//!   zero). Not kept.
+//!   the vectorised sample was 2–5 % slower than one path at a time. The BSDF's values
+//!   towards the light samples (every punctual light and the emitter sample of every vertex of
+//!   the bounce) are computed the same way ([`crate::material::evaluate_many`]): a vertex
+//!   finds its light samples' directions, densities and shadow rays in scalar code, stopping
+//!   at the first zero factor, then the bounce's values are computed in one loop over lanes,
+//!   then the shadow rays traced. Against the BSDF sample alone in lanes (two to four
+//!   alternating pairs): `cornell` +1–2 %, `deep` +1–4 %, `materials` +0–8 %, `tabletop`
+//!   +1–3 %, `thin` −7 to +4 % (noise; +3.5 % in the last two pairs). Measured and not kept:
+//!   - the emitter value computed in the same loop as the BSDF sample (the BSDF moved into the
+//!     lanes once for both): `cornell` +4–7 %, but the scenes without emissive triangles
+//!     −1 to −4 % (code that runs for nothing there), and the punctual lights left scalar;
+//!   - the emitter sample's whole estimate in lanes (the triangle, emission and vertex
+//!     gathered per path; the geometry, light pdf, BSDF value and MIS weight of eight samples
+//!     in one loop): `cornell` −4 to −6 %, `deep` −3 to −5 %, `tabletop` −1 %. Each sample
+//!     moved about 57 numbers in and out of the lanes, and every lane paid the whole estimate
+//!     where the scalar code stops at the first zero factor (a light behind the surface).
 //! - Where a sample's time goes (stop 59, 2-core Zen 5). Each part below was run twice in
 //!   place, the copy's result discarded through `black_box`, and its cost read as the extra
 //!   CPU time per sample (`cargo bench -p pathtracer --bench render -- SCENE --seconds 3`,
@@ -164,7 +172,7 @@ use crate::accel::{Accel, Hit};
 use crate::geometry::{Frame, Ray, hit_point_error, offset_ray_origin};
 use crate::caustics::CausticPaths;
 use crate::light::{EmissiveTriangles, Environment, punctual_incidence};
-use crate::material::{BsdfAt, BsdfSample, SurfaceAttributes, sample_many, SurfaceMaterial, base_color, emission, facing_normals, normal_mapped, resolve, shading_frame, triangle_tangent};
+use crate::material::{BsdfAt, BsdfSample, SurfaceAttributes, evaluate_many, sample_many, SurfaceMaterial, base_color, emission, facing_normals, normal_mapped, resolve, shading_frame, triangle_tangent};
 use crate::sampler::{Sampler, power_heuristic, splitmix64};
 use crate::scene::{AlphaMode, Material, Scene};
 use glam::{Vec2, Vec3, Vec4};
@@ -392,6 +400,25 @@ struct Pending {
     ng: Vec3,
 }
 
+/// A light sample at a path vertex (a punctual light, or a point on an emissive triangle),
+/// all but the BSDF's value there, which is computed for a whole bounce's samples at once
+/// ([`evaluate_many`]).
+#[derive(Clone, Copy, Debug)]
+struct PendingLight {
+    /// The vertex's index among the bounce's [`Pending`] vertices.
+    vertex: u32,
+    /// Direction to the light, in the shading frame.
+    wi_l: Vec3,
+    /// Punctual: the irradiance (normal to `wi`); emitter: the emitted radiance times alpha
+    /// coverage.
+    radiance: Vec3,
+    /// Emitter: the sample's solid-angle density (MIS with BSDF sampling); punctual: `None`.
+    light_pdf: Option<f32>,
+    /// The shadow ray and its `t_max`.
+    shadow: Ray,
+    t_max: f32,
+}
+
 /// A path tracer over one scene (see the module docs).
 pub struct PathIntegrator<'a> {
     /// The scene.
@@ -531,13 +558,35 @@ impl PathIntegrator<'_> {
         let mut sampled: Vec<Option<BsdfSample>> = Vec::with_capacity(active.len());
         let mut bsdfs: Vec<BsdfAt> = Vec::with_capacity(active.len());
         let mut numbers: Vec<Vec2> = Vec::with_capacity(active.len());
+        let mut light_wi: Vec<Vec3> = Vec::with_capacity(active.len());
+        let mut values: Vec<(Vec3, f32)> = Vec::with_capacity(active.len());
+        let mut lights: Vec<PendingLight> = Vec::with_capacity(active.len());
         while !active.is_empty() {
             pending.clear();
+            lights.clear();
             for &k in &active {
                 let k = k as usize;
-                match self.shade_vertex(&mut paths[k], &mut samplers[k], primary_emission) {
+                match self.shade_vertex(&mut paths[k], &mut samplers[k], primary_emission, pending.len() as u32, &mut lights) {
                     Some(v) => pending.push(Pending { path: k as u32, ..v }),
                     None => out[k].radiance = paths[k].l,
+                }
+            }
+            // The light samples' BSDF values, then their shadow rays and estimates: a punctual
+            // light's `f · E`, an emitter's `f · Le · w_light / pdf_light`.
+            if !lights.is_empty() {
+                light_wi.clear();
+                light_wi.extend(lights.iter().map(|e| e.wi_l));
+                values.clear();
+                values.resize(lights.len(), (Vec3::ZERO, 0.0));
+                evaluate_many(|e| &pending[lights[e].vertex as usize].bsdf, &light_wi, &mut values);
+                for (e, &(f, bsdf_pdf)) in lights.iter().zip(&values) {
+                    if !(f.max_element() <= 0.0) && !self.occluded(&e.shadow, e.t_max) {
+                        let path = &mut paths[pending[e.vertex as usize].path as usize];
+                        path.l += match e.light_pdf {
+                            None => path.beta * f * e.radiance,
+                            Some(light_pdf) => path.beta * (f * e.radiance * (power_heuristic(light_pdf, bsdf_pdf) / light_pdf)),
+                        };
+                    }
                 }
             }
             bsdfs.clear();
@@ -559,10 +608,12 @@ impl PathIntegrator<'_> {
         }
     }
 
-    /// A path's vertex at `path.hit`: the emission it shows and the light sampled there added
-    /// to `path.l`; `None` when the path ends here, else what its BSDF sample needs.
+    /// A path's vertex at `path.hit`: the emission it shows and the environment light sampled
+    /// there added to `path.l`, its punctual-light and emitter samples pushed on `lights` (as
+    /// the bounce's vertex `vertex`); `None` when the path ends here (having pushed nothing),
+    /// else what its BSDF sample needs.
     #[inline(always)]
-    fn shade_vertex(&self, path: &mut PathState, sampler: &mut Sampler, primary_emission: bool) -> Option<Pending> {
+    fn shade_vertex(&self, path: &mut PathState, sampler: &mut Sampler, primary_emission: bool, vertex: u32, lights: &mut Vec<PendingLight>) -> Option<Pending> {
         let scene = self.scene;
         let env = &self.settings.environment;
         let env_nee = !env.is_black() && env.map.is_some();
@@ -613,10 +664,6 @@ impl PathIntegrator<'_> {
             if inc.wi.dot(si.ng) <= 0.0 {
                 continue;
             }
-            let (f, _) = bsdf.evaluate_pdf(frame.to_local(inc.wi));
-            if f.max_element() <= 0.0 {
-                continue;
-            }
             let o = origin;
             let t_max = if inc.distance.is_finite() {
                 match *light {
@@ -628,16 +675,16 @@ impl PathIntegrator<'_> {
             } else {
                 f32::INFINITY
             };
-            if !self.occluded(&Ray::new(o, inc.wi), t_max) {
-                *l += beta * f * inc.irradiance;
-            }
+            lights.push(PendingLight { vertex, wi_l: frame.to_local(inc.wi), radiance: inc.irradiance, light_pdf: None, shadow: Ray::new(o, inc.wi), t_max });
         }
 
-        // Emissive triangles: one sample, MIS with BSDF sampling.
+        // Emissive triangles: one sample, MIS with BSDF sampling; the BSDF's value there is
+        // computed with its sample ([`sample_many`]), and the estimate added after it.
         if !self.emitters.is_empty()
             && let Some(es) = self.emitters.sample(sampler.get_2d(dim + DIM_EMITTER_POINT), || sampler.get_1d(dim + DIM_EMITTER_SPARE))
+            && let Some(e) = self.emitter_pending(&si, &frame, origin, es)
         {
-            *l += beta * self.emitter_nee(&si, &frame, origin, &bsdf, es);
+            lights.push(PendingLight { vertex, ..e });
         }
 
         // Environment map: one sample, MIS with BSDF sampling. A constant environment is
@@ -695,11 +742,12 @@ impl PathIntegrator<'_> {
         }
     }
 
-    /// One light-sampling estimate of the emissive triangles' direct light at `si`,
-    /// MIS-weighted: `f · Le · w_light / pdf_light`. `origin` is the shadow ray's start,
-    /// `offset_ray_origin(si.p, si.p_err, si.ng, si.ng)`.
+    /// One light-sampling sample of the emissive triangles at `si`, up to the BSDF's value
+    /// ([`PendingLight`]; the value is computed with the BSDF sample, in lanes, and the
+    /// estimate is `f · Le · w_light / pdf_light`); `None` where the estimate is zero without
+    /// it. `origin` is the shadow ray's start, `offset_ray_origin(si.p, si.p_err, si.ng, si.ng)`.
     #[inline(always)]
-    fn emitter_nee(&self, si: &Interaction, frame: &Frame, origin: Vec3, bsdf: &crate::material::BsdfAt, es: crate::light::EmitterSample) -> Vec3 {
+    fn emitter_pending(&self, si: &Interaction, frame: &Frame, origin: Vec3, es: crate::light::EmitterSample) -> Option<PendingLight> {
         let scene = self.scene;
         let m = &scene.mesh;
         let idx = m.indices[es.prim as usize];
@@ -709,16 +757,16 @@ impl PathIntegrator<'_> {
         let d = q - si.p;
         let dist = d.length();
         if !(dist > 0.0) {
-            return Vec3::ZERO;
+            return None;
         }
         let wi = d / dist;
         if wi.dot(si.ng) <= 0.0 {
-            return Vec3::ZERO;
+            return None;
         }
-        let Some(lmat) = m.material.get(es.prim as usize).and_then(|&k| scene.materials.get(k as usize)) else { return Vec3::ZERO };
+        let lmat = m.material.get(es.prim as usize).and_then(|&k| scene.materials.get(k as usize))?;
         let cos_l = n_l.dot(-wi);
         if !lmat.double_sided && cos_l <= 0.0 {
-            return Vec3::ZERO;
+            return None;
         }
         // The light's attributes matter only to its textures and alpha; an opaque, untextured
         // emitter (the common case) skips interpolating them.
@@ -736,28 +784,18 @@ impl PathIntegrator<'_> {
         };
         let le = emission(lmat, &scene.textures, &lattr) * coverage;
         if le.max_element() <= 0.0 {
-            return Vec3::ZERO;
+            return None;
         }
         let light_pdf = self.emitters.pdf_solid_angle(es.prim, dist, cos_l);
         if !(light_pdf > 0.0) || !light_pdf.is_finite() {
-            return Vec3::ZERO;
+            return None;
         }
-        let wi_l = frame.to_local(wi);
-        let (f, bsdf_pdf) = bsdf.evaluate_pdf(wi_l);
-        if f.max_element() <= 0.0 {
-            return Vec3::ZERO;
-        }
-        let o = origin;
         let target = offset_ray_origin(q, q_err, n_l, -wi);
-        let seg = target - o;
+        let seg = target - origin;
         let len = seg.length();
         if !(len > 0.0) {
-            return Vec3::ZERO;
+            return None;
         }
-        if self.occluded(&Ray::new(o, seg / len), len * (1.0 - SHADOW_EPSILON)) {
-            return Vec3::ZERO;
-        }
-        let w = power_heuristic(light_pdf, bsdf_pdf);
-        f * le * (w / light_pdf)
+        Some(PendingLight { vertex: 0, wi_l: frame.to_local(wi), radiance: le, light_pdf: Some(light_pdf), shadow: Ray::new(origin, seg / len), t_max: len * (1.0 - SHADOW_EPSILON) })
     }
 }

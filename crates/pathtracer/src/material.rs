@@ -350,21 +350,10 @@ impl BsdfAt {
         self.wo
     }
 
-    /// [`Bsdf::evaluate`] and [`Bsdf::pdf`] at `wi`.
+    /// [`Bsdf::evaluate`] and [`Bsdf::pdf`] at `wi` (one lane of [`evaluate_many`]).
     #[inline(always)]
     pub fn evaluate_pdf(&self, wi: Vec3) -> (Vec3, f32) {
-        let wo = self.wo;
-        if wo.z <= 0.0 || wi.z <= 0.0 {
-            return (Vec3::ZERO, 0.0);
-        }
-        match &self.bsdf {
-            Bsdf::Diffuse { albedo } => (*albedo * (FRAC_1_PI * wi.z), wi.z * FRAC_1_PI),
-            Bsdf::MetallicRoughness(mr) => {
-                let (f, d) = mr.f_cos_and_d(wo, wi, self.sd_wo);
-                let ps = self.ps;
-                (f, ps * (d / (2.0 * self.sd_wo)) + (1.0 - ps) * wi.z * FRAC_1_PI)
-            }
-        }
+        evaluate_pdf_lane(&self.lane(Vec2::ZERO), wi)
     }
 
     /// [`Bsdf::sample`] with two uniform numbers (one lane of [`sample_many`]).
@@ -374,7 +363,7 @@ impl BsdfAt {
         ok.then_some(BsdfSample { wi, weight, pdf })
     }
 
-    /// What [`sample_lane`] reads of this BSDF, with the numbers `u`.
+    /// What [`sample_lane`] and [`evaluate_pdf_lane`] read of this BSDF, with the numbers `u`.
     #[inline(always)]
     fn lane(&self, u: Vec2) -> SampleLane {
         match &self.bsdf {
@@ -420,6 +409,96 @@ struct SampleLane {
     ps: f32,
     sd_wo: f32,
     u: Vec2,
+}
+
+/// [`BsdfAt::evaluate_pdf`] of one lane: `(f · cos θᵢ, pdf)`. Its branches hold no side
+/// effects, so that a loop over lanes vectorises (both sides computed, one selected); a call
+/// on one value branches.
+#[inline(always)]
+fn evaluate_pdf_lane(x: &SampleLane, wi: Vec3) -> (Vec3, f32) {
+    let wo = x.wo;
+    if (wo.z <= 0.0) | (wi.z <= 0.0) {
+        return (Vec3::ZERO, 0.0);
+    }
+    if x.diffuse {
+        (x.rho * (FRAC_1_PI * wi.z), wi.z * FRAC_1_PI)
+    } else {
+        let mr = MetallicRoughness { base_color: x.rho, metallic: x.metallic, alpha: x.alpha, fresnel: DielectricFresnel { f0: x.f0, f90: x.f90 } };
+        let (f, d) = mr.f_cos_and_d(wo, wi, x.sd_wo);
+        let ps = x.ps;
+        (f, ps * (d / (2.0 * x.sd_wo)) + (1.0 - ps) * wi.z * FRAC_1_PI)
+    }
+}
+
+/// `values[k] = bsdfs(k).evaluate_pdf(wi[k])` for every `k` (the same bits), [`SAMPLE_LANES`] at
+/// a time: the inputs transposed into one array per number, one vectorised loop over the lanes
+/// ([`evaluate_pdf_lane`]), the results transposed back.
+///
+/// # Panics
+/// If `values` and `wi` differ in length.
+#[inline(always)]
+pub fn evaluate_many<'a>(bsdfs: impl Fn(usize) -> &'a BsdfAt, wi: &[Vec3], values: &mut [(Vec3, f32)]) {
+    const L: usize = SAMPLE_LANES;
+    let n = wi.len();
+    assert!(values.len() == n, "evaluate_many: slices of different lengths");
+    #[derive(Default)]
+    struct In {
+        diffuse: [bool; L],
+        rho: [[f32; L]; 3],
+        metallic: [f32; L],
+        alpha: [f32; L],
+        f0: [[f32; L]; 3],
+        f90: [f32; L],
+        wo: [[f32; L]; 3],
+        ps: [f32; L],
+        sd_wo: [f32; L],
+        wi: [[f32; L]; 3],
+    }
+    #[derive(Default)]
+    struct Out {
+        f: [[f32; L]; 3],
+        pdf: [f32; L],
+    }
+    for start in (0..n).step_by(L) {
+        let m = (n - start).min(L);
+        // Unused lanes hold zeros; their results are dropped.
+        let mut x = In::default();
+        for k in 0..m {
+            let l = bsdfs(start + k).lane(Vec2::ZERO);
+            x.diffuse[k] = l.diffuse;
+            for c in 0..3 {
+                x.rho[c][k] = l.rho[c];
+                x.f0[c][k] = l.f0[c];
+                x.wo[c][k] = l.wo[c];
+                x.wi[c][k] = wi[start + k][c];
+            }
+            (x.metallic[k], x.alpha[k], x.f90[k], x.ps[k], x.sd_wo[k]) = (l.metallic, l.alpha, l.f90, l.ps, l.sd_wo);
+        }
+        let mut y = Out::default();
+        for k in 0..L {
+            let v3 = |a: &[[f32; L]; 3]| Vec3::new(a[0][k], a[1][k], a[2][k]);
+            let lane = SampleLane {
+                diffuse: x.diffuse[k],
+                rho: v3(&x.rho),
+                metallic: x.metallic[k],
+                alpha: x.alpha[k],
+                f0: v3(&x.f0),
+                f90: x.f90[k],
+                wo: v3(&x.wo),
+                ps: x.ps[k],
+                sd_wo: x.sd_wo[k],
+                u: Vec2::ZERO,
+            };
+            let (f, pdf) = evaluate_pdf_lane(&lane, v3(&x.wi));
+            for c in 0..3 {
+                y.f[c][k] = f[c];
+            }
+            y.pdf[k] = pdf;
+        }
+        for k in 0..m {
+            values[start + k] = (Vec3::new(y.f[0][k], y.f[1][k], y.f[2][k]), y.pdf[k]);
+        }
+    }
 }
 
 /// The BSDF sample of one lane: `(wi, weight, pdf, valid)`. Both models and both lobes of the
@@ -1109,7 +1188,7 @@ mod tests {
     }
 
     #[test]
-    fn sample_many_is_sample_bit_for_bit() {
+    fn sample_many_and_evaluate_many_are_sample_and_evaluate_pdf_bit_for_bit() {
         // Lambertian and glTF BSDFs mixed in one batch (dielectric and metal, mirror to rough,
         // KHR_materials_specular colours and weight 0), `wo` from normal to grazing and below
         // the surface, `u` at the lobes' boundaries and the domain's edges; batches of 0 to 19
@@ -1141,11 +1220,20 @@ mod tests {
                 bsdfs.push(at);
                 us.push(u);
             }
+            let wis: Vec<Vec3> = (0..n).map(|k| if k % 6 == 5 { -Vec3::Z } else { crate::sampler::sample_uniform_sphere(rng.next_2d()) }).collect();
             let mut out = vec![None; n];
             sample_many(&bsdfs, &us, &mut out);
+            let mut values = vec![(Vec3::NAN, f32::NAN); n];
+            evaluate_many(|k| &bsdfs[k], &wis, &mut values);
             let key = |s: Option<BsdfSample>| s.map(|s| (s.wi.to_array().map(f32::to_bits), s.weight.to_array().map(f32::to_bits), s.pdf.to_bits()));
+            let value_bits = |(f, pdf): (Vec3, f32)| (f.to_array().map(f32::to_bits), pdf.to_bits());
             for k in 0..n {
                 assert_eq!(key(out[k]), key(bsdfs[k].sample(us[k])), "batch of {n}, lane {k}: {:?} at {:?}", bsdfs[k], us[k]);
+                assert_eq!(value_bits(values[k]), value_bits(bsdfs[k].evaluate_pdf(wis[k])), "batch of {n}, lane {k}: {:?} at {:?}", bsdfs[k], wis[k]);
+                // The value against the model's own verbs (not through a lane).
+                let (f, pdf) = values[k];
+                let want = (bsdfs[k].bsdf.evaluate(bsdfs[k].wo, wis[k]), bsdfs[k].bsdf.pdf(bsdfs[k].wo, wis[k]));
+                assert!((f - want.0).abs().max_element() <= 1e-5 * want.0.max_element().max(1.0) && (pdf - want.1).abs() <= 1e-5 * want.1.max(1.0), "lane {k}: {f} {pdf} vs {want:?}");
                 total.0 += out[k].is_some() as u32;
                 total.1 += out[k].is_none() as u32;
             }
