@@ -746,9 +746,9 @@ impl PathIntegrator<'_> {
     }
 
     /// One light-sampling sample of the emissive triangles at `si`, up to the BSDF's value
-    /// ([`PendingLight`]; the value is computed with the BSDF sample, in lanes, and the
-    /// estimate is `f · Le · w_light / pdf_light`); `None` where the estimate is zero without
-    /// it. `origin` is the shadow ray's start, `offset_ray_origin(si.p, si.p_err, si.ng, si.ng)`.
+    /// ([`PendingLight`]; the bounce's values are computed together, in lanes, and the
+    /// estimate is `f · Le · w_light / pdf_light`); `None` where the estimate is zero whatever
+    /// that value (its `vertex` is the caller's to set). `origin` is the shadow ray's start, `offset_ray_origin(si.p, si.p_err, si.ng, si.ng)`.
     #[inline(always)]
     fn emitter_pending(&self, si: &Interaction, frame: &Frame, origin: Vec3, es: crate::light::EmitterSample) -> Option<PendingLight> {
         let scene = self.scene;
