@@ -88,8 +88,11 @@
 //!   finds its light samples' directions, densities and shadow rays in scalar code, stopping
 //!   at the first zero factor, then the bounce's values are computed in one loop over lanes,
 //!   then the shadow rays traced. Against the BSDF sample alone in lanes (two to four
-//!   alternating pairs): `cornell` +1–2 %, `deep` +1–4 %, `materials` +0–8 %, `tabletop`
-//!   +1–3 %, `thin` −7 to +4 % (noise; +3.5 % in the last two pairs). Measured and not kept:
+//!   alternating pairs), with the value's two models still chosen by a branch (so the loop
+//!   did not vectorise): `cornell` +1–2 %, `deep` +1–4 %, `materials` +0–8 %, `tabletop`
+//!   +1–3 %, `thin` −7 to +4 %; then with both models computed in every lane and one
+//!   selected (the loop vectorised, the same bits), against that (two pairs): `cornell` +4 %,
+//!   `deep` +8 %, `materials` +3–5 %, `tabletop` +5–8 %, `thin` +2–4 %. Measured and not kept:
 //!   - 16 lanes in AVX-512 (both loops called through a `target_feature` function where the
 //!     CPU has AVX-512, the same bits): `cornell` −1 %, `deep` ±0 %, `tabletop` −4 to −7 %
 //!     against 8 in AVX2; the loops are no longer where the time goes;

@@ -411,22 +411,64 @@ struct SampleLane {
     u: Vec2,
 }
 
-/// [`BsdfAt::evaluate_pdf`] of one lane: `(f · cos θᵢ, pdf)`. Its branches hold no side
-/// effects, so that a loop over lanes vectorises (both sides computed, one selected); a call
-/// on one value branches.
+/// [`BsdfAt::evaluate_pdf`] of one lane: `(f · cos θᵢ, pdf)`. Both models are computed and
+/// the lane's own selected, with no branch on the data, so that a loop over lanes vectorises
+/// ([`evaluate_many`]).
 #[inline(always)]
 fn evaluate_pdf_lane(x: &SampleLane, wi: Vec3) -> (Vec3, f32) {
     let wo = x.wo;
-    if (wo.z <= 0.0) | (wi.z <= 0.0) {
-        return (Vec3::ZERO, 0.0);
+    let mr = MetallicRoughness { base_color: x.rho, metallic: x.metallic, alpha: x.alpha, fresnel: DielectricFresnel { f0: x.f0, f90: x.f90 } };
+    let (f_mr, d) = mr.f_cos_and_d(wo, wi, x.sd_wo);
+    let ps = x.ps;
+    let pdf_mr = ps * (d / (2.0 * x.sd_wo)) + (1.0 - ps) * wi.z * FRAC_1_PI;
+    let (f, pdf) = if x.diffuse { (x.rho * (FRAC_1_PI * wi.z), wi.z * FRAC_1_PI) } else { (f_mr, pdf_mr) };
+    if (wo.z <= 0.0) | (wi.z <= 0.0) { (Vec3::ZERO, 0.0) } else { (f, pdf) }
+}
+
+/// [`SAMPLE_LANES`] BSDFs as one array per number ([`SampleLane`] without its `u`): what
+/// [`sample_many`] and [`evaluate_many`] move their BSDFs into before the loop over the lanes.
+#[derive(Default)]
+struct BsdfLanes {
+    diffuse: [bool; SAMPLE_LANES],
+    rho: [[f32; SAMPLE_LANES]; 3],
+    metallic: [f32; SAMPLE_LANES],
+    alpha: [f32; SAMPLE_LANES],
+    f0: [[f32; SAMPLE_LANES]; 3],
+    f90: [f32; SAMPLE_LANES],
+    wo: [[f32; SAMPLE_LANES]; 3],
+    ps: [f32; SAMPLE_LANES],
+    sd_wo: [f32; SAMPLE_LANES],
+}
+
+impl BsdfLanes {
+    /// Lane `k` := `l`.
+    #[inline(always)]
+    fn set(&mut self, k: usize, l: &SampleLane) {
+        self.diffuse[k] = l.diffuse;
+        for c in 0..3 {
+            self.rho[c][k] = l.rho[c];
+            self.f0[c][k] = l.f0[c];
+            self.wo[c][k] = l.wo[c];
+        }
+        (self.metallic[k], self.alpha[k], self.f90[k], self.ps[k], self.sd_wo[k]) = (l.metallic, l.alpha, l.f90, l.ps, l.sd_wo);
     }
-    if x.diffuse {
-        (x.rho * (FRAC_1_PI * wi.z), wi.z * FRAC_1_PI)
-    } else {
-        let mr = MetallicRoughness { base_color: x.rho, metallic: x.metallic, alpha: x.alpha, fresnel: DielectricFresnel { f0: x.f0, f90: x.f90 } };
-        let (f, d) = mr.f_cos_and_d(wo, wi, x.sd_wo);
-        let ps = x.ps;
-        (f, ps * (d / (2.0 * x.sd_wo)) + (1.0 - ps) * wi.z * FRAC_1_PI)
+
+    /// Lane `k`, with the numbers `u`.
+    #[inline(always)]
+    fn get(&self, k: usize, u: Vec2) -> SampleLane {
+        let v3 = |a: &[[f32; SAMPLE_LANES]; 3]| Vec3::new(a[0][k], a[1][k], a[2][k]);
+        SampleLane {
+            diffuse: self.diffuse[k],
+            rho: v3(&self.rho),
+            metallic: self.metallic[k],
+            alpha: self.alpha[k],
+            f0: v3(&self.f0),
+            f90: self.f90[k],
+            wo: v3(&self.wo),
+            ps: self.ps[k],
+            sd_wo: self.sd_wo[k],
+            u,
+        }
     }
 }
 
@@ -442,19 +484,6 @@ pub fn evaluate_many<'a>(bsdfs: impl Fn(usize) -> &'a BsdfAt, wi: &[Vec3], value
     let n = wi.len();
     assert!(values.len() == n, "evaluate_many: slices of different lengths");
     #[derive(Default)]
-    struct In {
-        diffuse: [bool; L],
-        rho: [[f32; L]; 3],
-        metallic: [f32; L],
-        alpha: [f32; L],
-        f0: [[f32; L]; 3],
-        f90: [f32; L],
-        wo: [[f32; L]; 3],
-        ps: [f32; L],
-        sd_wo: [f32; L],
-        wi: [[f32; L]; 3],
-    }
-    #[derive(Default)]
     struct Out {
         f: [[f32; L]; 3],
         pdf: [f32; L],
@@ -462,34 +491,17 @@ pub fn evaluate_many<'a>(bsdfs: impl Fn(usize) -> &'a BsdfAt, wi: &[Vec3], value
     for start in (0..n).step_by(L) {
         let m = (n - start).min(L);
         // Unused lanes hold zeros; their results are dropped.
-        let mut x = In::default();
+        let mut x = BsdfLanes::default();
+        let mut x_wi = [[0.0f32; L]; 3];
         for k in 0..m {
-            let l = bsdfs(start + k).lane(Vec2::ZERO);
-            x.diffuse[k] = l.diffuse;
+            x.set(k, &bsdfs(start + k).lane(Vec2::ZERO));
             for c in 0..3 {
-                x.rho[c][k] = l.rho[c];
-                x.f0[c][k] = l.f0[c];
-                x.wo[c][k] = l.wo[c];
-                x.wi[c][k] = wi[start + k][c];
+                x_wi[c][k] = wi[start + k][c];
             }
-            (x.metallic[k], x.alpha[k], x.f90[k], x.ps[k], x.sd_wo[k]) = (l.metallic, l.alpha, l.f90, l.ps, l.sd_wo);
         }
         let mut y = Out::default();
         for k in 0..L {
-            let v3 = |a: &[[f32; L]; 3]| Vec3::new(a[0][k], a[1][k], a[2][k]);
-            let lane = SampleLane {
-                diffuse: x.diffuse[k],
-                rho: v3(&x.rho),
-                metallic: x.metallic[k],
-                alpha: x.alpha[k],
-                f0: v3(&x.f0),
-                f90: x.f90[k],
-                wo: v3(&x.wo),
-                ps: x.ps[k],
-                sd_wo: x.sd_wo[k],
-                u: Vec2::ZERO,
-            };
-            let (f, pdf) = evaluate_pdf_lane(&lane, v3(&x.wi));
+            let (f, pdf) = evaluate_pdf_lane(&x.get(k, Vec2::ZERO), Vec3::new(x_wi[0][k], x_wi[1][k], x_wi[2][k]));
             for c in 0..3 {
                 y.f[c][k] = f[c];
             }
@@ -531,22 +543,12 @@ const SAMPLE_LANES: usize = 8;
 /// `out[k] = bsdfs[k].sample(u[k])` for every `k` (the same bits), the samples drawn
 /// [`SAMPLE_LANES`] at a time: the inputs transposed into one array per number, one
 /// vectorised loop over the lanes ([`sample_lane`]), the results transposed back.
+///
+/// # Panics
+/// If the slices differ in length.
 #[inline(always)]
 pub fn sample_many(bsdfs: &[BsdfAt], u: &[Vec2], out: &mut [Option<BsdfSample>]) {
     const L: usize = SAMPLE_LANES;
-    #[derive(Default)]
-    struct In {
-        diffuse: [bool; L],
-        rho: [[f32; L]; 3],
-        metallic: [f32; L],
-        alpha: [f32; L],
-        f0: [[f32; L]; 3],
-        f90: [f32; L],
-        wo: [[f32; L]; 3],
-        ps: [f32; L],
-        sd_wo: [f32; L],
-        u: [[f32; L]; 2],
-    }
     #[derive(Default)]
     struct Out {
         wi: [[f32; L]; 3],
@@ -554,37 +556,20 @@ pub fn sample_many(bsdfs: &[BsdfAt], u: &[Vec2], out: &mut [Option<BsdfSample>])
         pdf: [f32; L],
         ok: [bool; L],
     }
-    let n = bsdfs.len().min(u.len()).min(out.len());
+    let n = bsdfs.len();
+    assert!(u.len() == n && out.len() == n, "sample_many: slices of different lengths");
     for start in (0..n).step_by(L) {
         let m = (n - start).min(L);
         // Unused lanes hold zeros; their results are dropped.
-        let mut x = In::default();
+        let mut x = BsdfLanes::default();
+        let mut x_u = [[0.0f32; L]; 2];
         for k in 0..m {
-            let l = bsdfs[start + k].lane(u[start + k]);
-            x.diffuse[k] = l.diffuse;
-            for c in 0..3 {
-                x.rho[c][k] = l.rho[c];
-                x.f0[c][k] = l.f0[c];
-                x.wo[c][k] = l.wo[c];
-            }
-            (x.metallic[k], x.alpha[k], x.f90[k], x.ps[k], x.sd_wo[k]) = (l.metallic, l.alpha, l.f90, l.ps, l.sd_wo);
-            (x.u[0][k], x.u[1][k]) = (l.u.x, l.u.y);
+            x.set(k, &bsdfs[start + k].lane(u[start + k]));
+            (x_u[0][k], x_u[1][k]) = (u[start + k].x, u[start + k].y);
         }
         let mut y = Out::default();
         for k in 0..L {
-            let v3 = |a: &[[f32; L]; 3]| Vec3::new(a[0][k], a[1][k], a[2][k]);
-            let (wi, weight, pdf, ok) = sample_lane(SampleLane {
-                diffuse: x.diffuse[k],
-                rho: v3(&x.rho),
-                metallic: x.metallic[k],
-                alpha: x.alpha[k],
-                f0: v3(&x.f0),
-                f90: x.f90[k],
-                wo: v3(&x.wo),
-                ps: x.ps[k],
-                sd_wo: x.sd_wo[k],
-                u: Vec2::new(x.u[0][k], x.u[1][k]),
-            });
+            let (wi, weight, pdf, ok) = sample_lane(x.get(k, Vec2::new(x_u[0][k], x_u[1][k])));
             for c in 0..3 {
                 y.wi[c][k] = wi[c];
                 y.weight[c][k] = weight[c];
