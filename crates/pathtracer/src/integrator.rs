@@ -93,6 +93,10 @@
 //!   +1–3 %, `thin` −7 to +4 %; then with both models computed in every lane and one
 //!   selected (the loop vectorised, the same bits), against that (two pairs): `cornell` +4 %,
 //!   `deep` +8 %, `materials` +3–5 %, `tabletop` +5–8 %, `thin` +2–4 %. Measured and not kept:
+//!   - the BSDF's set-up from `wo` (`P_s` and the Smith term, [`crate::material::Bsdf::at`])
+//!     in lanes as well, for the whole bounce before the light values (the environment-map
+//!     sample then also waiting for its value): the same bits, within ±2 % on every scene
+//!     (two alternating pairs);
 //!   - 16 lanes in AVX-512 (both loops called through a `target_feature` function where the
 //!     CPU has AVX-512, the same bits): `cornell` −1 %, `deep` ±0 %, `tabletop` −4 to −7 %
 //!     against 8 in AVX2; the loops are no longer where the time goes;
