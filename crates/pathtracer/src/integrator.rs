@@ -92,7 +92,10 @@
 //!   did not vectorise): `cornell` +1–2 %, `deep` +1–4 %, `materials` +0–8 %, `tabletop`
 //!   +1–3 %, `thin` −7 to +4 %; then with both models computed in every lane and one
 //!   selected (the loop vectorised, the same bits), against that (two pairs): `cornell` +4 %,
-//!   `deep` +8 %, `materials` +3–5 %, `tabletop` +5–8 %, `thin` +2–4 %. Measured and not kept:
+//!   `deep` +8 %, `materials` +3–5 %, `tabletop` +5–8 %, `thin` +2–4 %. Eight lanes that are
+//!   all Lambertian compute that model alone (the same bits): the scenes made Lambertian
+//!   (`xtask bench render --no-mitsuba`, 7 renders) `cornell` +2.5–3 %, `deep` +3.5–7 %; as
+//!   authored, `cornell` −0.2 to −1.4 % (three alternating pairs). Measured and not kept:
 //!   - the BSDF's set-up from `wo` (`P_s` and the Smith term, [`crate::material::Bsdf::at`])
 //!     in lanes as well, for the whole bounce before the light values (the environment-map
 //!     sample then also waiting for its value): the same bits, within ±2 % on every scene

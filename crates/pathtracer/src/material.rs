@@ -353,13 +353,13 @@ impl BsdfAt {
     /// [`Bsdf::evaluate`] and [`Bsdf::pdf`] at `wi` (one lane of [`evaluate_many`]).
     #[inline(always)]
     pub fn evaluate_pdf(&self, wi: Vec3) -> (Vec3, f32) {
-        evaluate_pdf_lane(&self.lane(Vec2::ZERO), wi)
+        evaluate_pdf_lane::<false>(&self.lane(Vec2::ZERO), wi)
     }
 
     /// [`Bsdf::sample`] with two uniform numbers (one lane of [`sample_many`]).
     #[inline(always)]
     pub fn sample(&self, u: Vec2) -> Option<BsdfSample> {
-        let (wi, weight, pdf, ok) = sample_lane(self.lane(u));
+        let (wi, weight, pdf, ok) = sample_lane::<false>(self.lane(u));
         ok.then_some(BsdfSample { wi, weight, pdf })
     }
 
@@ -415,8 +415,12 @@ struct SampleLane {
 /// the lane's own selected, with no branch on the data, so that a loop over lanes vectorises
 /// ([`evaluate_many`]).
 #[inline(always)]
-fn evaluate_pdf_lane(x: &SampleLane, wi: Vec3) -> (Vec3, f32) {
+fn evaluate_pdf_lane<const ALL_DIFFUSE: bool>(x: &SampleLane, wi: Vec3) -> (Vec3, f32) {
     let wo = x.wo;
+    if ALL_DIFFUSE {
+        // The Lambertian model's value below, alone (for lanes that are all Lambertian).
+        return if (wo.z <= 0.0) | (wi.z <= 0.0) { (Vec3::ZERO, 0.0) } else { (x.rho * (FRAC_1_PI * wi.z), wi.z * FRAC_1_PI) };
+    }
     let mr = MetallicRoughness { base_color: x.rho, metallic: x.metallic, alpha: x.alpha, fresnel: DielectricFresnel { f0: x.f0, f90: x.f90 } };
     let (f_mr, d) = mr.f_cos_and_d(wo, wi, x.sd_wo);
     let ps = x.ps;
@@ -499,13 +503,22 @@ pub fn evaluate_many<'a>(bsdfs: impl Fn(usize) -> &'a BsdfAt, wi: &[Vec3], value
                 x_wi[c][k] = wi[start + k][c];
             }
         }
-        let mut y = Out::default();
-        for k in 0..L {
-            let (f, pdf) = evaluate_pdf_lane(&x.get(k, Vec2::ZERO), Vec3::new(x_wi[0][k], x_wi[1][k], x_wi[2][k]));
-            for c in 0..3 {
-                y.f[c][k] = f[c];
+        /// The loop over the lanes, computing only the Lambertian model where `ALL_DIFFUSE`.
+        #[inline(always)]
+        fn lanes<const ALL_DIFFUSE: bool>(x: &BsdfLanes, x_wi: &[[f32; L]; 3], y: &mut Out) {
+            for k in 0..L {
+                let (f, pdf) = evaluate_pdf_lane::<ALL_DIFFUSE>(&x.get(k, Vec2::ZERO), Vec3::new(x_wi[0][k], x_wi[1][k], x_wi[2][k]));
+                for c in 0..3 {
+                    y.f[c][k] = f[c];
+                }
+                y.pdf[k] = pdf;
             }
-            y.pdf[k] = pdf;
+        }
+        let mut y = Out::default();
+        if x.diffuse[..m].iter().all(|&d| d) {
+            lanes::<true>(&x, &x_wi, &mut y);
+        } else {
+            lanes::<false>(&x, &x_wi, &mut y);
         }
         for k in 0..m {
             values[start + k] = (Vec3::new(y.f[0][k], y.f[1][k], y.f[2][k]), y.pdf[k]);
@@ -518,8 +531,14 @@ pub fn evaluate_many<'a>(bsdfs: impl Fn(usize) -> &'a BsdfAt, wi: &[Vec3], value
 /// data, so that a loop over lanes vectorises ([`sample_many`]); the selected values are the
 /// operations the model's sampling describes (see [`MetallicRoughness`]).
 #[inline(always)]
-fn sample_lane(x: SampleLane) -> (Vec3, Vec3, f32, bool) {
+fn sample_lane<const ALL_DIFFUSE: bool>(x: SampleLane) -> (Vec3, Vec3, f32, bool) {
     let SampleLane { diffuse, rho, metallic, alpha, f0, f90, wo, ps, sd_wo, u } = x;
+    if ALL_DIFFUSE {
+        // The Lambertian model's values below, alone (for lanes that are all Lambertian).
+        let wi_d = sample_cosine_hemisphere(u);
+        let pdf_d = wi_d.z * FRAC_1_PI;
+        return (wi_d, rho, pdf_d, !(wo.z <= 0.0) & !(pdf_d <= 0.0));
+    }
     // Specular lobe: a visible normal, `wi` its reflection.
     let specular = !diffuse & (u.x < ps);
     let (h, h_ok) = visible_normal(alpha, wo, Vec2::new(u.x / ps, u.y));
@@ -567,15 +586,24 @@ pub fn sample_many(bsdfs: &[BsdfAt], u: &[Vec2], out: &mut [Option<BsdfSample>])
             x.set(k, &bsdfs[start + k].lane(u[start + k]));
             (x_u[0][k], x_u[1][k]) = (u[start + k].x, u[start + k].y);
         }
-        let mut y = Out::default();
-        for k in 0..L {
-            let (wi, weight, pdf, ok) = sample_lane(x.get(k, Vec2::new(x_u[0][k], x_u[1][k])));
-            for c in 0..3 {
-                y.wi[c][k] = wi[c];
-                y.weight[c][k] = weight[c];
+        /// The loop over the lanes, computing only the Lambertian model where `ALL_DIFFUSE`.
+        #[inline(always)]
+        fn lanes<const ALL_DIFFUSE: bool>(x: &BsdfLanes, x_u: &[[f32; L]; 2], y: &mut Out) {
+            for k in 0..L {
+                let (wi, weight, pdf, ok) = sample_lane::<ALL_DIFFUSE>(x.get(k, Vec2::new(x_u[0][k], x_u[1][k])));
+                for c in 0..3 {
+                    y.wi[c][k] = wi[c];
+                    y.weight[c][k] = weight[c];
+                }
+                y.pdf[k] = pdf;
+                y.ok[k] = ok;
             }
-            y.pdf[k] = pdf;
-            y.ok[k] = ok;
+        }
+        let mut y = Out::default();
+        if x.diffuse[..m].iter().all(|&d| d) {
+            lanes::<true>(&x, &x_u, &mut y);
+        } else {
+            lanes::<false>(&x, &x_u, &mut y);
         }
         for k in 0..m {
             out[start + k] = y.ok[k].then(|| BsdfSample {
