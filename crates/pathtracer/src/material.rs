@@ -497,13 +497,14 @@ pub fn evaluate_many<'a>(bsdfs: impl Fn(usize) -> &'a BsdfAt, wi: &[Vec3], value
         // Unused lanes hold zeros; their results are dropped.
         let mut x = BsdfLanes::default();
         let mut x_wi = [[0.0f32; L]; 3];
-        for k in 0..m {
+        for (k, w) in wi[start..start + m].iter().enumerate() {
             x.set(k, &bsdfs(start + k).lane(Vec2::ZERO));
-            for c in 0..3 {
-                x_wi[c][k] = wi[start + k][c];
-            }
+            (x_wi[0][k], x_wi[1][k], x_wi[2][k]) = (w.x, w.y, w.z);
         }
         /// The loop over the lanes, computing only the Lambertian model where `ALL_DIFFUSE`.
+        // `k` indexes the lanes, the inner dimension of every array: the loop over it is what
+        // vectorises.
+        #[allow(clippy::needless_range_loop)]
         #[inline(always)]
         fn lanes<const ALL_DIFFUSE: bool>(x: &BsdfLanes, x_wi: &[[f32; L]; 3], y: &mut Out) {
             for k in 0..L {
@@ -582,11 +583,14 @@ pub fn sample_many(bsdfs: &[BsdfAt], u: &[Vec2], out: &mut [Option<BsdfSample>])
         // Unused lanes hold zeros; their results are dropped.
         let mut x = BsdfLanes::default();
         let mut x_u = [[0.0f32; L]; 2];
-        for k in 0..m {
-            x.set(k, &bsdfs[start + k].lane(u[start + k]));
-            (x_u[0][k], x_u[1][k]) = (u[start + k].x, u[start + k].y);
+        for (k, (b, &uk)) in bsdfs[start..start + m].iter().zip(&u[start..start + m]).enumerate() {
+            x.set(k, &b.lane(uk));
+            (x_u[0][k], x_u[1][k]) = (uk.x, uk.y);
         }
         /// The loop over the lanes, computing only the Lambertian model where `ALL_DIFFUSE`.
+        // `k` indexes the lanes, the inner dimension of every array: the loop over it is what
+        // vectorises.
+        #[allow(clippy::needless_range_loop)]
         #[inline(always)]
         fn lanes<const ALL_DIFFUSE: bool>(x: &BsdfLanes, x_u: &[[f32; L]; 2], y: &mut Out) {
             for k in 0..L {
