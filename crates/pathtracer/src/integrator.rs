@@ -83,8 +83,8 @@
 //!   against one path at a time (`cargo bench -p pathtracer --bench render`, two alternating
 //!   pairs, 2-core Zen 5): `cornell` +6 %, `deep` +4 %, `tabletop` +1–4 %; the batch without
 //!   the vectorised sample was 2–5 % slower than one path at a time. The BSDF's values
-//!   towards the light samples (every punctual light and the emitter sample of every vertex of
-//!   the bounce) are computed the same way ([`crate::material::evaluate_many`]): a vertex
+//!   towards the light samples (every punctual light, the emitter sample and the
+//!   environment-map sample of every vertex of the bounce) are computed the same way ([`crate::material::evaluate_many`]): a vertex
 //!   finds its light samples' directions, densities and shadow rays in scalar code, stopping
 //!   at the first zero factor, then the bounce's values are computed in one loop over lanes,
 //!   then the shadow rays traced. Against the BSDF sample alone in lanes (two to four
@@ -413,7 +413,8 @@ struct Pending {
     ng: Vec3,
 }
 
-/// A light sample at a path vertex (a punctual light, or a point on an emissive triangle),
+/// A light sample at a path vertex (a punctual light, a point on an emissive triangle, or a
+/// direction of the environment map),
 /// all but the BSDF's value there, which is computed for a whole bounce's samples at once
 /// ([`evaluate_many`]).
 #[derive(Clone, Copy, Debug)]
@@ -423,9 +424,10 @@ struct PendingLight {
     /// Direction to the light, in the shading frame.
     wi_l: Vec3,
     /// Punctual: the irradiance (normal to `wi`); emitter: the emitted radiance times alpha
-    /// coverage.
+    /// coverage; environment: its radiance.
     radiance: Vec3,
-    /// Emitter: the sample's solid-angle density (MIS with BSDF sampling); punctual: `None`.
+    /// Emitter or environment: the sample's solid-angle density (MIS with BSDF sampling);
+    /// punctual: `None`.
     light_pdf: Option<f32>,
     /// The shadow ray and its `t_max`.
     shadow: Ray,
@@ -469,6 +471,14 @@ impl PathIntegrator<'_> {
     #[inline(always)]
     pub fn occluded(&self, ray: &Ray, t_max: f32) -> bool {
         self.accel.occluded(ray, t_max, |prim, h| alpha_test(self.scene, ray, prim, h.b))
+    }
+
+    /// Whether every vertex samples the environment (an environment map that is not black;
+    /// a constant environment is left to BSDF sampling, see the module docs).
+    #[inline(always)]
+    fn samples_environment(&self) -> bool {
+        let env = &self.settings.environment;
+        !env.is_black() && env.map.is_some()
     }
 
     /// The material `mat` of `si` resolved at its point: from [`PathIntegrator::uniform_surfaces`]
@@ -585,7 +595,7 @@ impl PathIntegrator<'_> {
                 }
             }
             // The light samples' BSDF values, then their shadow rays and estimates: a punctual
-            // light's `f · E`, an emitter's `f · Le · w_light / pdf_light`.
+            // light's `f · E`, an emitter's or the environment's `f · Le · w_light / pdf_light`.
             if !lights.is_empty() {
                 light_wi.clear();
                 light_wi.extend(lights.iter().map(|e| e.wi_l));
@@ -621,15 +631,14 @@ impl PathIntegrator<'_> {
         }
     }
 
-    /// A path's vertex at `path.hit`: the emission it shows and the environment light sampled
-    /// there added to `path.l`, its punctual-light and emitter samples pushed on `lights` (as
-    /// the bounce's vertex `vertex`); `None` when the path ends here (having pushed nothing),
+    /// A path's vertex at `path.hit`: the emission it shows added to `path.l`, its
+    /// punctual-light, emitter and environment samples pushed on `lights` (as the bounce's
+    /// vertex `vertex`); `None` when the path ends here (having pushed nothing),
     /// else what its BSDF sample needs.
     #[inline(always)]
     fn shade_vertex(&self, path: &mut PathState, sampler: &mut Sampler, primary_emission: bool, vertex: u32, lights: &mut Vec<PendingLight>) -> Option<Pending> {
         let scene = self.scene;
         let env = &self.settings.environment;
-        let env_nee = !env.is_black() && env.map.is_some();
         let PathState { l, beta, ray, hit, prev_bsdf_pdf, depth, all_rough } = path;
         let (beta, ray, hit, depth) = (*beta, *ray, *hit, *depth);
         // Past the last scattering event only the emission this vertex shows counts: where
@@ -691,8 +700,7 @@ impl PathIntegrator<'_> {
             lights.push(PendingLight { vertex, wi_l: frame.to_local(inc.wi), radiance: inc.irradiance, light_pdf: None, shadow: Ray::new(o, inc.wi), t_max });
         }
 
-        // Emissive triangles: one sample, MIS with BSDF sampling; the BSDF's value there is
-        // computed with its sample ([`sample_many`]), and the estimate added after it.
+        // Emissive triangles: one sample, MIS with BSDF sampling.
         if !self.emitters.is_empty()
             && let Some(es) = self.emitters.sample(sampler.get_2d(dim + DIM_EMITTER_POINT), || sampler.get_1d(dim + DIM_EMITTER_SPARE))
             && let Some(e) = self.emitter_pending(&si, &frame, origin, es)
@@ -702,16 +710,13 @@ impl PathIntegrator<'_> {
 
         // Environment map: one sample, MIS with BSDF sampling. A constant environment is
         // left to BSDF sampling alone (see the module docs).
-        if env_nee
+        if self.samples_environment()
             && let Some((wi, pdf)) = env.sample(sampler.get_2d(dim + DIM_ENVIRONMENT))
             && wi.dot(si.ng) > 0.0
         {
-            let wi_l = frame.to_local(wi);
-            let (f, bsdf_pdf) = bsdf.evaluate_pdf(wi_l);
             let le = env.eval(wi);
-            if f.max_element() > 0.0 && le.max_element() > 0.0 && !self.occluded(&Ray::new(origin, wi), f32::INFINITY) {
-                let w = power_heuristic(pdf, bsdf_pdf);
-                *l += beta * f * le * (w / pdf);
+            if le.max_element() > 0.0 {
+                lights.push(PendingLight { vertex, wi_l: frame.to_local(wi), radiance: le, light_pdf: Some(pdf), shadow: Ray::new(origin, wi), t_max: f32::INFINITY });
             }
         }
         Some(Pending { path: 0, dim, frame, bsdf, origin, ng: si.ng })
@@ -722,7 +727,6 @@ impl PathIntegrator<'_> {
     #[inline(always)]
     fn continue_path(&self, path: &mut PathState, sampler: &Sampler, v: &Pending, bs: &Option<BsdfSample>) -> bool {
         let env = &self.settings.environment;
-        let env_nee = !env.is_black() && env.map.is_some();
         let Some(bs) = bs else { return false };
         let wi = v.frame.to_world(bs.wi).normalize();
         if wi.dot(v.ng) <= 0.0 {
@@ -745,7 +749,7 @@ impl PathIntegrator<'_> {
                 true
             }
             None => {
-                if env_nee {
+                if self.samples_environment() {
                     path.l += path.beta * env.eval(wi) * power_heuristic(path.prev_bsdf_pdf, env.pdf(wi));
                 } else if !env.is_black() {
                     path.l += path.beta * env.eval(wi);

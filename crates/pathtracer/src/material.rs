@@ -417,16 +417,18 @@ struct SampleLane {
 #[inline(always)]
 fn evaluate_pdf_lane<const ALL_DIFFUSE: bool>(x: &SampleLane, wi: Vec3) -> (Vec3, f32) {
     let wo = x.wo;
-    if ALL_DIFFUSE {
-        // The Lambertian model's value below, alone (for lanes that are all Lambertian).
-        return if (wo.z <= 0.0) | (wi.z <= 0.0) { (Vec3::ZERO, 0.0) } else { (x.rho * (FRAC_1_PI * wi.z), wi.z * FRAC_1_PI) };
-    }
-    let mr = MetallicRoughness { base_color: x.rho, metallic: x.metallic, alpha: x.alpha, fresnel: DielectricFresnel { f0: x.f0, f90: x.f90 } };
-    let (f_mr, d) = mr.f_cos_and_d(wo, wi, x.sd_wo);
-    let ps = x.ps;
-    let pdf_mr = ps * (d / (2.0 * x.sd_wo)) + (1.0 - ps) * wi.z * FRAC_1_PI;
-    let (f, pdf) = if x.diffuse { (x.rho * (FRAC_1_PI * wi.z), wi.z * FRAC_1_PI) } else { (f_mr, pdf_mr) };
-    if (wo.z <= 0.0) | (wi.z <= 0.0) { (Vec3::ZERO, 0.0) } else { (f, pdf) }
+    let below = (wo.z <= 0.0) | (wi.z <= 0.0);
+    let lambert = (x.rho * (FRAC_1_PI * wi.z), wi.z * FRAC_1_PI);
+    // Lanes that are all Lambertian compute that model alone.
+    let value = if ALL_DIFFUSE || x.diffuse {
+        lambert
+    } else {
+        let mr = MetallicRoughness { base_color: x.rho, metallic: x.metallic, alpha: x.alpha, fresnel: DielectricFresnel { f0: x.f0, f90: x.f90 } };
+        let (f_mr, d) = mr.f_cos_and_d(wo, wi, x.sd_wo);
+        let ps = x.ps;
+        (f_mr, ps * (d / (2.0 * x.sd_wo)) + (1.0 - ps) * wi.z * FRAC_1_PI)
+    };
+    if below { (Vec3::ZERO, 0.0) } else { value }
 }
 
 /// [`SAMPLE_LANES`] BSDFs as one array per number ([`SampleLane`] without its `u`): what
