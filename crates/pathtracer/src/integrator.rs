@@ -467,6 +467,13 @@ impl PathIntegrator<'_> {
         self.accel.closest_hit(ray, f32::INFINITY, |prim, h| alpha_test(self.scene, ray, prim, h.b))
     }
 
+    /// [`PathIntegrator::intersect`] for each of `rays`, into `out` (the same bits), by packets
+    /// of rays ([`Accel::closest_hits`]).
+    #[inline(always)]
+    pub fn intersect_many(&self, rays: &[Ray], out: &mut [Option<Hit>]) {
+        self.accel.closest_hits(rays, f32::INFINITY, |r, prim, h| alpha_test(self.scene, &rays[r], prim, h.b), out)
+    }
+
     /// Whether anything blocks `ray` before `t_max`.
     #[inline(always)]
     pub fn occluded(&self, ray: &Ray, t_max: f32) -> bool {
@@ -555,8 +562,10 @@ impl PathIntegrator<'_> {
         let env = &self.settings.environment;
         let mut paths: Vec<PathState> = Vec::with_capacity(rays.len());
         let mut active: Vec<u32> = Vec::with_capacity(rays.len());
-        for (k, ray) in rays.iter().enumerate() {
-            let hit = self.intersect(ray);
+        // The camera rays (a pixel's, close to each other) as packets.
+        let mut hits = vec![None; rays.len()];
+        self.intersect_many(rays, &mut hits);
+        for (k, (ray, &hit)) in rays.iter().zip(&hits).enumerate() {
             paths.push(PathState {
                 l: Vec3::ZERO,
                 beta: Vec3::ONE,
