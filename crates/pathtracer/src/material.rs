@@ -478,9 +478,9 @@ impl BsdfLanes {
     }
 }
 
-/// `values[k] = bsdfs(k).evaluate_pdf(wi[k])` for every `k` (the same bits), [`SAMPLE_LANES`] at
-/// a time: the inputs transposed into one array per number, one vectorised loop over the lanes
-/// ([`evaluate_pdf_lane`]), the results transposed back.
+/// `values[k] = bsdfs(k).evaluate_pdf(wi[k])` for every `k` (the same bits), eight
+/// (`SAMPLE_LANES`) at a time: the inputs transposed into one array per number, one vectorised
+/// loop over the lanes (`evaluate_pdf_lane`), the results transposed back.
 ///
 /// # Panics
 /// If `values` and `wi` differ in length.
@@ -562,9 +562,9 @@ fn sample_lane<const ALL_DIFFUSE: bool>(x: SampleLane) -> (Vec3, Vec3, f32, bool
 /// Lanes of [`sample_many`]: eight, the `f32` lanes of an AVX2 register.
 const SAMPLE_LANES: usize = 8;
 
-/// `out[k] = bsdfs[k].sample(u[k])` for every `k` (the same bits), the samples drawn
-/// [`SAMPLE_LANES`] at a time: the inputs transposed into one array per number, one
-/// vectorised loop over the lanes ([`sample_lane`]), the results transposed back.
+/// `out[k] = bsdfs[k].sample(u[k])` for every `k` (the same bits), the samples drawn eight
+/// (`SAMPLE_LANES`) at a time: the inputs transposed into one array per number, one
+/// vectorised loop over the lanes (`sample_lane`), the results transposed back.
 ///
 /// # Panics
 /// If the slices differ in length.
