@@ -704,6 +704,28 @@ impl Renderer {
         PrimaryRayStats { rays, hits, seconds, rays_per_second: if seconds > 0.0 { rays as f64 / seconds } else { 0.0 } }
     }
 
+    /// [`Renderer::primary_ray_throughput`] with each row's pixel-centre rays traced as packets
+    /// of up to [`crate::accel::PACKET`] neighbours ([`PathIntegrator::intersect_many`], the
+    /// same hits): the throughput of coherent camera rays, as the renderer traces a pixel's
+    /// samples.
+    pub fn primary_packet_throughput(&self, camera: &Camera) -> PrimaryRayStats {
+        let (w, h) = (camera.intrinsics.width, camera.intrinsics.height);
+        let integ = self.integrator(&RenderSettings::preview(0));
+        let start = std::time::Instant::now();
+        let hits: u64 = (0..h)
+            .into_par_iter()
+            .map(|j| {
+                let rays: Vec<Ray> = (0..w).map(|i| self.local_ray(&camera.pixel_center_ray(i, j))).collect();
+                let mut hits = vec![None; rays.len()];
+                integ.intersect_many(&rays, &mut hits);
+                hits.iter().filter(|h| h.is_some()).count() as u64
+            })
+            .sum();
+        let seconds = start.elapsed().as_secs_f64();
+        let rays = w as u64 * h as u64;
+        PrimaryRayStats { rays, hits, seconds, rays_per_second: if seconds > 0.0 { rays as f64 / seconds } else { 0.0 } }
+    }
+
     /// The shadow rays the integrator would trace at the first vertex of every pixel-centre
     /// ray of `camera` that hits: one towards each punctual light (as far as the light) and one
     /// towards a point on the emissive triangles (drawn with the pixel's first sampler
@@ -1549,6 +1571,10 @@ mod tests {
         assert_eq!((stats.rays, stats.hits), (rays.len() as u64, occluded));
         // The box shadows some of the floor from some light.
         assert!(occluded > 0 && occluded < stats.rays);
+        // Primary rays one at a time and as packets hit the same pixels.
+        let (one, packets) = (r.primary_ray_throughput(&cam), r.primary_packet_throughput(&cam));
+        assert_eq!((one.rays, one.hits), (192, hits as u64));
+        assert_eq!((packets.rays, packets.hits), (192, hits as u64));
     }
 
     #[test]
