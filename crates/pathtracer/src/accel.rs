@@ -79,9 +79,10 @@
 //! primary rays/s (`cornell` 19 → 25 M/s, `tabletop` 16 → 23, `thin` 19 → 26, `deep` 18 →
 //! 19–22). Measured and not kept (the same bits each):
 //! - every bounce's rays as packets (the continuation rays of a batch's live paths, and its
-//!   shadow rays): `cornell` −16 %, `deep` −23 %, `tabletop` −13 %, `thin` −12 %. After the
-//!   camera vertex a batch's rays go in all directions, and a packet then only adds its own
-//!   bookkeeping to each ray's work;
+//!   shadow rays): `cornell` −16 %, `deep` −23 %, `tabletop` −13 %, `thin` −12 %, of which
+//!   the loop restructured to gather those rays costs `deep` 7–11 % with every ray still
+//!   traced alone. After the camera vertex a batch's rays go in all directions, and a packet
+//!   then only adds its own bookkeeping to each ray's work;
 //! - the camera vertices' shadow rays as packets, one per light (a pixel's shadow rays towards
 //!   one light, all other shadow rays one at a time): `deep` −10 %, `materials` −5 %, `thin`
 //!   −3 %;
