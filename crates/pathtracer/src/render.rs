@@ -692,16 +692,7 @@ impl Renderer {
     /// Traces every pixel-centre ray of `camera` (closest hit only, in parallel) and times
     /// it: a primary-ray throughput figure for benchmarks.
     pub fn primary_ray_throughput(&self, camera: &Camera) -> PrimaryRayStats {
-        let (w, h) = (camera.intrinsics.width, camera.intrinsics.height);
-        let integ = self.integrator(&RenderSettings::preview(0));
-        let start = std::time::Instant::now();
-        let hits: u64 = (0..h)
-            .into_par_iter()
-            .map(|j| (0..w).filter(|&i| integ.intersect(&self.local_ray(&camera.pixel_center_ray(i, j))).is_some()).count() as u64)
-            .sum();
-        let seconds = start.elapsed().as_secs_f64();
-        let rays = w as u64 * h as u64;
-        PrimaryRayStats { rays, hits, seconds, rays_per_second: if seconds > 0.0 { rays as f64 / seconds } else { 0.0 } }
+        self.primary_throughput(camera, false)
     }
 
     /// [`Renderer::primary_ray_throughput`] with each row's pixel-centre rays traced as packets
@@ -709,16 +700,25 @@ impl Renderer {
     /// same hits): the throughput of coherent camera rays, as the renderer traces a pixel's
     /// samples.
     pub fn primary_packet_throughput(&self, camera: &Camera) -> PrimaryRayStats {
+        self.primary_throughput(camera, true)
+    }
+
+    fn primary_throughput(&self, camera: &Camera, packets: bool) -> PrimaryRayStats {
         let (w, h) = (camera.intrinsics.width, camera.intrinsics.height);
         let integ = self.integrator(&RenderSettings::preview(0));
         let start = std::time::Instant::now();
         let hits: u64 = (0..h)
             .into_par_iter()
             .map(|j| {
-                let rays: Vec<Ray> = (0..w).map(|i| self.local_ray(&camera.pixel_center_ray(i, j))).collect();
-                let mut hits = vec![None; rays.len()];
-                integ.intersect_many(&rays, &mut hits);
-                hits.iter().filter(|h| h.is_some()).count() as u64
+                let ray = |i: u32| self.local_ray(&camera.pixel_center_ray(i, j));
+                if packets {
+                    let rays: Vec<Ray> = (0..w).map(ray).collect();
+                    let mut hits = vec![None; rays.len()];
+                    integ.intersect_many(&rays, &mut hits);
+                    hits.iter().filter(|h| h.is_some()).count() as u64
+                } else {
+                    (0..w).filter(|&i| integ.intersect(&ray(i)).is_some()).count() as u64
+                }
             })
             .sum();
         let seconds = start.elapsed().as_secs_f64();
