@@ -463,6 +463,25 @@ const GROUPS: usize = PACKET / LANES;
 /// One number per ray of a group.
 type Lanes = [f32; LANES];
 
+/// The groups of a packet's ray mask `rays` that hold any of its rays: `(group, its rays as
+/// an 8-bit lane mask)`.
+#[inline(always)]
+fn groups(rays: u64) -> impl Iterator<Item = (usize, u32)> {
+    (0..GROUPS).map(move |g| (g, (rays >> (g * LANES)) as u32 & 0xff)).filter(|&(_, m)| m != 0)
+}
+
+/// The set bits of `mask`, lowest first.
+#[inline(always)]
+fn bits(mut mask: u32) -> impl Iterator<Item = usize> {
+    std::iter::from_fn(move || {
+        (mask != 0).then(|| {
+            let l = mask.trailing_zeros() as usize;
+            mask &= mask - 1;
+            l
+        })
+    })
+}
+
 /// x86's `maxps` on one lane: `a` where `a > b`, else `b` (so `b` where either is NaN).
 #[inline(always)]
 fn max_ps(a: f32, b: f32) -> f32 {
@@ -606,11 +625,7 @@ fn traverse_packet<K: ChildBoxTest, Q: PacketQuery>(test: K, bvh: &CwBvh, rl: &R
         }
         let node = &bvh.nodes[n as usize];
         let mut slots = [0u64; 8];
-        for g in 0..GROUPS {
-            let in_group = (rays >> (g * LANES)) as u32 & 0xff;
-            if in_group == 0 {
-                continue;
-            }
+        for (g, in_group) in groups(rays) {
             let hits = child_slots_lanes(test, node, rl, g, q.t_max(g));
             for (s, h) in slots.iter_mut().zip(hits) {
                 *s |= ((h & in_group) as u64) << (g * LANES);
@@ -665,15 +680,8 @@ impl<F: Fn(usize, u32, &TriangleHit) -> bool> PacketQuery for ClosestPacket<'_, 
     #[inline(always)]
     fn leaf<K: ChildBoxTest>(&mut self, test: K, rl: &RayLanes, id: usize, rays: u64) -> u64 {
         let tri = &self.tris[id];
-        for g in 0..GROUPS {
-            let in_group = (rays >> (g * LANES)) as u32 & 0xff;
-            if in_group == 0 {
-                continue;
-            }
-            let mut kept = triangle_lanes(test, tri, rl, g, &self.limit[g]) & in_group;
-            while kept != 0 {
-                let l = kept.trailing_zeros() as usize;
-                kept &= kept - 1;
+        for (g, in_group) in groups(rays) {
+            for l in bits(triangle_lanes(test, tri, rl, g, &self.limit[g]) & in_group) {
                 let r = g * LANES + l;
                 let alpha_test = |prim: u32, h: &TriangleHit| (self.alpha_test)(r, prim, h);
                 let (best, best_t) = (&mut self.best[r], &mut self.best_t[g][l]);
@@ -707,15 +715,8 @@ impl<F: Fn(usize, u32, &TriangleHit) -> bool> PacketQuery for OccludedPacket<'_,
     fn leaf<K: ChildBoxTest>(&mut self, test: K, rl: &RayLanes, id: usize, rays: u64) -> u64 {
         let tri = &self.tris[id];
         let mut blocked = 0u64;
-        for g in 0..GROUPS {
-            let in_group = (rays >> (g * LANES)) as u32 & 0xff;
-            if in_group == 0 {
-                continue;
-            }
-            let mut kept = triangle_lanes(test, tri, rl, g, &self.t_max[g]) & in_group;
-            while kept != 0 {
-                let l = kept.trailing_zeros() as usize;
-                kept &= kept - 1;
+        for (g, in_group) in groups(rays) {
+            for l in bits(triangle_lanes(test, tri, rl, g, &self.t_max[g]) & in_group) {
                 let r = g * LANES + l;
                 let alpha_test = |prim: u32, h: &TriangleHit| (self.alpha_test)(r, prim, h);
                 if occludes(tri, &self.wr[r], self.dir[r], self.t_max[g][l], &alpha_test) {
