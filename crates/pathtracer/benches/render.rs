@@ -9,7 +9,11 @@
 //! `--seconds S` renders the first scene's quick view repeatedly for `S` seconds (a steady
 //! load for `perf record`) instead of printing the table; `--primary` does the same with
 //! primary rays; `--hash` prints a hash of each scene's quick view (colour, depth, normal
-//! bits) to check that a change leaves images bit-identical.
+//! bits) to check that a change leaves images bit-identical; `--rays FILE` (repeatable) times
+//! the first scene's one-ray closest-hit and any-hit queries and the packet closest-hit query
+//! on the rays in FILE (little-endian `f32` records of origin, direction and `t_max`, in the
+//! scene's local frame: e.g. rays written by Mitsuba for the same exported scene), 15 times
+//! each on all threads, and prints the median Mray/s of each.
 
 use pathtracer::accel::AccelParams;
 use pathtracer::dataset_render::{DatasetRenderConfig, Preset};
@@ -37,6 +41,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut seconds: Option<f64> = None;
     let mut primary_only = false;
     let mut hash_only = false;
+    let mut ray_files: Vec<String> = Vec::new();
     let mut accel = AccelParams::medium_build();
     let mut args = std::env::args().skip(1);
     while let Some(a) = args.next() {
@@ -46,6 +51,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             "--seconds" => seconds = Some(args.next().ok_or("--seconds S")?.parse()?),
             "--primary" => primary_only = true,
             "--hash" => hash_only = true,
+            "--rays" => ray_files.push(args.next().ok_or("--rays FILE")?),
             "--accel" => {
                 accel = match args.next().as_deref() {
                     Some("fastest") => AccelParams::fastest_build(),
@@ -97,6 +103,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             },
             c2w: cam.c2w,
         };
+        if !ray_files.is_empty() {
+            for f in &ray_files {
+                ray_file_throughput(&renderer, &name, f)?;
+            }
+            return Ok(());
+        }
         if hash_only {
             // FNV-1a over the bits of the quick view's colour and ground truth: equal hashes
             // mean bit-identical images.
@@ -154,5 +166,46 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let per_cpu = samples as f64 / (cpu_seconds() - c).max(1e-9);
         println!("{:<12} {:>15.2} {:>16.3} {:>20.3}", name, primary * 1e-6, quick_rate * 1e-6, per_cpu * 1e-6);
     }
+    Ok(())
+}
+
+/// `--rays FILE`: the one-ray and packet queries' throughput on the rays in `file`.
+fn ray_file_throughput(renderer: &Renderer, name: &str, file: &str) -> Result<(), Box<dyn std::error::Error>> {
+    use pathtracer::geometry::Ray;
+    use rayon::prelude::*;
+    let bytes = std::fs::read(file).map_err(|e| format!("{file}: {e}"))?;
+    if bytes.len() % 28 != 0 {
+        return Err(format!("{file}: {} bytes is not a whole number of 28-byte ray records", bytes.len()).into());
+    }
+    let v: Vec<f32> = bytes.chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect();
+    let rays: Vec<(Ray, f32)> = v.chunks_exact(7).map(|r| (Ray::new(glam::Vec3::new(r[0], r[1], r[2]), glam::Vec3::new(r[3], r[4], r[5])), r[6])).collect();
+    let accel = renderer.accel();
+    let time = |mode: u32| {
+        let mut runs = Vec::new();
+        for _ in 0..15 {
+            let t = std::time::Instant::now();
+            let n: usize = rays
+                .par_chunks(256)
+                .map(|c| match mode {
+                    0 => c.iter().filter(|(r, t)| accel.at_level(|| accel.closest_hit(r, *t, |_, _| true)).is_some()).count(),
+                    1 => c.iter().filter(|(r, t)| accel.at_level(|| accel.occluded(r, *t, |_, _| true))).count(),
+                    _ => {
+                        // Packets share one limit: the chunk's first ray's.
+                        let rs: Vec<Ray> = c.iter().map(|x| x.0).collect();
+                        let mut out = vec![None; rs.len()];
+                        accel.closest_hits(&rs, c[0].1, |_, _, _| true, &mut out);
+                        out.iter().filter(|h| h.is_some()).count()
+                    }
+                })
+                .sum();
+            runs.push((t.elapsed().as_secs_f64(), n));
+        }
+        runs.sort_by(|a, b| a.0.total_cmp(&b.0));
+        (rays.len() as f64 / runs[runs.len() / 2].0 * 1e-6, runs[0].1)
+    };
+    let (c, hc) = time(0);
+    let (o, ho) = time(1);
+    let (p, hp) = time(2);
+    println!("{name} {file}: {} rays, closest {c:.2} Mray/s ({hc} hits), occluded {o:.2} Mray/s ({ho}), packets {p:.2} Mray/s ({hp})", rays.len());
     Ok(())
 }
