@@ -858,7 +858,7 @@ impl Accel {
     pub fn closest_hit<F: Fn(u32, &TriangleHit) -> bool>(&self, ray: &Ray, t_max: f32, alpha_test: F) -> Option<Hit> {
         #[cfg(target_arch = "x86_64")]
         if let Some(simd) = self.avx2 {
-            return in_v3(simd, || self.closest_hit_with(EightWide(simd), ray, t_max, alpha_test));
+            return in_v3(simd, #[inline(always)] || self.closest_hit_with(EightWide(simd), ray, t_max, alpha_test));
         }
         self.closest_hit_with(FourWide, ray, t_max, alpha_test)
     }
@@ -868,7 +868,7 @@ impl Accel {
     pub fn occluded<F: Fn(u32, &TriangleHit) -> bool>(&self, ray: &Ray, t_max: f32, alpha_test: F) -> bool {
         #[cfg(target_arch = "x86_64")]
         if let Some(simd) = self.avx2 {
-            return in_v3(simd, || self.occluded_with(EightWide(simd), ray, t_max, alpha_test));
+            return in_v3(simd, #[inline(always)] || self.occluded_with(EightWide(simd), ray, t_max, alpha_test));
         }
         self.occluded_with(FourWide, ray, t_max, alpha_test)
     }
@@ -885,7 +885,7 @@ impl Accel {
         assert_eq!(rays.len(), out.len(), "closest_hits: {} rays, {} results", rays.len(), out.len());
         #[cfg(target_arch = "x86_64")]
         if let Some(simd) = self.avx2 {
-            return in_v3(simd, || self.closest_hits_with(EightWide(simd), rays, t_max, &alpha_test, out));
+            return in_v3(simd, #[inline(always)] || self.closest_hits_with(EightWide(simd), rays, t_max, &alpha_test, out));
         }
         self.closest_hits_with(FourWide, rays, t_max, &alpha_test, out)
     }
@@ -900,7 +900,7 @@ impl Accel {
         assert!(rays.len() == out.len() && rays.len() == t_max.len(), "occluded_many: {} rays, {} limits, {} results", rays.len(), t_max.len(), out.len());
         #[cfg(target_arch = "x86_64")]
         if let Some(simd) = self.avx2 {
-            return in_v3(simd, || self.occluded_many_with(EightWide(simd), rays, t_max, &alpha_test, out));
+            return in_v3(simd, #[inline(always)] || self.occluded_many_with(EightWide(simd), rays, t_max, &alpha_test, out));
         }
         self.occluded_many_with(FourWide, rays, t_max, &alpha_test, out)
     }
