@@ -357,9 +357,11 @@ fn bench_render(args: &RenderBenchArgs) -> anyhow::Result<()> {
     let mut ours_quick: Vec<OursQuick> = Vec::new();
     let mut figures: Vec<SceneFigures> = Vec::new();
     let mut simd = "";
+    let mut scene_paths: Vec<(String, std::path::PathBuf)> = Vec::new();
     for path in scenes {
         let name = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
         let scene = pathtracer::import::load_gltf(&path, &pathtracer::import::ImportOptions::default())?;
+        scene_paths.push((name.clone(), path.clone()));
         let scene_for_export = scene.clone();
         let params = AccelParams::medium_build();
         let build_ms = Spread::of(
@@ -468,6 +470,7 @@ fn bench_render(args: &RenderBenchArgs) -> anyhow::Result<()> {
     }
     report.line(format!("child-box test: {simd}"));
     let comparisons = bench_render_mitsuba(&ours_quick, cmp_runs, !args.no_mitsuba, &mut report)?;
+    let rays = if args.no_mitsuba { Vec::new() } else { bench_render_rays(&scene_paths, &export_root, &out_dir(&args.out), &mut report)? };
     let json = serde_json::json!({
         "profile": build_profile(),
         "cpu": cpu,
@@ -477,8 +480,93 @@ fn bench_render(args: &RenderBenchArgs) -> anyhow::Result<()> {
         "comparison_settings": { "width": CMP_WIDTH, "spp": CMP_SPP, "reference_spp": CMP_REF_SPP, "runs": cmp_runs, "excluded_pixel_share": CMP_EXCLUDED },
         "scenes": figures,
         "comparisons": comparisons,
+        "rays_vs_mitsuba": rays,
     });
     report.write(&out_dir(&args.out), "bench-render", &json)
+}
+
+/// Ray queries of ours and Mitsuba 3's on exactly the same rays: `tests/mitsuba/rays.py` writes,
+/// per scene (its export for the comparison, `<export_root>/<scene>`), the 256-px pixel-centre
+/// camera rays and one uniformly random ray from each of their hits, with the Mray/s of
+/// Mitsuba's closest-hit and any-hit queries on them (all threads, medians); ours are timed on
+/// the files ([`pathtracer::render::Renderer::ray_query_throughput`], medians of
+/// [`RENDER_RUNS`]). Says why and returns nothing where Mitsuba is unavailable.
+fn bench_render_rays(scenes: &[(String, std::path::PathBuf)], export_root: &Path, out: &Path, report: &mut Report) -> anyhow::Result<Vec<serde_json::Value>> {
+    use pathtracer::render::{RayQuery, Renderer, read_ray_file};
+    let root = crate::render::repo_root();
+    let python = root.join(".venv/bin/python");
+    if !python.is_file() || scenes.is_empty() {
+        return Ok(Vec::new());
+    }
+    let ray_dir = out.join("rays");
+    let mut cmd = std::process::Command::new(&python);
+    cmd.arg(root.join("tests/mitsuba/rays.py")).arg("--out").arg(&ray_dir);
+    for (name, _) in scenes {
+        cmd.arg("--export").arg(export_root.join(name));
+    }
+    let run = cmd.stderr(std::process::Stdio::inherit()).output().with_context(|| format!("running {}", python.display()))?;
+    report.line("");
+    if !run.status.success() {
+        report.line(format!("rays vs Mitsuba skipped: tests/mitsuba/rays.py failed ({})", run.status));
+        return Ok(Vec::new());
+    }
+    let lines: Vec<serde_json::Value> = String::from_utf8_lossy(&run.stdout)
+        .lines()
+        .filter(|l| l.trim_start().starts_with('{'))
+        .map(serde_json::from_str)
+        .collect::<Result<_, _>>()
+        .context("reading rays.py's output")?;
+    report.line(format!(
+        "rays vs Mitsuba 3 ({}): the same rays for both (tests/mitsuba/rays.py, in {}): `camera` = the comparison camera's pixel-centre rays at 256 px wide, \
+         `incoherent` = one ray from each of their hits in a uniformly random direction; Mray/s on all threads, medians ({RENDER_RUNS} runs ours, 30 Mitsuba's); \
+         ours one ray at a time, and as packets of 64 consecutive rays (as a pixel's camera rays are traced); ratio = ours (the faster way) / Mitsuba's",
+        lines.first().and_then(|l| l["variant"].as_str()).unwrap_or("?"),
+        ray_dir.display()
+    ));
+    report.line(format!(
+        "{:<10} {:>7} {:>9} {:>9} {:>9} {:>6}   {:>7} {:>9} {:>9} {:>6}   {:>9} {:>9} {:>6}",
+        "scene", "camera", "closest", "packets", "Mi", "ratio", "incoh.", "closest", "Mi", "ratio", "any-hit", "Mi", "ratio"
+    ));
+    let mut rows = Vec::new();
+    for (name, path) in scenes {
+        let Some(mi) = lines.iter().find(|l| l["scene"].as_str() == Some(name.as_str())) else { continue };
+        let scene = pathtracer::import::load_gltf(path, &pathtracer::import::ImportOptions::default())?;
+        let renderer = Renderer::new(scene, &pathtracer::accel::AccelParams::medium_build())?;
+        let ours = |set: &str, q: RayQuery| -> anyhow::Result<Spread> {
+            let file = mi[set]["file"].as_str().with_context(|| format!("rays.py: no {set} file for {name}"))?;
+            let rays = read_ray_file(Path::new(file))?;
+            Ok(Spread::of(&(0..RENDER_RUNS).map(|_| renderer.ray_query_throughput(&rays, q).rays_per_second * 1e-6).collect::<Vec<_>>()))
+        };
+        let mi_rate = |set: &str, k: &str| mi[set][k].as_f64().unwrap_or(f64::NAN);
+        let cam = ours("primary", RayQuery::Closest)?;
+        let cam_packets = ours("primary", RayQuery::ClosestPackets)?;
+        let inc = ours("incoherent", RayQuery::Closest)?;
+        let inc_any = ours("incoherent", RayQuery::AnyHit)?;
+        let (mi_cam, mi_inc, mi_any) = (mi_rate("primary", "closest_mrays_per_s"), mi_rate("incoherent", "closest_mrays_per_s"), mi_rate("incoherent", "any_hit_mrays_per_s"));
+        let best_cam = cam.median.max(cam_packets.median);
+        report.line(format!(
+            "{:<10} {:>7} {:>9.2} {:>9.2} {:>9.2} {:>5.2}x   {:>7} {:>9.2} {:>9.2} {:>5.2}x   {:>9.2} {:>9.2} {:>5.2}x",
+            name,
+            mi["primary"]["rays"].as_u64().unwrap_or(0),
+            cam.median,
+            cam_packets.median,
+            mi_cam,
+            best_cam / mi_cam,
+            mi["incoherent"]["rays"].as_u64().unwrap_or(0),
+            inc.median,
+            mi_inc,
+            inc.median / mi_inc,
+            inc_any.median,
+            mi_any,
+            inc_any.median / mi_any
+        ));
+        rows.push(serde_json::json!({
+            "scene": name,
+            "camera": { "rays": mi["primary"]["rays"], "ours_closest_mrays_per_s": cam, "ours_packets_mrays_per_s": cam_packets, "mitsuba_closest_mrays_per_s": mi_cam, "mitsuba_any_hit_mrays_per_s": mi_rate("primary", "any_hit_mrays_per_s") },
+            "incoherent": { "rays": mi["incoherent"]["rays"], "ours_closest_mrays_per_s": inc, "ours_any_hit_mrays_per_s": inc_any, "mitsuba_closest_mrays_per_s": mi_inc, "mitsuba_any_hit_mrays_per_s": mi_any },
+        }));
+    }
+    Ok(rows)
 }
 
 /// One stress scene's figures in `bench scaling`.

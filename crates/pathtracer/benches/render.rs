@@ -171,41 +171,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
 
 /// `--rays FILE`: the one-ray and packet queries' throughput on the rays in `file`.
 fn ray_file_throughput(renderer: &Renderer, name: &str, file: &str) -> Result<(), Box<dyn std::error::Error>> {
-    use pathtracer::geometry::Ray;
-    use rayon::prelude::*;
-    let bytes = std::fs::read(file).map_err(|e| format!("{file}: {e}"))?;
-    if bytes.len() % 28 != 0 {
-        return Err(format!("{file}: {} bytes is not a whole number of 28-byte ray records", bytes.len()).into());
-    }
-    let v: Vec<f32> = bytes.chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect();
-    let rays: Vec<(Ray, f32)> = v.chunks_exact(7).map(|r| (Ray::new(glam::Vec3::new(r[0], r[1], r[2]), glam::Vec3::new(r[3], r[4], r[5])), r[6])).collect();
-    let accel = renderer.accel();
-    let time = |mode: u32| {
-        let mut runs = Vec::new();
-        for _ in 0..15 {
-            let t = std::time::Instant::now();
-            let n: usize = rays
-                .par_chunks(256)
-                .map(|c| match mode {
-                    0 => c.iter().filter(|(r, t)| accel.at_level(|| accel.closest_hit(r, *t, |_, _| true)).is_some()).count(),
-                    1 => c.iter().filter(|(r, t)| accel.at_level(|| accel.occluded(r, *t, |_, _| true))).count(),
-                    _ => {
-                        // Packets share one limit: the chunk's first ray's.
-                        let rs: Vec<Ray> = c.iter().map(|x| x.0).collect();
-                        let mut out = vec![None; rs.len()];
-                        accel.closest_hits(&rs, c[0].1, |_, _, _| true, &mut out);
-                        out.iter().filter(|h| h.is_some()).count()
-                    }
-                })
-                .sum();
-            runs.push((t.elapsed().as_secs_f64(), n));
-        }
-        runs.sort_by(|a, b| a.0.total_cmp(&b.0));
-        (rays.len() as f64 / runs[runs.len() / 2].0 * 1e-6, runs[0].1)
+    use pathtracer::render::RayQuery;
+    let rays = pathtracer::render::read_ray_file(std::path::Path::new(file))?;
+    let time = |q: RayQuery| {
+        let runs: Vec<_> = (0..15).map(|_| renderer.ray_query_throughput(&rays, q)).collect();
+        (median(runs.iter().map(|r| r.rays_per_second * 1e-6).collect()), runs[0].hits)
     };
-    let (c, hc) = time(0);
-    let (o, ho) = time(1);
-    let (p, hp) = time(2);
+    let (c, hc) = time(RayQuery::Closest);
+    let (o, ho) = time(RayQuery::AnyHit);
+    let (p, hp) = time(RayQuery::ClosestPackets);
     println!("{name} {file}: {} rays, closest {c:.2} Mray/s ({hc} hits), occluded {o:.2} Mray/s ({ho}), packets {p:.2} Mray/s ({hp})", rays.len());
     Ok(())
 }

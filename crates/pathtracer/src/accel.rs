@@ -4,20 +4,26 @@
 //!
 //! **One-ray queries** ([`Accel::closest_hit`], [`Accel::occluded`]; stop 62) traverse the same
 //! tree re-laid as eight-wide nodes with exact `f32` child boxes (the union of each child's
-//! padded triangle boxes, so no looser than the quantised ones), in structure-of-arrays form:
-//! per node one eight-lane slab test with the near planes picked by the ray's direction signs
-//! and the interval widened by `2⁻²¹` relative (conservative against its own rounding, module
-//! `wide`), children pushed sorted by entry distance and culled when popped beyond the
-//! current hit (the closest-hit query; the any-hit query pushes them unsorted, which measured
-//! faster). 224 bytes per node beside the CWBVH. The reason: on the same rays, written by
-//! Mitsuba 3 for the same exported scenes (`tests/mitsuba/rays.py`, timed by `cargo bench -p
-//! pathtracer --bench render -- SCENE --rays FILE`), Mitsuba's `llvm_ad_rgb` (Embree) traced
-//! incoherent closest-hit rays 1.8–2.3x as fast as the CWBVH loop below and its camera rays
-//! 2–3.4x (any-hit 2–4x). The wide tree gained, per ray (2-core Zen 5, medians of 15): incoherent closest hits +14–23 %
-//! (`cornell` 27.0 → 32.7 M/s, `deep` 19.8 → 24.3, `tabletop` 15.8 → 18.0), camera rays
-//! one at a time +11–65 %; samples per CPU-second (`cargo bench -p pathtracer --bench render
-//! -- SCENE --seconds 3`, two alternating pairs) `cornell` +8–9 %, `deep` +8–11 %,
-//! `tabletop` +6–8 %, the same bits on every scene.
+//! padded triangle boxes, so no looser than the quantised ones), in structure-of-arrays form
+//! (module `wide`): per node one eight-lane slab test with the near planes picked by the
+//! ray's direction signs and the interval widened by `2⁻²¹` relative (conservative against its
+//! own rounding), children pushed sorted by entry distance and culled when popped beyond the
+//! current hit (the any-hit query pushes them unsorted, which measured faster). 224 bytes per
+//! node beside the CWBVH's 80, which the packets below still use: 84–89 bytes per triangle in
+//! all instead of 66–68. Why: on exactly the same rays, written by Mitsuba 3 for the same
+//! exported scenes (`tests/mitsuba/rays.py`; `cargo xtask bench render` prints the table,
+//! `cargo bench -p pathtracer --bench render -- SCENE --rays FILE` times ours alone),
+//! Mitsuba's `llvm_ad_rgb` (Embree) traced incoherent closest-hit rays 1.85–2.3x as fast as
+//! the CWBVH loop, camera rays 1.9–3.4x and incoherent any-hit rays 2.9–3.9x. The wide tree,
+//! per ray (2-core Zen 5, medians of 15, one ray at a time): incoherent closest hits +14–23 %
+//! (`cornell` 27.0 → 32.7 M/s, `deep` 19.8 → 24.3, `materials` 18.1 → 20.6, `tabletop`
+//! 15.8 → 18.0, `thin` 23.9 → 27.9), camera rays +11–65 %; samples per CPU-second (`cargo
+//! bench -p pathtracer --bench render -- SCENE --seconds 3`, two alternating pairs) `cornell`
+//! +8–9 %, `deep` +8–11 %, `tabletop` +6–8 %; the same bits on every scene. Measured and not
+//! kept: a leaf child's triangles tested as soon as its node is (not when popped): any-hit
+//! rays −5 to +29 % by scene, samples per CPU-second within the noise; the stack on the call
+//! stack only (64 entries, a `Vec` for trees too deep for it) instead of 64 entries with a
+//! `Vec` for overflow: no change.
 //!
 //! The CWBVH traversal the one-ray queries used before (obvhs's algorithm, Ylitie et al. 2017,
 //! the loop of its `traverse!` macro, over obvhs's quantised nodes) had these changes, which

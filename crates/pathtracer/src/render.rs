@@ -283,6 +283,35 @@ pub struct PrimaryRayStats {
     pub rays_per_second: f64,
 }
 
+/// A ray query [`Renderer::ray_query_throughput`] times.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RayQuery {
+    /// The closest hit of each ray alone (no limit), as the path loop's later bounces trace.
+    Closest,
+    /// The same, as packets of up to 64 consecutive rays, as the path loop traces a pixel's
+    /// camera rays.
+    ClosestPackets,
+    /// Whether anything blocks each ray before its own limit (shadow rays).
+    AnyHit,
+}
+
+/// Rays in the little-endian `f32` records of a ray file: origin xyz, direction xyz, `t_max`
+/// (28 bytes each), in the scene's local frame (`tests/mitsuba/rays.py` writes such files
+/// with Mitsuba's rays for an exported scene).
+pub fn read_ray_file(path: &std::path::Path) -> Result<Vec<(Ray, f32)>, PathTracerError> {
+    let bytes = std::fs::read(path).map_err(|e| PathTracerError::import(path, format!("reading the ray file: {e}")))?;
+    if bytes.len() % 28 != 0 {
+        return Err(PathTracerError::import(path, format!("{} bytes is not a whole number of 28-byte ray records", bytes.len())));
+    }
+    Ok(bytes
+        .chunks_exact(28)
+        .map(|r| {
+            let f = |k: usize| f32::from_le_bytes([r[4 * k], r[4 * k + 1], r[4 * k + 2], r[4 * k + 3]]);
+            (Ray::new(Vec3::new(f(0), f(1), f(2)), Vec3::new(f(3), f(4), f(5))), f(6))
+        })
+        .collect())
+}
+
 /// A scene ready to render: the scene, its BVH and its light tables.
 pub struct Renderer {
     scene: Scene,
@@ -774,6 +803,31 @@ impl Renderer {
             })
             .collect();
         rows.into_iter().flatten().collect()
+    }
+
+    /// Throughput of `query` on `rays` (origins and directions in the scene's local frame,
+    /// with their limits; [`read_ray_file`]), on all threads, chunks of 256 rays: the same
+    /// queries, alpha tests included, as the path loop's. `hits` counts the rays that hit
+    /// (closest-hit queries) or are blocked (any hit).
+    pub fn ray_query_throughput(&self, rays: &[(Ray, f32)], query: RayQuery) -> PrimaryRayStats {
+        let integ = self.integrator(&RenderSettings::preview(0));
+        let start = std::time::Instant::now();
+        let hits: u64 = rays
+            .par_chunks(256)
+            .map(|c| match query {
+                RayQuery::Closest => c.iter().filter(|(r, _)| integ.intersect(r).is_some()).count() as u64,
+                RayQuery::ClosestPackets => {
+                    let rs: Vec<Ray> = c.iter().map(|(r, _)| *r).collect();
+                    let mut out = vec![None; rs.len()];
+                    integ.intersect_many(&rs, &mut out);
+                    out.iter().filter(|h| h.is_some()).count() as u64
+                }
+                RayQuery::AnyHit => c.iter().filter(|(r, t)| integ.occluded(r, *t)).count() as u64,
+            })
+            .sum();
+        let seconds = start.elapsed().as_secs_f64();
+        let n = rays.len() as u64;
+        PrimaryRayStats { rays: n, hits, seconds, rays_per_second: if seconds > 0.0 { n as f64 / seconds } else { 0.0 } }
     }
 
     /// Traces [`Renderer::shadow_rays`] of `camera` (any-hit queries only, in parallel; the
