@@ -1252,7 +1252,7 @@ mod tests {
                         });
                     }
                     // The alpha test depends on the ray and the hit.
-                    let alpha = |r: usize, prim: u32, h: &TriangleHit| (r as u32 * 7 + prim * 13 + (h.b[0] * 8.0) as u32) % 3 != 0;
+                    let alpha = |r: usize, prim: u32, h: &TriangleHit| !(r as u32 * 7 + prim * 13 + (h.b[0] * 8.0) as u32).is_multiple_of(3);
                     let key = |h: Option<Hit>| h.map(|h| (h.prim, h.t.to_bits(), h.b.map(f32::to_bits), h.front));
                     for t_max in [f32::INFINITY, 1.0] {
                         let mut got = vec![None; len];
