@@ -489,9 +489,9 @@ impl Accel {
     pub fn closest_hit<F: Fn(u32, &TriangleHit) -> bool>(&self, ray: &Ray, t_max: f32, alpha_test: F) -> Option<Hit> {
         #[cfg(target_arch = "x86_64")]
         if let Some(simd) = self.avx2 {
-            return in_v3(simd, #[inline(always)] || self.closest_hit_with(EightWide(simd), ray, t_max, alpha_test));
+            return in_v3(simd, #[inline(always)] || self.closest_hit_with::<{ wide::STACK }, _, _>(EightWide(simd), ray, t_max, alpha_test));
         }
-        self.closest_hit_with(FourWide, ray, t_max, alpha_test)
+        self.closest_hit_with::<{ wide::STACK }, _, _>(FourWide, ray, t_max, alpha_test)
     }
 
     /// Whether any accepted hit exists with `t < t_max` (shadow rays).
@@ -499,19 +499,20 @@ impl Accel {
     pub fn occluded<F: Fn(u32, &TriangleHit) -> bool>(&self, ray: &Ray, t_max: f32, alpha_test: F) -> bool {
         #[cfg(target_arch = "x86_64")]
         if let Some(simd) = self.avx2 {
-            return in_v3(simd, #[inline(always)] || self.occluded_with(EightWide(simd), ray, t_max, alpha_test));
+            return in_v3(simd, #[inline(always)] || self.occluded_with::<{ wide::STACK }, _, _>(EightWide(simd), ray, t_max, alpha_test));
         }
-        self.occluded_with(FourWide, ray, t_max, alpha_test)
+        self.occluded_with::<{ wide::STACK }, _, _>(FourWide, ray, t_max, alpha_test)
     }
 
-    /// [`Accel::closest_hit`] with the child-box test `test`.
+    /// [`Accel::closest_hit`] with the child-box test `test` and `N` stack entries before the
+    /// traversal spills to the heap.
     #[inline(always)]
-    fn closest_hit_with<K: wide::WideTest, F: Fn(u32, &TriangleHit) -> bool>(&self, test: K, ray: &Ray, t_max: f32, alpha_test: F) -> Option<Hit> {
+    fn closest_hit_with<const N: usize, K: wide::WideTest, F: Fn(u32, &TriangleHit) -> bool>(&self, test: K, ray: &Ray, t_max: f32, alpha_test: F) -> Option<Hit> {
         let (wray, wr) = Self::wide_query(ray, t_max)?;
         let mut best: Option<Hit> = None;
         let mut best_t = t_max;
         let dir = ray.direction;
-        wide::traverse::<true, _, _>(test, &self.wide, &wray, t_max, |id| {
+        wide::traverse::<true, N, _, _>(test, &self.wide, &wray, t_max, |id| {
             closest_candidate(&self.tris[id], &wr, dir, &mut best, &mut best_t, &alpha_test);
             // obvhs shrinks its ray only when t < tmax; ties keep it.
             std::ops::ControlFlow::Continue(Some(best_t))
@@ -519,13 +520,13 @@ impl Accel {
         best
     }
 
-    /// [`Accel::occluded`] with the child-box test `test`.
+    /// [`Accel::occluded`] with the child-box test `test` and `N` stack entries.
     #[inline(always)]
-    fn occluded_with<K: wide::WideTest, F: Fn(u32, &TriangleHit) -> bool>(&self, test: K, ray: &Ray, t_max: f32, alpha_test: F) -> bool {
+    fn occluded_with<const N: usize, K: wide::WideTest, F: Fn(u32, &TriangleHit) -> bool>(&self, test: K, ray: &Ray, t_max: f32, alpha_test: F) -> bool {
         let Some((wray, wr)) = Self::wide_query(ray, t_max) else { return false };
         let dir = ray.direction;
         let mut hit = false;
-        wide::traverse::<false, _, _>(test, &self.wide, &wray, t_max, |id| {
+        wide::traverse::<false, N, _, _>(test, &self.wide, &wray, t_max, |id| {
             if occludes(&self.tris[id], &wr, dir, t_max, &alpha_test) {
                 hit = true;
                 std::ops::ControlFlow::Break(())
@@ -650,6 +651,35 @@ mod tests {
             }
         }
         (best, any)
+    }
+
+    /// The traversal with one stack entry (every further pending child spilled to the heap)
+    /// answers exactly as with the full stack, and as the brute force, in trees from a few
+    /// to thousands of triangles.
+    #[test]
+    fn a_traversal_that_spills_its_stack_answers_the_same() {
+        for (n, params) in [(40, AccelParams::medium_build()), (3000, AccelParams::fastest_build()), (3000, AccelParams::slow_build())] {
+            let scene = soup(n);
+            let accel = Accel::build(&scene, &params).unwrap();
+            let mut rng = Sampler::new(17, 0, 3, 0);
+            let mut hits = 0;
+            for k in 0..1500 {
+                let o = Vec3::new(rng.next_1d(), rng.next_1d(), rng.next_1d()) * 3.0 - 1.5;
+                let ray = Ray::new(o, sample_uniform_sphere(rng.next_2d()));
+                let t_max = if k % 4 == 0 { 0.3 + rng.next_1d() } else { f32::INFINITY };
+                let key = |h: Option<Hit>| h.map(|h| (h.prim, h.t.to_bits(), h.b.map(f32::to_bits), h.front));
+                let full = key(accel.closest_hit(&ray, t_max, |_, _| true));
+                let spilled = key(accel.closest_hit_with::<1, _, _>(FourWide, &ray, t_max, |_, _| true));
+                assert_eq!(spilled, full, "{n} triangles, ray {k}");
+                let occluded = accel.occluded(&ray, t_max, |_, _| true);
+                assert_eq!(accel.occluded_with::<1, _, _>(FourWide, &ray, t_max, |_, _| true), occluded, "{n} triangles, ray {k}");
+                let (want, any) = brute_force(&scene, &ray, t_max);
+                assert_eq!(full.map(|f| (f.0, f32::from_bits(f.1))), want, "{n} triangles, ray {k}");
+                assert_eq!(occluded, any);
+                hits += want.is_some() as u32;
+            }
+            assert!(hits > 100, "{n} triangles: too few hits ({hits})");
+        }
     }
 
     #[test]

@@ -40,8 +40,8 @@ const LEAF_COUNT_SHIFT: u32 = 29;
 const LEAF_FIRST_MASK: u32 = (1 << LEAF_COUNT_SHIFT) - 1;
 /// Relative widening of the box test's interval (see the module docs).
 const WIDEN: f32 = 1.0 / (1 << 21) as f32;
-/// Entries of the traversal stack kept in registers' reach; deeper pushes spill to a `Vec`.
-const STACK: usize = 64;
+/// Entries of the traversal stack on the call stack; deeper pushes spill to a `Vec`.
+pub(super) const STACK: usize = 64;
 
 /// One node: eight child boxes, `b[axis][0]` the lower planes and `b[axis][1]` the upper, and
 /// the eight child references (224 bytes).
@@ -239,6 +239,7 @@ impl WideTest for super::EightWide {
 #[inline(always)]
 pub(super) fn traverse<
     const NEAREST_FIRST: bool,
+    const N: usize,
     K: WideTest,
     F: FnMut(usize) -> ControlFlow<(), Option<f32>>,
 >(
@@ -254,7 +255,7 @@ pub(super) fn traverse<
     }
     // Entries are `entry distance bits << 32 | child reference`: the distances are ≥ 0, so
     // the entries order as the distances do.
-    let mut stack = [0u64; STACK];
+    let mut stack = [0u64; N];
     let mut sp = 0usize;
     let mut spill: Vec<u64> = Vec::new();
     let mut cur = 0u32;
@@ -286,7 +287,7 @@ pub(super) fn traverse<
                     let k = m.trailing_zeros() as usize;
                     m &= m - 1;
                     let e = (t_near[k].to_bits() as u64) << 32 | node.child[k] as u64;
-                    if sp < STACK {
+                    if sp < N {
                         let mut j = sp;
                         while NEAREST_FIRST && j > base && stack[j - 1] < e {
                             stack[j] = stack[j - 1];
