@@ -284,6 +284,8 @@ struct SceneFigures {
     bvh_build_ms: Spread,
     bvh_bytes_per_triangle: f64,
     primary_mrays_per_s: Spread,
+    /// The same rays, each row's traced as packets of neighbours (as a pixel's samples are).
+    primary_packet_mrays_per_s: Spread,
     shadow_mrays_per_s: Spread,
     shadow_rays_occluded: f64,
     quick_msamples_per_s: Spread,
@@ -342,14 +344,14 @@ fn bench_render(args: &RenderBenchArgs) -> anyhow::Result<()> {
     report.line(format!("cpu: {}", cpu.summary()));
     report.line(format!(
         "bench render: profile {}, {threads} threads; medians of {RENDER_RUNS} runs (IQR = quartiles); BVH = obvhs medium_build; \
-         primary = 256x256 pixel-centre closest hits; shadow = any-hit rays from those hits to every punctual light and one emitter \
+         primary = 256x256 pixel-centre closest hits, one ray at a time; packet = the same, each row's 64 to a packet; shadow = any-hit rays from those hits to every punctual light and one emitter \
          point; quick = 64x64 16 spp 4 bounces; std-spp = 32x32 128 spp 8 bounces; quick hash = the first quick render's bits \
          (colour and ground truth, pathtracer::version::view_hash): equal between two builds = bit-identical renders",
         build_profile()
     ));
     report.line(format!(
-        "{:<12} {:>9} {:>10} {:>8} {:>8} {:>15} {:>11} {:>14} {:>11} {:>16} {:>18}  {:<16}",
-        "scene", "triangles", "rig", "BVH ms", "B/tri", "primary Mray/s", "IQR", "shadow Mray/s", "IQR", "quick Msample/s", "std-spp Msample/s", "quick hash"
+        "{:<12} {:>9} {:>10} {:>8} {:>8} {:>15} {:>11} {:>14} {:>14} {:>11} {:>16} {:>18}  {:<16}",
+        "scene", "triangles", "rig", "BVH ms", "B/tri", "primary Mray/s", "IQR", "packet Mray/s", "shadow Mray/s", "IQR", "quick Msample/s", "std-spp Msample/s", "quick hash"
     ));
     let export_root = crate::render::repo_root().join("out/bench/mitsuba");
     let mut ours_quick: Vec<OursQuick> = Vec::new();
@@ -377,6 +379,7 @@ fn bench_render(args: &RenderBenchArgs) -> anyhow::Result<()> {
         let cam = cameras[0];
         let big = scaled_camera(&cam, 256);
         let primary = Spread::of(&(0..RENDER_RUNS).map(|_| renderer.primary_ray_throughput(&big).rays_per_second * 1e-6).collect::<Vec<_>>());
+        let packet = Spread::of(&(0..RENDER_RUNS).map(|_| renderer.primary_packet_throughput(&big).rays_per_second * 1e-6).collect::<Vec<_>>());
         let shadow_runs: Vec<_> = (0..RENDER_RUNS).map(|_| renderer.shadow_ray_throughput(&big)).collect();
         let shadow = Spread::of(&shadow_runs.iter().map(|s| s.rays_per_second * 1e-6).collect::<Vec<_>>());
         let occluded = shadow_runs.first().map_or(0.0, |s| s.hits as f64 / s.rays.max(1) as f64);
@@ -435,7 +438,7 @@ fn bench_render(args: &RenderBenchArgs) -> anyhow::Result<()> {
         let small = cam.downscaled(2);
         let (std_rate, _) = path_rate(&std_settings, &small);
         report.line(format!(
-            "{:<12} {:>9} {:>10} {:>8.2} {:>8.0} {:>15.2} {:>11} {:>14.2} {:>11} {:>16.3} {:>18.3}  {:016x}",
+            "{:<12} {:>9} {:>10} {:>8.2} {:>8.0} {:>15.2} {:>11} {:>14.2} {:>14.2} {:>11} {:>16.3} {:>18.3}  {:016x}",
             name,
             triangles,
             rig.kind.name(),
@@ -443,6 +446,7 @@ fn bench_render(args: &RenderBenchArgs) -> anyhow::Result<()> {
             bytes_per_tri,
             primary.median,
             primary.iqr(2),
+            packet.median,
             shadow.median,
             shadow.iqr(2),
             quick_rate.median,
@@ -456,6 +460,7 @@ fn bench_render(args: &RenderBenchArgs) -> anyhow::Result<()> {
             bvh_build_ms: build_ms,
             bvh_bytes_per_triangle: bytes_per_tri,
             primary_mrays_per_s: primary,
+            primary_packet_mrays_per_s: packet,
             shadow_mrays_per_s: shadow,
             shadow_rays_occluded: occluded,
             quick_msamples_per_s: quick_rate,
@@ -514,13 +519,13 @@ fn bench_render_rays(scenes: &[(String, std::path::PathBuf)], export_root: &Path
     report.line(format!(
         "rays vs Mitsuba 3 ({}): the same rays for both (tests/mitsuba/rays.py, in {}): `camera` = the comparison camera's pixel-centre rays at 256 px wide, \
          `incoherent` = one ray from each of their hits in a uniformly random direction; Mray/s on all threads, medians ({RENDER_RUNS} runs ours, 30 Mitsuba's); \
-         ratio = ours / Mitsuba's",
+         ours one ray at a time, and as packets of 64 consecutive rays (as a pixel's camera rays are traced); ratio = ours (the faster way) / Mitsuba's",
         lines.first().and_then(|l| l["variant"].as_str()).unwrap_or("?"),
         ray_dir.display()
     ));
     report.line(format!(
-        "{:<10} {:>7} {:>9} {:>9} {:>6}   {:>7} {:>9} {:>9} {:>6}   {:>9} {:>9} {:>6}",
-        "scene", "camera", "closest", "Mi", "ratio", "incoh.", "closest", "Mi", "ratio", "any-hit", "Mi", "ratio"
+        "{:<10} {:>7} {:>9} {:>9} {:>9} {:>6}   {:>7} {:>9} {:>9} {:>6}   {:>9} {:>9} {:>6}",
+        "scene", "camera", "closest", "packets", "Mi", "ratio", "incoh.", "closest", "Mi", "ratio", "any-hit", "Mi", "ratio"
     ));
     let mut rows = Vec::new();
     for (name, path) in scenes {
@@ -534,16 +539,19 @@ fn bench_render_rays(scenes: &[(String, std::path::PathBuf)], export_root: &Path
         };
         let mi_rate = |set: &str, k: &str| mi[set][k].as_f64().unwrap_or(f64::NAN);
         let cam = ours("primary", RayQuery::Closest)?;
+        let cam_packets = ours("primary", RayQuery::ClosestPackets)?;
         let inc = ours("incoherent", RayQuery::Closest)?;
         let inc_any = ours("incoherent", RayQuery::AnyHit)?;
         let (mi_cam, mi_inc, mi_any) = (mi_rate("primary", "closest_mrays_per_s"), mi_rate("incoherent", "closest_mrays_per_s"), mi_rate("incoherent", "any_hit_mrays_per_s"));
+        let best_cam = cam.median.max(cam_packets.median);
         report.line(format!(
-            "{:<10} {:>7} {:>9.2} {:>9.2} {:>5.2}x   {:>7} {:>9.2} {:>9.2} {:>5.2}x   {:>9.2} {:>9.2} {:>5.2}x",
+            "{:<10} {:>7} {:>9.2} {:>9.2} {:>9.2} {:>5.2}x   {:>7} {:>9.2} {:>9.2} {:>5.2}x   {:>9.2} {:>9.2} {:>5.2}x",
             name,
             mi["primary"]["rays"].as_u64().unwrap_or(0),
             cam.median,
+            cam_packets.median,
             mi_cam,
-            cam.median / mi_cam,
+            best_cam / mi_cam,
             mi["incoherent"]["rays"].as_u64().unwrap_or(0),
             inc.median,
             mi_inc,
@@ -554,7 +562,7 @@ fn bench_render_rays(scenes: &[(String, std::path::PathBuf)], export_root: &Path
         ));
         rows.push(serde_json::json!({
             "scene": name,
-            "camera": { "rays": mi["primary"]["rays"], "ours_closest_mrays_per_s": cam, "mitsuba_closest_mrays_per_s": mi_cam, "mitsuba_any_hit_mrays_per_s": mi_rate("primary", "any_hit_mrays_per_s") },
+            "camera": { "rays": mi["primary"]["rays"], "ours_closest_mrays_per_s": cam, "ours_packets_mrays_per_s": cam_packets, "mitsuba_closest_mrays_per_s": mi_cam, "mitsuba_any_hit_mrays_per_s": mi_rate("primary", "any_hit_mrays_per_s") },
             "incoherent": { "rays": mi["incoherent"]["rays"], "ours_closest_mrays_per_s": inc, "ours_any_hit_mrays_per_s": inc_any, "mitsuba_closest_mrays_per_s": mi_inc, "mitsuba_any_hit_mrays_per_s": mi_any },
         }));
     }
@@ -570,6 +578,8 @@ struct ScalingFigures {
     bvh_bytes: usize,
     bvh_bytes_per_triangle: f64,
     primary_mrays_per_s: Spread,
+    /// The same rays, each row's traced as packets of neighbours.
+    primary_packet_mrays_per_s: Spread,
     shadow_mrays_per_s: Spread,
     msamples_per_s: Spread,
     us_per_sample: f64,
@@ -605,13 +615,13 @@ fn bench_scaling(args: &ScalingBenchArgs) -> anyhow::Result<()> {
     report.line(format!("cpu: {}", cpu.summary()));
     report.line(format!(
         "bench scaling: profile {}, {threads} threads; generated stress scenes (scenegen::stress: a floor and 16 UV spheres \
-         tessellated to the count); BVH = obvhs medium_build, medians of 3 builds; B/tri = bytes of nodes and packed \
-         triangles per triangle; primary/shadow as in bench render (256 px); path = {SCALING_WIDTH} px, 16 spp, 4 bounces; medians of {RENDER_RUNS}",
+         tessellated to the count); BVH = obvhs medium_build, medians of 3 builds; B/tri = bytes of nodes (with their quantised child boxes) and packed \
+         triangles per triangle; primary/packet/shadow as in bench render (256 px); path = {SCALING_WIDTH} px, 16 spp, 4 bounces; medians of {RENDER_RUNS}",
         build_profile()
     ));
     report.line(format!(
-        "{:>10} {:>9} {:>8} {:>15} {:>14} {:>11} {:>10}",
-        "triangles", "BVH ms", "B/tri", "primary Mray/s", "shadow Mray/s", "Msample/s", "us/sample"
+        "{:>10} {:>9} {:>8} {:>15} {:>14} {:>14} {:>11} {:>10}",
+        "triangles", "BVH ms", "B/tri", "primary Mray/s", "packet Mray/s", "shadow Mray/s", "Msample/s", "us/sample"
     ));
     let quick = DatasetRenderConfig::preset(Preset::Quick);
     let settings = RenderSettings {
@@ -638,6 +648,7 @@ fn bench_scaling(args: &ScalingBenchArgs) -> anyhow::Result<()> {
         let cam = rig.split(dataset::SplitKind::Train)[0];
         let big = scaled_camera(&cam, 256);
         let primary = Spread::of(&(0..RENDER_RUNS).map(|_| renderer.primary_ray_throughput(&big).rays_per_second * 1e-6).collect::<Vec<_>>());
+        let packet = Spread::of(&(0..RENDER_RUNS).map(|_| renderer.primary_packet_throughput(&big).rays_per_second * 1e-6).collect::<Vec<_>>());
         let shadow = Spread::of(&(0..RENDER_RUNS).map(|_| renderer.shadow_ray_throughput(&big).rays_per_second * 1e-6).collect::<Vec<_>>());
         let cam = scaled_camera(&cam, SCALING_WIDTH);
         let rate = Spread::of(
@@ -656,16 +667,18 @@ fn bench_scaling(args: &ScalingBenchArgs) -> anyhow::Result<()> {
             bvh_bytes: bytes,
             bvh_bytes_per_triangle: bytes as f64 / triangles.max(1) as f64,
             primary_mrays_per_s: primary,
+            primary_packet_mrays_per_s: packet,
             shadow_mrays_per_s: shadow,
             msamples_per_s: rate,
             us_per_sample: 1.0 / rate.median.max(1e-12),
         };
         report.line(format!(
-            "{:>10} {:>9.1} {:>8.0} {:>15.2} {:>14.2} {:>11.3} {:>10.3}",
+            "{:>10} {:>9.1} {:>8.0} {:>15.2} {:>14.2} {:>14.2} {:>11.3} {:>10.3}",
             row.triangles,
             row.bvh_build_ms.median,
             row.bvh_bytes_per_triangle,
             row.primary_mrays_per_s.median,
+            row.primary_packet_mrays_per_s.median,
             row.shadow_mrays_per_s.median,
             row.msamples_per_s.median,
             row.us_per_sample

@@ -10,7 +10,8 @@
 //! load for `perf record`) instead of printing the table; `--primary` does the same with
 //! primary rays; `--hash` prints a hash of each scene's quick view (colour, depth, normal
 //! bits) to check that a change leaves images bit-identical; `--rays FILE` (repeatable) times
-//! the first scene's closest-hit and any-hit queries on the rays in FILE (little-endian `f32` records of origin, direction and `t_max`, in the
+//! the first scene's one-ray closest-hit and any-hit queries and the packet closest-hit query
+//! on the rays in FILE (little-endian `f32` records of origin, direction and `t_max`, in the
 //! scene's local frame: e.g. rays written by Mitsuba for the same exported scene), 15 times
 //! each on all threads, and prints the median Mray/s of each.
 
@@ -168,7 +169,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     Ok(())
 }
 
-/// `--rays FILE`: the closest-hit and any-hit queries' throughput on the rays in `file`.
+/// `--rays FILE`: the one-ray and packet queries' throughput on the rays in `file`.
 fn ray_file_throughput(renderer: &Renderer, name: &str, file: &str) -> Result<(), Box<dyn std::error::Error>> {
     use pathtracer::render::RayQuery;
     let rays = pathtracer::render::read_ray_file(std::path::Path::new(file))?;
@@ -178,6 +179,7 @@ fn ray_file_throughput(renderer: &Renderer, name: &str, file: &str) -> Result<()
     };
     let (c, hc) = time(RayQuery::Closest);
     let (o, ho) = time(RayQuery::AnyHit);
-    println!("{name} {file}: {} rays, closest {c:.2} Mray/s ({hc} hits), occluded {o:.2} Mray/s ({ho})", rays.len());
+    let (p, hp) = time(RayQuery::ClosestPackets);
+    println!("{name} {file}: {} rays, closest {c:.2} Mray/s ({hc} hits), occluded {o:.2} Mray/s ({ho}), packets {p:.2} Mray/s ({hp})", rays.len());
     Ok(())
 }

@@ -9,8 +9,8 @@
 //! ray's direction signs and the interval widened by `2⁻²¹` relative (conservative against its
 //! own rounding), children pushed sorted by entry distance and culled when popped beyond the
 //! current hit (the any-hit query pushes them unsorted, which measured faster). 224 bytes per
-//! node instead of the CWBVH's 80, which is dropped once converted: 74–78 bytes per
-//! triangle in all instead of 66–68. Why: on exactly the same rays, written by Mitsuba 3 for the same
+//! node beside the CWBVH's 80, which the packets below still use: 84–89 bytes per triangle in
+//! all instead of 66–68. Why: on exactly the same rays, written by Mitsuba 3 for the same
 //! exported scenes (`tests/mitsuba/rays.py`; `cargo xtask bench render` prints the table,
 //! `cargo bench -p pathtracer --bench render -- SCENE --rays FILE` times ours alone),
 //! Mitsuba's `llvm_ad_rgb` (Embree) traced incoherent closest-hit rays 1.85–2.3x as fast as
@@ -23,14 +23,12 @@
 //! kept: a leaf child's triangles tested as soon as its node is (not when popped): any-hit
 //! rays −5 to +29 % by scene, samples per CPU-second within the noise; the stack on the call
 //! stack only (64 entries, a `Vec` for trees too deep for it) instead of 64 entries with a
-//! `Vec` for overflow: no change; the watertight ray made at a ray's first leaf instead of
-//! before traversal (some rays reach none): closest hits +5–8 % per ray, samples per
-//! CPU-second within the noise.
+//! `Vec` for overflow: no change.
 //!
-//! The CWBVH traversal the queries used before (obvhs's algorithm, Ylitie et al. 2017, the
-//! loop of its `traverse!` macro, over obvhs's quantised nodes; stops 55–61) had these
-//! changes, which only saved work and kept every answer bit for bit (the f32 boxes alone, in
-//! that loop, gained nothing: the gain above is the loop's):
+//! The CWBVH traversal the one-ray queries used before (obvhs's algorithm, Ylitie et al. 2017,
+//! the loop of its `traverse!` macro, over obvhs's quantised nodes) had these changes, which
+//! only saved work and kept every answer bit for bit (the packets below still traverse the
+//! CWBVH this way):
 //! - each node's eight quantised `u8` child boxes are widened to `f32` in registers, all eight
 //!   at once (`vpmovzxbd` + `vcvtdq2ps`). Converting them once at build time into a separate
 //!   `f32` array (192 bytes per node beside obvhs's 80) was measured no faster, on the
@@ -38,7 +36,7 @@
 //!   per triangle in all;
 //! - the box test runs with exactly obvhs's `f32` operations (`q·(e·d⁻¹) + (p − o)·d⁻¹`,
 //!   `maxps`/`minps`), so it enters the children obvhs's test enters, and also those nearer
-//!   than obvhs's near limit of 1e-4 (ours was 0): all eight children at once in AVX registers where the CPU has AVX2 (detected at
+//!   than obvhs's near limit of 1e-4 (ours is 0, `BOX_T_MIN`): all eight children at once in AVX registers where the CPU has AVX2 (detected at
 //!   run time through pulp, `EightWide`), else four at a time in SSE (glam's `Vec4`,
 //!   `FourWide`; four scalars on other architectures);
 //! - triangles are packed in BVH order with their face normals (`PackedTriangle`), so a
@@ -89,19 +87,37 @@
 //! Shadow rays use the same traversal as an any-hit query that stops at the first accepted
 //! hit ([`Accel::occluded`]).
 //!
-//! **Packets** (stop 61; removed at stop 62). Up to 64 rays traced together through the
-//! CWBVH, each node loaded once for every ray entering it, boxes and triangles tested in
-//! groups of eight lanes (one ray per lane; the triangle lanes a filter before the exact
-//! test, so the same bits). A pixel's camera rays traced this way gained `thin` +6–12 %,
-//! `tabletop` +3–15 %, `cornell` +1 %, `deep` ±0 samples per CPU-second against the CWBVH
-//! one-ray loop; against the wide tree's one-ray loop they lost (the camera rays one at a
-//! time instead: `cornell` +1 %, `deep` +1–3 %, `materials` +3–4 %, `thin` +1 %, `tabletop`
-//! ±1 %, two alternating pairs), so they were removed with their 450 lines. Packets measured
-//! and not kept at stop 61 (the same bits each): every bounce's rays (`cornell` −16 %, `deep`
-//! −23 %, `tabletop` −13 %, `thin` −12 %; after the camera vertex a batch's rays go in all
-//! directions and a packet only adds bookkeeping), the camera vertices' shadow rays one packet
-//! per light (`deep` −10 %, `materials` −5 %, `thin` −3 %), and one interval-arithmetic box
-//! test for a whole packet (±2 % on camera rays, −14 to −18 % on shadow packets).
+//! **Packets.** [`Accel::closest_hits`] and [`Accel::occluded_many`] trace up to 64 rays
+//! ([`PACKET`]) together: each node is loaded once for every ray that enters it, and the rays
+//! test its children's boxes and their leaves' triangles in groups of eight lanes, one ray
+//! per lane. Each lane of the box test is the one-ray test's arithmetic for that ray (so the
+//! same children are entered); the triangle test in lanes is a filter that leaves a ray out
+//! only where the exact test certainly rejects it (the same operations up to its range test
+//! on `t`; a zero edge function or a NaN is kept), and every ray kept is then tested by the
+//! exact test alone. A ray thus tests every triangle whose box it enters, as the one-ray
+//! traversal does, and the answers are the same bits (closest hit with ties to the lowest
+//! index; any hit). The path loop traces a pixel's camera rays this way
+//! ([`crate::integrator::PathIntegrator::intersect_many`]): they are nearly the same ray.
+//! Samples per CPU-second against one ray at a time (`cargo bench -p pathtracer --bench
+//! render`, two alternating pairs, 2-core Zen 5, stop 61): `thin` +6–12 %, `tabletop`
+//! +3–15 %, `cornell` +1 %, `deep` ±0; pixel-centre rays of a row, 64 to a packet, 1.3x the
+//! primary rays/s (`cornell` 19 → 25 M/s, `tabletop` 16 → 23, `thin` 19 → 26, `deep` 18 →
+//! 19–22). Measured and not kept (the same bits each):
+//! - every bounce's rays as packets (the continuation rays of a batch's live paths, and its
+//!   shadow rays): `cornell` −16 %, `deep` −23 %, `tabletop` −13 %, `thin` −12 %, of which
+//!   the loop restructured to gather those rays costs `deep` 7–11 % with every ray still
+//!   traced alone. After the camera vertex a batch's rays go in all directions, and a packet
+//!   then only adds its own bookkeeping to each ray's work;
+//! - the camera vertices' shadow rays as packets, one per light (a pixel's shadow rays towards
+//!   one light, all other shadow rays one at a time): `deep` −10 %, `materials` −5 %, `thin`
+//!   −3 %;
+//! - one box test for the whole packet instead of one per ray, by interval arithmetic over
+//!   the packet's origins and inverse directions where its rays share their direction signs
+//!   (a conservative superset of the children its rays enter, on boxes widened by 10⁻⁵ of the
+//!   scene's scale, so the same bits): within ±2 % of the per-ray test on the camera rays,
+//!   and with the shadow packets above `deep` −14 %, `materials` −15 %, `thin` −18 %: the
+//!   bounds of a spread of origins times a spread of inverse directions enclose far more than
+//!   the rays (a direction component near zero spreads its inverse widely).
 //!
 //! Build settings are one struct, [`AccelParams`], with named presets mirroring obvhs's
 //! `BvhBuildParams` presets.
@@ -128,7 +144,9 @@
 use crate::PathTracerError;
 use crate::geometry::{Ray, TriangleHit, WatertightRay, intersect_triangle};
 use crate::scene::{AlphaMode, Scene};
-use glam::{Vec3, Vec3A};
+use glam::{Vec3, Vec3A, Vec4};
+use obvhs::cwbvh::CwBvh;
+use obvhs::cwbvh::node::CwBvhNode;
 use obvhs::cwbvh::builder::build_cwbvh;
 use obvhs::ploc::{PlocSearchDistance, SortPrecision};
 use obvhs::{Boundable, BvhBuildParams};
@@ -273,19 +291,344 @@ struct PackedTriangle {
     flags: u32,
 }
 
-/// The child-box test of [`wide::WideTest`] four children at a time in glam's `Vec4` (SSE2 on
-/// x86-64, four scalars elsewhere, where glam's `max`/`min` follow `maxps`/`minps` too): the
-/// baseline, and the fallback where AVX2 is missing.
+/// Nearest distance the box test accepts: 0, every box in front of the ray's origin. (obvhs's
+/// own test uses 1e-4 in world units, which skipped every hit closer than 0.1 mm to a ray's
+/// origin: contact shadows, and whole scenes modelled at millimetre scale. Which hits count near
+/// the origin is the triangle test's business.)
+const BOX_T_MIN: f32 = 0.0;
+
+/// Lane tests in one instruction set: the packets' (below) and, through [`wide::WideTest`], the
+/// one-ray traversal's eight-child box test. `max`/`min` are x86's `maxps`/`minps` (the second
+/// operand when either is NaN) and no operation is fused, so every implementation gives the
+/// same bits.
+trait ChildBoxTest: Copy {
+    /// Bit `l` set where `a[l] ≤ b[l]` (false for NaN), for the lanes of a packet's group.
+    fn le(self, a: &Lanes, b: &Lanes) -> u32;
+    /// Bit `l` set where `x[l] ≠ 0`.
+    fn nonzero(self, x: &[u32; LANES]) -> u32;
+}
+
+/// [`ChildBoxTest`] four children at a time in glam's `Vec4` (SSE2 on x86-64, four scalars
+/// elsewhere, where glam's `max`/`min` follow `maxps`/`minps` too): the baseline, and the
+/// fallback where AVX2 is missing.
 #[derive(Clone, Copy, Debug)]
 struct FourWide;
 
-/// The child-box test of [`wide::WideTest`] on all eight children at once in AVX registers
-/// (`vmaxps`/`vminps` and `vcmpps` with the same operands and order as [`FourWide`]), through
-/// pulp's safe wrappers; only constructed where the CPU has AVX2 (pulp's `V3` level, detected
-/// at run time).
+impl ChildBoxTest for FourWide {
+    #[inline(always)]
+    fn le(self, a: &Lanes, b: &Lanes) -> u32 {
+        let v = |x: &Lanes, k: usize| Vec4::new(x[k], x[k + 1], x[k + 2], x[k + 3]);
+        v(a, 0).cmple(v(b, 0)).bitmask() | (v(a, 4).cmple(v(b, 4)).bitmask() << 4)
+    }
+    #[inline(always)]
+    fn nonzero(self, x: &[u32; LANES]) -> u32 {
+        x.iter().enumerate().fold(0, |m, (l, &v)| m | (((v != 0) as u32) << l))
+    }
+}
+
+/// [`ChildBoxTest`] on all eight children at once in AVX registers (`vmaxps`/`vminps` and
+/// `vcmpps` with the same operands and order as [`FourWide`]), through pulp's safe wrappers;
+/// only constructed where the CPU has AVX2 (pulp's `V3` level, detected at run time).
 #[cfg(target_arch = "x86_64")]
 #[derive(Clone, Copy, Debug)]
 struct EightWide(pulp::x86::V3);
+
+#[cfg(target_arch = "x86_64")]
+impl ChildBoxTest for EightWide {
+    #[inline(always)]
+    fn le(self, a: &Lanes, b: &Lanes) -> u32 {
+        use core::arch::x86_64::_CMP_LE_OQ;
+        let avx = self.0.avx;
+        let (a, b) = (pulp::cast(*a), pulp::cast(*b));
+        avx._mm256_movemask_ps(avx._mm256_cmp_ps::<_CMP_LE_OQ>(a, b)) as u32
+    }
+    #[inline(always)]
+    fn nonzero(self, x: &[u32; LANES]) -> u32 {
+        let (avx, avx2) = (self.0.avx, self.0.avx2);
+        let zero = avx2._mm256_cmpeq_epi32(pulp::cast(*x), avx._mm256_setzero_si256());
+        !(avx._mm256_movemask_ps(avx._mm256_castsi256_ps(zero)) as u32) & 0xff
+    }
+}
+
+/// Depth of the CWBVH traversal stack of the packet queries (node groups pending; obvhs uses
+/// 32 as well).
+const STACK_SIZE: usize = 32;
+
+/// Rays per packet of the packet queries ([`Accel::closest_hits`], [`Accel::occluded_many`]):
+/// one bit each of a `u64`.
+pub const PACKET: usize = 64;
+/// Rays per group of a packet: eight `f32` lanes, one AVX register.
+const LANES: usize = 8;
+/// Groups per packet.
+const GROUPS: usize = PACKET / LANES;
+/// One number per ray of a group.
+type Lanes = [f32; LANES];
+
+/// The groups of a packet's ray mask `rays` that hold any of its rays: `(group, its rays as
+/// an 8-bit lane mask)`.
+#[inline(always)]
+fn groups(rays: u64) -> impl Iterator<Item = (usize, u32)> {
+    (0..GROUPS).map(move |g| (g, (rays >> (g * LANES)) as u32 & 0xff)).filter(|&(_, m)| m != 0)
+}
+
+/// The set bits of `mask`, lowest first.
+#[inline(always)]
+fn bits(mut mask: u32) -> impl Iterator<Item = usize> {
+    std::iter::from_fn(move || {
+        (mask != 0).then(|| {
+            let l = mask.trailing_zeros() as usize;
+            mask &= mask - 1;
+            l
+        })
+    })
+}
+
+/// x86's `maxps` on one lane: `a` where `a > b`, else `b` (so `b` where either is NaN).
+#[inline(always)]
+fn max_ps(a: f32, b: f32) -> f32 {
+    if a > b { a } else { b }
+}
+
+/// x86's `minps` on one lane: `a` where `a < b`, else `b`.
+#[inline(always)]
+fn min_ps(a: f32, b: f32) -> f32 {
+    if a < b { a } else { b }
+}
+
+/// A packet's rays in structure-of-arrays form, `[axis][group][lane]`, as the lane tests
+/// read them: obvhs's origin, direction (−0 as +0) and inverse direction, and the watertight
+/// test's permutation and shear.
+struct RayLanes {
+    o: [[Lanes; GROUPS]; 3],
+    d: [[Lanes; GROUPS]; 3],
+    inv: [[Lanes; GROUPS]; 3],
+    kz: [[u32; LANES]; GROUPS],
+    s: [[Lanes; GROUPS]; 3],
+}
+
+/// The child slots of `node` that each ray of group `g` enters before its `t_max`: for slot
+/// `k`, bit `l` of the result's `k`-th entry for lane `l`. Each lane computes exactly what
+/// [`child_slots`] computes for that ray (the same operations in the same order, `maxps` and
+/// `minps` semantics), so the answers are the same bits.
+#[inline(always)]
+fn child_slots_lanes<K: ChildBoxTest>(test: K, node: &CwBvhNode, rl: &RayLanes, g: usize, t_max: &Lanes) -> [u32; 8] {
+    let e = node.compute_extent();
+    let p = Vec3A::from(node.p);
+    let (e, p) = ([e.x, e.y, e.z], [p.x, p.y, p.z]);
+    let mut a = [[0.0f32; LANES]; 3];
+    let mut o = [[0.0f32; LANES]; 3];
+    for ax in 0..3 {
+        for l in 0..LANES {
+            a[ax][l] = e[ax] * rl.inv[ax][g][l];
+            o[ax][l] = (p[ax] - rl.o[ax][g][l]) * rl.inv[ax][g][l];
+        }
+    }
+    let mut out = [0u32; 8];
+    for (k, out) in out.iter_mut().enumerate() {
+        if node.is_child_empty(k) {
+            continue;
+        }
+        let lo = [node.child_min_x[k] as f32, node.child_min_y[k] as f32, node.child_min_z[k] as f32];
+        let hi = [node.child_max_x[k] as f32, node.child_max_y[k] as f32, node.child_max_z[k] as f32];
+        let mut near = [0.0f32; LANES];
+        let mut far = [0.0f32; LANES];
+        #[allow(clippy::needless_range_loop, reason = "every array is indexed by lane, which is what vectorises")]
+        for l in 0..LANES {
+            let slab = |ax: usize| {
+                let neg = rl.d[ax][g][l] < 0.0;
+                let (n, f) = if neg { (hi[ax], lo[ax]) } else { (lo[ax], hi[ax]) };
+                (n * a[ax][l] + o[ax][l], f * a[ax][l] + o[ax][l])
+            };
+            let (x, y, z) = (slab(0), slab(1), slab(2));
+            near[l] = max_ps(max_ps(x.0, max_ps(y.0, z.0)), BOX_T_MIN);
+            far[l] = min_ps(min_ps(x.1, min_ps(y.1, z.1)), t_max[l]);
+        }
+        *out = test.le(&near, &far);
+    }
+    out
+}
+
+/// The rays of group `g` that may hit `tri` before their `limit`: a lane is left out only
+/// where [`intersect_triangle`] (after back-face culling) certainly rejects that ray, by the
+/// same operations in the same order up to its range test on `t`; a lane with a zero edge
+/// function (which the test recomputes in `f64`) or a NaN is kept. The rays kept are then
+/// tested one by one by the exact test, so the answers are the one-ray queries' bits.
+#[inline(always)]
+fn triangle_lanes<K: ChildBoxTest>(test: K, tri: &PackedTriangle, rl: &RayLanes, g: usize, limit: &Lanes) -> u32 {
+    let cull = tri.flags & CULL_BACK != 0;
+    let mut keep = [0u32; LANES];
+    #[allow(clippy::needless_range_loop, reason = "every array is indexed by lane, which is what vectorises")]
+    for l in 0..LANES {
+        let (ox, oy, oz) = (rl.o[0][g][l], rl.o[1][g][l], rl.o[2][g][l]);
+        let (kz, sx, sy, sz) = (rl.kz[g][l], rl.s[0][g][l], rl.s[1][g][l], rl.s[2][g][l]);
+        // `WatertightRay::permuted`, then the shear of `intersect_triangle`.
+        let tr = |v: Vec3| {
+            let (x, y, z) = (v.x - ox, v.y - oy, v.z - oz);
+            let (px, py, pz) = if kz == 0 { (y, z, x) } else if kz == 1 { (z, x, y) } else { (x, y, z) };
+            (px + sx * pz, py + sy * pz, pz)
+        };
+        let (p0x, p0y, p0z) = tr(tri.p[0]);
+        let (p1x, p1y, p1z) = tr(tri.p[1]);
+        let (p2x, p2y, p2z) = tr(tri.p[2]);
+        let e0 = p1x * p2y - p1y * p2x;
+        let e1 = p2x * p0y - p2y * p0x;
+        let e2 = p0x * p1y - p0y * p1x;
+        let zero = (e0 == 0.0) | (e1 == 0.0) | (e2 == 0.0);
+        let mixed = ((e0 < 0.0) | (e1 < 0.0) | (e2 < 0.0)) & ((e0 > 0.0) | (e1 > 0.0) | (e2 > 0.0));
+        let det = e0 + e1 + e2;
+        let t_scaled = e0 * (p0z * sz) + e1 * (p1z * sz) + e2 * (p2z * sz);
+        let bound = limit[l] * det;
+        let outside = ((det < 0.0) & ((t_scaled >= 0.0) | (t_scaled < bound))) | ((det > 0.0) & ((t_scaled <= 0.0) | (t_scaled > bound)));
+        // `Vec3::dot`'s order; the direction's −0 as +0 changes no comparison with 0.
+        let front = tri.n.x * rl.d[0][g][l] + tri.n.y * rl.d[1][g][l] + tri.n.z * rl.d[2][g][l] < 0.0;
+        let kept = (!cull | front) & (zero | !(mixed | (det == 0.0) | outside));
+        keep[l] = if kept { !0 } else { 0 };
+    }
+    test.nonzero(&keep)
+}
+
+/// What a packet traversal ([`traverse_packet`]) asks of its query.
+trait PacketQuery {
+    /// Group `g`'s current far limits (the box tests enter only boxes nearer than them).
+    fn t_max(&self, g: usize) -> &Lanes;
+    /// Tests BVH primitive `id` against the rays `rays` (bit `r` for ray `r`); returns those
+    /// of them that are finished (an any-hit query's blocked rays), which leave the packet.
+    fn leaf<K: ChildBoxTest>(&mut self, test: K, rl: &RayLanes, id: usize, rays: u64) -> u64;
+}
+
+/// Traverses the BVH with a packet of rays (those of `active`, in lanes `rl`): each node is
+/// loaded once for all the rays that enter it, the rays test its children's boxes group by
+/// group of eight lanes ([`child_slots_lanes`], each lane the box test of the one-ray
+/// traversal with the ray's own current limit) and the triangles of the leaves they enter.
+/// A ray therefore tests every triangle whose box it enters before its current limit, as
+/// [`traverse`] does, so the closest hit (ties to the lowest index) and the any-hit answer
+/// are the same bits in this order as in that one. Nodes are visited front to back for the
+/// packet's first ray.
+#[inline(always)]
+fn traverse_packet<K: ChildBoxTest, Q: PacketQuery>(test: K, bvh: &CwBvh, rl: &RayLanes, mut active: u64, q: &mut Q) {
+    if bvh.nodes.is_empty() || active == 0 {
+        return;
+    }
+    // CWBVH slot `oct ^ j` is the `j`-th nearest for a ray in octant `oct` (sign bits x, y, z).
+    let first = active.trailing_zeros() as usize;
+    let dir = |ax: usize| rl.d[ax][first / LANES][first % LANES];
+    let oct = (((dir(0) < 0.0) as usize) << 2) | (((dir(1) < 0.0) as usize) << 1) | ((dir(2) < 0.0) as usize);
+    // Each node popped pushes at most 8 children: 8 per level of [`STACK_SIZE`] levels.
+    let mut stack = [(0u32, 0u64); 8 * STACK_SIZE];
+    stack[0] = (0, active);
+    let mut sp = 1usize;
+    while sp > 0 {
+        sp -= 1;
+        let (n, m) = stack[sp];
+        let rays = m & active;
+        if rays == 0 {
+            continue;
+        }
+        let node = &bvh.nodes[n as usize];
+        let mut slots = [0u64; 8];
+        for (g, in_group) in groups(rays) {
+            let hits = child_slots_lanes(test, node, rl, g, q.t_max(g));
+            for (s, h) in slots.iter_mut().zip(hits) {
+                *s |= ((h & in_group) as u64) << (g * LANES);
+            }
+        }
+        // The leaves' triangles first, then the inner children, nearest on top of the stack.
+        for j in 0..8 {
+            let k = oct ^ j;
+            if slots[k] == 0 || !node.is_leaf(k) {
+                continue;
+            }
+            let (first, count) = node.child_primitives(k);
+            for id in first..first + count {
+                let rays = slots[k] & active;
+                if rays == 0 {
+                    break;
+                }
+                active &= !q.leaf(test, rl, id as usize, rays);
+            }
+            if active == 0 {
+                return;
+            }
+        }
+        for j in (0..8).rev() {
+            let k = oct ^ j;
+            if slots[k] != 0 && !node.is_leaf(k) {
+                stack[sp] = (node.child_node_index(k), slots[k]);
+                sp += 1;
+            }
+        }
+    }
+}
+
+/// The closest-hit query of a packet ([`Accel::closest_hits`]).
+struct ClosestPacket<'a, F> {
+    tris: &'a [PackedTriangle],
+    wr: [WatertightRay; PACKET],
+    dir: [Vec3; PACKET],
+    best: [Option<Hit>; PACKET],
+    /// Each ray's distance to its best hit so far (the box tests' limit), by group.
+    best_t: [Lanes; GROUPS],
+    /// The triangle test's limit: `best_t`, one ulp further once there is a hit (ties).
+    limit: [Lanes; GROUPS],
+    alpha_test: F,
+}
+
+impl<F: Fn(usize, u32, &TriangleHit) -> bool> PacketQuery for ClosestPacket<'_, F> {
+    #[inline(always)]
+    fn t_max(&self, g: usize) -> &Lanes {
+        &self.best_t[g]
+    }
+    #[inline(always)]
+    fn leaf<K: ChildBoxTest>(&mut self, test: K, rl: &RayLanes, id: usize, rays: u64) -> u64 {
+        let tri = &self.tris[id];
+        for (g, in_group) in groups(rays) {
+            for l in bits(triangle_lanes(test, tri, rl, g, &self.limit[g]) & in_group) {
+                let r = g * LANES + l;
+                let alpha_test = |prim: u32, h: &TriangleHit| (self.alpha_test)(r, prim, h);
+                let (best, best_t) = (&mut self.best[r], &mut self.best_t[g][l]);
+                closest_candidate(tri, &self.wr[r], self.dir[r], best, best_t, &alpha_test);
+                if best.is_some() {
+                    self.limit[g][l] = crate::geometry::next_float_up(*best_t);
+                }
+            }
+        }
+        0
+    }
+}
+
+/// The any-hit query of a packet ([`Accel::occluded_many`]).
+struct OccludedPacket<'a, F> {
+    tris: &'a [PackedTriangle],
+    wr: [WatertightRay; PACKET],
+    dir: [Vec3; PACKET],
+    t_max: [Lanes; GROUPS],
+    /// The rays found blocked so far.
+    blocked: u64,
+    alpha_test: F,
+}
+
+impl<F: Fn(usize, u32, &TriangleHit) -> bool> PacketQuery for OccludedPacket<'_, F> {
+    #[inline(always)]
+    fn t_max(&self, g: usize) -> &Lanes {
+        &self.t_max[g]
+    }
+    #[inline(always)]
+    fn leaf<K: ChildBoxTest>(&mut self, test: K, rl: &RayLanes, id: usize, rays: u64) -> u64 {
+        let tri = &self.tris[id];
+        let mut blocked = 0u64;
+        for (g, in_group) in groups(rays) {
+            for l in bits(triangle_lanes(test, tri, rl, g, &self.t_max[g]) & in_group) {
+                let r = g * LANES + l;
+                let alpha_test = |prim: u32, h: &TriangleHit| (self.alpha_test)(r, prim, h);
+                if occludes(tri, &self.wr[r], self.dir[r], self.t_max[g][l], &alpha_test) {
+                    blocked |= 1u64 << r;
+                }
+            }
+        }
+        self.blocked |= blocked;
+        blocked
+    }
+}
 
 /// Runs `f` inside pulp's `vectorize` at the x86-64-v3 level `simd`: what `f` inlines (the
 /// whole traversal for a query, the whole path loop for [`Accel::at_level`]) is compiled with
@@ -306,7 +649,8 @@ fn in_v3<R>(simd: pulp::x86::V3, f: impl FnOnce() -> R) -> R {
 
 /// The scene's BVH and the triangle data its leaves reference.
 pub struct Accel {
-    /// obvhs's CWBVH re-laid with exact `f32` child boxes (module `wide`).
+    bvh: Option<CwBvh>,
+    /// The same tree with exact `f32` child boxes, for the one-ray queries.
     wide: wide::WideBvh,
     /// Triangles in BVH primitive order.
     tris: Vec<PackedTriangle>,
@@ -362,6 +706,7 @@ impl Accel {
             .collect();
         if tris.is_empty() {
             return Ok(Accel {
+                bvh: None,
                 wide: wide::WideBvh::default(),
                 tris: Vec::new(),
                 #[cfg(target_arch = "x86_64")]
@@ -404,6 +749,7 @@ impl Accel {
         // The build time includes the wide tree's boxes.
         let build_time = start.elapsed();
         Ok(Accel {
+            bvh: Some(bvh),
             wide,
             tris: bvh_tris,
             #[cfg(target_arch = "x86_64")]
@@ -464,23 +810,52 @@ impl Accel {
         self.tris.len()
     }
 
-    /// Bytes the traversal reads from: the nodes and the packed triangles (allocation slack
-    /// left out).
+    /// Bytes the traversal reads from: the CWBVH nodes (quantised child boxes), the packed
+    /// triangles and obvhs's primitive index list (allocation slack left out).
     pub fn memory_bytes(&self) -> usize {
-        self.wide.memory_bytes() + self.tris.len() * std::mem::size_of::<PackedTriangle>()
+        use std::mem::size_of;
+        let bvh = self.bvh.as_ref().map_or(0, |b| b.nodes.len() * size_of::<CwBvhNode>() + b.primitive_indices.len() * size_of::<u32>());
+        bvh + self.wide.memory_bytes() + self.tris.len() * size_of::<PackedTriangle>()
     }
 
-    /// The two forms of `ray` the traversal reads: the box test's and the watertight test's.
-    /// `None` when no hit is possible: a non-finite origin or direction, a zero direction, or
-    /// `t_max ≤ 0`.
+    /// The two forms of `ray` the traversal reads: obvhs's (box tests) and the watertight
+    /// test's. `None` when no hit is possible: a non-finite origin or direction, a zero
+    /// direction, or `t_max ≤ 0`.
     #[inline(always)]
-    fn wide_query(ray: &Ray, t_max: f32) -> Option<(wide::WideRay, WatertightRay)> {
+    fn query_rays(ray: &Ray, t_max: f32) -> Option<(obvhs::ray::Ray, WatertightRay)> {
         // `v · 0` is ±0 for a finite `v` and NaN otherwise: one test for all six components.
         let z = ray.origin * 0.0 + ray.direction * 0.0;
         if !(z.x + z.y + z.z == 0.0) || ray.direction == Vec3::ZERO || !(t_max > 0.0) {
             return None;
         }
+        Some((Self::obvhs_ray(ray, t_max), WatertightRay::from_finite(ray)?))
+    }
+
+    /// [`Accel::query_rays`] for the wide tree's traversal.
+    #[inline(always)]
+    fn wide_query(ray: &Ray, t_max: f32) -> Option<(wide::WideRay, WatertightRay)> {
+        let z = ray.origin * 0.0 + ray.direction * 0.0;
+        if !(z.x + z.y + z.z == 0.0) || ray.direction == Vec3::ZERO || !(t_max > 0.0) {
+            return None;
+        }
         Some((wide::WideRay::new(ray.origin, ray.direction), WatertightRay::from_finite(ray)?))
+    }
+
+    /// obvhs's ray for a finite, non-zero `ray` ([`Accel::query_rays`]).
+    #[inline(always)]
+    fn obvhs_ray(ray: &Ray, t_max: f32) -> obvhs::ray::Ray {
+        // `+ 0.0` turns −0 into +0: obvhs derives slab order from `d < 0` but the inverse
+        // from the sign bit, which disagree for −0.
+        let d = ray.direction + Vec3::ZERO;
+        // obvhs's `safe_inverse` per component, here so that it inlines (`Ray::new` does not).
+        let inv = |x: f32| if x.abs() <= f32::EPSILON { x.signum() / f32::EPSILON } else { 1.0 / x };
+        obvhs::ray::Ray {
+            origin: Vec3A::from(ray.origin),
+            direction: Vec3A::from(d),
+            inv_direction: Vec3A::new(inv(d.x), inv(d.y), inv(d.z)),
+            tmin: 0.0,
+            tmax: t_max,
+        }
     }
 
     /// The closest accepted hit with `t < t_max`. `alpha_test(prim, hit)` is consulted only
@@ -502,6 +877,113 @@ impl Accel {
             return in_v3(simd, #[inline(always)] || self.occluded_with::<{ wide::STACK }, _, _>(EightWide(simd), ray, t_max, alpha_test));
         }
         self.occluded_with::<{ wide::STACK }, _, _>(FourWide, ray, t_max, alpha_test)
+    }
+
+    /// [`Accel::closest_hit`] for many rays: `out[r]` is `closest_hit(&rays[r], t_max, …)`, the
+    /// same bits, found by packets of up to [`PACKET`] rays that load each node once for all
+    /// the rays entering it (the gain is in coherent rays: a pixel's camera rays).
+    /// `alpha_test(r, prim, hit)` is ray `r`'s alpha test.
+    ///
+    /// # Panics
+    /// If `rays` and `out` differ in length.
+    #[inline(always)]
+    pub fn closest_hits<F: Fn(usize, u32, &TriangleHit) -> bool>(&self, rays: &[Ray], t_max: f32, alpha_test: F, out: &mut [Option<Hit>]) {
+        assert_eq!(rays.len(), out.len(), "closest_hits: {} rays, {} results", rays.len(), out.len());
+        #[cfg(target_arch = "x86_64")]
+        if let Some(simd) = self.avx2 {
+            return in_v3(simd, #[inline(always)] || self.closest_hits_with(EightWide(simd), rays, t_max, &alpha_test, out));
+        }
+        self.closest_hits_with(FourWide, rays, t_max, &alpha_test, out)
+    }
+
+    /// [`Accel::occluded`] for many rays: `out[r]` is `occluded(&rays[r], t_max[r], …)`, by
+    /// packets as in [`Accel::closest_hits`].
+    ///
+    /// # Panics
+    /// If the slices differ in length.
+    #[inline(always)]
+    pub fn occluded_many<F: Fn(usize, u32, &TriangleHit) -> bool>(&self, rays: &[Ray], t_max: &[f32], alpha_test: F, out: &mut [bool]) {
+        assert!(rays.len() == out.len() && rays.len() == t_max.len(), "occluded_many: {} rays, {} limits, {} results", rays.len(), t_max.len(), out.len());
+        #[cfg(target_arch = "x86_64")]
+        if let Some(simd) = self.avx2 {
+            return in_v3(simd, #[inline(always)] || self.occluded_many_with(EightWide(simd), rays, t_max, &alpha_test, out));
+        }
+        self.occluded_many_with(FourWide, rays, t_max, &alpha_test, out)
+    }
+
+    /// A packet's rays (`rays`, at most [`PACKET`], with limits `t_max(r)`) in lanes and in
+    /// the watertight test's form, their directions, and the mask of those that can hit
+    /// anything ([`Accel::query_rays`]); the other lanes hold a placeholder ray.
+    #[inline(always)]
+    fn packet_rays(rays: &[Ray], t_max: impl Fn(usize) -> f32) -> (RayLanes, [WatertightRay; PACKET], [Vec3; PACKET], u64) {
+        let placeholder = WatertightRay::from_finite(&Ray::new(Vec3::ZERO, Vec3::Z)).expect("+z is a valid direction");
+        let mut rl = RayLanes { o: [[[0.0; LANES]; GROUPS]; 3], d: [[[0.0; LANES]; GROUPS]; 3], inv: [[[0.0; LANES]; GROUPS]; 3], kz: [[2; LANES]; GROUPS], s: [[[0.0; LANES]; GROUPS]; 3] };
+        let mut wrs = [placeholder; PACKET];
+        let mut dirs = [Vec3::Z; PACKET];
+        let mut valid = 0u64;
+        for (r, ray) in rays.iter().enumerate().take(PACKET) {
+            if let Some((o, w)) = Self::query_rays(ray, t_max(r)) {
+                let (g, l) = (r / LANES, r % LANES);
+                let (kz, s) = w.shear();
+                for (ax, &s) in s.iter().enumerate() {
+                    rl.o[ax][g][l] = o.origin[ax];
+                    rl.d[ax][g][l] = o.direction[ax];
+                    rl.inv[ax][g][l] = o.inv_direction[ax];
+                    rl.s[ax][g][l] = s;
+                }
+                rl.kz[g][l] = kz;
+                wrs[r] = w;
+                dirs[r] = ray.direction;
+                valid |= 1u64 << r;
+            }
+        }
+        (rl, wrs, dirs, valid)
+    }
+
+    /// [`Accel::closest_hits`] with the child-box test `test`.
+    #[inline(always)]
+    fn closest_hits_with<K: ChildBoxTest, F: Fn(usize, u32, &TriangleHit) -> bool>(&self, test: K, rays: &[Ray], t_max: f32, alpha_test: &F, out: &mut [Option<Hit>]) {
+        let Some(bvh) = self.bvh.as_ref() else {
+            out.fill(None);
+            return;
+        };
+        for (c, (rays, out)) in rays.chunks(PACKET).zip(out.chunks_mut(PACKET)).enumerate() {
+            let (rl, wr, dir, valid) = Self::packet_rays(rays, |_| t_max);
+            let base = c * PACKET;
+            let mut q = ClosestPacket {
+                tris: &self.tris,
+                wr,
+                dir,
+                best: [None; PACKET],
+                best_t: [[t_max; LANES]; GROUPS],
+                limit: [[t_max; LANES]; GROUPS],
+                alpha_test: |r: usize, prim: u32, h: &TriangleHit| alpha_test(base + r, prim, h),
+            };
+            traverse_packet(test, bvh, &rl, valid, &mut q);
+            out.copy_from_slice(&q.best[..out.len()]);
+        }
+    }
+
+    /// [`Accel::occluded_many`] with the child-box test `test`.
+    #[inline(always)]
+    fn occluded_many_with<K: ChildBoxTest, F: Fn(usize, u32, &TriangleHit) -> bool>(&self, test: K, rays: &[Ray], t_max: &[f32], alpha_test: &F, out: &mut [bool]) {
+        let Some(bvh) = self.bvh.as_ref() else {
+            out.fill(false);
+            return;
+        };
+        for (c, ((rays, t_max), out)) in rays.chunks(PACKET).zip(t_max.chunks(PACKET)).zip(out.chunks_mut(PACKET)).enumerate() {
+            let (rl, wr, dir, valid) = Self::packet_rays(rays, |r| t_max[r]);
+            let base = c * PACKET;
+            let mut limits = [[0.0; LANES]; GROUPS];
+            for (r, &t) in t_max.iter().enumerate() {
+                limits[r / LANES][r % LANES] = t;
+            }
+            let mut q = OccludedPacket { tris: &self.tris, wr, dir, t_max: limits, blocked: 0, alpha_test: |r: usize, prim: u32, h: &TriangleHit| alpha_test(base + r, prim, h) };
+            traverse_packet(test, bvh, &rl, valid, &mut q);
+            for (r, o) in out.iter_mut().enumerate() {
+                *o = q.blocked & (1u64 << r) != 0;
+            }
+        }
     }
 
     /// [`Accel::closest_hit`] with the child-box test `test` and `N` stack entries before the
@@ -750,6 +1232,78 @@ mod tests {
                 }
             }
             assert!(hits > 1000, "scale {scale}: too few hits ({hits})");
+        }
+    }
+
+    /// The packet queries answer every ray exactly as the one-ray queries do (triangle, `t`,
+    /// barycentrics and face, bit for bit; the any-hit answer): coherent bundles (one origin,
+    /// a narrow cone, as a pixel's camera rays), incoherent rays, rays that cannot hit
+    /// (non-finite, zero direction, `t_max ≤ 0`), finite limits, alpha-tested triangles with
+    /// an answer that depends on the ray, batches across packet boundaries, in a shallow and
+    /// a deep tree, with both child-box tests.
+    #[test]
+    fn packet_queries_answer_each_ray_as_the_one_ray_queries() {
+        for (n, params) in [(300, AccelParams::medium_build()), (5000, AccelParams::fastest_build())] {
+            let mut scene = soup(n);
+            // Material 1 (double-sided, and the grid) alpha-tested.
+            scene.materials[1].alpha_mode = AlphaMode::Mask { cutoff: 0.5 };
+            for avx2 in [true, false] {
+                let mut accel = Accel::build(&scene, &params).unwrap();
+                accel.set_avx2(avx2);
+                let mut rng = Sampler::new(17, 0, n as u64, avx2 as u32);
+                for (batch, len) in [0usize, 1, 7, 64, 65, 200].into_iter().enumerate() {
+                    let coherent = batch % 2 == 0;
+                    let o0 = Vec3::new(rng.next_1d(), rng.next_1d(), rng.next_1d()) * 3.0 - 1.5;
+                    // Aimed into the soup, so that a bundle hits as well as misses.
+                    let d0 = ((Vec3::new(rng.next_1d(), rng.next_1d(), rng.next_1d()) - 0.5) - o0).normalize();
+                    let mut rays = Vec::new();
+                    let mut limits = Vec::new();
+                    for k in 0..len {
+                        let ray = match k % 23 {
+                            5 => Ray::new(Vec3::new(f32::NAN, 0.0, 0.0), Vec3::X),
+                            11 => Ray::new(o0, Vec3::ZERO),
+                            17 => Ray::new(o0, Vec3::new(0.0, f32::INFINITY, 0.0)),
+                            // At the grid's shared vertices and edges (zero edge functions).
+                            19 | 20 => {
+                                let (i, j) = ((rng.next_1d() * 7.0).floor(), (rng.next_1d() * 7.0).floor());
+                                let vertex = |i: f32, j: f32| Vec3::new(i / 6.0 * 2.0 - 1.0, -0.9, j / 6.0 * 2.0 - 1.0);
+                                let target = if k % 23 == 19 { vertex(i, j) } else { vertex(i, j).lerp(vertex(i + 1.0, j), 0.5) };
+                                // Straight down onto it (the edge functions exactly zero), or from the bundle's origin.
+                                if k % 2 == 0 { Ray::new(target + 1.9 * Vec3::Y, -Vec3::Y) } else { Ray::new(o0, (target - o0).normalize()) }
+                            }
+                            _ if coherent => Ray::new(o0 + 1e-3 * Vec3::new(rng.next_1d(), rng.next_1d(), rng.next_1d()), (d0 + 0.05 * sample_uniform_sphere(rng.next_2d())).normalize()),
+                            _ => Ray::new(Vec3::new(rng.next_1d(), rng.next_1d(), rng.next_1d()) * 3.0 - 1.5, sample_uniform_sphere(rng.next_2d())),
+                        };
+                        rays.push(ray);
+                        limits.push(match k % 5 {
+                            0 => 0.5 + rng.next_1d(),
+                            1 if k % 7 == 0 => 0.0,
+                            _ => f32::INFINITY,
+                        });
+                    }
+                    // The alpha test depends on the ray and the hit.
+                    let alpha = |r: usize, prim: u32, h: &TriangleHit| !(r as u32 * 7 + prim * 13 + (h.b[0] * 8.0) as u32).is_multiple_of(3);
+                    let key = |h: Option<Hit>| h.map(|h| (h.prim, h.t.to_bits(), h.b.map(f32::to_bits), h.front));
+                    for t_max in [f32::INFINITY, 1.0] {
+                        let mut got = vec![None; len];
+                        accel.closest_hits(&rays, t_max, alpha, &mut got);
+                        for (r, ray) in rays.iter().enumerate() {
+                            let want = accel.closest_hit(ray, t_max, |prim, h| alpha(r, prim, h));
+                            assert_eq!(key(got[r]), key(want), "n {n} avx2 {avx2} batch {batch} ray {r}: {ray:?} t_max {t_max}");
+                        }
+                    }
+                    let mut blocked = vec![false; len];
+                    accel.occluded_many(&rays, &limits, alpha, &mut blocked);
+                    for (r, ray) in rays.iter().enumerate() {
+                        let want = accel.occluded(ray, limits[r], |prim, h| alpha(r, prim, h));
+                        assert_eq!(blocked[r], want, "n {n} avx2 {avx2} batch {batch} ray {r}: {ray:?} t_max {}", limits[r]);
+                    }
+                    if len >= 64 {
+                        let hits = rays.iter().filter(|r| accel.closest_hit(r, f32::INFINITY, |_, _| true).is_some()).count();
+                        assert!(hits > len / 10 && hits < len, "n {n} batch {batch}: {hits} of {len} rays hit; the test needs hits and misses");
+                    }
+                }
+            }
         }
     }
 }

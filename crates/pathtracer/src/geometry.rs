@@ -98,6 +98,13 @@ impl WatertightRay {
         Some(Self { origin: ray.origin, kz, sx: -p.x / p.z, sy: -p.y / p.z, sz: 1.0 / p.z })
     }
 
+    /// The dominant axis `kz` and the shear `(sx, sy, sz)`, for tests that run many rays in
+    /// lanes (`crate::accel`'s packets).
+    #[inline(always)]
+    pub(crate) fn shear(&self) -> (u32, [f32; 3]) {
+        (self.kz as u32, [self.sx, self.sy, self.sz])
+    }
+
     /// The vertices translated to the origin (`v − origin`) with their components permuted
     /// to `(kx, ky, kz)`: one fixed swizzle per dominant axis, so the hot loop has no
     /// per-component indexing.

@@ -112,10 +112,10 @@
 //!     moved about 57 numbers in and out of the lanes, and every lane paid the whole estimate
 //!     where the scalar code stops at the first zero factor (a light behind the surface).
 //!
-//!   Every ray is traced alone. A batch's camera rays (a pixel's, nearly the same ray) were
-//!   traced as packets that loaded each node once for all of them at stop 61 (`thin` +6–12 %,
-//!   `tabletop` +3–15 %, `cornell` +1 %, `deep` ±0 against the one-ray CWBVH traversal of
-//!   then); against stop 62's faster one-ray traversal they lost (the accel module docs).
+//!   A batch's camera rays (a pixel's, nearly the same ray) are traced as packets that load
+//!   each node once for all of them ([`crate::accel::Accel::closest_hits`], stop 61: the same
+//!   bits, `thin` +6–12 %, `tabletop` +3–15 %, `cornell` +1 %, `deep` ±0); every later ray is
+//!   traced alone, which measured faster (the accel module docs).
 //! - Where a sample's time goes (stop 59, 2-core Zen 5). Each part below was run twice in
 //!   place, the copy's result discarded through `black_box`, and its cost read as the extra
 //!   CPU time per sample (`cargo bench -p pathtracer --bench render -- SCENE --seconds 3`,
@@ -472,6 +472,13 @@ impl PathIntegrator<'_> {
         self.accel.closest_hit(ray, f32::INFINITY, |prim, h| alpha_test(self.scene, ray, prim, h.b))
     }
 
+    /// [`PathIntegrator::intersect`] for each of `rays`, into `out` (the same bits), by packets
+    /// of rays ([`Accel::closest_hits`]).
+    #[inline(always)]
+    pub fn intersect_many(&self, rays: &[Ray], out: &mut [Option<Hit>]) {
+        self.accel.closest_hits(rays, f32::INFINITY, |r, prim, h| alpha_test(self.scene, &rays[r], prim, h.b), out)
+    }
+
     /// Whether anything blocks `ray` before `t_max`.
     #[inline(always)]
     pub fn occluded(&self, ray: &Ray, t_max: f32) -> bool {
@@ -560,8 +567,10 @@ impl PathIntegrator<'_> {
         let env = &self.settings.environment;
         let mut paths: Vec<PathState> = Vec::with_capacity(rays.len());
         let mut active: Vec<u32> = Vec::with_capacity(rays.len());
-        for (k, ray) in rays.iter().enumerate() {
-            let hit = self.intersect(ray);
+        // The camera rays (a pixel's, close to each other) as packets.
+        let mut hits = vec![None; rays.len()];
+        self.intersect_many(rays, &mut hits);
+        for (k, (ray, &hit)) in rays.iter().zip(&hits).enumerate() {
             paths.push(PathState {
                 l: Vec3::ZERO,
                 beta: Vec3::ONE,

