@@ -9,7 +9,7 @@
 //! ray's direction signs and the interval widened by `2⁻²¹` relative (conservative against its
 //! own rounding), children pushed sorted by entry distance and culled when popped beyond the
 //! current hit (the any-hit query pushes them unsorted, which measured faster). 224 bytes per
-//! node beside the CWBVH's 80, which the packets below still use: 84–89 bytes per triangle in
+//! node beside the CWBVH's 80, which the packets below still use: 84–90 bytes per triangle in
 //! all instead of 66–68. Why: on exactly the same rays, written by Mitsuba 3 for the same
 //! exported scenes (`tests/mitsuba/rays.py`; `cargo xtask bench render` prints the table,
 //! `cargo bench -p pathtracer --bench render -- SCENE --rays FILE` times ours alone),
@@ -102,7 +102,11 @@
 //! render`, two alternating pairs, 2-core Zen 5, stop 61): `thin` +6–12 %, `tabletop`
 //! +3–15 %, `cornell` +1 %, `deep` ±0; pixel-centre rays of a row, 64 to a packet, 1.3x the
 //! primary rays/s (`cornell` 19 → 25 M/s, `tabletop` 16 → 23, `thin` 19 → 26, `deep` 18 →
-//! 19–22). Measured and not kept (the same bits each):
+//! 19–22). Against the wide tree's one-ray loop (stop 62) the camera packets still pay at
+//! 32 spp and more (64 spp: `tabletop` +4–5 %, `thin` +3–5 %, `cornell` +1–2 %, `deep`
+//! +0.5–1 %, `materials` 0–0.7 %) but not at 16 (±1 %), so the path loop uses them for
+//! batches of at least 32 rays (`PACKET_MIN_RAYS` in the integrator). Measured and not kept
+//! (the same bits each):
 //! - every bounce's rays as packets (the continuation rays of a batch's live paths, and its
 //!   shadow rays): `cornell` −16 %, `deep` −23 %, `tabletop` −13 %, `thin` −12 %, of which
 //!   the loop restructured to gather those rays costs `deep` 7–11 % with every ray still

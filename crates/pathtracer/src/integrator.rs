@@ -114,7 +114,9 @@
 //!
 //!   A batch's camera rays (a pixel's, nearly the same ray) are traced as packets that load
 //!   each node once for all of them ([`crate::accel::Accel::closest_hits`], stop 61: the same
-//!   bits, `thin` +6–12 %, `tabletop` +3–15 %, `cornell` +1 %, `deep` ±0); every later ray is
+//!   bits, `thin` +6–12 %, `tabletop` +3–15 %, `cornell` +1 %, `deep` ±0 against the CWBVH
+//!   one-ray loop of then) where the batch holds at least `PACKET_MIN_RAYS` (32; against stop
+//!   62's faster one-ray loop they still pay at 32 spp and more, not at 16); every later ray is
 //!   traced alone, which measured faster (the accel module docs).
 //! - Where a sample's time goes (stop 59, 2-core Zen 5). Each part below was run twice in
 //!   place, the copy's result discarded through `black_box`, and its cost read as the extra
@@ -207,6 +209,15 @@ const DIM_BSDF: u32 = 5;
 const DIM_ROULETTE: u32 = 7;
 /// Sampler dimensions every path vertex reserves (the block above).
 const VERTEX_DIMENSIONS: u32 = DIM_ROULETTE + 1;
+
+/// Fewest camera rays in a batch (a pixel's samples) traced as one packet
+/// ([`PathIntegrator::intersect_many`]); smaller batches trace theirs one at a time (the same
+/// bits). Samples per CPU-second, packets against one ray at a time (`cargo bench -p pathtracer
+/// --bench render`, 128 px, two alternating pairs, stop 62): 16 spp `tabletop` +1 %, `thin`
+/// and `deep` ±1 % (at the quick view's 64 px one ray at a time was 1–4 % faster); 32 spp
+/// `tabletop` +3 %, `thin` +2–4 %, `deep` −1 to −2.5 %; 64 spp `tabletop` +4–5 %, `thin`
+/// +3–5 %, `cornell` +1–2 %, `deep` +0.5–1 %, `materials` 0–0.7 %.
+const PACKET_MIN_RAYS: usize = 32;
 
 /// Russian roulette's survival probability over the path's largest throughput component
 /// (capped at 1). pbrt and Mitsuba use 1; 2 keeps paths whose throughput is between ½ and 1
@@ -567,9 +578,16 @@ impl PathIntegrator<'_> {
         let env = &self.settings.environment;
         let mut paths: Vec<PathState> = Vec::with_capacity(rays.len());
         let mut active: Vec<u32> = Vec::with_capacity(rays.len());
-        // The camera rays (a pixel's, close to each other) as packets.
+        // The camera rays (a pixel's, close to each other) as packets where the batch is large
+        // enough to pay, else one at a time (the same bits either way).
         let mut hits = vec![None; rays.len()];
-        self.intersect_many(rays, &mut hits);
+        if rays.len() >= PACKET_MIN_RAYS {
+            self.intersect_many(rays, &mut hits);
+        } else {
+            for (h, r) in hits.iter_mut().zip(rays) {
+                *h = self.intersect(r);
+            }
+        }
         for (k, (ray, &hit)) in rays.iter().zip(&hits).enumerate() {
             paths.push(PathState {
                 l: Vec3::ZERO,
