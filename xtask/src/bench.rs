@@ -485,6 +485,11 @@ fn bench_render(args: &RenderBenchArgs) -> anyhow::Result<()> {
     report.write(&out_dir(&args.out), "bench-render", &json)
 }
 
+/// The JSON objects a harness script printed, one per line (other lines are skipped).
+fn json_lines(stdout: &[u8]) -> serde_json::Result<Vec<serde_json::Value>> {
+    String::from_utf8_lossy(stdout).lines().filter(|l| l.trim_start().starts_with('{')).map(serde_json::from_str).collect()
+}
+
 /// Ray queries of ours and Mitsuba 3's on exactly the same rays: `tests/mitsuba/rays.py` writes,
 /// per scene (its export for the comparison, `<export_root>/<scene>`), the 256-px pixel-centre
 /// camera rays and one uniformly random ray from each of their hits, with the Mray/s of
@@ -510,12 +515,7 @@ fn bench_render_rays(scenes: &[(String, std::path::PathBuf)], export_root: &Path
         report.line(format!("rays vs Mitsuba skipped: tests/mitsuba/rays.py failed ({})", run.status));
         return Ok(Vec::new());
     }
-    let lines: Vec<serde_json::Value> = String::from_utf8_lossy(&run.stdout)
-        .lines()
-        .filter(|l| l.trim_start().starts_with('{'))
-        .map(serde_json::from_str)
-        .collect::<Result<_, _>>()
-        .context("reading rays.py's output")?;
+    let lines = json_lines(&run.stdout).context("reading rays.py's output")?;
     report.line(format!(
         "rays vs Mitsuba 3 ({}): the same rays for both (tests/mitsuba/rays.py, in {}): `camera` = the comparison camera's pixel-centre rays at 256 px wide, \
          `incoherent` = one ray from each of their hits in a uniformly random direction; Mray/s on all threads, medians ({RENDER_RUNS} runs ours, 30 Mitsuba's); \
@@ -913,12 +913,7 @@ fn bench_render_mitsuba(ours: &[OursQuick], runs: usize, mitsuba: bool, report: 
         report.line(format!("Mitsuba comparison failed ({}); our figures above stand", out.status));
         return Ok(only_ours(report));
     }
-    let lines: Vec<serde_json::Value> = String::from_utf8_lossy(&out.stdout)
-        .lines()
-        .filter(|l| l.trim_start().starts_with('{'))
-        .map(serde_json::from_str)
-        .collect::<Result<_, _>>()
-        .context("reading bench.py's output")?;
+    let lines = json_lines(&out.stdout).context("reading bench.py's output")?;
     report.line(format!(
         "vs Mitsuba 3: same camera (the quick rig's first train view) at {CMP_WIDTH} px wide, {CMP_SPP} spp, our max_bounces {} = \
          Mitsuba max_depth {} (Russian roulette from the third vertex on both: rr_depth 2; ours survives with min(1, 2 x max throughput), Mitsuba with min(0.95, max throughput)), environment {:?} as an opaque \
