@@ -357,11 +357,11 @@ fn bench_render(args: &RenderBenchArgs) -> anyhow::Result<()> {
     let mut ours_quick: Vec<OursQuick> = Vec::new();
     let mut figures: Vec<SceneFigures> = Vec::new();
     let mut simd = "";
-    let mut scene_paths: Vec<(String, std::path::PathBuf)> = Vec::new();
+    // Each scene's renderer, kept for the ray queries against Mitsuba's after its renders.
+    let mut renderers: Vec<(String, Renderer)> = Vec::new();
     for path in scenes {
         let name = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
         let scene = pathtracer::import::load_gltf(&path, &pathtracer::import::ImportOptions::default())?;
-        scene_paths.push((name.clone(), path.clone()));
         let scene_for_export = scene.clone();
         let params = AccelParams::medium_build();
         let build_ms = Spread::of(
@@ -467,10 +467,11 @@ fn bench_render(args: &RenderBenchArgs) -> anyhow::Result<()> {
             std_spp_msamples_per_s: std_rate,
             quick_render_hash: format!("{quick_hash:016x}"),
         });
+        renderers.push((name, renderer));
     }
     report.line(format!("child-box test: {simd}"));
     let comparisons = bench_render_mitsuba(&ours_quick, cmp_runs, !args.no_mitsuba, &mut report)?;
-    let rays = if args.no_mitsuba { Vec::new() } else { bench_render_rays(&scene_paths, &export_root, &out_dir(&args.out), &mut report)? };
+    let rays = if args.no_mitsuba { Vec::new() } else { bench_render_rays(&renderers, &export_root, &out_dir(&args.out), &mut report)? };
     let json = serde_json::json!({
         "profile": build_profile(),
         "cpu": cpu,
@@ -496,8 +497,8 @@ fn json_lines(stdout: &[u8]) -> serde_json::Result<Vec<serde_json::Value>> {
 /// Mitsuba's closest-hit and any-hit queries on them (all threads, medians); ours are timed on
 /// the files ([`pathtracer::render::Renderer::ray_query_throughput`], medians of
 /// [`RENDER_RUNS`]). Says why and returns nothing where Mitsuba is unavailable.
-fn bench_render_rays(scenes: &[(String, std::path::PathBuf)], export_root: &Path, out: &Path, report: &mut Report) -> anyhow::Result<Vec<serde_json::Value>> {
-    use pathtracer::render::{RayQuery, Renderer, read_ray_file};
+fn bench_render_rays(scenes: &[(String, pathtracer::render::Renderer)], export_root: &Path, out: &Path, report: &mut Report) -> anyhow::Result<Vec<serde_json::Value>> {
+    use pathtracer::render::{RayQuery, read_ray_file};
     let root = crate::render::repo_root();
     let python = root.join(".venv/bin/python");
     if !python.is_file() || scenes.is_empty() {
@@ -528,20 +529,21 @@ fn bench_render_rays(scenes: &[(String, std::path::PathBuf)], export_root: &Path
         "scene", "camera", "closest", "packets", "Mi", "ratio", "incoh.", "closest", "Mi", "ratio", "any-hit", "Mi", "ratio"
     ));
     let mut rows = Vec::new();
-    for (name, path) in scenes {
+    for (name, renderer) in scenes {
         let Some(mi) = lines.iter().find(|l| l["scene"].as_str() == Some(name.as_str())) else { continue };
-        let scene = pathtracer::import::load_gltf(path, &pathtracer::import::ImportOptions::default())?;
-        let renderer = Renderer::new(scene, &pathtracer::accel::AccelParams::medium_build())?;
-        let ours = |set: &str, q: RayQuery| -> anyhow::Result<Spread> {
+        let rays_of = |set: &str| -> anyhow::Result<Vec<(pathtracer::geometry::Ray, f32)>> {
             let file = mi[set]["file"].as_str().with_context(|| format!("rays.py: no {set} file for {name}"))?;
-            let rays = read_ray_file(Path::new(file))?;
-            Ok(Spread::of(&(0..RENDER_RUNS).map(|_| renderer.ray_query_throughput(&rays, q).rays_per_second * 1e-6).collect::<Vec<_>>()))
+            Ok(read_ray_file(Path::new(file))?)
+        };
+        let ours = |rays: &[(pathtracer::geometry::Ray, f32)], q: RayQuery| {
+            Spread::of(&(0..RENDER_RUNS).map(|_| renderer.ray_query_throughput(rays, q).rays_per_second * 1e-6).collect::<Vec<_>>())
         };
         let mi_rate = |set: &str, k: &str| mi[set][k].as_f64().unwrap_or(f64::NAN);
-        let cam = ours("primary", RayQuery::Closest)?;
-        let cam_packets = ours("primary", RayQuery::ClosestPackets)?;
-        let inc = ours("incoherent", RayQuery::Closest)?;
-        let inc_any = ours("incoherent", RayQuery::AnyHit)?;
+        let (camera_rays, incoherent_rays) = (rays_of("primary")?, rays_of("incoherent")?);
+        let cam = ours(&camera_rays, RayQuery::Closest);
+        let cam_packets = ours(&camera_rays, RayQuery::ClosestPackets);
+        let inc = ours(&incoherent_rays, RayQuery::Closest);
+        let inc_any = ours(&incoherent_rays, RayQuery::AnyHit);
         let (mi_cam, mi_inc, mi_any) = (mi_rate("primary", "closest_mrays_per_s"), mi_rate("incoherent", "closest_mrays_per_s"), mi_rate("incoherent", "any_hit_mrays_per_s"));
         let best_cam = cam.median.max(cam_packets.median);
         report.line(format!(

@@ -827,9 +827,7 @@ impl Accel {
     /// direction, or `t_max ≤ 0`.
     #[inline(always)]
     fn query_rays(ray: &Ray, t_max: f32) -> Option<(obvhs::ray::Ray, WatertightRay)> {
-        // `v · 0` is ±0 for a finite `v` and NaN otherwise: one test for all six components.
-        let z = ray.origin * 0.0 + ray.direction * 0.0;
-        if !(z.x + z.y + z.z == 0.0) || ray.direction == Vec3::ZERO || !(t_max > 0.0) {
+        if !Self::can_hit(ray, t_max) {
             return None;
         }
         Some((Self::obvhs_ray(ray, t_max), WatertightRay::from_finite(ray)?))
@@ -838,11 +836,19 @@ impl Accel {
     /// [`Accel::query_rays`] for the wide tree's traversal.
     #[inline(always)]
     fn wide_query(ray: &Ray, t_max: f32) -> Option<(wide::WideRay, WatertightRay)> {
-        let z = ray.origin * 0.0 + ray.direction * 0.0;
-        if !(z.x + z.y + z.z == 0.0) || ray.direction == Vec3::ZERO || !(t_max > 0.0) {
+        if !Self::can_hit(ray, t_max) {
             return None;
         }
         Some((wide::WideRay::new(ray.origin, ray.direction), WatertightRay::from_finite(ray)?))
+    }
+
+    /// Whether `ray` can hit anything before `t_max`: a finite origin and direction, a
+    /// non-zero direction and `t_max > 0`.
+    #[inline(always)]
+    fn can_hit(ray: &Ray, t_max: f32) -> bool {
+        // `v · 0` is ±0 for a finite `v` and NaN otherwise: one test for all six components.
+        let z = ray.origin * 0.0 + ray.direction * 0.0;
+        z.x + z.y + z.z == 0.0 && ray.direction != Vec3::ZERO && t_max > 0.0
     }
 
     /// obvhs's ray for a finite, non-zero `ray` ([`Accel::query_rays`]).

@@ -834,13 +834,7 @@ impl Renderer {
     /// rays are made before the clock starts) and times them: a shadow-ray throughput figure
     /// for benchmarks. `hits` counts the occluded rays.
     pub fn shadow_ray_throughput(&self, camera: &Camera) -> PrimaryRayStats {
-        let rays = self.shadow_rays(camera);
-        let integ = self.integrator(&RenderSettings::preview(0));
-        let start = std::time::Instant::now();
-        let hits: u64 = rays.par_chunks(256).map(|c| c.iter().filter(|(r, t)| integ.occluded(r, *t)).count() as u64).sum();
-        let seconds = start.elapsed().as_secs_f64();
-        let n = rays.len() as u64;
-        PrimaryRayStats { rays: n, hits, seconds, rays_per_second: if seconds > 0.0 { n as f64 / seconds } else { 0.0 } }
+        self.ray_query_throughput(&self.shadow_rays(camera), RayQuery::AnyHit)
     }
 }
 
