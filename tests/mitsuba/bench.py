@@ -48,6 +48,13 @@ sys.path.insert(0, HERE)
 LLVM19 = "/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1"
 
 
+def default_llvm():
+    """Points Dr.Jit at Debian's LLVM 19 (before drjit is imported) unless DRJIT_LIBLLVM_PATH
+    is set or that library is missing."""
+    if "DRJIT_LIBLLVM_PATH" not in os.environ and os.path.exists(LLVM19):
+        os.environ["DRJIT_LIBLLVM_PATH"] = LLVM19
+
+
 def parse_args():
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--export", action="append", required=True, help="export folder (repeatable)")
@@ -128,8 +135,7 @@ def load_reference(folder):
 
 def main():
     args = parse_args()
-    if "DRJIT_LIBLLVM_PATH" not in os.environ and os.path.exists(LLVM19):
-        os.environ["DRJIT_LIBLLVM_PATH"] = LLVM19
+    default_llvm()
     import drjit as dr
     import mitsuba as mi
 

@@ -23,7 +23,6 @@ import time
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
-LLVM19 = "/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1"
 
 
 def main():
@@ -34,8 +33,9 @@ def main():
     p.add_argument("--runs", type=int, default=30, help="timed evaluations per query (median)")
     p.add_argument("--variant", default="llvm_ad_rgb")
     args = p.parse_args()
-    if "DRJIT_LIBLLVM_PATH" not in os.environ and os.path.exists(LLVM19):
-        os.environ["DRJIT_LIBLLVM_PATH"] = LLVM19
+    from bench import default_llvm
+
+    default_llvm()
     import drjit as dr
     import mitsuba as mi
     import numpy as np
