@@ -1,6 +1,7 @@
-//! The acceleration structure: one type, [`Accel`], wrapping an obvhs compressed wide BVH
-//! (CWBVH, built in parallel with PLOC) over the scene's triangles. Triangles are tested
-//! with the watertight test of [`crate::geometry`].
+//! The acceleration structure: one type, [`Accel`], an eight-wide BVH over the scene's
+//! triangles: obvhs's compressed wide BVH (CWBVH, built in parallel with PLOC) re-laid with
+//! exact `f32` child boxes (module `wide`); the CWBVH itself is dropped after the build.
+//! Triangles are tested with the watertight test of [`crate::geometry`].
 //!
 //! **One-ray queries** ([`Accel::closest_hit`], [`Accel::occluded`]; stop 62) traverse the same
 //! tree re-laid as eight-wide nodes with exact `f32` child boxes (the union of each child's
@@ -9,8 +10,8 @@
 //! ray's direction signs and the interval widened by `2⁻²¹` relative (conservative against its
 //! own rounding), children pushed sorted by entry distance and culled when popped beyond the
 //! current hit (the any-hit query pushes them unsorted, which measured faster). 224 bytes per
-//! node beside the CWBVH's 80, which the packets below still use: 84–90 bytes per triangle in
-//! all instead of 66–68. Why: on exactly the same rays, written by Mitsuba 3 for the same
+//! node instead of the CWBVH's 80 (stop 63: the packets below traverse it too, and the CWBVH
+//! is no longer kept). Why: on exactly the same rays, written by Mitsuba 3 for the same
 //! exported scenes (`tests/mitsuba/rays.py`; `cargo xtask bench render` prints the table,
 //! `cargo bench -p pathtracer --bench render -- SCENE --rays FILE` times ours alone),
 //! Mitsuba's `llvm_ad_rgb` (Embree) traced incoherent closest-hit rays 1.85–2.3x as fast as
@@ -27,8 +28,8 @@
 //!
 //! The CWBVH traversal the one-ray queries used before (obvhs's algorithm, Ylitie et al. 2017,
 //! the loop of its `traverse!` macro, over obvhs's quantised nodes) had these changes, which
-//! only saved work and kept every answer bit for bit (the packets below still traverse the
-//! CWBVH this way):
+//! only saved work and kept every answer bit for bit (the packets below traversed the CWBVH
+//! this way until stop 63):
 //! - each node's eight quantised `u8` child boxes are widened to `f32` in registers, all eight
 //!   at once (`vpmovzxbd` + `vcvtdq2ps`). Converting them once at build time into a separate
 //!   `f32` array (192 bytes per node beside obvhs's 80) was measured no faster, on the
@@ -149,8 +150,6 @@ use crate::PathTracerError;
 use crate::geometry::{Ray, TriangleHit, WatertightRay, intersect_triangle};
 use crate::scene::{AlphaMode, Scene};
 use glam::{Vec3, Vec3A, Vec4};
-use obvhs::cwbvh::CwBvh;
-use obvhs::cwbvh::node::CwBvhNode;
 use obvhs::cwbvh::builder::build_cwbvh;
 use obvhs::ploc::{PlocSearchDistance, SortPrecision};
 use obvhs::{Boundable, BvhBuildParams};
@@ -354,8 +353,8 @@ impl ChildBoxTest for EightWide {
     }
 }
 
-/// Depth of the CWBVH traversal stack of the packet queries (node groups pending; obvhs uses
-/// 32 as well).
+/// Depth of the traversal stack of the packet queries (node groups pending; obvhs uses 32 as
+/// well).
 const STACK_SIZE: usize = 32;
 
 /// Rays per packet of the packet queries ([`Accel::closest_hits`], [`Accel::occluded_many`]):
@@ -400,8 +399,8 @@ fn min_ps(a: f32, b: f32) -> f32 {
 }
 
 /// A packet's rays in structure-of-arrays form, `[axis][group][lane]`, as the lane tests
-/// read them: obvhs's origin, direction (−0 as +0) and inverse direction, and the watertight
-/// test's permutation and shear.
+/// read them: origin, direction (−0 as +0), inverse direction (`1 / d` of the direction as
+/// given, as the one-ray box test reads it), and the watertight test's permutation and shear.
 struct RayLanes {
     o: [[Lanes; GROUPS]; 3],
     d: [[Lanes; GROUPS]; 3],
@@ -411,41 +410,28 @@ struct RayLanes {
 }
 
 /// The child slots of `node` that each ray of group `g` enters before its `t_max`: for slot
-/// `k`, bit `l` of the result's `k`-th entry for lane `l`. Each lane computes exactly what
-/// [`child_slots`] computes for that ray (the same operations in the same order, `maxps` and
-/// `minps` semantics), so the answers are the same bits.
+/// `k`, bit `l` of the result's `k`-th entry for lane `l`. Each lane computes exactly what the
+/// one-ray traversal's eight-child test ([`wide::WideTest`]) computes for that ray and slot
+/// (the same operations in the same order, `maxps` and `minps` semantics), so it enters the
+/// same children: every child whose box the ray touches in exact arithmetic.
 #[inline(always)]
-fn child_slots_lanes<K: ChildBoxTest>(test: K, node: &CwBvhNode, rl: &RayLanes, g: usize, t_max: &Lanes) -> [u32; 8] {
-    let e = node.compute_extent();
-    let p = Vec3A::from(node.p);
-    let (e, p) = ([e.x, e.y, e.z], [p.x, p.y, p.z]);
-    let mut a = [[0.0f32; LANES]; 3];
-    let mut o = [[0.0f32; LANES]; 3];
-    for ax in 0..3 {
-        for l in 0..LANES {
-            a[ax][l] = e[ax] * rl.inv[ax][g][l];
-            o[ax][l] = (p[ax] - rl.o[ax][g][l]) * rl.inv[ax][g][l];
-        }
-    }
+fn child_slots_lanes<K: ChildBoxTest>(test: K, node: &wide::WideNode, rl: &RayLanes, g: usize, t_max: &Lanes) -> [u32; 8] {
     let mut out = [0u32; 8];
     for (k, out) in out.iter_mut().enumerate() {
-        if node.is_child_empty(k) {
-            continue;
-        }
-        let lo = [node.child_min_x[k] as f32, node.child_min_y[k] as f32, node.child_min_z[k] as f32];
-        let hi = [node.child_max_x[k] as f32, node.child_max_y[k] as f32, node.child_max_z[k] as f32];
+        let lo = [node.b[0][0][k], node.b[1][0][k], node.b[2][0][k]];
+        let hi = [node.b[0][1][k], node.b[1][1][k], node.b[2][1][k]];
         let mut near = [0.0f32; LANES];
         let mut far = [0.0f32; LANES];
         #[allow(clippy::needless_range_loop, reason = "every array is indexed by lane, which is what vectorises")]
         for l in 0..LANES {
             let slab = |ax: usize| {
-                let neg = rl.d[ax][g][l] < 0.0;
-                let (n, f) = if neg { (hi[ax], lo[ax]) } else { (lo[ax], hi[ax]) };
-                (n * a[ax][l] + o[ax][l], f * a[ax][l] + o[ax][l])
+                let (o, inv) = (rl.o[ax][g][l], rl.inv[ax][g][l]);
+                let (n, f) = if inv.is_sign_negative() { (hi[ax], lo[ax]) } else { (lo[ax], hi[ax]) };
+                ((n - o) * inv, (f - o) * inv)
             };
             let (x, y, z) = (slab(0), slab(1), slab(2));
-            near[l] = max_ps(max_ps(x.0, max_ps(y.0, z.0)), BOX_T_MIN);
-            far[l] = min_ps(min_ps(x.1, min_ps(y.1, z.1)), t_max[l]);
+            near[l] = max_ps(x.0, max_ps(y.0, max_ps(z.0, BOX_T_MIN))) * (1.0 - wide::WIDEN);
+            far[l] = min_ps(x.1, min_ps(y.1, min_ps(z.1, t_max[l]))) * (1.0 + wide::WIDEN);
         }
         *out = test.le(&near, &far);
     }
@@ -509,11 +495,12 @@ trait PacketQuery {
 /// are the same bits in this order as in that one. Nodes are visited front to back for the
 /// packet's first ray.
 #[inline(always)]
-fn traverse_packet<K: ChildBoxTest, Q: PacketQuery>(test: K, bvh: &CwBvh, rl: &RayLanes, mut active: u64, q: &mut Q) {
+fn traverse_packet<K: ChildBoxTest, Q: PacketQuery>(test: K, bvh: &wide::WideBvh, rl: &RayLanes, mut active: u64, q: &mut Q) {
     if bvh.nodes.is_empty() || active == 0 {
         return;
     }
-    // CWBVH slot `oct ^ j` is the `j`-th nearest for a ray in octant `oct` (sign bits x, y, z).
+    // Slot `oct ^ j` is the `j`-th nearest for a ray in octant `oct` (sign bits x, y, z): the
+    // wide nodes keep the CWBVH's slots, which its builder ordered so.
     let first = active.trailing_zeros() as usize;
     let dir = |ax: usize| rl.d[ax][first / LANES][first % LANES];
     let oct = (((dir(0) < 0.0) as usize) << 2) | (((dir(1) < 0.0) as usize) << 1) | ((dir(2) < 0.0) as usize);
@@ -539,10 +526,10 @@ fn traverse_packet<K: ChildBoxTest, Q: PacketQuery>(test: K, bvh: &CwBvh, rl: &R
         // The leaves' triangles first, then the inner children, nearest on top of the stack.
         for j in 0..8 {
             let k = oct ^ j;
-            if slots[k] == 0 || !node.is_leaf(k) {
+            if slots[k] == 0 {
                 continue;
             }
-            let (first, count) = node.child_primitives(k);
+            let Err((first, count)) = node.child(k) else { continue };
             for id in first..first + count {
                 let rays = slots[k] & active;
                 if rays == 0 {
@@ -556,8 +543,10 @@ fn traverse_packet<K: ChildBoxTest, Q: PacketQuery>(test: K, bvh: &CwBvh, rl: &R
         }
         for j in (0..8).rev() {
             let k = oct ^ j;
-            if slots[k] != 0 && !node.is_leaf(k) {
-                stack[sp] = (node.child_node_index(k), slots[k]);
+            if slots[k] != 0
+                && let Ok(child) = node.child(k)
+            {
+                stack[sp] = (child, slots[k]);
                 sp += 1;
             }
         }
@@ -653,8 +642,8 @@ fn in_v3<R>(simd: pulp::x86::V3, f: impl FnOnce() -> R) -> R {
 
 /// The scene's BVH and the triangle data its leaves reference.
 pub struct Accel {
-    bvh: Option<CwBvh>,
-    /// The same tree with exact `f32` child boxes, for the one-ray queries.
+    /// obvhs's CWBVH re-laid with exact `f32` child boxes (module `wide`), which every query
+    /// traverses.
     wide: wide::WideBvh,
     /// Triangles in BVH primitive order.
     tris: Vec<PackedTriangle>,
@@ -710,7 +699,6 @@ impl Accel {
             .collect();
         if tris.is_empty() {
             return Ok(Accel {
-                bvh: None,
                 wide: wide::WideBvh::default(),
                 tris: Vec::new(),
                 #[cfg(target_arch = "x86_64")]
@@ -753,7 +741,6 @@ impl Accel {
         // The build time includes the wide tree's boxes.
         let build_time = start.elapsed();
         Ok(Accel {
-            bvh: Some(bvh),
             wide,
             tris: bvh_tris,
             #[cfg(target_arch = "x86_64")]
@@ -814,26 +801,15 @@ impl Accel {
         self.tris.len()
     }
 
-    /// Bytes the traversal reads from: the CWBVH nodes (quantised child boxes), the packed
-    /// triangles and obvhs's primitive index list (allocation slack left out).
+    /// Bytes the traversal reads from: the wide nodes and the packed triangles (allocation
+    /// slack left out; obvhs's CWBVH is dropped after the build).
     pub fn memory_bytes(&self) -> usize {
-        use std::mem::size_of;
-        let bvh = self.bvh.as_ref().map_or(0, |b| b.nodes.len() * size_of::<CwBvhNode>() + b.primitive_indices.len() * size_of::<u32>());
-        bvh + self.wide.memory_bytes() + self.tris.len() * size_of::<PackedTriangle>()
+        self.wide.memory_bytes() + self.tris.len() * std::mem::size_of::<PackedTriangle>()
     }
 
-    /// The two forms of `ray` the traversal reads: obvhs's (box tests) and the watertight
-    /// test's. `None` when no hit is possible: a non-finite origin or direction, a zero
-    /// direction, or `t_max ≤ 0`.
-    #[inline(always)]
-    fn query_rays(ray: &Ray, t_max: f32) -> Option<(obvhs::ray::Ray, WatertightRay)> {
-        if !Self::can_hit(ray, t_max) {
-            return None;
-        }
-        Some((Self::obvhs_ray(ray, t_max), WatertightRay::from_finite(ray)?))
-    }
-
-    /// [`Accel::query_rays`] for the wide tree's traversal.
+    /// The two forms of `ray` the traversal reads: the box test's and the watertight test's.
+    /// `None` when no hit is possible: a non-finite origin or direction, a zero direction, or
+    /// `t_max ≤ 0`.
     #[inline(always)]
     fn wide_query(ray: &Ray, t_max: f32) -> Option<(wide::WideRay, WatertightRay)> {
         if !Self::can_hit(ray, t_max) {
@@ -849,23 +825,6 @@ impl Accel {
         // `v · 0` is ±0 for a finite `v` and NaN otherwise: one test for all six components.
         let z = ray.origin * 0.0 + ray.direction * 0.0;
         z.x + z.y + z.z == 0.0 && ray.direction != Vec3::ZERO && t_max > 0.0
-    }
-
-    /// obvhs's ray for a finite, non-zero `ray` ([`Accel::query_rays`]).
-    #[inline(always)]
-    fn obvhs_ray(ray: &Ray, t_max: f32) -> obvhs::ray::Ray {
-        // `+ 0.0` turns −0 into +0: obvhs derives slab order from `d < 0` but the inverse
-        // from the sign bit, which disagree for −0.
-        let d = ray.direction + Vec3::ZERO;
-        // obvhs's `safe_inverse` per component, here so that it inlines (`Ray::new` does not).
-        let inv = |x: f32| if x.abs() <= f32::EPSILON { x.signum() / f32::EPSILON } else { 1.0 / x };
-        obvhs::ray::Ray {
-            origin: Vec3A::from(ray.origin),
-            direction: Vec3A::from(d),
-            inv_direction: Vec3A::new(inv(d.x), inv(d.y), inv(d.z)),
-            tmin: 0.0,
-            tmax: t_max,
-        }
     }
 
     /// The closest accepted hit with `t < t_max`. `alpha_test(prim, hit)` is consulted only
@@ -923,7 +882,7 @@ impl Accel {
 
     /// A packet's rays (`rays`, at most [`PACKET`], with limits `t_max(r)`) in lanes and in
     /// the watertight test's form, their directions, and the mask of those that can hit
-    /// anything ([`Accel::query_rays`]); the other lanes hold a placeholder ray.
+    /// anything ([`Accel::wide_query`]); the other lanes hold a placeholder ray.
     #[inline(always)]
     fn packet_rays(rays: &[Ray], t_max: impl Fn(usize) -> f32) -> (RayLanes, [WatertightRay; PACKET], [Vec3; PACKET], u64) {
         let placeholder = WatertightRay::from_finite(&Ray::new(Vec3::ZERO, Vec3::Z)).expect("+z is a valid direction");
@@ -932,13 +891,15 @@ impl Accel {
         let mut dirs = [Vec3::Z; PACKET];
         let mut valid = 0u64;
         for (r, ray) in rays.iter().enumerate().take(PACKET) {
-            if let Some((o, w)) = Self::query_rays(ray, t_max(r)) {
+            if let Some((o, w)) = Self::wide_query(ray, t_max(r)) {
                 let (g, l) = (r / LANES, r % LANES);
                 let (kz, s) = w.shear();
+                // `+ 0.0` turns −0 into +0 (the octant of the packet's first ray).
+                let d = ray.direction + Vec3::ZERO;
                 for (ax, &s) in s.iter().enumerate() {
-                    rl.o[ax][g][l] = o.origin[ax];
-                    rl.d[ax][g][l] = o.direction[ax];
-                    rl.inv[ax][g][l] = o.inv_direction[ax];
+                    rl.o[ax][g][l] = o.o[ax];
+                    rl.d[ax][g][l] = d[ax];
+                    rl.inv[ax][g][l] = o.inv[ax];
                     rl.s[ax][g][l] = s;
                 }
                 rl.kz[g][l] = kz;
@@ -953,10 +914,10 @@ impl Accel {
     /// [`Accel::closest_hits`] with the child-box test `test`.
     #[inline(always)]
     fn closest_hits_with<K: ChildBoxTest, F: Fn(usize, u32, &TriangleHit) -> bool>(&self, test: K, rays: &[Ray], t_max: f32, alpha_test: &F, out: &mut [Option<Hit>]) {
-        let Some(bvh) = self.bvh.as_ref() else {
+        if self.wide.nodes.is_empty() {
             out.fill(None);
             return;
-        };
+        }
         for (c, (rays, out)) in rays.chunks(PACKET).zip(out.chunks_mut(PACKET)).enumerate() {
             let (rl, wr, dir, valid) = Self::packet_rays(rays, |_| t_max);
             let base = c * PACKET;
@@ -969,7 +930,7 @@ impl Accel {
                 limit: [[t_max; LANES]; GROUPS],
                 alpha_test: |r: usize, prim: u32, h: &TriangleHit| alpha_test(base + r, prim, h),
             };
-            traverse_packet(test, bvh, &rl, valid, &mut q);
+            traverse_packet(test, &self.wide, &rl, valid, &mut q);
             out.copy_from_slice(&q.best[..out.len()]);
         }
     }
@@ -977,10 +938,10 @@ impl Accel {
     /// [`Accel::occluded_many`] with the child-box test `test`.
     #[inline(always)]
     fn occluded_many_with<K: ChildBoxTest, F: Fn(usize, u32, &TriangleHit) -> bool>(&self, test: K, rays: &[Ray], t_max: &[f32], alpha_test: &F, out: &mut [bool]) {
-        let Some(bvh) = self.bvh.as_ref() else {
+        if self.wide.nodes.is_empty() {
             out.fill(false);
             return;
-        };
+        }
         for (c, ((rays, t_max), out)) in rays.chunks(PACKET).zip(t_max.chunks(PACKET)).zip(out.chunks_mut(PACKET)).enumerate() {
             let (rl, wr, dir, valid) = Self::packet_rays(rays, |r| t_max[r]);
             let base = c * PACKET;
@@ -989,7 +950,7 @@ impl Accel {
                 limits[r / LANES][r % LANES] = t;
             }
             let mut q = OccludedPacket { tris: &self.tris, wr, dir, t_max: limits, blocked: 0, alpha_test: |r: usize, prim: u32, h: &TriangleHit| alpha_test(base + r, prim, h) };
-            traverse_packet(test, bvh, &rl, valid, &mut q);
+            traverse_packet(test, &self.wide, &rl, valid, &mut q);
             for (r, o) in out.iter_mut().enumerate() {
                 *o = q.blocked & (1u64 << r) != 0;
             }

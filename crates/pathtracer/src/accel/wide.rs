@@ -36,7 +36,7 @@ const LEAF_COUNT_SHIFT: u32 = 29;
 /// The first triangle of a leaf: 29 bits.
 const LEAF_FIRST_MASK: u32 = (1 << LEAF_COUNT_SHIFT) - 1;
 /// Relative widening of the box test's interval (see the module docs).
-const WIDEN: f32 = 1.0 / (1 << 21) as f32;
+pub(super) const WIDEN: f32 = 1.0 / (1 << 21) as f32;
 /// Entries of the traversal stack on the call stack; deeper pushes spill to a `Vec`.
 pub(super) const STACK: usize = 64;
 
@@ -49,10 +49,20 @@ pub(super) struct WideNode {
     child: [u32; 8],
 }
 
+impl WideNode {
+    /// Child slot `k`'s reference: `Ok(node index)` or `Err((first triangle, count))` for a
+    /// leaf. An unused slot reads as node 0, but its box is empty, so no ray enters it.
+    #[inline(always)]
+    pub(super) fn child(&self, k: usize) -> Result<u32, (u32, u32)> {
+        let c = self.child[k];
+        if c & LEAF != 0 { Err((c & LEAF_FIRST_MASK, ((c >> LEAF_COUNT_SHIFT) & 3) + 1)) } else { Ok(c) }
+    }
+}
+
 /// The tree: node 0 is the root.
 #[derive(Debug, Default)]
 pub(super) struct WideBvh {
-    nodes: Vec<WideNode>,
+    pub(super) nodes: Vec<WideNode>,
 }
 
 impl WideBvh {
