@@ -4,8 +4,11 @@
 //! measured side by side from a worktree that builds only this crate.
 //!
 //! ```text
-//! cargo bench -p pathtracer --bench render [-- SCENE…] [--runs N] [--seconds S] [--accel PRESET]
+//! cargo bench -p pathtracer --bench render [-- SCENE…] [--runs N] [--seconds S] [--accel PRESET] [--spp N] [--width W]
 //! ```
+//! `--spp N` and `--width W` change the quick view's samples per pixel (16) and width (64, the
+//! camera scaled): `--spp 64 --width 128` is the view `cargo xtask bench render` compares with
+//! Mitsuba, where a pixel's 64 camera rays are traced as packets (the quick view's 16 are not).
 //! `--seconds S` renders the first scene's quick view repeatedly for `S` seconds (a steady
 //! load for `perf record`) instead of printing the table; `--primary` does the same with
 //! primary rays; `--hash` prints a hash of each scene's quick view (colour, depth, normal
@@ -42,6 +45,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut primary_only = false;
     let mut hash_only = false;
     let mut ray_files: Vec<String> = Vec::new();
+    let mut spp: Option<u32> = None;
+    let mut width: Option<u32> = None;
     let mut accel = AccelParams::medium_build();
     let mut args = std::env::args().skip(1);
     while let Some(a) = args.next() {
@@ -52,6 +57,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             "--primary" => primary_only = true,
             "--hash" => hash_only = true,
             "--rays" => ray_files.push(args.next().ok_or("--rays FILE")?),
+            "--spp" => spp = Some(args.next().ok_or("--spp N")?.parse()?),
+            "--width" => width = Some(args.next().ok_or("--width W")?.parse()?),
             "--accel" => {
                 accel = match args.next().as_deref() {
                     Some("fastest") => AccelParams::fastest_build(),
@@ -87,22 +94,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let quick = DatasetRenderConfig::preset(Preset::Quick);
         let rig = pathtracer::rig::build_rig(renderer.scene(), &quick.rig_config())?;
         let cam = rig.split(dataset::SplitKind::Train)[0];
+        let cam = match width {
+            Some(w) => scaled(&cam, w),
+            None => cam,
+        };
         let mut settings = RenderSettings::preview(0);
-        settings.spp = quick.spp;
+        settings.spp = spp.unwrap_or(quick.spp);
         settings.max_bounces = quick.max_bounces;
         settings.environment = quick.environment;
-        let scale = 256.0 / cam.intrinsics.width as f64;
-        let big = dataset::Camera {
-            intrinsics: dataset::Intrinsics {
-                width: 256,
-                height: (cam.intrinsics.height as f64 * scale).round() as u32,
-                fl_x: cam.intrinsics.fl_x * scale,
-                fl_y: cam.intrinsics.fl_y * scale,
-                cx: cam.intrinsics.cx * scale,
-                cy: cam.intrinsics.cy * scale,
-            },
-            c2w: cam.c2w,
-        };
+        let big = scaled(&cam, 256);
         if !ray_files.is_empty() {
             for f in &ray_files {
                 ray_file_throughput(&renderer, &name, f)?;
@@ -167,6 +167,22 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         println!("{:<12} {:>15.2} {:>16.3} {:>20.3}", name, primary * 1e-6, quick_rate * 1e-6, per_cpu * 1e-6);
     }
     Ok(())
+}
+
+/// `cam` scaled to `width` pixels wide (the same view).
+fn scaled(cam: &dataset::Camera, width: u32) -> dataset::Camera {
+    let scale = width as f64 / cam.intrinsics.width as f64;
+    dataset::Camera {
+        intrinsics: dataset::Intrinsics {
+            width,
+            height: (cam.intrinsics.height as f64 * scale).round() as u32,
+            fl_x: cam.intrinsics.fl_x * scale,
+            fl_y: cam.intrinsics.fl_y * scale,
+            cx: cam.intrinsics.cx * scale,
+            cy: cam.intrinsics.cy * scale,
+        },
+        c2w: cam.c2w,
+    }
 }
 
 /// `--rays FILE`: the one-ray and packet queries' throughput on the rays in `file`.
