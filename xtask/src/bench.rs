@@ -617,7 +617,7 @@ fn bench_scaling(args: &ScalingBenchArgs) -> anyhow::Result<()> {
     report.line(format!("cpu: {}", cpu.summary()));
     report.line(format!(
         "bench scaling: profile {}, {threads} threads; generated stress scenes (scenegen::stress: a floor and 16 UV spheres \
-         tessellated to the count); BVH = obvhs medium_build, medians of 3 builds; B/tri = bytes of nodes (with their quantised child boxes) and packed \
+         tessellated to the count); BVH = obvhs medium_build, medians of 3 builds; B/tri = bytes of the wide nodes (exact f32 child boxes) and packed \
          triangles per triangle; primary/packet/shadow as in bench render (256 px); path = {SCALING_WIDTH} px, 16 spp, 4 bounces; medians of {RENDER_RUNS}",
         build_profile()
     ));

@@ -106,8 +106,16 @@
 //! 19–22). Against the wide tree's one-ray loop (stop 62) the camera packets still pay at
 //! 32 spp and more (64 spp: `tabletop` +4–5 %, `thin` +3–5 %, `cornell` +1–2 %, `deep`
 //! +0.5–1 %, `materials` 0–0.7 %) but not at 16 (±1 %), so the path loop uses them for
-//! batches of at least 32 rays (`PACKET_MIN_RAYS` in the integrator). Measured and not kept
-//! (the same bits each):
+//! batches of at least 32 rays (`PACKET_MIN_RAYS` in the integrator). Since stop 63 the
+//! packets traverse the wide nodes as well (per child slot, eight rays' slab tests in lanes,
+//! each lane the one-ray test's arithmetic), and the CWBVH is dropped after the build: the same
+//! bits (the quick views, and at 128 px and 64 spp, where the camera rays go as packets:
+//! `cargo bench -p pathtracer --bench render -- --hash --spp 64 --width 128`), Mitsuba's
+//! 256-px camera rays as packets `tabletop` 40.0–41.6 → 47.3–49.1 M/s and `thin` 43.4–48.1 →
+//! 55.6–59.5 (two alternating runs), samples per CPU-second at 128 px and 64 spp within ±1.5 %
+//! on every scene (two alternating pairs; the camera rays are a fifth of a sample's queries or
+//! less), and 78 bytes per triangle in all instead of 84–90 (`cargo xtask bench scaling`).
+//! Measured and not kept (the same bits each):
 //! - every bounce's rays as packets (the continuation rays of a batch's live paths, and its
 //!   shadow rays): `cornell` −16 %, `deep` −23 %, `tabletop` −13 %, `thin` −12 %, of which
 //!   the loop restructured to gather those rays costs `deep` 7–11 % with every ray still
