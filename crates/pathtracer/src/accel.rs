@@ -24,7 +24,13 @@
 //! kept: a leaf child's triangles tested as soon as its node is (not when popped): any-hit
 //! rays −5 to +29 % by scene, samples per CPU-second within the noise; the stack on the call
 //! stack only (64 entries, a `Vec` for trees too deep for it) instead of 64 entries with a
-//! `Vec` for overflow: no change.
+//! `Vec` for overflow: no change. (Stop 63, on Mitsuba's incoherent rays, medians of 15, two
+//! alternating runs:) a batch's one-ray queries made in one call, the level entered and the
+//! stack set up once per batch (`closest_hit_each`, `occluded_each`): closest hits `cornell`
+//! +7 %, any-hit and the other scenes within ±3 %; the watertight ray's dominant axis chosen by
+//! selects instead of branches: within the noise (cachegrind's branch simulator blames that
+//! choice for about one mispredicted branch per query, this CPU's predictor evidently not).
+//! What the queries cost is not their per-call set-up.
 //!
 //! The CWBVH traversal the one-ray queries used before (obvhs's algorithm, Ylitie et al. 2017,
 //! the loop of its `traverse!` macro, over obvhs's quantised nodes) had these changes, which
@@ -124,6 +130,10 @@
 //! - the camera vertices' shadow rays as packets, one per light (a pixel's shadow rays towards
 //!   one light, all other shadow rays one at a time): `deep` −10 %, `materials` −5 %, `thin`
 //!   −3 %;
+//! - (stop 63, on the wide nodes) the camera vertices' shadow rays as packets (a pixel's, in
+//!   the order the vertices made them, or grouped by light), at 128 px and 64 spp, samples per
+//!   CPU-second in two alternating pairs: `materials` +3–5 %, `tabletop` +1–4 %, `thin` +1 %,
+//!   but `cornell` −0.3 to −2.7 % and `deep` −2 to −5 %;
 //! - one box test for the whole packet instead of one per ray, by interval arithmetic over
 //!   the packet's origins and inverse directions where its rays share their direction signs
 //!   (a conservative superset of the children its rays enter, on boxes widened by 10⁻⁵ of the
