@@ -218,7 +218,7 @@ const VERTEX_DIMENSIONS: u32 = DIM_ROULETTE + 1;
 /// `tabletop` +3 %, `thin` +2–4 %, `deep` −1 to −2.5 %; 64 spp `tabletop` +4–5 %, `thin`
 /// +3–5 %, `cornell` +1–2 %, `deep` +0.5–1 %, `materials` 0–0.7 %. With the packets on the wide
 /// nodes (stop 63) 16 instead of 32, at 16 spp and 128 px (two pairs): `deep` −1.5 to +2.5 %,
-/// `cornell` −1 to −2 %, `tabletop` −0.5 to −1.6 %, `thin` +1 to +8 %; not changed.
+/// `cornell` −0.2 to −1 %, `tabletop` −0.6 to −1.6 %, `thin` +1 to +8 %; not changed.
 const PACKET_MIN_RAYS: usize = 32;
 
 /// Russian roulette's survival probability over the path's largest throughput component
