@@ -121,10 +121,12 @@
 //! each lane the one-ray test's arithmetic), and the CWBVH is dropped after the build: the same
 //! bits (the quick views, and at 128 px and 64 spp, where the camera rays go as packets:
 //! `cargo bench -p pathtracer --bench render -- --hash --spp 64 --width 128`), Mitsuba's
-//! 256-px camera rays as packets `tabletop` 40.0–41.6 → 47.3–49.1 M/s and `thin` 43.4–48.1 →
-//! 55.6–59.5 (two alternating runs), samples per CPU-second at 128 px and 64 spp within ±1.5 %
-//! on every scene (two alternating pairs; the camera rays are a fifth of a sample's queries or
-//! less), and 78 bytes per triangle in all instead of 84–90 (`cargo xtask bench scaling`).
+//! 256-px camera rays as packets `tabletop` 40.8–41.0 → 47.4–47.6 M/s, `thin` 45.8–46.4 → 57.1
+//! and `cornell` 46.7–47.6 → 51.7–53.6 (two alternating runs), samples per CPU-second at
+//! 128 px and 64 spp `tabletop` +2–3 %, `thin` +2 %, `cornell` +0.3–1 %, `deep` 0 to +4 %,
+//! `materials` −1 to +2 % (two alternating pairs; the camera rays are a fifth of a sample's
+//! queries or less), and 74–78 bytes per triangle in all instead of 84–90 (`cargo xtask
+//! bench render`, `bench scaling`).
 //! Measured and not kept (the same bits each):
 //! - every bounce's rays as packets (the continuation rays of a batch's live paths, and its
 //!   shadow rays): `cornell` −16 %, `deep` −23 %, `tabletop` −13 %, `thin` −12 %, of which
