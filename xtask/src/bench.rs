@@ -377,7 +377,7 @@ fn bench_render(args: &RenderBenchArgs) -> anyhow::Result<()> {
         let rig = pathtracer::rig::build_rig(renderer.scene(), &quick.rig_config())?;
         let cameras = rig.split(dataset::SplitKind::Train);
         let cam = cameras[0];
-        let big = scaled_camera(&cam, 256);
+        let big = cam.at_width(256);
         let primary = Spread::of(&(0..RENDER_RUNS).map(|_| renderer.primary_ray_throughput(&big).rays_per_second * 1e-6).collect::<Vec<_>>());
         let packet = Spread::of(&(0..RENDER_RUNS).map(|_| renderer.primary_packet_throughput(&big).rays_per_second * 1e-6).collect::<Vec<_>>());
         let shadow_runs: Vec<_> = (0..RENDER_RUNS).map(|_| renderer.shadow_ray_throughput(&big)).collect();
@@ -421,7 +421,7 @@ fn bench_render(args: &RenderBenchArgs) -> anyhow::Result<()> {
         }
         let lambert_renderer = Renderer::new(lambert_scene.clone(), &params)?;
         // The comparison with Mitsuba: its own camera size and spp (see [`CMP_WIDTH`]).
-        let cmp_cam = scaled_camera(&cam, CMP_WIDTH);
+        let cmp_cam = cam.at_width(CMP_WIDTH);
         // Opaque background: Mitsuba's `hide_emitters` (its transparent background) would
         // also hide emitters the camera sees directly.
         let cmp_settings = RenderSettings { spp: CMP_SPP, transparent_background: false, ..quick_settings.clone() };
@@ -648,11 +648,11 @@ fn bench_scaling(args: &ScalingBenchArgs) -> anyhow::Result<()> {
         let bytes = renderer.accel().memory_bytes();
         let rig = pathtracer::rig::build_rig(renderer.scene(), &quick.rig_config())?;
         let cam = rig.split(dataset::SplitKind::Train)[0];
-        let big = scaled_camera(&cam, 256);
+        let big = cam.at_width(256);
         let primary = Spread::of(&(0..RENDER_RUNS).map(|_| renderer.primary_ray_throughput(&big).rays_per_second * 1e-6).collect::<Vec<_>>());
         let packet = Spread::of(&(0..RENDER_RUNS).map(|_| renderer.primary_packet_throughput(&big).rays_per_second * 1e-6).collect::<Vec<_>>());
         let shadow = Spread::of(&(0..RENDER_RUNS).map(|_| renderer.shadow_ray_throughput(&big).rays_per_second * 1e-6).collect::<Vec<_>>());
-        let cam = scaled_camera(&cam, SCALING_WIDTH);
+        let cam = cam.at_width(SCALING_WIDTH);
         let rate = Spread::of(
             &(0..RENDER_RUNS)
                 .map(|k| {
@@ -729,22 +729,6 @@ const CMP_SPP: u32 = 64;
 /// Samples per pixel of our reference image (two independent halves), against which both
 /// renderers' errors are measured.
 const CMP_REF_SPP: u32 = 1024;
-
-/// `cam` with the same field of view at `width` pixels.
-fn scaled_camera(cam: &dataset::Camera, width: u32) -> dataset::Camera {
-    let scale = width as f64 / cam.intrinsics.width as f64;
-    dataset::Camera {
-        intrinsics: dataset::Intrinsics {
-            width,
-            height: (cam.intrinsics.height as f64 * scale).round().max(1.0) as u32,
-            fl_x: cam.intrinsics.fl_x * scale,
-            fl_y: cam.intrinsics.fl_y * scale,
-            cx: cam.intrinsics.cx * scale,
-            cy: cam.intrinsics.cy * scale,
-        },
-        c2w: cam.c2w,
-    }
-}
 
 /// RGB of an RGBA image, as `f64`.
 fn rgb_of(img: &dataset::RgbaImage) -> Vec<f64> {

@@ -56,6 +56,20 @@ impl Intrinsics {
         }
     }
 
+    /// The same field of view at `width` pixels wide: every pixel quantity scaled by
+    /// `width / self.width`, the height rounded (at least 1).
+    pub fn at_width(&self, width: u32) -> Self {
+        let s = width as f64 / self.width as f64;
+        Self {
+            width,
+            height: (self.height as f64 * s).round().max(1.0) as u32,
+            fl_x: self.fl_x * s,
+            fl_y: self.fl_y * s,
+            cx: self.cx * s,
+            cy: self.cy * s,
+        }
+    }
+
     /// Checks that the intrinsics describe a real camera; the message says what is wrong.
     pub fn validate(&self) -> Result<(), String> {
         if self.width == 0 || self.height == 0 {
@@ -161,6 +175,11 @@ impl Camera {
         Self { intrinsics: self.intrinsics.downscaled(factor), c2w: self.c2w }
     }
 
+    /// The same camera at `width` pixels wide ([`Intrinsics::at_width`]).
+    pub fn at_width(&self, width: u32) -> Self {
+        Self { intrinsics: self.intrinsics.at_width(width), c2w: self.c2w }
+    }
+
     /// The pose as the row-major 4×4 array written in `transform_matrix`.
     pub fn rows(&self) -> [[f64; 4]; 4] {
         let m = self.c2w.transpose();
@@ -230,6 +249,25 @@ mod tests {
         let left = c.pixel_ray(0.0, 15.0).direction;
         let right = c.pixel_ray(40.0, 15.0).direction;
         assert!((left.angle_between(right) - 0.8).abs() < 1e-12);
+    }
+
+    #[test]
+    fn a_camera_at_another_width_sees_the_same_view() {
+        let c = cam();
+        for width in [8, 40, 100, 256] {
+            let s = c.at_width(width);
+            assert_eq!(s.intrinsics.width, width);
+            assert_eq!(s.intrinsics.height, (30.0 * width as f64 / 40.0).round() as u32);
+            assert!((s.intrinsics.camera_angle_x() - 0.8).abs() < 1e-12, "width {width}");
+            // The same fraction of the image is the same ray, the corners included.
+            for (u, v) in [(0.0, 0.0), (0.5, 0.5), (1.0, 1.0), (0.25, 0.8)] {
+                let (a, b) = (c.pixel_ray(u * 40.0, v * 30.0), s.pixel_ray(u * width as f64, v * 30.0 * width as f64 / 40.0));
+                assert!((a.direction - b.direction).length() < 1e-12, "width {width} ({u}, {v})");
+                assert_eq!(a.origin, b.origin);
+            }
+        }
+        // A very small width keeps at least one row.
+        assert_eq!(c.at_width(1).intrinsics.height, 1);
     }
 
     #[test]

@@ -95,14 +95,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let rig = pathtracer::rig::build_rig(renderer.scene(), &quick.rig_config())?;
         let cam = rig.split(dataset::SplitKind::Train)[0];
         let cam = match width {
-            Some(w) => scaled(&cam, w),
+            Some(w) => cam.at_width(w),
             None => cam,
         };
         let mut settings = RenderSettings::preview(0);
         settings.spp = spp.unwrap_or(quick.spp);
         settings.max_bounces = quick.max_bounces;
         settings.environment = quick.environment;
-        let big = scaled(&cam, 256);
+        let big = cam.at_width(256);
         if !ray_files.is_empty() {
             for f in &ray_files {
                 ray_file_throughput(&renderer, &name, f)?;
@@ -167,22 +167,6 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         println!("{:<12} {:>15.2} {:>16.3} {:>20.3}", name, primary * 1e-6, quick_rate * 1e-6, per_cpu * 1e-6);
     }
     Ok(())
-}
-
-/// `cam` scaled to `width` pixels wide (the same view).
-fn scaled(cam: &dataset::Camera, width: u32) -> dataset::Camera {
-    let scale = width as f64 / cam.intrinsics.width as f64;
-    dataset::Camera {
-        intrinsics: dataset::Intrinsics {
-            width,
-            height: (cam.intrinsics.height as f64 * scale).round() as u32,
-            fl_x: cam.intrinsics.fl_x * scale,
-            fl_y: cam.intrinsics.fl_y * scale,
-            cx: cam.intrinsics.cx * scale,
-            cy: cam.intrinsics.cy * scale,
-        },
-        c2w: cam.c2w,
-    }
 }
 
 /// `--rays FILE`: the one-ray and packet queries' throughput on the rays in `file`.
