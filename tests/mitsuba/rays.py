@@ -60,7 +60,10 @@ def main():
         o = np.stack([np.array(rays.o[k], dtype=np.float32) for k in range(3)], 1)
         d = np.stack([np.array(rays.d[k], dtype=np.float32) for k in range(3)], 1)
         t = np.broadcast_to(np.array(rays.maxt, dtype=np.float32).reshape(-1), (o.shape[0],)).reshape(-1, 1)
-        np.concatenate([o, d, t], 1).astype("<f4").tofile(path)
+        # Written whole, then renamed: a reader never sees a partial file.
+        tmp = path + ".tmp"
+        np.concatenate([o, d, t], 1).astype("<f4").tofile(tmp)
+        os.replace(tmp, path)
 
     os.makedirs(args.out, exist_ok=True)
     for folder in args.export:

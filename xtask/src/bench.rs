@@ -496,7 +496,8 @@ fn json_lines(stdout: &[u8]) -> serde_json::Result<Vec<serde_json::Value>> {
 /// camera rays and one uniformly random ray from each of their hits, with the Mray/s of
 /// Mitsuba's closest-hit and any-hit queries on them (all threads, medians); ours are timed on
 /// the files ([`pathtracer::render::Renderer::ray_query_throughput`], medians of
-/// [`RENDER_RUNS`]). Says why and returns nothing where Mitsuba is unavailable.
+/// [`RENDER_RUNS`]). Returns nothing where the virtual environment is missing (the
+/// comparison above has said so) and says why where `rays.py` fails.
 fn bench_render_rays(scenes: &[(String, pathtracer::render::Renderer)], export_root: &Path, out: &Path, report: &mut Report) -> anyhow::Result<Vec<serde_json::Value>> {
     use pathtracer::render::{RayQuery, read_ray_file};
     let root = crate::render::repo_root();
