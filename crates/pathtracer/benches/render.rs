@@ -71,6 +71,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             _ => names.push(a),
         }
     }
+    if spp == Some(0) || width == Some(0) {
+        return Err("--spp and --width must be at least 1".into());
+    }
     let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../scenes");
     let mut scenes: Vec<PathBuf> = std::fs::read_dir(&dir)?
         .flatten()
