@@ -95,6 +95,38 @@
 //! - fat LTO for the whole bench binary (stop 59): no change (`cornell` −1 to +0.3 %, `deep`
 //!   −0.5 to −0.7 %).
 //!
+//! What a one-ray query costs now (stop 64; callgrind, one thread, on Mitsuba's incoherent rays
+//! of `tests/mitsuba/rays.py`): instructions per closest hit / any hit, `cornell` 630 / 450,
+//! `deep` 726 / 510, `tabletop` 800 / 676. Of `cornell`'s closest hit, about 150 are the set-up
+//! (the validity test, the dominant axis, six divisions, the 64-entry stack zeroed, the ray
+//! broadcast to lanes); a ray then makes 1.5 eight-child box tests, enters 1.1 leaves and
+//! reaches 2.2 triangles, 1.6 of them past back-face culling and 0.6 past the edge and range
+//! tests (`deep`: 3.2 box tests, 1.35 leaves; its any-hit rays 2.35 box tests, 0.95 leaves,
+//! 1.6 triangles, half of them culled). No part dominates. In time (`perf` on the CPU clock,
+//! `deep` at 128 px and 64 spp) the any-hit query is 28 % of the render, and its samples
+//! fall after the child mask's branch, the child reference's leaf test and the loads of
+//! the spilled ray lanes: mispredicted branches and load latency. Only 10 % (`cornell`),
+//! 12 % (`deep`), 14 % (`thin`), 21 % (`materials`) and 26 % (`tabletop`) of the path loop's
+//! shadow rays are blocked, so an any-hit query nearly always walks its whole segment.
+//! Measured and not kept at stop 64 (the same bits each; samples per CPU-second at 128 px
+//! and 64 spp, two alternating pairs):
+//! - an occluder hint: per light (and one for the emitter samples), the triangle that last
+//!   blocked a shadow ray in the batch tested before the traversal. It blocked again for
+//!   24 % (`deep`) to 48 % (`cornell`) of the blocked rays, but it costs every unblocked ray a
+//!   triangle test: `deep` −3 to −5 %, `cornell` −3 to −4 %, `tabletop` −2 to +0.5 %, `thin`
+//!   −2 to 0 %, `materials` +0.2 to +2 %;
+//! - a bounce's shadow rays traced grouped by light (a counting sort; the estimates still
+//!   added in vertex order), so that rays towards one light follow each other: `deep` −2 to
+//!   −3 %, `tabletop` −3 to −4 %, `cornell` −0.6 to +4 %, `materials` and `thin` ±2 %;
+//! - a bounce's shadow rays two at a time, their any-hit traversals interleaved a step (a
+//!   node or a leaf) at a time: `cornell` −4 to −6 %, `deep` −1 to −2.5 %, `materials` −3 to
+//!   0 %. As with the interleaved paths of stop 55, the second traversal's state spills
+//!   and its branches mispredict as often;
+//! - the BVH built with obvhs's `slow_build` settings (PLOC search 24, 20 % reinsertion,
+//!   128-bit Morton codes) instead of `medium_build`: `deep` +2 to +4 %, `tabletop` −1 to
+//!   +1 %; its collapse cost 1 or 6 instead of 3: within ±1 % on `deep` and `cornell`. The
+//!   committed scenes are too small for the tree's quality to matter.
+//!
 //! Shadow rays use the same traversal as an any-hit query that stops at the first accepted
 //! hit ([`Accel::occluded`]).
 //!
