@@ -24,7 +24,8 @@ component), Mitsuba's min(0.95, the largest throughput component x eta^2).
 Timing: `mi.render` plus evaluation of the image (dr.eval + sync); the first render of each
 scene and mode (scene upload, JIT compilation, kernel caching) is reported separately as
 `first_seconds`; `seconds` is the median of `--runs` further renders with new seeds, `times`
-lists them all (in render order).
+lists them all (in render order). With `--serve` the caller asks for each export when it wants
+it (`serve()`): `cargo xtask bench render` right after its own renders of that image.
 Scene building is not timed. Samples are camera samples: width x height x spp.
 
 Error: when the export folder holds `reference.npy` (our high-spp RGB image of the same camera)
@@ -57,7 +58,9 @@ def default_llvm():
 
 def parse_args():
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--export", action="append", required=True, help="export folder (repeatable)")
+    p.add_argument("--export", action="append", default=[], help="export folder (repeatable)")
+    p.add_argument("--serve", action="store_true",
+                   help="take commands on stdin instead (see serve()): the caller interleaves its own timed renders")
     p.add_argument("--variant", default="auto", help="auto (llvm_ad_rgb if it works, else scalar_rgb), or a variant")
     p.add_argument("--runs", type=int, default=5, help="timed renders after the first (median)")
     p.add_argument("--rr-depth", type=int, default=2, help="Mitsuba's rr_depth (2 = ours; see above)")
@@ -133,32 +136,44 @@ def load_reference(folder):
     return reference, noise, mask
 
 
-def main():
-    args = parse_args()
-    default_llvm()
-    import drjit as dr
-    import mitsuba as mi
+class Bench:
+    """The renders of one or more exports, each in every BSDF mode and sampler asked for."""
 
-    variant = choose_variant(mi, args.variant)
-    import gltf_bsdf
-    import gltf_lights
-    import scene_loader
+    def __init__(self, args):
+        default_llvm()
+        import drjit as dr
+        import mitsuba as mi
 
-    def diffuse_plugin(mi_module, mat, textures, has_vertex_colors):
-        return {"type": "diffuse", "reflectance": scene_loader.lambert_reflectance(mi_module, mat, textures, has_vertex_colors)}
+        self.args, self.dr, self.mi = args, dr, mi
+        self.variant = choose_variant(mi, args.variant)
+        import gltf_bsdf
+        import gltf_lights
+        import scene_loader
 
-    plugins = {"gltf": gltf_bsdf.bsdf_dict, "diffuse": diffuse_plugin}
-    for folder in args.export:
+        self.gltf_lights, self.scene_loader = gltf_lights, scene_loader
+
+        def diffuse_plugin(mi_module, mat, textures, has_vertex_colors):
+            return {"type": "diffuse", "reflectance": scene_loader.lambert_reflectance(mi_module, mat, textures, has_vertex_colors)}
+
+        self.plugins = {"gltf": gltf_bsdf.bsdf_dict, "diffuse": diffuse_plugin}
+
+    def measure(self, folder, runs):
+        """The export's records, one per mode and sampler: the scene built, rendered once
+        (scene upload, JIT compilation: `first_seconds`), then `runs` timed renders in a row
+        (as a user renders; alternating between the samplers' scenes instead measured 25 %
+        slower with the `gltf` plugin)."""
+        mi, dr, args, scene_loader = self.mi, self.dr, self.args, self.scene_loader
         man, arrays = scene_loader.load_export(folder)
         spp = int(man["settings"]["spp"])
         cam = man["cameras"][0]
         samples = cam["width"] * cam["height"] * spp
+        out = []
         for mode, sampler in [(m, s) for m in args.modes.split(",") for s in args.samplers.split(",")]:
-            rec = {"export": folder, "scene": man["scene"], "variant": variant, "mode": mode, "sampler": sampler, "width": cam["width"],
+            rec = {"export": folder, "scene": man["scene"], "variant": self.variant, "mode": mode, "sampler": sampler, "width": cam["width"],
                    "height": cam["height"], "spp": spp, "max_depth": int(man["settings"]["max_bounces"]) + 1, "samples": samples}
             try:
-                scene = scene_loader.build_scene(mi, man, arrays, 0, spp, plugins[mode], gltf_lights.spot_dict,
-                                                 gltf_lights.envmap_dict, transparent_ok=True, rr_depth=args.rr_depth,
+                scene = scene_loader.build_scene(mi, man, arrays, 0, spp, self.plugins[mode], self.gltf_lights.spot_dict,
+                                                 self.gltf_lights.envmap_dict, transparent_ok=True, rr_depth=args.rr_depth,
                                                  sampler=sampler)
                 lambert = sum(1 for m in man["materials"] if m["metallic"] <= 0 and m.get("specular", 1.0) <= 0
                               and m["metallic_roughness_texture"] is None)
@@ -168,29 +183,74 @@ def main():
                                f"gltf Python plugin ({glossy} materials)" + (f", native diffuse ({lambert})" if lambert else ""))
                 rec["rr_depth"] = args.rr_depth
                 rec["first_seconds"] = timed_render(mi, dr, scene, spp, 0)[0]
-                runs = [timed_render(mi, dr, scene, spp, 1 + k) for k in range(max(1, args.runs))]
-                rec["times"] = [t for t, _ in runs]
-                times = sorted(rec["times"])
-                rec["seconds"] = times[len(times) // 2]
-                rec["samples_per_second"] = samples / rec["seconds"]
-                reference, noise, mask = load_reference(folder)
-                if reference is not None:
-                    import numpy as np
-
-                    imgs = [np.array(img, dtype=np.float64)[..., :3] for _, img in runs]
-                    errs = [float(np.mean(((i - reference) ** 2)[mask])) - noise for i in imgs]
-                    rec["errors"] = errs
-                    # The median, as on our side: a rare caustic firefly decides a mean of a few.
-                    rec["mse"] = float(np.median(errs))
-                    rec["mse_mean"] = sum(errs) / len(errs)
-                    # Per render, error = variance V + squared bias B; the mean of n renders
-                    # has V / n + B: B estimates how far Mitsuba's expected image is from ours.
-                    n = len(imgs)
-                    if n > 1:
-                        mse_mean = float(np.mean(((np.mean(imgs, axis=0) - reference) ** 2)[mask])) - noise
-                        rec["bias2"] = (mse_mean - rec["mse_mean"] / n) / (1.0 - 1.0 / n)
+                finish(rec, [timed_render(mi, dr, scene, spp, 1 + k) for k in range(max(1, runs))], folder)
             except scene_loader.Unsupported as e:
                 rec["error"] = f"unsupported: {e}"
+            out.append(rec)
+        return out
+
+
+def finish(rec, runs, folder):
+    """Fills `rec` with the figures of `runs` (seconds, image) against the export's reference."""
+    samples = rec["samples"]
+    rec["times"] = [t for t, _ in runs]
+    times = sorted(rec["times"])
+    rec["seconds"] = times[len(times) // 2]
+    rec["samples_per_second"] = samples / rec["seconds"]
+    reference, noise, mask = load_reference(folder)
+    if reference is not None:
+        import numpy as np
+
+        imgs = [np.array(img, dtype=np.float64)[..., :3] for _, img in runs]
+        errs = [float(np.mean(((i - reference) ** 2)[mask])) - noise for i in imgs]
+        rec["errors"] = errs
+        # The median, as on our side: a rare caustic firefly decides a mean of a few.
+        rec["mse"] = float(np.median(errs))
+        rec["mse_mean"] = sum(errs) / len(errs)
+        # Per render, error = variance V + squared bias B; the mean of n renders
+        # has V / n + B: B estimates how far Mitsuba's expected image is from ours.
+        n = len(imgs)
+        if n > 1:
+            mse_mean = float(np.mean(((np.mean(imgs, axis=0) - reference) ** 2)[mask])) - noise
+            rec["bias2"] = (mse_mean - rec["mse_mean"] / n) / (1.0 - 1.0 / n)
+
+
+def serve(bench):
+    """`--serve`: commands on stdin, one JSON object a line, each answered by one JSON line on
+    stdout: {"cmd": "measure", "export": DIR, "runs": N} answers {"records": [...]}, the batch
+    mode's records of DIR. `cargo xtask bench render` asks for each export right after its own
+    timed renders of it, so that the two renderers' figures of one image are taken within
+    seconds of each other (a drift of the machine's speed during the bench then falls on both
+    alike). The first line, once Mitsuba is loaded and its variant chosen, is
+    {"ok": true, "variant": ...}: the caller waits for it so that none of its timings overlaps
+    this start-up."""
+    print(json.dumps({"ok": True, "variant": bench.variant}), flush=True)
+    for line in sys.stdin:
+        line = line.strip()
+        if not line:
+            continue
+        try:
+            cmd = json.loads(line)
+            if cmd.get("cmd") == "measure":
+                reply = {"records": bench.measure(cmd["export"], int(cmd["runs"]))}
+            else:
+                reply = {"error": f"unknown command {cmd.get('cmd')!r}"}
+        except Exception as e:  # the caller reports it and goes on without Mitsuba
+            reply = {"error": f"{type(e).__name__}: {e}"}
+        print(json.dumps(reply), flush=True)
+    return 0
+
+
+def main():
+    args = parse_args()
+    if not args.serve and not args.export:
+        print("bench.py: give --export DIR (repeatable) or --serve", file=sys.stderr)
+        return 2
+    bench = Bench(args)
+    if args.serve:
+        return serve(bench)
+    for folder in args.export:
+        for rec in bench.measure(folder, args.runs):
             print(json.dumps(rec), flush=True)
     return 0
 

@@ -344,7 +344,7 @@ fn bench_render(args: &RenderBenchArgs) -> anyhow::Result<()> {
     report.line(format!("cpu: {}", cpu.summary()));
     report.line(format!(
         "bench render: profile {}, {threads} threads; medians of {RENDER_RUNS} runs (IQR = quartiles); BVH = obvhs medium_build; \
-         primary = 256x256 pixel-centre closest hits, one ray at a time; packet = the same, each row's 64 to a packet; shadow = any-hit rays from those hits to every punctual light and one emitter \
+         primary = 256x256 pixel-centre closest hits, one ray at a time (every ray figure: each run repeats its rays for at least {MIN_RAY_RUN_SECONDS} s); packet = the same, each row's 64 to a packet; shadow = any-hit rays from those hits to every punctual light and one emitter \
          point; quick = 64x64 16 spp 4 bounces; std-spp = 32x32 128 spp 8 bounces; quick hash = the first quick render's bits \
          (colour and ground truth, pathtracer::version::view_hash): equal between two builds = bit-identical renders",
         build_profile()
@@ -354,6 +354,20 @@ fn bench_render(args: &RenderBenchArgs) -> anyhow::Result<()> {
         "scene", "triangles", "rig", "BVH ms", "B/tri", "primary Mray/s", "IQR", "packet Mray/s", "shadow Mray/s", "IQR", "quick Msample/s", "std-spp Msample/s", "quick hash"
     ));
     let export_root = crate::render::repo_root().join("out/bench/mitsuba");
+    let mut mitsuba = if args.no_mitsuba {
+        MitsubaState::Skipped
+    } else {
+        let root = crate::render::repo_root();
+        let python = root.join(".venv/bin/python");
+        if !python.is_file() {
+            MitsubaState::NoPython(python)
+        } else {
+            match MitsubaServer::start(&python, &root.join("tests/mitsuba/bench.py")) {
+                Ok(server) => MitsubaState::Running(server),
+                Err(e) => MitsubaState::Failed(format!("{e:#}")),
+            }
+        }
+    };
     let mut ours_quick: Vec<OursQuick> = Vec::new();
     let mut figures: Vec<SceneFigures> = Vec::new();
     let mut simd = "";
@@ -378,11 +392,13 @@ fn bench_render(args: &RenderBenchArgs) -> anyhow::Result<()> {
         let cameras = rig.split(dataset::SplitKind::Train);
         let cam = cameras[0];
         let big = cam.at_width(256);
-        let primary = Spread::of(&(0..RENDER_RUNS).map(|_| renderer.primary_ray_throughput(&big).rays_per_second * 1e-6).collect::<Vec<_>>());
-        let packet = Spread::of(&(0..RENDER_RUNS).map(|_| renderer.primary_packet_throughput(&big).rays_per_second * 1e-6).collect::<Vec<_>>());
-        let shadow_runs: Vec<_> = (0..RENDER_RUNS).map(|_| renderer.shadow_ray_throughput(&big)).collect();
-        let shadow = Spread::of(&shadow_runs.iter().map(|s| s.rays_per_second * 1e-6).collect::<Vec<_>>());
-        let occluded = shadow_runs.first().map_or(0.0, |s| s.hits as f64 / s.rays.max(1) as f64);
+        let primary = sustained_mrays(|| renderer.primary_ray_throughput(&big));
+        let packet = sustained_mrays(|| renderer.primary_packet_throughput(&big));
+        let shadow = sustained_mrays(|| renderer.shadow_ray_throughput(&big));
+        let occluded = {
+            let s = renderer.shadow_ray_throughput(&big);
+            s.hits as f64 / s.rays.max(1) as f64
+        };
         // Samples/s over the runs (view index k in run k), and the hash of run 0's output
         // (`pathtracer::version::view_hash`): equal hashes from two builds mean their renders
         // are bit-identical.
@@ -433,7 +449,11 @@ fn bench_render(args: &RenderBenchArgs) -> anyhow::Result<()> {
             pathtracer::export::export_scene(scene, &[cmp_cam], &cmp_settings, &export_dir)
                 .with_context(|| format!("exporting {name} for Mitsuba to {}", export_dir.display()))?;
             let cmp = compare_run(renderer, &cmp_cam, &cmp_settings, &export_dir, cmp_runs)?;
-            ours_quick.push(OursQuick { scene: name.clone(), model, cmp, export: export_dir });
+            // Mitsuba's renders of the same image right after ours: seconds apart, not minutes.
+            let records = mitsuba
+                .request(serde_json::json!({ "cmd": "measure", "export": export_dir.display().to_string(), "runs": cmp_runs }))
+                .and_then(|v| v.get("records").and_then(|r| r.as_array()).cloned());
+            ours_quick.push(OursQuick { scene: name.clone(), model, cmp, export: export_dir, mitsuba: records });
         }
         let small = cam.downscaled(2);
         let (std_rate, _) = path_rate(&std_settings, &small);
@@ -470,7 +490,8 @@ fn bench_render(args: &RenderBenchArgs) -> anyhow::Result<()> {
         renderers.push((name, renderer));
     }
     report.line(format!("child-box test: {simd}"));
-    let comparisons = bench_render_mitsuba(&ours_quick, cmp_runs, !args.no_mitsuba, &mut report)?;
+    let comparisons = bench_render_mitsuba(&ours_quick, cmp_runs, &mitsuba, &mut report)?;
+    drop(mitsuba);
     let rays = if args.no_mitsuba { Vec::new() } else { bench_render_rays(&renderers, &export_root, &out_dir(&args.out), &mut report)? };
     let json = serde_json::json!({
         "profile": build_profile(),
@@ -484,6 +505,32 @@ fn bench_render(args: &RenderBenchArgs) -> anyhow::Result<()> {
         "rays_vs_mitsuba": rays,
     });
     report.write(&out_dir(&args.out), "bench-render", &json)
+}
+
+/// Shortest timed span of one run of a ray-throughput figure, seconds.
+const MIN_RAY_RUN_SECONDS: f64 = 0.1;
+
+/// A ray-throughput figure in Mray/s over [`RENDER_RUNS`] runs, each run calling `trace` (one
+/// parallel pass over a set of rays, [`pathtracer::render::PrimaryRayStats`]) until it has
+/// traced for [`MIN_RAY_RUN_SECONDS`]: a single pass over a small scene's rays takes a few
+/// milliseconds, about what waking a virtual machine's second CPU can take, and read half the
+/// throughput in some runs.
+fn sustained_mrays(mut trace: impl FnMut() -> pathtracer::render::PrimaryRayStats) -> Spread {
+    let runs: Vec<f64> = (0..RENDER_RUNS)
+        .map(|_| {
+            let (mut rays, mut seconds) = (0u64, 0.0f64);
+            while seconds < MIN_RAY_RUN_SECONDS {
+                let s = trace();
+                if s.rays == 0 {
+                    break;
+                }
+                rays += s.rays;
+                seconds += s.seconds;
+            }
+            if seconds > 0.0 { rays as f64 / seconds * 1e-6 } else { 0.0 }
+        })
+        .collect();
+    Spread::of(&runs)
 }
 
 /// The JSON objects a harness script printed, one per line (other lines are skipped).
@@ -536,9 +583,7 @@ fn bench_render_rays(scenes: &[(String, pathtracer::render::Renderer)], export_r
             let file = mi[set]["file"].as_str().with_context(|| format!("rays.py: no {set} file for {name}"))?;
             Ok(read_ray_file(Path::new(file))?)
         };
-        let ours = |rays: &[(pathtracer::geometry::Ray, f32)], q: RayQuery| {
-            Spread::of(&(0..RENDER_RUNS).map(|_| renderer.ray_query_throughput(rays, q).rays_per_second * 1e-6).collect::<Vec<_>>())
-        };
+        let ours = |rays: &[(pathtracer::geometry::Ray, f32)], q: RayQuery| sustained_mrays(|| renderer.ray_query_throughput(rays, q));
         let mi_rate = |set: &str, k: &str| mi[set][k].as_f64().unwrap_or(f64::NAN);
         let (camera_rays, incoherent_rays) = (rays_of("primary")?, rays_of("incoherent")?);
         let cam = ours(&camera_rays, RayQuery::Closest);
@@ -835,14 +880,108 @@ struct OursQuick {
     /// The compared render.
     cmp: CmpRun,
     export: std::path::PathBuf,
+    /// Mitsuba's records for this export (`tests/mitsuba/bench.py`), measured right after our
+    /// renders of it; `None` without Mitsuba.
+    mitsuba: Option<Vec<serde_json::Value>>,
 }
 
-/// Runs `tests/mitsuba/bench.py` on the exports in `ours` (with `runs` timed renders each),
-/// prints the side-by-side table with a line per target of issue 25 (raw samples/s at least
+/// `tests/mitsuba/bench.py --serve` in a child process: Mitsuba's renders of an export on
+/// request, so that each image is timed by both renderers within seconds (it used to run once
+/// after all of ours, minutes later, and this machine's speed drifts by several per cent over
+/// minutes).
+struct MitsubaServer {
+    child: std::process::Child,
+    stdin: std::process::ChildStdin,
+    stdout: std::io::BufReader<std::process::ChildStdout>,
+}
+
+impl MitsubaServer {
+    fn start(python: &Path, script: &Path) -> anyhow::Result<MitsubaServer> {
+        let mut child = std::process::Command::new(python)
+            .arg(script)
+            .arg("--serve")
+            .stdin(std::process::Stdio::piped())
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::inherit())
+            .spawn()
+            .with_context(|| format!("starting {} {}", python.display(), script.display()))?;
+        let (Some(stdin), Some(stdout)) = (child.stdin.take(), child.stdout.take()) else {
+            anyhow::bail!("{}: no pipes to the child process", script.display());
+        };
+        let mut server = MitsubaServer { child, stdin, stdout: std::io::BufReader::new(stdout) };
+        // Its start-up (imports, the LLVM probe) ends with a first answer; none of our timings
+        // may overlap it.
+        server.answer()?;
+        Ok(server)
+    }
+
+    /// Sends `cmd` and returns its answer ([`MitsubaServer::answer`]).
+    fn request(&mut self, cmd: serde_json::Value) -> anyhow::Result<serde_json::Value> {
+        use std::io::Write;
+        writeln!(self.stdin, "{cmd}").and_then(|_| self.stdin.flush()).context("writing to bench.py")?;
+        self.answer()
+    }
+
+    /// The next line of the child's output that is a JSON object (other lines are skipped);
+    /// one with an `error` is an error.
+    fn answer(&mut self) -> anyhow::Result<serde_json::Value> {
+        use std::io::BufRead;
+        let mut line = String::new();
+        loop {
+            line.clear();
+            if self.stdout.read_line(&mut line).context("reading from bench.py")? == 0 {
+                anyhow::bail!("bench.py exited ({})", self.child.wait().map_or_else(|e| e.to_string(), |s| s.to_string()));
+            }
+            if let Ok(v) = serde_json::from_str::<serde_json::Value>(line.trim())
+                && v.is_object()
+            {
+                if let Some(e) = v.get("error") {
+                    anyhow::bail!("bench.py: {}", e.as_str().unwrap_or("error"));
+                }
+                return Ok(v);
+            }
+        }
+    }
+}
+
+impl Drop for MitsubaServer {
+    fn drop(&mut self) {
+        // Closing stdin ends its command loop; a child stuck elsewhere is killed.
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// Where the Mitsuba side of the comparison stands.
+enum MitsubaState {
+    /// Not asked for (`--no-mitsuba`).
+    Skipped,
+    /// No virtual environment at this path.
+    NoPython(PathBuf),
+    /// Running (its records are in each [`OursQuick`]).
+    Running(MitsubaServer),
+    /// Stopped by this error; our figures stand.
+    Failed(String),
+}
+
+impl MitsubaState {
+    /// Sends `cmd` while running; an error stops Mitsuba for the rest of the bench.
+    fn request(&mut self, cmd: serde_json::Value) -> Option<serde_json::Value> {
+        let MitsubaState::Running(server) = self else { return None };
+        match server.request(cmd) {
+            Ok(v) => Some(v),
+            Err(e) => {
+                *self = MitsubaState::Failed(format!("{e:#}"));
+                None
+            }
+        }
+    }
+}
+
+/// From Mitsuba's records gathered beside our renders (`tests/mitsuba/bench.py --serve`, its
+/// `runs` timed renders of each export right after ours), prints the side-by-side table with a line per target of issue 25 (raw samples/s at least
 /// Mitsuba's, at least 2x at equal error), and returns the rows for the JSON.
-fn bench_render_mitsuba(ours: &[OursQuick], runs: usize, mitsuba: bool, report: &mut Report) -> anyhow::Result<Vec<serde_json::Value>> {
-    let root = crate::render::repo_root();
-    let python = root.join(".venv/bin/python");
+fn bench_render_mitsuba(ours: &[OursQuick], runs: usize, mitsuba: &MitsubaState, report: &mut Report) -> anyhow::Result<Vec<serde_json::Value>> {
     let quick = pathtracer::dataset_render::DatasetRenderConfig::preset(pathtracer::dataset_render::Preset::Quick);
     report.line("");
     let ours_json = |o: &OursQuick| {
@@ -879,33 +1018,30 @@ fn bench_render_mitsuba(ours: &[OursQuick], runs: usize, mitsuba: bool, report: 
         }
         ours.iter().map(|o| serde_json::json!({ "scene": o.scene, "model": o.model, "ours": ours_json(o) })).collect()
     };
-    if !mitsuba {
-        report.line("Mitsuba comparison skipped (--no-mitsuba)");
-        return Ok(only_ours(report));
+    match mitsuba {
+        MitsubaState::Skipped => {
+            report.line("Mitsuba comparison skipped (--no-mitsuba)");
+            return Ok(only_ours(report));
+        }
+        MitsubaState::NoPython(python) => {
+            report.line(format!(
+                "Mitsuba comparison skipped: {} not found (python3 -m venv .venv && .venv/bin/pip install -r tests/mitsuba/requirements.txt)",
+                python.display()
+            ));
+            return Ok(only_ours(report));
+        }
+        MitsubaState::Failed(why) => {
+            report.line(format!("Mitsuba comparison failed ({why}); our figures above stand"));
+            return Ok(only_ours(report));
+        }
+        MitsubaState::Running(_) => {}
     }
-    if !python.is_file() {
-        report.line(format!(
-            "Mitsuba comparison skipped: {} not found (python3 -m venv .venv && .venv/bin/pip install -r tests/mitsuba/requirements.txt)",
-            python.display()
-        ));
-        return Ok(only_ours(report));
-    }
-    let mut cmd = std::process::Command::new(&python);
-    cmd.arg(root.join("tests/mitsuba/bench.py")).arg("--runs").arg(runs.to_string());
-    for o in ours {
-        cmd.arg("--export").arg(&o.export);
-    }
-    let out = cmd.stderr(std::process::Stdio::inherit()).output().with_context(|| format!("running {}", python.display()))?;
-    if !out.status.success() {
-        report.line(format!("Mitsuba comparison failed ({}); our figures above stand", out.status));
-        return Ok(only_ours(report));
-    }
-    let lines = json_lines(&out.stdout).context("reading bench.py's output")?;
+    let lines: Vec<serde_json::Value> = ours.iter().flat_map(|o| o.mitsuba.iter().flatten().cloned()).collect();
     report.line(format!(
         "vs Mitsuba 3: same camera (the quick rig's first train view) at {CMP_WIDTH} px wide, {CMP_SPP} spp, our max_bounces {} = \
          Mitsuba max_depth {} (Russian roulette from the third vertex on both: rr_depth 2; ours survives with min(1, 2 x max throughput), Mitsuba with min(0.95, max throughput)), environment {:?} as an opaque \
-         background (both show it and the emitters the camera sees); medians of {runs} timed renders (Mitsuba's after a first one for \
-         JIT compilation; Mitsuba with its default `independent` sampler, with `ldsampler`, its counterpart of our padded \
+         background (both show it and the emitters the camera sees); medians of {runs} timed renders, Mitsuba's of each image right \
+         after ours (Mitsuba's after a first one for JIT compilation; Mitsuba with its default `independent` sampler, with `ldsampler`, its counterpart of our padded \
          Owen-scrambled Sobol' sampler, and with `multijitter`). MSE = mean squared RGB error of one render against our {CMP_REF_SPP}-spp reference, less that \
          reference's own noise, over the pixels but the {}% where that noise is largest (a few unconverged highlight or caustic \
          pixels of the reference would otherwise decide it), median over the timed renders (a rare caustic firefly would \
@@ -1031,6 +1167,42 @@ fn verdict(median: f64, range: [f64; 2], target: f64) -> &'static str {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A stand-in for `bench.py --serve`: a line of noise, the ready answer, then per command
+    /// `measure` → records, `fail` → an error answer, anything else → exit.
+    const FAKE_SERVER: &str = r#"
+import json, sys
+print("some library's banner")
+print(json.dumps({"ok": True, "variant": "fake"}), flush=True)
+for line in sys.stdin:
+    cmd = json.loads(line)
+    if cmd["cmd"] == "measure":
+        print(json.dumps({"records": [{"export": cmd["export"], "runs": cmd["runs"]}]}), flush=True)
+    elif cmd["cmd"] == "fail":
+        print(json.dumps({"error": "boom"}), flush=True)
+    else:
+        sys.exit(3)
+"#;
+
+    #[test]
+    fn the_mitsuba_server_answers_requests_and_stops_at_its_first_error() {
+        let dir = tempfile::tempdir().unwrap();
+        let script = dir.path().join("fake.py");
+        std::fs::write(&script, FAKE_SERVER).unwrap();
+        let mut state = MitsubaState::Running(MitsubaServer::start(Path::new("python3"), &script).unwrap());
+        let answer = state.request(serde_json::json!({ "cmd": "measure", "export": "x", "runs": 3 })).unwrap();
+        assert_eq!(answer["records"][0]["runs"], 3);
+        assert_eq!(answer["records"][0]["export"], "x");
+        // An error answer stops Mitsuba for the rest of the bench, with the reason.
+        assert!(state.request(serde_json::json!({ "cmd": "fail", "export": "x" })).is_none());
+        let MitsubaState::Failed(why) = &state else { panic!("not failed after an error answer") };
+        assert!(why.contains("boom"), "{why}");
+        assert!(state.request(serde_json::json!({ "cmd": "measure", "export": "x", "runs": 1 })).is_none());
+        // A child that exits is an error, not a hang.
+        let mut server = MitsubaServer::start(Path::new("python3"), &script).unwrap();
+        let err = server.request(serde_json::json!({ "cmd": "quit", "export": "x" })).unwrap_err();
+        assert!(format!("{err:#}").contains("exited"), "{err:#}");
+    }
 
     #[test]
     fn a_target_verdict_says_when_the_spread_straddles_the_target() {
