@@ -60,7 +60,7 @@ def parse_args():
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--export", action="append", default=[], help="export folder (repeatable)")
     p.add_argument("--serve", action="store_true",
-                   help="take commands on stdin instead (see serve()): the caller interleaves its own timed renders")
+                   help="take commands on stdin instead (see serve()): the caller asks for each export when it wants it")
     p.add_argument("--variant", default="auto", help="auto (llvm_ad_rgb if it works, else scalar_rgb), or a variant")
     p.add_argument("--runs", type=int, default=5, help="timed renders after the first (median)")
     p.add_argument("--rr-depth", type=int, default=2, help="Mitsuba's rr_depth (2 = ours; see above)")

@@ -946,7 +946,7 @@ impl MitsubaServer {
 
 impl Drop for MitsubaServer {
     fn drop(&mut self) {
-        // Closing stdin ends its command loop; a child stuck elsewhere is killed.
+        // The child keeps nothing worth a clean exit; killing it also ends one stuck in a render.
         let _ = self.child.kill();
         let _ = self.child.wait();
     }
@@ -979,8 +979,9 @@ impl MitsubaState {
 }
 
 /// From Mitsuba's records gathered beside our renders (`tests/mitsuba/bench.py --serve`, its
-/// `runs` timed renders of each export right after ours), prints the side-by-side table with a line per target of issue 25 (raw samples/s at least
-/// Mitsuba's, at least 2x at equal error), and returns the rows for the JSON.
+/// `runs` timed renders of each export right after ours), prints the side-by-side table with a
+/// line per target of issue 25 (raw samples/s at least Mitsuba's, at least 2x at equal error),
+/// and returns the rows for the JSON.
 fn bench_render_mitsuba(ours: &[OursQuick], runs: usize, mitsuba: &MitsubaState, report: &mut Report) -> anyhow::Result<Vec<serde_json::Value>> {
     let quick = pathtracer::dataset_render::DatasetRenderConfig::preset(pathtracer::dataset_render::Preset::Quick);
     report.line("");
