@@ -51,13 +51,18 @@ pub(super) struct WideNode {
     child: [u32; 8],
 }
 
+/// A child reference decoded: `Ok(node index)` or `Err((first triangle, count))` for a leaf.
+#[inline(always)]
+fn decode(c: u32) -> Result<u32, (u32, u32)> {
+    if c & LEAF != 0 { Err((c & LEAF_FIRST_MASK, ((c >> LEAF_COUNT_SHIFT) & 3) + 1)) } else { Ok(c) }
+}
+
 impl WideNode {
-    /// Child slot `k`'s reference: `Ok(node index)` or `Err((first triangle, count))` for a
-    /// leaf. An unused slot reads as node 0, but its box is empty, so no ray enters it.
+    /// Child slot `k`'s reference ([`decode`]d). An unused slot reads as node 0, but its box
+    /// is empty, so no ray enters it.
     #[inline(always)]
     pub(super) fn child(&self, k: usize) -> Result<u32, (u32, u32)> {
-        let c = self.child[k];
-        if c & LEAF != 0 { Err((c & LEAF_FIRST_MASK, ((c >> LEAF_COUNT_SHIFT) & 3) + 1)) } else { Ok(c) }
+        decode(self.child[k])
     }
 }
 
@@ -269,43 +274,44 @@ pub(super) fn traverse<
     let mut spill: Vec<u64> = Vec::new();
     let mut cur = 0u32;
     loop {
-        if cur & LEAF != 0 {
-            let first = cur & LEAF_FIRST_MASK;
-            let count = ((cur >> LEAF_COUNT_SHIFT) & 3) + 1;
-            for id in first..first + count {
-                match leaf(id as usize) {
-                    ControlFlow::Break(()) => return,
-                    ControlFlow::Continue(Some(t)) => limit = t,
-                    ControlFlow::Continue(None) => {}
+        match decode(cur) {
+            Err((first, count)) => {
+                for id in first..first + count {
+                    match leaf(id as usize) {
+                        ControlFlow::Break(()) => return,
+                        ControlFlow::Continue(Some(t)) => limit = t,
+                        ControlFlow::Continue(None) => {}
+                    }
                 }
             }
-        } else {
-            let node = &nodes[cur as usize];
-            let (mask, t_near) = test.children(node, r, limit);
-            if mask != 0 {
-                let first = mask.trailing_zeros() as usize;
-                let rest = mask & (mask - 1);
-                if rest == 0 {
-                    cur = node.child[first];
-                    continue;
-                }
-                // Two or more: push them all, sorted nearest last, then take the nearest.
-                let base = sp;
-                let mut m = mask;
-                while m != 0 {
-                    let k = m.trailing_zeros() as usize;
-                    m &= m - 1;
-                    let e = (t_near[k].to_bits() as u64) << 32 | node.child[k] as u64;
-                    if sp < N {
-                        let mut j = sp;
-                        while NEAREST_FIRST && j > base && stack[j - 1] < e {
-                            stack[j] = stack[j - 1];
-                            j -= 1;
+            Ok(index) => {
+                let node = &nodes[index as usize];
+                let (mask, t_near) = test.children(node, r, limit);
+                if mask != 0 {
+                    let first = mask.trailing_zeros() as usize;
+                    let rest = mask & (mask - 1);
+                    if rest == 0 {
+                        cur = node.child[first];
+                        continue;
+                    }
+                    // Two or more: push them all, sorted nearest last, then take the nearest.
+                    let base = sp;
+                    let mut m = mask;
+                    while m != 0 {
+                        let k = m.trailing_zeros() as usize;
+                        m &= m - 1;
+                        let e = (t_near[k].to_bits() as u64) << 32 | node.child[k] as u64;
+                        if sp < N {
+                            let mut j = sp;
+                            while NEAREST_FIRST && j > base && stack[j - 1] < e {
+                                stack[j] = stack[j - 1];
+                                j -= 1;
+                            }
+                            stack[j] = e;
+                            sp += 1;
+                        } else {
+                            spill.push(e);
                         }
-                        stack[j] = e;
-                        sp += 1;
-                    } else {
-                        spill.push(e);
                     }
                 }
             }
