@@ -392,13 +392,9 @@ fn bench_render(args: &RenderBenchArgs) -> anyhow::Result<()> {
         let cameras = rig.split(dataset::SplitKind::Train);
         let cam = cameras[0];
         let big = cam.at_width(256);
-        let primary = sustained_mrays(|| renderer.primary_ray_throughput(&big));
-        let packet = sustained_mrays(|| renderer.primary_packet_throughput(&big));
-        let shadow = sustained_mrays(|| renderer.shadow_ray_throughput(&big));
-        let occluded = {
-            let s = renderer.shadow_ray_throughput(&big);
-            s.hits as f64 / s.rays.max(1) as f64
-        };
+        let (primary, _) = sustained_mrays(|| renderer.primary_ray_throughput(&big));
+        let (packet, _) = sustained_mrays(|| renderer.primary_packet_throughput(&big));
+        let (shadow, occluded) = sustained_mrays(|| renderer.shadow_ray_throughput(&big));
         // Samples/s over the runs (view index k in run k), and the hash of run 0's output
         // (`pathtracer::version::view_hash`): equal hashes from two builds mean their renders
         // are bit-identical.
@@ -514,8 +510,9 @@ const MIN_RAY_RUN_SECONDS: f64 = 0.1;
 /// parallel pass over a set of rays, [`pathtracer::render::PrimaryRayStats`]) until it has
 /// traced for [`MIN_RAY_RUN_SECONDS`]: a single pass over a small scene's rays takes a few
 /// milliseconds, about what waking a virtual machine's second CPU can take, and read half the
-/// throughput in some runs.
-fn sustained_mrays(mut trace: impl FnMut() -> pathtracer::render::PrimaryRayStats) -> Spread {
+/// throughput in some runs. Also the share of the traced rays that hit.
+fn sustained_mrays(mut trace: impl FnMut() -> pathtracer::render::PrimaryRayStats) -> (Spread, f64) {
+    let (mut all_rays, mut all_hits) = (0u64, 0u64);
     let runs: Vec<f64> = (0..RENDER_RUNS)
         .map(|_| {
             let (mut rays, mut seconds) = (0u64, 0.0f64);
@@ -526,11 +523,13 @@ fn sustained_mrays(mut trace: impl FnMut() -> pathtracer::render::PrimaryRayStat
                 }
                 rays += s.rays;
                 seconds += s.seconds;
+                all_hits += s.hits;
             }
+            all_rays += rays;
             if seconds > 0.0 { rays as f64 / seconds * 1e-6 } else { 0.0 }
         })
         .collect();
-    Spread::of(&runs)
+    (Spread::of(&runs), all_hits as f64 / all_rays.max(1) as f64)
 }
 
 /// The JSON objects a harness script printed, one per line (other lines are skipped).
@@ -583,7 +582,7 @@ fn bench_render_rays(scenes: &[(String, pathtracer::render::Renderer)], export_r
             let file = mi[set]["file"].as_str().with_context(|| format!("rays.py: no {set} file for {name}"))?;
             Ok(read_ray_file(Path::new(file))?)
         };
-        let ours = |rays: &[(pathtracer::geometry::Ray, f32)], q: RayQuery| sustained_mrays(|| renderer.ray_query_throughput(rays, q));
+        let ours = |rays: &[(pathtracer::geometry::Ray, f32)], q: RayQuery| sustained_mrays(|| renderer.ray_query_throughput(rays, q)).0;
         let mi_rate = |set: &str, k: &str| mi[set][k].as_f64().unwrap_or(f64::NAN);
         let (camera_rays, incoherent_rays) = (rays_of("primary")?, rays_of("incoherent")?);
         let cam = ours(&camera_rays, RayQuery::Closest);
