@@ -197,6 +197,9 @@ use crate::sampler::{Sampler, power_heuristic, splitmix64};
 use crate::scene::{AlphaMode, Material, Scene};
 use glam::{Vec2, Vec3, Vec4};
 
+mod lanes;
+pub use lanes::LaneMaterials;
+
 /// Where each of a path vertex's numbers lies in its block of sampler dimensions: a spare
 /// number for the emitter point (1, used only where the picked triangle's share of the
 /// emitted power is too small to reuse the choice's number, see
@@ -471,6 +474,10 @@ pub struct PathIntegrator<'a> {
     /// ([`crate::material::uniform_surface`]), else `None` (resolved per vertex). Empty: every
     /// material is resolved per vertex (the same bits, slower).
     pub uniform_surfaces: &'a [Option<SurfaceMaterial>],
+    /// Where the scene's materials allow it ([`LaneMaterials::new`]), what the path loop in
+    /// lanes reads (module `lanes`); `None`: every vertex is shaded one path at a time (the
+    /// same bits, slower).
+    pub lane_materials: Option<&'a LaneMaterials>,
     /// Settings.
     pub settings: IntegratorSettings,
 }
@@ -580,40 +587,10 @@ impl PathIntegrator<'_> {
 
     #[inline(always)]
     fn radiance_batch_impl(&self, rays: &[Ray], samplers: &mut [Sampler], primary_emission: bool, out: &mut [RadianceSample]) {
-        let env = &self.settings.environment;
-        let mut paths: Vec<PathState> = Vec::with_capacity(rays.len());
-        let mut active: Vec<u32> = Vec::with_capacity(rays.len());
-        // The camera rays (a pixel's, close to each other) as packets where the batch is large
-        // enough to pay, else one at a time (the same bits either way).
-        let mut hits = vec![None; rays.len()];
-        if rays.len() >= PACKET_MIN_RAYS {
-            self.intersect_many(rays, &mut hits);
-        } else {
-            for (h, r) in hits.iter_mut().zip(rays) {
-                *h = self.intersect(r);
-            }
+        if let Some(mats) = self.lane_materials {
+            return self.radiance_lanes(mats, rays, samplers, primary_emission, out);
         }
-        for (k, (ray, &hit)) in rays.iter().zip(&hits).enumerate() {
-            paths.push(PathState {
-                l: Vec3::ZERO,
-                beta: Vec3::ONE,
-                ray: *ray,
-                hit: hit.unwrap_or(Hit { prim: 0, t: 0.0, b: [0.0; 3], front: true }),
-                prev_bsdf_pdf: 0.0,
-                depth: 0,
-                all_rough: true,
-            });
-            out[k] = match hit {
-                Some(_) => {
-                    active.push(k as u32);
-                    RadianceSample { radiance: Vec3::ZERO, primary_hit: true }
-                }
-                None => {
-                    let radiance = if self.settings.transparent_background { Vec3::ZERO } else { env.eval(ray.direction) };
-                    RadianceSample { radiance, primary_hit: false }
-                }
-            };
-        }
+        let (mut paths, mut active) = self.camera_vertices(rays, out);
         let mut pending: Vec<Pending> = Vec::with_capacity(active.len());
         let mut sampled: Vec<Option<BsdfSample>> = Vec::with_capacity(active.len());
         let mut bsdfs: Vec<BsdfAt> = Vec::with_capacity(active.len());
@@ -666,6 +643,48 @@ impl PathIntegrator<'_> {
                 }
             }
         }
+    }
+
+    /// The batch's camera rays traced (as packets where the batch is large enough): every
+    /// path at its first vertex, the paths that hit something (their indices), and `out`
+    /// set for every ray (the environment for a miss).
+    #[inline(always)]
+    fn camera_vertices(&self, rays: &[Ray], out: &mut [RadianceSample]) -> (Vec<PathState>, Vec<u32>) {
+        let env = &self.settings.environment;
+        let mut paths: Vec<PathState> = Vec::with_capacity(rays.len());
+        let mut active: Vec<u32> = Vec::with_capacity(rays.len());
+        // The camera rays (a pixel's, close to each other) as packets where the batch is large
+        // enough to pay, else one at a time (the same bits either way).
+        let mut hits = vec![None; rays.len()];
+        if rays.len() >= PACKET_MIN_RAYS {
+            self.intersect_many(rays, &mut hits);
+        } else {
+            for (h, r) in hits.iter_mut().zip(rays) {
+                *h = self.intersect(r);
+            }
+        }
+        for (k, (ray, &hit)) in rays.iter().zip(&hits).enumerate() {
+            paths.push(PathState {
+                l: Vec3::ZERO,
+                beta: Vec3::ONE,
+                ray: *ray,
+                hit: hit.unwrap_or(Hit { prim: 0, t: 0.0, b: [0.0; 3], front: true }),
+                prev_bsdf_pdf: 0.0,
+                depth: 0,
+                all_rough: true,
+            });
+            out[k] = match hit {
+                Some(_) => {
+                    active.push(k as u32);
+                    RadianceSample { radiance: Vec3::ZERO, primary_hit: true }
+                }
+                None => {
+                    let radiance = if self.settings.transparent_background { Vec3::ZERO } else { env.eval(ray.direction) };
+                    RadianceSample { radiance, primary_hit: false }
+                }
+            };
+        }
+        (paths, active)
     }
 
     /// A path's vertex at `path.hit`: the emission it shows added to `path.l`, its

@@ -365,7 +365,7 @@ impl BsdfAt {
 
     /// What [`sample_lane`] and [`evaluate_pdf_lane`] read of this BSDF, with the numbers `u`.
     #[inline(always)]
-    fn lane(&self, u: Vec2) -> SampleLane {
+    pub(crate) fn lane(&self, u: Vec2) -> SampleLane {
         match &self.bsdf {
             Bsdf::Diffuse { albedo } => SampleLane {
                 diffuse: true,
@@ -397,25 +397,25 @@ impl BsdfAt {
 
 /// One BSDF sample's inputs as plain numbers (a lane of [`sample_many`]).
 #[derive(Clone, Copy)]
-struct SampleLane {
+pub(crate) struct SampleLane {
     /// [`Bsdf::Diffuse`] (albedo `rho`), else [`Bsdf::MetallicRoughness`].
-    diffuse: bool,
-    rho: Vec3,
-    metallic: f32,
-    alpha: f32,
-    f0: Vec3,
-    f90: f32,
-    wo: Vec3,
-    ps: f32,
-    sd_wo: f32,
-    u: Vec2,
+    pub(crate) diffuse: bool,
+    pub(crate) rho: Vec3,
+    pub(crate) metallic: f32,
+    pub(crate) alpha: f32,
+    pub(crate) f0: Vec3,
+    pub(crate) f90: f32,
+    pub(crate) wo: Vec3,
+    pub(crate) ps: f32,
+    pub(crate) sd_wo: f32,
+    pub(crate) u: Vec2,
 }
 
 /// [`BsdfAt::evaluate_pdf`] of one lane: `(f · cos θᵢ, pdf)`. Both models are computed and
 /// the lane's own selected, with no branch on the data, so that a loop over lanes vectorises
 /// ([`evaluate_many`]).
 #[inline(always)]
-fn evaluate_pdf_lane<const ALL_DIFFUSE: bool>(x: &SampleLane, wi: Vec3) -> (Vec3, f32) {
+pub(crate) fn evaluate_pdf_lane<const ALL_DIFFUSE: bool>(x: &SampleLane, wi: Vec3) -> (Vec3, f32) {
     let wo = x.wo;
     let below = (wo.z <= 0.0) | (wi.z <= 0.0);
     let lambert = (x.rho * (FRAC_1_PI * wi.z), wi.z * FRAC_1_PI);
@@ -534,7 +534,7 @@ pub fn evaluate_many<'a>(bsdfs: impl Fn(usize) -> &'a BsdfAt, wi: &[Vec3], value
 /// data, so that a loop over lanes vectorises ([`sample_many`]); the selected values are the
 /// operations the model's sampling describes (see [`MetallicRoughness`]).
 #[inline(always)]
-fn sample_lane<const ALL_DIFFUSE: bool>(x: SampleLane) -> (Vec3, Vec3, f32, bool) {
+pub(crate) fn sample_lane<const ALL_DIFFUSE: bool>(x: SampleLane) -> (Vec3, Vec3, f32, bool) {
     let SampleLane { diffuse, rho, metallic, alpha, f0, f90, wo, ps, sd_wo, u } = x;
     if ALL_DIFFUSE {
         // The Lambertian model's values below, alone (for lanes that are all Lambertian).

@@ -319,6 +319,7 @@ pub struct Renderer {
     emitters: EmissiveTriangles,
     /// Per material, [`crate::material::uniform_surface`].
     uniform_surfaces: Vec<Option<SurfaceMaterial>>,
+    lane_materials: Option<crate::integrator::LaneMaterials>,
     caustics: CausticPaths,
     /// Whether [`Renderer::render_view`] traces caustic paths from the lights (default on).
     caustic_light_tracing: bool,
@@ -434,8 +435,9 @@ impl Renderer {
         let emitters = EmissiveTriangles::build(&scene);
         let caustics = CausticPaths::build(&scene);
         let vertex_colors = !scene.mesh.colors.is_empty();
-        let uniform_surfaces = scene.materials.iter().map(|m| crate::material::uniform_surface(m, vertex_colors)).collect();
-        Ok(Renderer { scene, accel, emitters, uniform_surfaces, caustics, caustic_light_tracing: true, environment_map: None })
+        let uniform_surfaces: Vec<_> = scene.materials.iter().map(|m| crate::material::uniform_surface(m, vertex_colors)).collect();
+        let lane_materials = crate::integrator::LaneMaterials::new(&scene, &uniform_surfaces);
+        Ok(Renderer { scene, accel, emitters, uniform_surfaces, lane_materials, caustics, caustic_light_tracing: true, environment_map: None })
     }
 
     /// Turns the caustic light tracer ([`crate::caustics`]) on (the default) or off: off,
@@ -509,6 +511,7 @@ impl Renderer {
             emitters: &self.emitters,
             caustics: None,
             uniform_surfaces: &self.uniform_surfaces,
+            lane_materials: self.lane_materials.as_ref(),
             settings,
         }
     }
@@ -1479,6 +1482,98 @@ mod tests {
             }
         }
         assert!(lit > 100, "{lit} lit paths");
+    }
+
+    #[test]
+    fn vertices_shaded_in_lanes_are_the_one_path_loop_bit_for_bit() {
+        // Every case the lane loop handles: Lambertian, glossy and metal (a sharp caster)
+        // surfaces; a double-sided emitter, a masked and a blended one; a point, a spot and a
+        // directional light; an environment map (sampled at every vertex) over a constant;
+        // interpolated normals bent off the faces, or none; the caustic vertices left to the
+        // light tracer or not; the last bounce, and no bounce at all. Every path (batches of
+        // 1 to 70) equals, bit for bit, the one-path loop's.
+        use crate::scene::AlphaMode;
+        let bits = |v: Vec3| v.to_array().map(f32::to_bits);
+        let mut lit = 0;
+        for normals in [true, false] {
+            let mut b = Builder::new();
+            let lambert = b.material(0.7, 0.0, false);
+            let e = b.material(0.5, 3.0, true);
+            let masked = b.material(0.2, 2.0, false);
+            b.materials[masked as usize].alpha_mode = AlphaMode::Mask { cutoff: 0.5 };
+            b.materials[masked as usize].base_color_factor.w = 0.8;
+            let blended = b.material(0.2, 1.5, false);
+            b.materials[blended as usize].alpha_mode = AlphaMode::Blend;
+            b.materials[blended as usize].base_color_factor.w = 0.6;
+            let mut gltf = |metallic: f32, roughness: f32| {
+                let mut m = Material::gltf_default();
+                (m.metallic_factor, m.roughness_factor) = (metallic, roughness);
+                m.base_color_factor = Vec4::new(0.8, 0.5, 0.3, 1.0);
+                b.materials.push(m);
+                b.materials.len() as u32 - 1
+            };
+            let (plastic, metal) = (gltf(0.0, 0.4), gltf(1.0, 0.15));
+            b.quad([Vec3::new(-3.0, 0.0, 3.0), Vec3::new(3.0, 0.0, 3.0), Vec3::new(3.0, 0.0, -3.0), Vec3::new(-3.0, 0.0, -3.0)], 3, plastic);
+            b.aabox(Vec3::new(-0.5, 0.0, -0.5), Vec3::new(0.5, 1.0, 0.5), false, metal);
+            b.aabox(Vec3::new(0.8, 0.0, -0.2), Vec3::new(1.2, 0.6, 0.2), false, lambert);
+            b.quad([Vec3::new(-0.3, 2.0, -0.3), Vec3::new(0.3, 2.0, -0.3), Vec3::new(0.3, 2.0, 0.3), Vec3::new(-0.3, 2.0, 0.3)], 1, e);
+            b.quad([Vec3::new(-2.0, 0.5, -1.0), Vec3::new(-2.0, 0.5, 1.0), Vec3::new(-2.0, 1.5, 1.0), Vec3::new(-2.0, 1.5, -1.0)], 2, masked);
+            b.quad([Vec3::new(1.5, 1.2, -1.5), Vec3::new(2.5, 1.2, -1.5), Vec3::new(2.5, 1.2, -0.5), Vec3::new(1.5, 1.2, -0.5)], 1, blended);
+            b.lights.push(Light::Point { position: Vec3::new(2.0, 3.0, 1.0), intensity: Vec3::splat(10.0), range: None });
+            b.lights.push(Light::Spot { position: Vec3::new(-1.0, 2.5, 1.5), direction: Vec3::new(0.3, -1.0, -0.4).normalize(), intensity: Vec3::new(8.0, 6.0, 4.0), inner_cone_angle: 0.2, outer_cone_angle: 0.6, range: Some(10.0) });
+            b.lights.push(Light::Directional { direction: Vec3::new(-0.4, -1.0, -0.2).normalize(), illuminance: Vec3::splat(0.7) });
+            if normals {
+                for (k, n) in b.mesh.normals.iter_mut().enumerate() {
+                    let k = k as f32;
+                    *n = (*n + 0.35 * Vec3::new((k * 0.7).sin(), (k * 1.3).cos(), (k * 2.1).sin())).normalize();
+                }
+            } else {
+                b.mesh.normals.clear();
+            }
+            let mut r = Renderer::new(b.build(DVec3::ZERO), &AccelParams::medium_build()).unwrap();
+            let texels = (0..32).map(|k| Vec3::new(0.2 + 0.1 * (k % 5) as f32, 0.3, 0.1 + 0.05 * (k % 7) as f32)).collect();
+            r.set_environment_map(Some(Arc::new(EnvironmentMap::from_texels(8, 4, texels).unwrap())));
+            let cam = camera(16, 16, 80.0, DVec3::new(2.5, 1.8, 2.0), DVec3::new(0.0, 0.7, 0.0));
+            let mut k = 0u32;
+            for (max_bounces, transparent, caustics) in [(6, false, true), (6, true, false), (1, false, true), (0, true, false)] {
+                let s = settings(1, max_bounces, 0.2, transparent);
+                let mut lanes = r.integrator(&s);
+                assert!(lanes.lane_materials.is_some(), "the lane loop applies");
+                let mut one = r.integrator(&s);
+                one.lane_materials = None;
+                if caustics {
+                    lanes.caustics = Some(r.caustics());
+                    one.caustics = Some(r.caustics());
+                }
+                for n in [1usize, 7, 8, 9, 70] {
+                    for primary_emission in [true, false] {
+                        let rays: Vec<Ray> = (k..k + n as u32).map(|q| r.local_ray(&cam.pixel_ray((q % 16) as f64 + 0.3, ((q / 16) % 16) as f64 + 0.6))).collect();
+                        let run = |integ: &PathIntegrator<'_>| {
+                            let mut samplers: Vec<Sampler> = (k..k + n as u32).map(|q| Sampler::new(7, 0, q as u64, 0)).collect();
+                            let mut out = vec![crate::integrator::RadianceSample { radiance: Vec3::NAN, primary_hit: false }; n];
+                            integ.radiance_batch(&rays, &mut samplers, primary_emission, &mut out);
+                            (out, samplers.iter().map(Sampler::dimension).collect::<Vec<_>>())
+                        };
+                        let ((got, got_dims), (want, want_dims)) = (run(&lanes), run(&one));
+                        assert_eq!(got_dims, want_dims, "the same numbers drawn");
+                        for (q, (g, w)) in got.iter().zip(&want).enumerate() {
+                            assert_eq!((bits(g.radiance), g.primary_hit), (bits(w.radiance), w.primary_hit), "normals {normals}, {max_bounces} bounces, batch of {n}, path {q}");
+                            lit += (w.radiance.max_element() > 0.0) as u32;
+                        }
+                        k += n as u32;
+                    }
+                }
+            }
+        }
+        assert!(lit > 500, "{lit} lit paths");
+        // A normal map leaves the scene to the one-path loop.
+        let mut b = Builder::new();
+        let m = b.material(0.5, 0.0, false);
+        b.materials[m as usize].normal_texture = Some((crate::scene::TextureRef { texture: 0, tex_coord: 0, wrap_s: crate::scene::Wrap::Repeat, wrap_t: crate::scene::Wrap::Repeat, filter: crate::scene::Filter::Linear, transform: None }, 1.0));
+        b.quad([Vec3::new(-1.0, 0.0, 1.0), Vec3::new(1.0, 0.0, 1.0), Vec3::new(1.0, 0.0, -1.0), Vec3::new(-1.0, 0.0, -1.0)], 1, m);
+        let scene = b.build(DVec3::ZERO);
+        let uniform: Vec<_> = scene.materials.iter().map(|m| crate::material::uniform_surface(m, false)).collect();
+        assert!(crate::integrator::LaneMaterials::new(&scene, &uniform).is_none());
     }
 
     #[test]

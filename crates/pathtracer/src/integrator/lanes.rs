@@ -1,0 +1,518 @@
+//! The path loop in lanes: [`PathIntegrator::radiance_batch`] for scenes whose materials are
+//! resolved once ([`LaneMaterials`]). A bounce's live paths are shaded eight at a time, each
+//! step of a vertex one loop over the eight lanes in structure-of-arrays form (the hit point,
+//! normals, shading frame and ray origin; the emitter sample's geometry, density and shadow
+//! ray; the BSDF's value towards it and its sample), so that the compiler vectorises the
+//! arithmetic. Each lane does exactly the operations of the one-path code in the parent
+//! module, so the bits are the same; what stays scalar is what branches per path: the
+//! sampler's numbers, the emitter's choice, the punctual lights and environment samples, the
+//! ray queries and the additions to the path's radiance (in the one-path code's order).
+
+use super::*;
+use crate::material::{Bsdf, SampleLane, evaluate_pdf_lane, sample_lane};
+
+/// Lanes of the loop: eight, the `f32` lanes of an AVX2 register.
+const L: usize = 8;
+
+/// Eight `f32` lanes.
+type Lanes = [f32; L];
+/// Eight 3-vectors, one array per component.
+type Lanes3 = [Lanes; 3];
+
+#[inline(always)]
+fn get3(a: &Lanes3, k: usize) -> Vec3 {
+    Vec3::new(a[0][k], a[1][k], a[2][k])
+}
+
+#[inline(always)]
+fn set3(a: &mut Lanes3, k: usize, v: Vec3) {
+    (a[0][k], a[1][k], a[2][k]) = (v.x, v.y, v.z);
+}
+
+/// What the lane loop reads of one material, resolved once.
+#[derive(Clone, Copy, Debug)]
+pub struct LaneMaterial {
+    /// The BSDF (resolved once, [`crate::material::uniform_surface`]).
+    bsdf: Bsdf,
+    /// Its emission.
+    emission: Vec3,
+    /// `Material::is_emissive`.
+    emissive: bool,
+    /// The radiance a light sample on it carries: its emission times its alpha coverage.
+    light_radiance: Vec3,
+    /// `Material::double_sided`.
+    double_sided: bool,
+}
+
+/// Per material of a scene, what the lane loop reads; built only where every material is
+/// the same at every point and has no normal map ([`LaneMaterials::new`]).
+#[derive(Clone, Debug)]
+pub struct LaneMaterials(Vec<LaneMaterial>);
+
+impl LaneMaterials {
+    /// The table for `scene` whose materials resolve to `uniform` once, or `None` where
+    /// some material varies over its surface (`uniform` holds a `None`) or has a normal map:
+    /// the one-path loop then shades every vertex.
+    pub fn new(scene: &Scene, uniform: &[Option<SurfaceMaterial>]) -> Option<Self> {
+        let attr = SurfaceAttributes { uv: [Vec2::ZERO; 2], color: Vec4::ONE };
+        scene
+            .materials
+            .iter()
+            .zip(uniform)
+            .map(|(m, u)| {
+                let surf = (*u)?;
+                if m.normal_texture.is_some() {
+                    return None;
+                }
+                // What `emitter_pending` computes for a light sample on this material, whose
+                // attributes at any point are the defaults (no texture, no vertex colour).
+                let coverage = match m.alpha_mode {
+                    AlphaMode::Opaque => 1.0,
+                    AlphaMode::Mask { cutoff } => {
+                        if base_color(m, &scene.textures, &attr).w >= cutoff { 1.0 } else { 0.0 }
+                    }
+                    AlphaMode::Blend => base_color(m, &scene.textures, &attr).w.clamp(0.0, 1.0),
+                };
+                Some(LaneMaterial {
+                    bsdf: surf.bsdf,
+                    emission: surf.emission,
+                    emissive: m.is_emissive(),
+                    light_radiance: emission(m, &scene.textures, &attr) * coverage,
+                    double_sided: m.double_sided,
+                })
+            })
+            .collect::<Option<Vec<_>>>()
+            .map(Self)
+    }
+}
+
+/// A light sample of a lane that stays scalar (a punctual light or the environment map).
+struct OtherLight {
+    lane: usize,
+    /// A punctual light (added before the emitter sample) or the environment (after).
+    punctual: bool,
+    light: PendingLight,
+}
+
+impl PathIntegrator<'_> {
+    /// [`PathIntegrator::radiance_batch`]'s loop with the vertices shaded in lanes (the same
+    /// bits).
+    #[inline(always)]
+    pub(super) fn radiance_lanes(&self, mats: &LaneMaterials, rays: &[Ray], samplers: &mut [Sampler], primary_emission: bool, out: &mut [RadianceSample]) {
+        let (mut paths, mut active) = self.camera_vertices(rays, out);
+        let mut next: Vec<u32> = Vec::with_capacity(active.len());
+        let mut others: Vec<OtherLight> = Vec::new();
+        let mut other_values: Vec<(Vec3, f32)> = Vec::new();
+        while !active.is_empty() {
+            next.clear();
+            for chunk in active.chunks(L) {
+                self.vertices_in_lanes(&mats.0, chunk, &mut paths, samplers, primary_emission, out, &mut next, &mut others, &mut other_values);
+            }
+            std::mem::swap(&mut active, &mut next);
+        }
+    }
+
+    /// Shades the vertices of the paths `chunk` (at most [`L`]), traces their shadow rays and
+    /// continues them; the paths that go on are pushed on `next`, the others' radiance
+    /// written to `out`.
+    #[allow(clippy::too_many_arguments, clippy::needless_range_loop)]
+    #[inline(always)]
+    fn vertices_in_lanes(&self, mats: &[LaneMaterial], chunk: &[u32], paths: &mut [PathState], samplers: &mut [Sampler], primary_emission: bool, out: &mut [RadianceSample], next: &mut Vec<u32>, others: &mut Vec<OtherLight>, other_values: &mut Vec<(Vec3, f32)>) {
+        let scene = self.scene;
+        let m = &scene.mesh;
+        let env = &self.settings.environment;
+        let max_bounces = self.settings.max_bounces;
+        let n = chunk.len();
+        debug_assert!(n <= L);
+
+        // The lanes' triangles, normals, barycentrics and ray directions. Lanes whose path
+        // ends before shading (past the last bounce without emission) stay idle.
+        let mut live = [false; L];
+        let mut mat = [0usize; L];
+        let mut pos = [[[0.0f32; L]; 3]; 3];
+        let mut nrm = [[[0.0f32; L]; 3]; 3];
+        let mut bary = [[0.0f32; L]; 3];
+        let mut dir = [[0.0f32; L]; 3];
+        for (k, &id) in chunk.iter().enumerate() {
+            let path = &paths[id as usize];
+            let prim = path.hit.prim as usize;
+            let material = m.material.get(prim).copied().unwrap_or(0) as usize;
+            let ok = match mats.get(material) {
+                None => false,
+                Some(lm) => path.depth < max_bounces || lm.emissive,
+            };
+            if !ok {
+                out[id as usize].radiance = path.l;
+                continue;
+            }
+            live[k] = true;
+            mat[k] = material;
+            let idx = m.indices[prim];
+            for v in 0..3 {
+                set3(&mut pos[v], k, m.positions[idx[v] as usize]);
+                set3(&mut nrm[v], k, m.normals.get(idx[v] as usize).copied().unwrap_or(Vec3::ZERO));
+                bary[v][k] = path.hit.b[v];
+            }
+            set3(&mut dir, k, path.ray.direction);
+        }
+
+        // In lanes: `interaction`, `vertex_bsdf`'s frame (no normal map) and the rays' origin.
+        let mut point = [[0.0f32; L]; 3];
+        let mut ng = [[0.0f32; L]; 3];
+        let mut ng_front = [[0.0f32; L]; 3];
+        let mut fs = [[0.0f32; L]; 3];
+        let mut ft = [[0.0f32; L]; 3];
+        let mut fnn = [[0.0f32; L]; 3];
+        let mut wo_l = [[0.0f32; L]; 3];
+        let mut origin = [[0.0f32; L]; 3];
+        for k in 0..L {
+            let p = [get3(&pos[0], k), get3(&pos[1], k), get3(&pos[2], k)];
+            let b = [bary[0][k], bary[1][k], bary[2][k]];
+            let d = get3(&dir, k);
+            let (pt, p_err) = hit_point_error(p, b);
+            let ngf = (p[1] - p[0]).cross(p[2] - p[0]).normalize_or_zero();
+            let ns = (0..3).fold(Vec3::ZERO, |acc, v| acc + b[v] * get3(&nrm[v], k));
+            let ns = if ns.length_squared() > 1e-12 { ns } else { ngf };
+            let ns_front = ns.normalize_or_zero();
+            let (g, nn) = facing_normals(ngf, ns, d);
+            let wo = -d;
+            let frame = shading_frame(ns_front, nn.dot(ns_front) < 0.0, wo);
+            set3(&mut point, k, pt);
+            set3(&mut ng, k, g);
+            set3(&mut ng_front, k, ngf);
+            set3(&mut fs, k, frame.s);
+            set3(&mut ft, k, frame.t);
+            set3(&mut fnn, k, frame.n);
+            set3(&mut wo_l, k, frame.to_local(wo));
+            set3(&mut origin, k, offset_ray_origin(pt, p_err, g, g));
+        }
+        let frame_of = |k: usize| Frame { s: get3(&fs, k), t: get3(&ft, k), n: get3(&fnn, k) };
+
+        // Per lane: the emission seen, the sampler's block, the BSDF's lane, the punctual
+        // lights and environment samples, and the emitter's choice.
+        let mut shading = [false; L];
+        let mut dims = [0u32; L];
+        let mut lane: [Option<SampleLane>; L] = [None; L];
+        let mut u_bsdf = [[0.0f32; L]; 2];
+        let mut e_prim = [u32::MAX; L];
+        let mut e_pos = [[[0.0f32; L]; 3]; 3];
+        let mut e_bary = [[0.0f32; L]; 3];
+        let mut e_double = [false; L];
+        let mut e_le = [[0.0f32; L]; 3];
+        let mut e_pmf = [0.0f32; L];
+        let mut e_area = [0.0f32; L];
+        others.clear();
+        for (k, &id) in chunk.iter().enumerate() {
+            if !live[k] {
+                continue;
+            }
+            let path = &mut paths[id as usize];
+            let lm = &mats[mat[k]];
+            if lm.emission.max_element() > 0.0 {
+                if path.depth == 0 {
+                    if primary_emission {
+                        path.l += path.beta * lm.emission;
+                    }
+                } else {
+                    let cos_l = get3(&ng_front, k).dot(-path.ray.direction);
+                    let light_pdf = self.emitters.pdf_solid_angle(path.hit.prim, path.hit.t, cos_l);
+                    path.l += path.beta * lm.emission * power_heuristic(path.prev_bsdf_pdf, light_pdf);
+                }
+            }
+            if path.depth >= max_bounces {
+                out[id as usize].radiance = path.l;
+                continue;
+            }
+            shading[k] = true;
+            let sampler = &mut samplers[id as usize];
+            let dim = sampler.skip(VERTEX_DIMENSIONS);
+            dims[k] = dim;
+            let frame = frame_of(k);
+            lane[k] = Some(lm.bsdf.at(get3(&wo_l, k)).lane(Vec2::ZERO));
+            let p = get3(&point, k);
+            let g = get3(&ng, k);
+            let o = get3(&origin, k);
+            let material = mat[k] as u32;
+            let caustic = path.all_rough && self.caustics.is_some_and(|c| c.is_caustic_vertex(path.depth + 1, material));
+            path.all_rough &= self.caustics.is_some_and(|c| !c.is_sharp(material));
+            for light in scene.lights.iter().filter(|_| !caustic) {
+                let Some(inc) = punctual_incidence(light, p) else { continue };
+                if inc.wi.dot(g) <= 0.0 {
+                    continue;
+                }
+                let t_max = if inc.distance.is_finite() {
+                    match *light {
+                        crate::scene::Light::Point { position, .. } | crate::scene::Light::Spot { position, .. } => (position - o).length() * (1.0 - SHADOW_EPSILON),
+                        crate::scene::Light::Directional { .. } => f32::INFINITY,
+                    }
+                } else {
+                    f32::INFINITY
+                };
+                others.push(OtherLight { lane: k, punctual: true, light: PendingLight { vertex: 0, wi_l: frame.to_local(inc.wi), radiance: inc.irradiance, light_pdf: None, shadow: Ray::new(o, inc.wi), t_max } });
+            }
+            if !self.emitters.is_empty()
+                && let Some(es) = self.emitters.sample(sampler.get_2d(dim + DIM_EMITTER_POINT), || sampler.get_1d(dim + DIM_EMITTER_SPARE))
+            {
+                let idx = m.indices[es.prim as usize];
+                let lmat = m.material.get(es.prim as usize).and_then(|&q| mats.get(q as usize));
+                if let Some(lmat) = lmat {
+                    e_prim[k] = es.prim;
+                    for v in 0..3 {
+                        set3(&mut e_pos[v], k, m.positions[idx[v] as usize]);
+                        e_bary[v][k] = es.b[v];
+                    }
+                    e_double[k] = lmat.double_sided;
+                    set3(&mut e_le, k, lmat.light_radiance);
+                    e_pmf[k] = self.emitters.pmf(es.prim);
+                    e_area[k] = self.emitters.area(es.prim);
+                }
+            }
+            if self.samples_environment()
+                && let Some((wi, pdf)) = env.sample(sampler.get_2d(dim + DIM_ENVIRONMENT))
+                && wi.dot(g) > 0.0
+            {
+                let le = env.eval(wi);
+                if le.max_element() > 0.0 {
+                    others.push(OtherLight { lane: k, punctual: false, light: PendingLight { vertex: 0, wi_l: frame.to_local(wi), radiance: le, light_pdf: Some(pdf), shadow: Ray::new(o, wi), t_max: f32::INFINITY } });
+                }
+            }
+            let u = sampler.get_2d(dim + DIM_BSDF);
+            (u_bsdf[0][k], u_bsdf[1][k]) = (u.x, u.y);
+        }
+
+        // The BSDFs in lanes.
+        let mut x = BsdfLanesIn::default();
+        for k in 0..n {
+            if let Some(l) = &lane[k] {
+                x.set(k, l);
+            }
+        }
+        let all_diffuse = (0..n).all(|k| lane[k].is_none_or(|l| l.diffuse));
+
+        // In lanes: the emitter sample (`emitter_pending`) and the BSDF's value towards it.
+        let mut e_ok = [false; L];
+        let mut e_wi_l = [[0.0f32; L]; 3];
+        let mut e_pdf = [0.0f32; L];
+        let mut e_dir = [[0.0f32; L]; 3];
+        let mut e_tmax = [0.0f32; L];
+        let mut e_f = [[0.0f32; L]; 3];
+        let mut e_bsdf_pdf = [0.0f32; L];
+        let any_emitter = e_prim.iter().any(|&p| p != u32::MAX);
+        for k in (0..L).filter(|_| any_emitter) {
+            let p = [get3(&e_pos[0], k), get3(&e_pos[1], k), get3(&e_pos[2], k)];
+            let b = [e_bary[0][k], e_bary[1][k], e_bary[2][k]];
+            let sp = get3(&point, k);
+            let g = get3(&ng, k);
+            let (q, q_err) = hit_point_error(p, b);
+            let n_l = (p[1] - p[0]).cross(p[2] - p[0]).normalize_or_zero();
+            let d = q - sp;
+            let dist = d.length();
+            let wi = d / dist;
+            let cos_l = n_l.dot(-wi);
+            let le = get3(&e_le, k);
+            let light_pdf = pdf_solid_angle(e_pmf[k], e_area[k], dist, cos_l);
+            let target = offset_ray_origin(q, q_err, n_l, -wi);
+            let seg = target - get3(&origin, k);
+            let len = seg.length();
+            let frame = Frame { s: get3(&fs, k), t: get3(&ft, k), n: get3(&fnn, k) };
+            set3(&mut e_wi_l, k, frame.to_local(wi));
+            set3(&mut e_dir, k, seg / len);
+            e_tmax[k] = len * (1.0 - SHADOW_EPSILON);
+            e_pdf[k] = light_pdf;
+            e_ok[k] = (dist > 0.0) & !(wi.dot(g) <= 0.0) & (e_double[k] | !(cos_l <= 0.0)) & !(le.max_element() <= 0.0) & (light_pdf > 0.0) & light_pdf.is_finite() & (len > 0.0);
+        }
+        if any_emitter {
+            if all_diffuse {
+                evaluate_lanes::<true>(&x, &e_wi_l, &mut e_f, &mut e_bsdf_pdf);
+            } else {
+                evaluate_lanes::<false>(&x, &e_wi_l, &mut e_f, &mut e_bsdf_pdf);
+            }
+        }
+        // The other light samples' BSDF values, eight at a time in lanes.
+        other_values.clear();
+        for group in others.chunks(L) {
+            let mut y = BsdfLanesIn::default();
+            let mut wi = [[0.0f32; L]; 3];
+            for (j, o) in group.iter().enumerate() {
+                if let Some(l) = &lane[o.lane] {
+                    y.set(j, l);
+                }
+                set3(&mut wi, j, o.light.wi_l);
+            }
+            let mut f = [[0.0f32; L]; 3];
+            let mut pdf = [0.0f32; L];
+            if group.iter().all(|o| lane[o.lane].is_none_or(|l| l.diffuse)) {
+                evaluate_lanes::<true>(&y, &wi, &mut f, &mut pdf);
+            } else {
+                evaluate_lanes::<false>(&y, &wi, &mut f, &mut pdf);
+            }
+            other_values.extend((0..group.len()).map(|j| (get3(&f, j), pdf[j])));
+        }
+
+        // The light samples' estimates, in the one-path code's order per path: punctual
+        // lights, the emitter, the environment.
+        let mut cursor = 0;
+        for (k, &id) in chunk.iter().enumerate() {
+            if !shading[k] {
+                continue;
+            }
+            let add_other = |path: &mut PathState, e: &PendingLight, (f, bsdf_pdf): (Vec3, f32)| {
+                if !(f.max_element() <= 0.0) && !self.occluded(&e.shadow, e.t_max) {
+                    path.l += match e.light_pdf {
+                        None => path.beta * f * e.radiance,
+                        Some(light_pdf) => path.beta * (f * e.radiance * (power_heuristic(light_pdf, bsdf_pdf) / light_pdf)),
+                    };
+                }
+            };
+            let path = &mut paths[id as usize];
+            while cursor < others.len() && others[cursor].lane == k && others[cursor].punctual {
+                add_other(path, &others[cursor].light, other_values[cursor]);
+                cursor += 1;
+            }
+            if e_prim[k] != u32::MAX && e_ok[k] {
+                let f = get3(&e_f, k);
+                let shadow = Ray::new(get3(&origin, k), get3(&e_dir, k));
+                if !(f.max_element() <= 0.0) && !self.occluded(&shadow, e_tmax[k]) {
+                    let light_pdf = e_pdf[k];
+                    path.l += path.beta * (f * get3(&e_le, k) * (power_heuristic(light_pdf, e_bsdf_pdf[k]) / light_pdf));
+                }
+            }
+            while cursor < others.len() && others[cursor].lane == k {
+                add_other(path, &others[cursor].light, other_values[cursor]);
+                cursor += 1;
+            }
+        }
+
+        // In lanes: the BSDF samples, their world directions.
+        let mut s_wi = [[0.0f32; L]; 3];
+        let mut s_weight = [[0.0f32; L]; 3];
+        let mut s_pdf = [0.0f32; L];
+        let mut s_ok = [false; L];
+        if all_diffuse {
+            sample_lanes::<true>(&x, &u_bsdf, &fs, &ft, &fnn, &mut s_wi, &mut s_weight, &mut s_pdf, &mut s_ok);
+        } else {
+            sample_lanes::<false>(&x, &u_bsdf, &fs, &ft, &fnn, &mut s_wi, &mut s_weight, &mut s_pdf, &mut s_ok);
+        }
+
+        // Per lane: `continue_path`.
+        for (k, &id) in chunk.iter().enumerate() {
+            if !shading[k] {
+                continue;
+            }
+            let path = &mut paths[id as usize];
+            let goes_on = s_ok[k] && {
+                let wi = get3(&s_wi, k);
+                !(wi.dot(get3(&ng, k)) <= 0.0) && {
+                    path.beta *= get3(&s_weight, k);
+                    path.prev_bsdf_pdf = s_pdf[k];
+                    let survives = path.depth < 2 || {
+                        let survive = (ROULETTE_SCALE * path.beta.max_element()).min(1.0);
+                        survive > 0.0 && samplers[id as usize].get_1d(dims[k] + DIM_ROULETTE) < survive && {
+                            path.beta /= survive;
+                            true
+                        }
+                    };
+                    survives && {
+                        path.ray = Ray::new(get3(&origin, k), wi);
+                        match self.intersect(&path.ray) {
+                            Some(h) => {
+                                path.hit = h;
+                                path.depth += 1;
+                                true
+                            }
+                            None => {
+                                if self.samples_environment() {
+                                    path.l += path.beta * env.eval(wi) * power_heuristic(path.prev_bsdf_pdf, env.pdf(wi));
+                                } else if !env.is_black() {
+                                    path.l += path.beta * env.eval(wi);
+                                }
+                                false
+                            }
+                        }
+                    }
+                }
+            };
+            if goes_on {
+                next.push(id);
+            } else {
+                out[id as usize].radiance = path.l;
+            }
+        }
+    }
+}
+
+/// [`EmissiveTriangles::pdf_solid_angle`] from the triangle's probability and area.
+#[inline(always)]
+fn pdf_solid_angle(pmf: f32, area: f32, distance: f32, cos_light: f32) -> f32 {
+    let c = cos_light.abs();
+    if pmf <= 0.0 || area <= 0.0 || c <= 0.0 {
+        return 0.0;
+    }
+    pmf / area * distance * distance / c
+}
+
+/// Eight [`SampleLane`]s (without their numbers) as one array per number.
+#[derive(Default)]
+struct BsdfLanesIn {
+    diffuse: [bool; L],
+    rho: Lanes3,
+    metallic: Lanes,
+    alpha: Lanes,
+    f0: Lanes3,
+    f90: Lanes,
+    wo: Lanes3,
+    ps: Lanes,
+    sd_wo: Lanes,
+}
+
+impl BsdfLanesIn {
+    #[inline(always)]
+    fn set(&mut self, k: usize, l: &SampleLane) {
+        self.diffuse[k] = l.diffuse;
+        set3(&mut self.rho, k, l.rho);
+        set3(&mut self.f0, k, l.f0);
+        set3(&mut self.wo, k, l.wo);
+        (self.metallic[k], self.alpha[k], self.f90[k], self.ps[k], self.sd_wo[k]) = (l.metallic, l.alpha, l.f90, l.ps, l.sd_wo);
+    }
+
+    #[inline(always)]
+    fn get(&self, k: usize, u: Vec2) -> SampleLane {
+        SampleLane {
+            diffuse: self.diffuse[k],
+            rho: get3(&self.rho, k),
+            metallic: self.metallic[k],
+            alpha: self.alpha[k],
+            f0: get3(&self.f0, k),
+            f90: self.f90[k],
+            wo: get3(&self.wo, k),
+            ps: self.ps[k],
+            sd_wo: self.sd_wo[k],
+            u,
+        }
+    }
+}
+
+/// The BSDFs' values and densities towards `wi` (local), in lanes.
+#[inline(always)]
+fn evaluate_lanes<const ALL_DIFFUSE: bool>(x: &BsdfLanesIn, wi: &Lanes3, f: &mut Lanes3, pdf: &mut Lanes) {
+    for k in 0..L {
+        let (v, p) = evaluate_pdf_lane::<ALL_DIFFUSE>(&x.get(k, Vec2::ZERO), get3(wi, k));
+        set3(f, k, v);
+        pdf[k] = p;
+    }
+}
+
+/// The BSDFs' samples with numbers `u`, in lanes: their world directions (`to_world`,
+/// normalised), weights, densities and validity.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn sample_lanes<const ALL_DIFFUSE: bool>(x: &BsdfLanesIn, u: &[Lanes; 2], fs: &Lanes3, ft: &Lanes3, fnn: &Lanes3, wi_out: &mut Lanes3, weight: &mut Lanes3, pdf: &mut Lanes, ok: &mut [bool; L]) {
+    for k in 0..L {
+        let (wi, w, p, o) = sample_lane::<ALL_DIFFUSE>(x.get(k, Vec2::new(u[0][k], u[1][k])));
+        let frame = Frame { s: get3(fs, k), t: get3(ft, k), n: get3(fnn, k) };
+        set3(wi_out, k, frame.to_world(wi).normalize());
+        set3(weight, k, w);
+        pdf[k] = p;
+        ok[k] = o;
+    }
+}
