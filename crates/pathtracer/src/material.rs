@@ -242,7 +242,7 @@ impl MetallicRoughness {
     }
 
     /// Probability `P_s` of sampling the specular lobe at `wo` (see the type docs).
-    #[inline]
+    #[inline(always)]
     pub fn specular_probability(&self, wo: Vec3) -> f32 {
         let (m, rho) = (self.metallic, self.base_color);
         let has_diffuse = m < 1.0 && rho.max_element() > 0.0;
@@ -395,8 +395,21 @@ impl BsdfAt {
     }
 }
 
+/// `(ps, sd_wo)` of the lane `x` seen from `x.wo`: what [`Bsdf::at`] computes and
+/// [`BsdfAt::lane`] passes on (`(0, 1)` for the Lambertian model; for the metallic-roughness
+/// BRDF `P_s(wo)` and the Smith denominator where `wo` is above the surface, else `(0, 0)`),
+/// with no branch on the data, so that a loop over lanes vectorises.
+#[inline(always)]
+pub(crate) fn wo_terms(x: &SampleLane) -> (f32, f32) {
+    let mr = MetallicRoughness { base_color: x.rho, metallic: x.metallic, alpha: x.alpha, fresnel: DielectricFresnel { f0: x.f0, f90: x.f90 } };
+    let up = x.wo.z > 0.0;
+    let ps = if up { mr.specular_probability(x.wo) } else { 0.0 };
+    let sd = if up { mr.smith_den(x.wo.z) } else { 0.0 };
+    if x.diffuse { (0.0, 1.0) } else { (ps, sd) }
+}
+
 /// One BSDF sample's inputs as plain numbers (a lane of [`sample_many`]).
-#[derive(Clone, Copy)]
+#[derive(Clone, Copy, Debug)]
 pub(crate) struct SampleLane {
     /// [`Bsdf::Diffuse`] (albedo `rho`), else [`Bsdf::MetallicRoughness`].
     pub(crate) diffuse: bool,

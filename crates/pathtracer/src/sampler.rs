@@ -104,6 +104,74 @@ fn to_unit(x: u32) -> f32 {
     (x >> 8) as f32 * (1.0 / 16_777_216.0)
 }
 
+/// Dimension `dim`'s scramble keys (index shuffle, x, y) and its shuffled Sobol' index
+/// `owen_scramble(sample, key)`, for the sampler of key `key` and bit-reversed sample index
+/// `sample_reversed`.
+#[inline(always)]
+fn keys(key: u64, sample_reversed: u32, dim: u32) -> (u32, u32, u32) {
+    let h = splitmix64(key ^ (dim as u64).wrapping_mul(0xD1B5_4A32_D192_ED03));
+    let ky = ((h ^ (h >> 31)).wrapping_mul(0xD6E8_FEB8_6659_FD93) >> 32) as u32;
+    let index = laine_karras(sample_reversed, h as u32).reverse_bits();
+    (index, (h >> 32) as u32, ky)
+}
+
+/// [`Sampler::u32_at`] of the sampler `(key, sample_reversed)`.
+#[inline(always)]
+fn u32_at(key: u64, sample_reversed: u32, dim: u32) -> u32 {
+    let (index, kx, _) = keys(key, sample_reversed, dim);
+    // owen_scramble(index.reverse_bits(), kx), without the double reversal.
+    laine_karras(index, kx).reverse_bits()
+}
+
+/// [`Sampler::get_2d`] of the sampler `(key, sample_reversed)`.
+#[inline(always)]
+fn get_2d(key: u64, sample_reversed: u32, dim: u32) -> (f32, f32) {
+    let (index, kx, ky) = keys(key, sample_reversed, dim);
+    let x = laine_karras(index, kx).reverse_bits();
+    let y = laine_karras(sobol_dim1_reversed(index), ky).reverse_bits();
+    (to_unit(x), to_unit(y))
+}
+
+/// Eight samplers' numbers at once, each lane exactly what its [`Sampler`] returns: the
+/// lanes' keys and sample indices in arrays, so that the hashing of a dimension is one loop
+/// over the lanes that the compiler vectorises.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct SamplerLanes {
+    key: [u64; 8],
+    sample_reversed: [u32; 8],
+}
+
+impl SamplerLanes {
+    /// Lane `k` := `sampler`.
+    #[inline(always)]
+    pub fn set(&mut self, k: usize, sampler: &Sampler) {
+        self.key[k] = sampler.key;
+        self.sample_reversed[k] = sampler.sample_reversed;
+    }
+
+    /// `Sampler::get_1d(dim[k])` of every lane.
+    #[allow(clippy::needless_range_loop)]
+    #[inline(always)]
+    pub fn get_1d(&self, dim: &[u32; 8]) -> [f32; 8] {
+        let mut out = [0.0; 8];
+        for k in 0..8 {
+            out[k] = to_unit(u32_at(self.key[k], self.sample_reversed[k], dim[k]));
+        }
+        out
+    }
+
+    /// `Sampler::get_2d(dim[k])` of every lane, as the arrays of x and y.
+    #[allow(clippy::needless_range_loop)]
+    #[inline(always)]
+    pub fn get_2d(&self, dim: &[u32; 8]) -> [[f32; 8]; 2] {
+        let mut out = [[0.0; 8]; 2];
+        for k in 0..8 {
+            (out[0][k], out[1][k]) = get_2d(self.key[k], self.sample_reversed[k], dim[k]);
+        }
+        out
+    }
+}
+
 /// The numbers of one sample of one pixel of one view: dimension `k` is a pure function of
 /// `(seed, view, pixel, sample, k)` (see the module docs). Consumers draw dimensions in a
 /// fixed order ([`Sampler::next_1d`], [`Sampler::next_2d`]).
@@ -135,24 +203,12 @@ impl Sampler {
         Self { key: self.key, sample_reversed: sample.reverse_bits(), dimension: 0 }
     }
 
-    /// Dimension `dim`'s scramble keys (index shuffle, x, y) and its shuffled Sobol' index
-    /// `owen_scramble(sample, key)`.
-    #[inline]
-    fn keys(&self, dim: u32) -> (u32, u32, u32) {
-        let h = splitmix64(self.key ^ (dim as u64).wrapping_mul(0xD1B5_4A32_D192_ED03));
-        let ky = ((h ^ (h >> 31)).wrapping_mul(0xD6E8_FEB8_6659_FD93) >> 32) as u32;
-        let index = laine_karras(self.sample_reversed, h as u32).reverse_bits();
-        (index, (h >> 32) as u32, ky)
-    }
-
     /// Dimension `dim` as 32-bit fixed point (one coordinate of its own shuffled, scrambled
     /// sequence: the van der Corput point of the shuffled index, Owen-scrambled), whatever
     /// has been drawn.
     #[inline]
     fn u32_at(&self, dim: u32) -> u32 {
-        let (index, kx, _) = self.keys(dim);
-        // owen_scramble(index.reverse_bits(), kx), without the double reversal.
-        laine_karras(index, kx).reverse_bits()
+        u32_at(self.key, self.sample_reversed, dim)
     }
 
     /// Dimension `dim` as an `f32` in `[0, 1)`: what [`Sampler::next_1d`] returns when it is
@@ -166,10 +222,8 @@ impl Sampler {
     /// when `dim` is the next dimension.
     #[inline]
     pub fn get_2d(&self, dim: u32) -> Vec2 {
-        let (index, kx, ky) = self.keys(dim);
-        let x = laine_karras(index, kx).reverse_bits();
-        let y = laine_karras(sobol_dim1_reversed(index), ky).reverse_bits();
-        Vec2::new(to_unit(x), to_unit(y))
+        let (x, y) = get_2d(self.key, self.sample_reversed, dim);
+        Vec2::new(x, y)
     }
 
     /// Reserves the next `n` dimensions without computing them and returns the first: a

@@ -22,7 +22,8 @@
 //! scenes keep it.
 
 use super::*;
-use crate::material::{Bsdf, SampleLane, evaluate_pdf_lane, sample_lane};
+use crate::material::{SampleLane, evaluate_pdf_lane, sample_lane, wo_terms};
+use crate::sampler::SamplerLanes;
 
 /// Lanes of the loop: eight, the `f32` lanes of an AVX2 register.
 const L: usize = 8;
@@ -45,8 +46,9 @@ fn set3(a: &mut Lanes3, k: usize, v: Vec3) {
 /// What the lane loop reads of one material, resolved once.
 #[derive(Clone, Copy, Debug)]
 pub struct LaneMaterial {
-    /// The BSDF (resolved once, [`crate::material::uniform_surface`]).
-    bsdf: Bsdf,
+    /// The BSDF (resolved once, [`crate::material::uniform_surface`]) as one lane of the
+    /// loops below, less what depends on `wo`.
+    bsdf: SampleLane,
     /// Its emission.
     emission: Vec3,
     /// `Material::is_emissive`.
@@ -87,7 +89,7 @@ impl LaneMaterials {
                     AlphaMode::Blend => base_color(m, &scene.textures, &attr).w.clamp(0.0, 1.0),
                 };
                 Some(LaneMaterial {
-                    bsdf: surf.bsdf,
+                    bsdf: surf.bsdf.at(Vec3::Z).lane(Vec2::ZERO),
                     emission: surf.emission,
                     emissive: m.is_emissive(),
                     light_radiance: emission(m, &scene.textures, &attr) * coverage,
@@ -205,8 +207,8 @@ impl PathIntegrator<'_> {
         // lights and environment samples, and the emitter's choice.
         let mut shading = [false; L];
         let mut dims = [0u32; L];
-        let mut lane: [Option<SampleLane>; L] = [None; L];
-        let mut u_bsdf = [[0.0f32; L]; 2];
+        let mut x = BsdfLanesIn::default();
+        let mut sl = SamplerLanes::default();
         let mut e_prim = [u32::MAX; L];
         let mut e_pos = [[[0.0f32; L]; 3]; 3];
         let mut e_bary = [[0.0f32; L]; 3];
@@ -238,10 +240,25 @@ impl PathIntegrator<'_> {
             }
             shading[k] = true;
             let sampler = &mut samplers[id as usize];
-            let dim = sampler.skip(VERTEX_DIMENSIONS);
-            dims[k] = dim;
+            dims[k] = sampler.skip(VERTEX_DIMENSIONS);
+            sl.set(k, sampler);
+        }
+        // The vertices' numbers, in lanes.
+        let at = |off: u32| dims.map(|d| d + off);
+        let u_emitter = sl.get_2d(&at(DIM_EMITTER_POINT));
+        let u_spare = sl.get_1d(&at(DIM_EMITTER_SPARE));
+        let u_env = if self.samples_environment() { sl.get_2d(&at(DIM_ENVIRONMENT)) } else { [[0.0; L]; 2] };
+        let u_bsdf = sl.get_2d(&at(DIM_BSDF));
+        let u_roulette = sl.get_1d(&at(DIM_ROULETTE));
+        // Per lane: the punctual lights and environment samples, and the emitter's choice.
+        for (k, &id) in chunk.iter().enumerate() {
+            if !shading[k] {
+                continue;
+            }
+            let path = &mut paths[id as usize];
+            let lm = &mats[mat[k]];
             let frame = frame_of(k);
-            lane[k] = Some(lm.bsdf.at(get3(&wo_l, k)).lane(Vec2::ZERO));
+            x.set(k, &SampleLane { wo: get3(&wo_l, k), ..lm.bsdf });
             let p = get3(&point, k);
             let g = get3(&ng, k);
             let o = get3(&origin, k);
@@ -264,7 +281,7 @@ impl PathIntegrator<'_> {
                 others.push(OtherLight { lane: k, punctual: true, light: PendingLight { vertex: 0, wi_l: frame.to_local(inc.wi), radiance: inc.irradiance, light_pdf: None, shadow: Ray::new(o, inc.wi), t_max } });
             }
             if !self.emitters.is_empty()
-                && let Some(es) = self.emitters.sample(sampler.get_2d(dim + DIM_EMITTER_POINT), || sampler.get_1d(dim + DIM_EMITTER_SPARE))
+                && let Some(es) = self.emitters.sample(Vec2::new(u_emitter[0][k], u_emitter[1][k]), || u_spare[k])
             {
                 let idx = m.indices[es.prim as usize];
                 let lmat = m.material.get(es.prim as usize).and_then(|&q| mats.get(q as usize));
@@ -281,7 +298,7 @@ impl PathIntegrator<'_> {
                 }
             }
             if self.samples_environment()
-                && let Some((wi, pdf)) = env.sample(sampler.get_2d(dim + DIM_ENVIRONMENT))
+                && let Some((wi, pdf)) = env.sample(Vec2::new(u_env[0][k], u_env[1][k]))
                 && wi.dot(g) > 0.0
             {
                 let le = env.eval(wi);
@@ -289,18 +306,13 @@ impl PathIntegrator<'_> {
                     others.push(OtherLight { lane: k, punctual: false, light: PendingLight { vertex: 0, wi_l: frame.to_local(wi), radiance: le, light_pdf: Some(pdf), shadow: Ray::new(o, wi), t_max: f32::INFINITY } });
                 }
             }
-            let u = sampler.get_2d(dim + DIM_BSDF);
-            (u_bsdf[0][k], u_bsdf[1][k]) = (u.x, u.y);
         }
 
-        // The BSDFs in lanes.
-        let mut x = BsdfLanesIn::default();
-        for k in 0..n {
-            if let Some(l) = &lane[k] {
-                x.set(k, l);
-            }
+        // In lanes: what the BSDFs compute once from `wo` (`Bsdf::at`).
+        for k in 0..L {
+            (x.ps[k], x.sd_wo[k]) = wo_terms(&x.get(k, Vec2::ZERO));
         }
-        let all_diffuse = (0..n).all(|k| lane[k].is_none_or(|l| l.diffuse));
+        let all_diffuse = (0..n).all(|k| !shading[k] || x.diffuse[k]);
 
         // In lanes: the emitter sample (`emitter_pending`) and the BSDF's value towards it.
         let mut e_ok = [false; L];
@@ -347,14 +359,12 @@ impl PathIntegrator<'_> {
             let mut y = BsdfLanesIn::default();
             let mut wi = [[0.0f32; L]; 3];
             for (j, o) in group.iter().enumerate() {
-                if let Some(l) = &lane[o.lane] {
-                    y.set(j, l);
-                }
+                y.set(j, &x.get(o.lane, Vec2::ZERO));
                 set3(&mut wi, j, o.light.wi_l);
             }
             let mut f = [[0.0f32; L]; 3];
             let mut pdf = [0.0f32; L];
-            if group.iter().all(|o| lane[o.lane].is_none_or(|l| l.diffuse)) {
+            if group.iter().all(|o| x.diffuse[o.lane]) {
                 evaluate_lanes::<true>(&y, &wi, &mut f, &mut pdf);
             } else {
                 evaluate_lanes::<false>(&y, &wi, &mut f, &mut pdf);
@@ -412,7 +422,7 @@ impl PathIntegrator<'_> {
                     path.prev_bsdf_pdf = s_pdf[k];
                     let survives = path.depth < 2 || {
                         let survive = (ROULETTE_SCALE * path.beta.max_element()).min(1.0);
-                        survive > 0.0 && samplers[id as usize].get_1d(dims[k] + DIM_ROULETTE) < survive && {
+                        survive > 0.0 && u_roulette[k] < survive && {
                             path.beta /= survive;
                             true
                         }
