@@ -120,8 +120,8 @@
 //!   traced alone, which measured faster (the accel module docs).
 //! - Where every material is the same at every point and has no normal map (`cornell`,
 //!   `thin`), the whole vertex is shaded in lanes, eight paths at a time (module `lanes`,
-//!   stop 65: the same bits, `cornell` +7 to +8 % samples per CPU-second); the other scenes
-//!   keep the loop above, which the lane loop is tested against.
+//!   stop 65: the same bits, `cornell` +14 % samples per CPU-second, `thin` +2–3 %); the
+//!   other scenes keep the loop above, which the lane loop is tested against.
 //! - Where a sample's time goes (stop 59, 2-core Zen 5). Each part below was run twice in
 //!   place, the copy's result discarded through `black_box`, and its cost read as the extra
 //!   CPU time per sample (`cargo bench -p pathtracer --bench render -- SCENE --seconds 3`,

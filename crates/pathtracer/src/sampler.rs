@@ -364,6 +364,26 @@ mod tests {
     }
 
     #[test]
+    fn sampler_lanes_draw_each_lanes_numbers() {
+        // Eight different pixels, samples and dimensions per call: every lane is exactly its
+        // own sampler's number.
+        for round in 0..200u32 {
+            let samplers: Vec<Sampler> = (0..8u32).map(|k| Sampler::new(round as u64 * 31 + 5, k, (round * 977 + k * 13) as u64, round * 7 + k * 3)).collect();
+            let mut lanes = SamplerLanes::default();
+            for (k, s) in samplers.iter().enumerate() {
+                lanes.set(k, s);
+            }
+            let dims: [u32; 8] = std::array::from_fn(|k| (round + 11 * k as u32) % 97);
+            let (one, two) = (lanes.get_1d(&dims), lanes.get_2d(&dims));
+            for (k, s) in samplers.iter().enumerate() {
+                assert_eq!(one[k].to_bits(), s.get_1d(dims[k]).to_bits());
+                let p = s.get_2d(dims[k]);
+                assert_eq!((two[0][k].to_bits(), two[1][k].to_bits()), (p.x.to_bits(), p.y.to_bits()));
+            }
+        }
+    }
+
+    #[test]
     fn with_sample_is_new_with_that_sample() {
         for (seed, view, pixel) in [(0u64, 0u32, 0u64), (7, 3, 12345), (u64::MAX, u32::MAX, u64::MAX)] {
             let base = Sampler::new(seed, view, pixel, 99);

@@ -10,16 +10,26 @@
 //! the punctual lights' and environment's samples, the ray queries and the additions to the
 //! path's radiance (in the one-path loop's order).
 //!
-//! Stop 65, against the one-path loop (`cargo bench -p pathtracer --bench render -- SCENE
-//! --seconds 3 --spp 64 --width 128`, two alternating pairs, 2-core Zen 5): samples per
-//! CPU-second `cornell` +7 to +8 %, `thin` +1 %, the same bits on all five scenes; a `cornell`
-//! quick view's instructions −12 % (callgrind: the path loop's own 6,080 → 4,940 per sample;
-//! what is left of it is a fifth the sampler's hashing, the rest the scalar steps above). Measured and
-//! not kept: the lane loop for every scene, a material that varies over its surface resolved
-//! and a normal map applied per lane in scalar code (and a light sample on a textured
-//! emitter taken by the one-path code's `emitter_pending`): the same bits, but `deep` −2 to
-//! −3 %, `materials` −1.5 to −2.5 %, `tabletop` 0 to −3 % against the one-path loop, so those
-//! scenes keep it.
+//! Stop 65, against stop 64's one-path loop (`cargo bench -p pathtracer --bench render --
+//! SCENE --seconds 3 --spp 64 --width 128`, two alternating pairs, 2-core Zen 5), samples per
+//! CPU-second: `cornell` 1.01–1.03 → 1.16–1.18 M (+14 %), `thin` +2–3 %; the other three
+//! scenes keep the one-path loop (`deep` +2 %, `materials` +1–2 %, `tabletop` ±0, from the
+//! sampler's functions now inlined there too). The same bits on all five scenes. A `cornell`
+//! quick view's instructions (callgrind, one thread): 735 M → 579 M (−21 %); the lanes
+//! themselves (the vertex, the emitter sample, the BSDF's values and sample) took the path
+//! loop's 6,080 instructions per sample to 4,940, the sampler's numbers in lanes
+//! ([`crate::sampler::SamplerLanes`]) and `Bsdf::at`'s terms in lanes ([`wo_terms`]) to
+//! 4,190. Measured and not kept (the same bits each, two alternating pairs):
+//! - the lane loop for every scene (a material that varies over its surface resolved and a
+//!   normal map applied per lane in scalar code, a light sample on a textured emitter taken by
+//!   the one-path loop's `emitter_pending`): against the one-path loop `deep` −5 to −6 %,
+//!   `materials` −3 %, `tabletop` −2.5 %, with the same instructions as the one-path loop on
+//!   those scenes (callgrind): they gain little from the lanes (no emissive triangles in
+//!   `deep`, the punctual lights' samples scalar either way) and pay the split of each
+//!   vertex's scalar work over several loops;
+//! - a chunk's emitter shadow rays traced as one packet ([`crate::accel::Accel::occluded_many`]):
+//!   `cornell` −16 %, the others −2 to −3 %, `cornell`'s instructions +41 %: after the camera
+//!   vertex the rays of a chunk go in all directions (as stop 61 found for a bounce's rays).
 
 use super::*;
 use crate::material::{SampleLane, evaluate_pdf_lane, sample_lane, wo_terms};
