@@ -786,22 +786,32 @@ impl PathIntegrator<'_> {
     /// next ray traced); false when the path ends (its escape to the environment added).
     #[inline(always)]
     fn continue_path(&self, path: &mut PathState, sampler: &Sampler, v: &Pending, bs: &Option<BsdfSample>) -> bool {
-        let env = &self.settings.environment;
         let Some(bs) = bs else { return false };
         let wi = v.frame.to_world(bs.wi).normalize();
-        if wi.dot(v.ng) <= 0.0 {
+        self.continue_along(path, v.origin, v.ng, wi, bs.weight, bs.pdf, || sampler.get_1d(v.dim + DIM_ROULETTE))
+    }
+
+    /// Continues a path from its vertex (rays leave from `origin`, geometric normal `ng`
+    /// facing the incoming ray) along the BSDF sample's world direction `wi`, with its weight
+    /// and density: Russian roulette (with the number `roulette()`), the next ray traced;
+    /// false when the path ends (its escape to the environment added).
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    fn continue_along(&self, path: &mut PathState, origin: Vec3, ng: Vec3, wi: Vec3, weight: Vec3, pdf: f32, roulette: impl FnOnce() -> f32) -> bool {
+        let env = &self.settings.environment;
+        if wi.dot(ng) <= 0.0 {
             return false;
         }
-        path.beta *= bs.weight;
-        path.prev_bsdf_pdf = bs.pdf;
+        path.beta *= weight;
+        path.prev_bsdf_pdf = pdf;
         if path.depth >= 2 {
             let survive = (ROULETTE_SCALE * path.beta.max_element()).min(1.0);
-            if !(survive > 0.0) || sampler.get_1d(v.dim + DIM_ROULETTE) >= survive {
+            if !(survive > 0.0) || roulette() >= survive {
                 return false;
             }
             path.beta /= survive;
         }
-        path.ray = Ray::new(v.origin, wi);
+        path.ray = Ray::new(origin, wi);
         match self.intersect(&path.ray) {
             Some(h) => {
                 path.hit = h;

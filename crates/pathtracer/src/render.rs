@@ -921,6 +921,25 @@ mod tests {
                 self.quad(f, 1, material);
             }
         }
+        /// A floor (glossy dielectric, `n × n` cells), a metal and a Lambertian box, a small
+        /// double-sided emitting quad above them and a point light.
+        fn glossy_room(&mut self, n: u32) {
+            let lambert = self.material(0.7, 0.0, false);
+            let e = self.material(0.5, 3.0, true);
+            let mut gltf = |metallic: f32, roughness: f32| {
+                let mut m = Material::gltf_default();
+                (m.metallic_factor, m.roughness_factor) = (metallic, roughness);
+                m.base_color_factor = Vec4::new(0.8, 0.5, 0.3, 1.0);
+                self.materials.push(m);
+                self.materials.len() as u32 - 1
+            };
+            let (plastic, metal) = (gltf(0.0, 0.4), gltf(1.0, 0.15));
+            self.quad([Vec3::new(-3.0, 0.0, 3.0), Vec3::new(3.0, 0.0, 3.0), Vec3::new(3.0, 0.0, -3.0), Vec3::new(-3.0, 0.0, -3.0)], n, plastic);
+            self.aabox(Vec3::new(-0.5, 0.0, -0.5), Vec3::new(0.5, 1.0, 0.5), false, metal);
+            self.aabox(Vec3::new(0.8, 0.0, -0.2), Vec3::new(1.2, 0.6, 0.2), false, lambert);
+            self.quad([Vec3::new(-0.3, 2.0, -0.3), Vec3::new(0.3, 2.0, -0.3), Vec3::new(0.3, 2.0, 0.3), Vec3::new(-0.3, 2.0, 0.3)], 1, e);
+            self.lights.push(Light::Point { position: Vec3::new(2.0, 3.0, 1.0), intensity: Vec3::splat(10.0), range: None });
+        }
         fn build(self, origin: DVec3) -> Scene {
             let bounds = self.mesh.positions.iter().fold(Aabb::EMPTY, |b, &p| b.union_point(p));
             Scene {
@@ -1446,21 +1465,7 @@ mod tests {
         // are left over) equals the path traced alone, and so does the second half of the
         // split at the camera vertex.
         let mut b = Builder::new();
-        let lambert = b.material(0.7, 0.0, false);
-        let e = b.material(0.5, 3.0, true);
-        let mut gltf = |metallic: f32, roughness: f32| {
-            let mut m = Material::gltf_default();
-            (m.metallic_factor, m.roughness_factor) = (metallic, roughness);
-            m.base_color_factor = Vec4::new(0.8, 0.5, 0.3, 1.0);
-            b.materials.push(m);
-            b.materials.len() as u32 - 1
-        };
-        let (plastic, metal) = (gltf(0.0, 0.4), gltf(1.0, 0.15));
-        b.quad([Vec3::new(-3.0, 0.0, 3.0), Vec3::new(3.0, 0.0, 3.0), Vec3::new(3.0, 0.0, -3.0), Vec3::new(-3.0, 0.0, -3.0)], 2, plastic);
-        b.aabox(Vec3::new(-0.5, 0.0, -0.5), Vec3::new(0.5, 1.0, 0.5), false, metal);
-        b.aabox(Vec3::new(0.8, 0.0, -0.2), Vec3::new(1.2, 0.6, 0.2), false, lambert);
-        b.quad([Vec3::new(-0.3, 2.0, -0.3), Vec3::new(0.3, 2.0, -0.3), Vec3::new(0.3, 2.0, 0.3), Vec3::new(-0.3, 2.0, 0.3)], 1, e);
-        b.lights.push(Light::Point { position: Vec3::new(2.0, 3.0, 1.0), intensity: Vec3::splat(10.0), range: None });
+        b.glossy_room(2);
         let r = Renderer::new(b.build(DVec3::ZERO), &AccelParams::medium_build()).unwrap();
         let integ = r.integrator(&settings(1, 6, 0.2, false));
         let cam = camera(16, 16, 70.0, DVec3::new(2.5, 1.8, 2.0), DVec3::new(0.0, 0.7, 0.0));
@@ -1497,29 +1502,15 @@ mod tests {
         let mut lit = 0;
         for normals in [true, false] {
             let mut b = Builder::new();
-            let lambert = b.material(0.7, 0.0, false);
-            let e = b.material(0.5, 3.0, true);
+            b.glossy_room(3);
             let masked = b.material(0.2, 2.0, false);
             b.materials[masked as usize].alpha_mode = AlphaMode::Mask { cutoff: 0.5 };
             b.materials[masked as usize].base_color_factor.w = 0.8;
             let blended = b.material(0.2, 1.5, false);
             b.materials[blended as usize].alpha_mode = AlphaMode::Blend;
             b.materials[blended as usize].base_color_factor.w = 0.6;
-            let mut gltf = |metallic: f32, roughness: f32| {
-                let mut m = Material::gltf_default();
-                (m.metallic_factor, m.roughness_factor) = (metallic, roughness);
-                m.base_color_factor = Vec4::new(0.8, 0.5, 0.3, 1.0);
-                b.materials.push(m);
-                b.materials.len() as u32 - 1
-            };
-            let (plastic, metal) = (gltf(0.0, 0.4), gltf(1.0, 0.15));
-            b.quad([Vec3::new(-3.0, 0.0, 3.0), Vec3::new(3.0, 0.0, 3.0), Vec3::new(3.0, 0.0, -3.0), Vec3::new(-3.0, 0.0, -3.0)], 3, plastic);
-            b.aabox(Vec3::new(-0.5, 0.0, -0.5), Vec3::new(0.5, 1.0, 0.5), false, metal);
-            b.aabox(Vec3::new(0.8, 0.0, -0.2), Vec3::new(1.2, 0.6, 0.2), false, lambert);
-            b.quad([Vec3::new(-0.3, 2.0, -0.3), Vec3::new(0.3, 2.0, -0.3), Vec3::new(0.3, 2.0, 0.3), Vec3::new(-0.3, 2.0, 0.3)], 1, e);
             b.quad([Vec3::new(-2.0, 0.5, -1.0), Vec3::new(-2.0, 0.5, 1.0), Vec3::new(-2.0, 1.5, 1.0), Vec3::new(-2.0, 1.5, -1.0)], 2, masked);
             b.quad([Vec3::new(1.5, 1.2, -1.5), Vec3::new(2.5, 1.2, -1.5), Vec3::new(2.5, 1.2, -0.5), Vec3::new(1.5, 1.2, -0.5)], 1, blended);
-            b.lights.push(Light::Point { position: Vec3::new(2.0, 3.0, 1.0), intensity: Vec3::splat(10.0), range: None });
             b.lights.push(Light::Spot { position: Vec3::new(-1.0, 2.5, 1.5), direction: Vec3::new(0.3, -1.0, -0.4).normalize(), intensity: Vec3::new(8.0, 6.0, 4.0), inner_cone_angle: 0.2, outer_cone_angle: 0.6, range: Some(10.0) });
             b.lights.push(Light::Directional { direction: Vec3::new(-0.4, -1.0, -0.2).normalize(), illuminance: Vec3::splat(0.7) });
             if normals {

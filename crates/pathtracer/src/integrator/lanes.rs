@@ -419,44 +419,13 @@ impl PathIntegrator<'_> {
             sample_lanes::<false>(&x, &u_bsdf, &fs, &ft, &fnn, &mut s_wi, &mut s_weight, &mut s_pdf, &mut s_ok);
         }
 
-        // Per lane: `continue_path`.
+        // Per lane: `continue_path` (Russian roulette, the next ray traced).
         for (k, &id) in chunk.iter().enumerate() {
             if !shading[k] {
                 continue;
             }
             let path = &mut paths[id as usize];
-            let goes_on = s_ok[k] && {
-                let wi = get3(&s_wi, k);
-                !(wi.dot(get3(&ng, k)) <= 0.0) && {
-                    path.beta *= get3(&s_weight, k);
-                    path.prev_bsdf_pdf = s_pdf[k];
-                    let survives = path.depth < 2 || {
-                        let survive = (ROULETTE_SCALE * path.beta.max_element()).min(1.0);
-                        survive > 0.0 && u_roulette[k] < survive && {
-                            path.beta /= survive;
-                            true
-                        }
-                    };
-                    survives && {
-                        path.ray = Ray::new(get3(&origin, k), wi);
-                        match self.intersect(&path.ray) {
-                            Some(h) => {
-                                path.hit = h;
-                                path.depth += 1;
-                                true
-                            }
-                            None => {
-                                if self.samples_environment() {
-                                    path.l += path.beta * env.eval(wi) * power_heuristic(path.prev_bsdf_pdf, env.pdf(wi));
-                                } else if !env.is_black() {
-                                    path.l += path.beta * env.eval(wi);
-                                }
-                                false
-                            }
-                        }
-                    }
-                }
-            };
+            let goes_on = s_ok[k] && self.continue_along(path, get3(&origin, k), get3(&ng, k), get3(&s_wi, k), get3(&s_weight, k), s_pdf[k], || u_roulette[k]);
             if goes_on {
                 next.push(id);
             } else {
