@@ -698,9 +698,7 @@ impl PathIntegrator<'_> {
     #[inline(always)]
     fn shade_vertex(&self, path: &mut PathState, sampler: &mut Sampler, primary_emission: bool, vertex: u32, lights: &mut Vec<PendingLight>) -> Option<Pending> {
         let scene = self.scene;
-        let env = &self.settings.environment;
-        let PathState { l, beta, ray, hit, prev_bsdf_pdf, depth, all_rough } = path;
-        let (beta, ray, hit, depth) = (*beta, *ray, *hit, *depth);
+        let (ray, hit, depth) = (path.ray, path.hit, path.depth);
         // Past the last scattering event only the emission this vertex shows counts: where
         // its material emits nothing, the interaction is not even built (the same bits).
         if depth >= self.settings.max_bounces {
@@ -712,18 +710,7 @@ impl PathIntegrator<'_> {
         let si = interaction(scene, &ray, &hit);
         let mat = scene.materials.get(si.material as usize)?;
         let surf = self.surface(mat, &si);
-        // Emission seen along the path.
-        if surf.emission.max_element() > 0.0 {
-            if depth == 0 {
-                if primary_emission {
-                    *l += beta * surf.emission;
-                }
-            } else {
-                let cos_l = si.ng_front.dot(-ray.direction);
-                let light_pdf = self.emitters.pdf_solid_angle(si.prim, hit.t, cos_l);
-                *l += beta * surf.emission * power_heuristic(*prev_bsdf_pdf, light_pdf);
-            }
-        }
+        self.add_emission_seen(path, surf.emission, si.ng_front, primary_emission);
         if depth >= self.settings.max_bounces {
             return None;
         }
@@ -739,25 +726,8 @@ impl PathIntegrator<'_> {
 
         // Punctual lights: deterministic, all of them, unless this is a caustic vertex
         // whose punctual light the light tracer estimates instead ([`crate::caustics`]).
-        let caustic = *all_rough && self.caustics.is_some_and(|c| c.is_caustic_vertex(depth + 1, si.material));
-        *all_rough &= self.caustics.is_some_and(|c| !c.is_sharp(si.material));
-        for light in scene.lights.iter().filter(|_| !caustic) {
-            let Some(inc) = punctual_incidence(light, si.p) else { continue };
-            if inc.wi.dot(si.ng) <= 0.0 {
-                continue;
-            }
-            let o = origin;
-            let t_max = if inc.distance.is_finite() {
-                match *light {
-                    crate::scene::Light::Point { position, .. } | crate::scene::Light::Spot { position, .. } => {
-                        (position - o).length() * (1.0 - SHADOW_EPSILON)
-                    }
-                    crate::scene::Light::Directional { .. } => f32::INFINITY,
-                }
-            } else {
-                f32::INFINITY
-            };
-            lights.push(PendingLight { vertex, wi_l: frame.to_local(inc.wi), radiance: inc.irradiance, light_pdf: None, shadow: Ray::new(o, inc.wi), t_max });
+        if !self.caustic_vertex(path, si.material) {
+            self.punctual_samples(si.p, si.ng, origin, &frame, |e| lights.push(PendingLight { vertex, ..e }));
         }
 
         // Emissive triangles: one sample, MIS with BSDF sampling.
@@ -771,15 +741,77 @@ impl PathIntegrator<'_> {
         // Environment map: one sample, MIS with BSDF sampling. A constant environment is
         // left to BSDF sampling alone (see the module docs).
         if self.samples_environment()
-            && let Some((wi, pdf)) = env.sample(sampler.get_2d(dim + DIM_ENVIRONMENT))
-            && wi.dot(si.ng) > 0.0
+            && let Some(e) = self.environment_sample(sampler.get_2d(dim + DIM_ENVIRONMENT), si.ng, origin, &frame)
         {
-            let le = env.eval(wi);
-            if le.max_element() > 0.0 {
-                lights.push(PendingLight { vertex, wi_l: frame.to_local(wi), radiance: le, light_pdf: Some(pdf), shadow: Ray::new(origin, wi), t_max: f32::INFINITY });
-            }
+            lights.push(PendingLight { vertex, ..e });
         }
         Some(Pending { path: 0, dim, frame, bsdf, origin, ng: si.ng })
+    }
+
+    /// Adds the emission `emission` that a path's vertex shows (its surface's, geometric
+    /// front normal `ng_front`) to `path.l`: whole at the camera vertex (when
+    /// `primary_emission`), else MIS-weighted against the emitter sample that could have
+    /// found it.
+    #[inline(always)]
+    fn add_emission_seen(&self, path: &mut PathState, emission: Vec3, ng_front: Vec3, primary_emission: bool) {
+        if emission.max_element() > 0.0 {
+            if path.depth == 0 {
+                if primary_emission {
+                    path.l += path.beta * emission;
+                }
+            } else {
+                let cos_l = ng_front.dot(-path.ray.direction);
+                let light_pdf = self.emitters.pdf_solid_angle(path.hit.prim, path.hit.t, cos_l);
+                path.l += path.beta * emission * power_heuristic(path.prev_bsdf_pdf, light_pdf);
+            }
+        }
+    }
+
+    /// Whether a path's vertex on `material` is a caustic vertex whose punctual lights the
+    /// light tracer estimates ([`crate::caustics`]); updates the path's `all_rough`.
+    #[inline(always)]
+    fn caustic_vertex(&self, path: &mut PathState, material: u32) -> bool {
+        let caustic = path.all_rough && self.caustics.is_some_and(|c| c.is_caustic_vertex(path.depth + 1, material));
+        path.all_rough &= self.caustics.is_some_and(|c| !c.is_sharp(material));
+        caustic
+    }
+
+    /// Every punctual light's sample at the point `p` (geometric normal `ng` facing the
+    /// incoming ray, rays leaving from `origin`, shading frame `frame`) that lights its side,
+    /// up to the BSDF's value, passed to `push` in the scene's order (its `vertex` is the
+    /// caller's to set).
+    #[inline(always)]
+    fn punctual_samples(&self, p: Vec3, ng: Vec3, origin: Vec3, frame: &Frame, mut push: impl FnMut(PendingLight)) {
+        for light in &self.scene.lights {
+            let Some(inc) = punctual_incidence(light, p) else { continue };
+            if inc.wi.dot(ng) <= 0.0 {
+                continue;
+            }
+            let t_max = if inc.distance.is_finite() {
+                match *light {
+                    crate::scene::Light::Point { position, .. } | crate::scene::Light::Spot { position, .. } => (position - origin).length() * (1.0 - SHADOW_EPSILON),
+                    crate::scene::Light::Directional { .. } => f32::INFINITY,
+                }
+            } else {
+                f32::INFINITY
+            };
+            push(PendingLight { vertex: 0, wi_l: frame.to_local(inc.wi), radiance: inc.irradiance, light_pdf: None, shadow: Ray::new(origin, inc.wi), t_max });
+        }
+    }
+
+    /// The environment map's sample with the numbers `u` at a point (geometric normal `ng`
+    /// facing the incoming ray, rays leaving from `origin`, shading frame `frame`), up to the
+    /// BSDF's value; `None` where it lies below the surface or has no radiance (its `vertex`
+    /// is the caller's to set).
+    #[inline(always)]
+    fn environment_sample(&self, u: Vec2, ng: Vec3, origin: Vec3, frame: &Frame) -> Option<PendingLight> {
+        let env = &self.settings.environment;
+        let (wi, pdf) = env.sample(u)?;
+        if !(wi.dot(ng) > 0.0) {
+            return None;
+        }
+        let le = env.eval(wi);
+        (le.max_element() > 0.0).then(|| PendingLight { vertex: 0, wi_l: frame.to_local(wi), radiance: le, light_pdf: Some(pdf), shadow: Ray::new(origin, wi), t_max: f32::INFINITY })
     }
 
     /// Continues a path from its vertex `v` along the BSDF sample `bs` (Russian roulette, the

@@ -145,7 +145,6 @@ impl PathIntegrator<'_> {
     fn vertices_in_lanes(&self, mats: &[LaneMaterial], chunk: &[u32], paths: &mut [PathState], samplers: &mut [Sampler], primary_emission: bool, out: &mut [RadianceSample], next: &mut Vec<u32>, others: &mut Vec<OtherLight>, other_values: &mut Vec<(Vec3, f32)>) {
         let scene = self.scene;
         let m = &scene.mesh;
-        let env = &self.settings.environment;
         let max_bounces = self.settings.max_bounces;
         let n = chunk.len();
         debug_assert!(n <= L);
@@ -233,17 +232,7 @@ impl PathIntegrator<'_> {
             }
             let path = &mut paths[id as usize];
             let lm = &mats[mat[k]];
-            if lm.emission.max_element() > 0.0 {
-                if path.depth == 0 {
-                    if primary_emission {
-                        path.l += path.beta * lm.emission;
-                    }
-                } else {
-                    let cos_l = get3(&ng_front, k).dot(-path.ray.direction);
-                    let light_pdf = self.emitters.pdf_solid_angle(path.hit.prim, path.hit.t, cos_l);
-                    path.l += path.beta * lm.emission * power_heuristic(path.prev_bsdf_pdf, light_pdf);
-                }
-            }
+            self.add_emission_seen(path, lm.emission, get3(&ng_front, k), primary_emission);
             if path.depth >= max_bounces {
                 out[id as usize].radiance = path.l;
                 continue;
@@ -272,23 +261,8 @@ impl PathIntegrator<'_> {
             let p = get3(&point, k);
             let g = get3(&ng, k);
             let o = get3(&origin, k);
-            let material = mat[k] as u32;
-            let caustic = path.all_rough && self.caustics.is_some_and(|c| c.is_caustic_vertex(path.depth + 1, material));
-            path.all_rough &= self.caustics.is_some_and(|c| !c.is_sharp(material));
-            for light in scene.lights.iter().filter(|_| !caustic) {
-                let Some(inc) = punctual_incidence(light, p) else { continue };
-                if inc.wi.dot(g) <= 0.0 {
-                    continue;
-                }
-                let t_max = if inc.distance.is_finite() {
-                    match *light {
-                        crate::scene::Light::Point { position, .. } | crate::scene::Light::Spot { position, .. } => (position - o).length() * (1.0 - SHADOW_EPSILON),
-                        crate::scene::Light::Directional { .. } => f32::INFINITY,
-                    }
-                } else {
-                    f32::INFINITY
-                };
-                others.push(OtherLight { lane: k, punctual: true, light: PendingLight { vertex: 0, wi_l: frame.to_local(inc.wi), radiance: inc.irradiance, light_pdf: None, shadow: Ray::new(o, inc.wi), t_max } });
+            if !self.caustic_vertex(path, mat[k] as u32) {
+                self.punctual_samples(p, g, o, &frame, |light| others.push(OtherLight { lane: k, punctual: true, light }));
             }
             if !self.emitters.is_empty()
                 && let Some(es) = self.emitters.sample(Vec2::new(u_emitter[0][k], u_emitter[1][k]), || u_spare[k])
@@ -308,13 +282,9 @@ impl PathIntegrator<'_> {
                 }
             }
             if self.samples_environment()
-                && let Some((wi, pdf)) = env.sample(Vec2::new(u_env[0][k], u_env[1][k]))
-                && wi.dot(g) > 0.0
+                && let Some(light) = self.environment_sample(Vec2::new(u_env[0][k], u_env[1][k]), g, o, &frame)
             {
-                let le = env.eval(wi);
-                if le.max_element() > 0.0 {
-                    others.push(OtherLight { lane: k, punctual: false, light: PendingLight { vertex: 0, wi_l: frame.to_local(wi), radiance: le, light_pdf: Some(pdf), shadow: Ray::new(o, wi), t_max: f32::INFINITY } });
-                }
+                others.push(OtherLight { lane: k, punctual: false, light });
             }
         }
 
