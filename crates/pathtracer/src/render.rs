@@ -64,7 +64,7 @@ use crate::light::{EmissiveTriangles, Environment, EnvironmentMap};
 use crate::material::SurfaceMaterial;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
-use crate::sampler::{Sampler, splitmix64};
+use crate::sampler::{Sampler, SamplerLanes, splitmix64};
 use crate::scene::{Light, Scene};
 use dataset::{Camera, GroundTruth, RgbaImage};
 use glam::{DVec3, Vec2, Vec3, Vec4};
@@ -634,12 +634,28 @@ impl Renderer {
                             let n = (spp - s0).min(PATH_BATCH as u32) as usize;
                             batch.samplers.clear();
                             batch.rays.clear();
-                            for s in s0..s0 + n as u32 {
-                                let mut sampler = pixel_sampler.with_sample(s);
-                                let u = sampler.next_2d();
-                                batch.rays.push(rays.ray(i as f32 + u.x, j as f32 + u.y));
-                                batch.samplers.push(sampler);
-                            }
+                            // Each sample's first two numbers (`next_2d`) place its camera ray:
+                            // eight samples' at a time in lanes, at the SIMD level of the path
+                            // loop.
+                            integ.accel.at_level(
+                                #[inline(always)]
+                                || {
+                                    for first in (s0..s0 + n as u32).step_by(8) {
+                                        let count = (s0 + n as u32 - first).min(8) as usize;
+                                        let mut lanes = SamplerLanes::default();
+                                        let samplers: [Sampler; 8] = std::array::from_fn(|k| pixel_sampler.with_sample(first + k as u32));
+                                        for (k, sampler) in samplers.iter().enumerate() {
+                                            lanes.set(k, sampler);
+                                        }
+                                        let u = lanes.get_2d(&[0; 8]);
+                                        for (k, mut sampler) in samplers.into_iter().take(count).enumerate() {
+                                            sampler.skip(2);
+                                            batch.rays.push(rays.ray(i as f32 + u[0][k], j as f32 + u[1][k]));
+                                            batch.samplers.push(sampler);
+                                        }
+                                    }
+                                },
+                            );
                             batch.out.resize(n, crate::integrator::RadianceSample { radiance: Vec3::ZERO, primary_hit: false });
                             integ.radiance_batch(&batch.rays, &mut batch.samplers, split.is_none(), &mut batch.out);
                             for r in &batch.out {
