@@ -245,20 +245,6 @@ pub const ROULETTE_SCALE: f32 = 2.0;
 /// Fraction of a shadow ray's length left unchecked at its far end (pbrt's ShadowEpsilon).
 pub const SHADOW_EPSILON: f32 = 1e-4;
 
-/// How far a shadow ray from `origin` towards a punctual light (incidence `inc` there) is
-/// checked: to just short of a point or spot light, without end for a directional one.
-#[inline(always)]
-fn punctual_t_max(light: &crate::scene::Light, inc: &crate::light::PunctualIncidence, origin: Vec3) -> f32 {
-    if inc.distance.is_finite() {
-        match *light {
-            crate::scene::Light::Point { position, .. } | crate::scene::Light::Spot { position, .. } => (position - origin).length() * (1.0 - SHADOW_EPSILON),
-            crate::scene::Light::Directional { .. } => f32::INFINITY,
-        }
-    } else {
-        f32::INFINITY
-    }
-}
-
 /// The integrator's settings.
 #[derive(Clone, Debug, PartialEq)]
 pub struct IntegratorSettings {
@@ -801,7 +787,15 @@ impl PathIntegrator<'_> {
             if inc.wi.dot(ng) <= 0.0 {
                 continue;
             }
-            push(PendingLight { vertex: 0, wi_l: frame.to_local(inc.wi), radiance: inc.irradiance, light_pdf: None, shadow: Ray::new(origin, inc.wi), t_max: punctual_t_max(light, &inc, origin) });
+            let t_max = if inc.distance.is_finite() {
+                match *light {
+                    crate::scene::Light::Point { position, .. } | crate::scene::Light::Spot { position, .. } => (position - origin).length() * (1.0 - SHADOW_EPSILON),
+                    crate::scene::Light::Directional { .. } => f32::INFINITY,
+                }
+            } else {
+                f32::INFINITY
+            };
+            push(PendingLight { vertex: 0, wi_l: frame.to_local(inc.wi), radiance: inc.irradiance, light_pdf: None, shadow: Ray::new(origin, inc.wi), t_max });
         }
     }
 

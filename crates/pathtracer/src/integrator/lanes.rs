@@ -111,9 +111,11 @@ impl LaneMaterials {
     }
 }
 
-/// A light sample of a lane that stays scalar (the environment map's).
+/// A light sample of a lane that stays scalar (a punctual light or the environment map).
 struct OtherLight {
     lane: usize,
+    /// A punctual light (added before the emitter sample) or the environment (after).
+    punctual: bool,
     light: PendingLight,
 }
 
@@ -216,7 +218,6 @@ impl PathIntegrator<'_> {
         let mut dims = [0u32; L];
         let mut x = BsdfLanesIn::default();
         let mut sl = SamplerLanes::default();
-        let mut caustic = [false; L];
         let mut e_prim = [u32::MAX; L];
         let mut e_pos = [[[0.0f32; L]; 3]; 3];
         let mut e_bary = [[0.0f32; L]; 3];
@@ -257,9 +258,12 @@ impl PathIntegrator<'_> {
             let lm = &mats[mat[k]];
             let frame = frame_of(k);
             x.set(k, &SampleLane { wo: get3(&wo_l, k), ..lm.bsdf });
+            let p = get3(&point, k);
             let g = get3(&ng, k);
             let o = get3(&origin, k);
-            caustic[k] = self.caustic_vertex(path, mat[k] as u32);
+            if !self.caustic_vertex(path, mat[k] as u32) {
+                self.punctual_samples(p, g, o, &frame, |light| others.push(OtherLight { lane: k, punctual: true, light }));
+            }
             if !self.emitters.is_empty()
                 && let Some(es) = self.emitters.sample(Vec2::new(u_emitter[0][k], u_emitter[1][k]), || u_spare[k])
             {
@@ -280,7 +284,7 @@ impl PathIntegrator<'_> {
             if self.samples_environment()
                 && let Some(light) = self.environment_sample(Vec2::new(u_env[0][k], u_env[1][k]), g, o, &frame)
             {
-                others.push(OtherLight { lane: k, light });
+                others.push(OtherLight { lane: k, punctual: false, light });
             }
         }
 
@@ -348,47 +352,18 @@ impl PathIntegrator<'_> {
             other_values.extend((0..group.len()).map(|j| (get3(&f, j), pdf[j])));
         }
 
-        // The light samples' estimates, in the one-path loop's order per path: the punctual
-        // lights (each light's in lanes: the incidence, the BSDF's value), the emitter, the
-        // environment. A caustic vertex leaves its punctual lights to the light tracer.
-        for light in &scene.lights {
-            let mut lit = [false; L];
-            let mut wi_l = [[0.0f32; L]; 3];
-            let mut irradiance = [[0.0f32; L]; 3];
-            let mut wi = [[0.0f32; L]; 3];
-            let mut t_max = [0.0f32; L];
-            for k in 0..L {
-                let p = get3(&point, k);
-                let o = get3(&origin, k);
-                if let Some(inc) = punctual_incidence(light, p) {
-                    lit[k] = !(inc.wi.dot(get3(&ng, k)) <= 0.0);
-                    let frame = Frame { s: get3(&fs, k), t: get3(&ft, k), n: get3(&fnn, k) };
-                    set3(&mut wi_l, k, frame.to_local(inc.wi));
-                    set3(&mut irradiance, k, inc.irradiance);
-                    set3(&mut wi, k, inc.wi);
-                    t_max[k] = punctual_t_max(light, &inc, o);
-                }
-            }
-            let mut f = [[0.0f32; L]; 3];
-            let mut pdf = [0.0f32; L];
-            if all_diffuse {
-                evaluate_lanes::<true>(&x, &wi_l, &mut f, &mut pdf);
-            } else {
-                evaluate_lanes::<false>(&x, &wi_l, &mut f, &mut pdf);
-            }
-            for (k, &id) in chunk.iter().enumerate() {
-                if shading[k] && !caustic[k] && lit[k] {
-                    let e = PendingLight { vertex: 0, wi_l: get3(&wi_l, k), radiance: get3(&irradiance, k), light_pdf: None, shadow: Ray::new(get3(&origin, k), get3(&wi, k)), t_max: t_max[k] };
-                    self.add_light_estimate(&mut paths[id as usize], &e, (get3(&f, k), pdf[k]));
-                }
-            }
-        }
+        // The light samples' estimates, in the one-path code's order per path: punctual
+        // lights, the emitter, the environment.
         let mut cursor = 0;
         for (k, &id) in chunk.iter().enumerate() {
             if !shading[k] {
                 continue;
             }
             let path = &mut paths[id as usize];
+            while cursor < others.len() && others[cursor].lane == k && others[cursor].punctual {
+                self.add_light_estimate(path, &others[cursor].light, other_values[cursor]);
+                cursor += 1;
+            }
             if e_prim[k] != u32::MAX && e_ok[k] {
                 let f = get3(&e_f, k);
                 let shadow = Ray::new(get3(&origin, k), get3(&e_dir, k));
