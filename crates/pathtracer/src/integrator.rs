@@ -121,7 +121,13 @@
 //! - Where every material is the same at every point and has no normal map (`cornell`,
 //!   `thin`), the whole vertex is shaded in lanes, eight paths at a time (module `lanes`,
 //!   stop 65: the same bits, `cornell` +14 % samples per CPU-second, `thin` +2–3 %); the
-//!   other scenes keep the loop above, which the lane loop is tested against.
+//!   other scenes keep the loop above, which the lane loop is tested against. A batch's
+//!   camera-ray numbers are drawn eight samples at a time in lanes too (`SamplerLanes`, in
+//!   [`crate::render::Renderer::render_view`]: `deep` +3 %, `thin` +1–3 %). Measured in this
+//!   loop and not kept (stop 65, alternating pairs): the bounce's BSDF numbers drawn in lanes,
+//!   ±2 % (within the noise); every number of a bounce's vertices drawn in lanes beforehand,
+//!   `deep` −4 to −8 %, `materials` −2 to −4 %, `tabletop` −2 to −5 % (paths that end early
+//!   waste theirs).
 //! - Where a sample's time goes (stop 59, 2-core Zen 5). Each part below was run twice in
 //!   place, the copy's result discarded through `black_box`, and its cost read as the extra
 //!   CPU time per sample (`cargo bench -p pathtracer --bench render -- SCENE --seconds 3`,
