@@ -626,14 +626,8 @@ impl PathIntegrator<'_> {
                 values.clear();
                 values.resize(lights.len(), (Vec3::ZERO, 0.0));
                 evaluate_many(|e| &pending[lights[e].vertex as usize].bsdf, &light_wi, &mut values);
-                for (e, &(f, bsdf_pdf)) in lights.iter().zip(&values) {
-                    if !(f.max_element() <= 0.0) && !self.occluded(&e.shadow, e.t_max) {
-                        let path = &mut paths[pending[e.vertex as usize].path as usize];
-                        path.l += match e.light_pdf {
-                            None => path.beta * f * e.radiance,
-                            Some(light_pdf) => path.beta * (f * e.radiance * (power_heuristic(light_pdf, bsdf_pdf) / light_pdf)),
-                        };
-                    }
+                for (e, &value) in lights.iter().zip(&values) {
+                    self.add_light_estimate(&mut paths[pending[e.vertex as usize].path as usize], e, value);
                 }
             }
             bsdfs.clear();
@@ -752,6 +746,19 @@ impl PathIntegrator<'_> {
             lights.push(PendingLight { vertex, ..e });
         }
         Some(Pending { path: 0, dim, frame, bsdf, origin, ng: si.ng })
+    }
+
+    /// Adds a light sample's estimate to `path` where its BSDF value `f` (with density
+    /// `bsdf_pdf`) is not zero and its shadow ray is not blocked: a punctual light's `f · E`,
+    /// an emitter's or the environment's `f · Le · w_light / pdf_light`.
+    #[inline(always)]
+    fn add_light_estimate(&self, path: &mut PathState, e: &PendingLight, (f, bsdf_pdf): (Vec3, f32)) {
+        if !(f.max_element() <= 0.0) && !self.occluded(&e.shadow, e.t_max) {
+            path.l += match e.light_pdf {
+                None => path.beta * f * e.radiance,
+                Some(light_pdf) => path.beta * (f * e.radiance * (power_heuristic(light_pdf, bsdf_pdf) / light_pdf)),
+            };
+        }
     }
 
     /// Adds the emission `emission` that a path's vertex shows (its surface's, geometric

@@ -457,14 +457,20 @@ impl EmissiveTriangles {
     /// Solid-angle density at a receiver of sampling point on `prim` at `distance` whose
     /// emitter-side cosine is `cos_light`: `pmf / area · r² / |cos|`.
     pub fn pdf_solid_angle(&self, prim: u32, distance: f32, cos_light: f32) -> f32 {
-        let pmf = self.pmf(prim);
-        let area = self.area(prim);
-        let c = cos_light.abs();
-        if pmf <= 0.0 || area <= 0.0 || c <= 0.0 {
-            return 0.0;
-        }
-        pmf / area * distance * distance / c
+        solid_angle_density(self.pmf(prim), self.area(prim), distance, cos_light)
     }
+}
+
+/// The solid-angle density at a receiver of a point drawn uniformly on a triangle of area
+/// `area` picked with probability `pmf`, at `distance`, whose emitter-side cosine is
+/// `cos_light`: `pmf / area · r² / |cos|` (0 where any factor is not positive).
+#[inline(always)]
+pub(crate) fn solid_angle_density(pmf: f32, area: f32, distance: f32, cos_light: f32) -> f32 {
+    let c = cos_light.abs();
+    if pmf <= 0.0 || area <= 0.0 || c <= 0.0 {
+        return 0.0;
+    }
+    pmf / area * distance * distance / c
 }
 
 impl EnvironmentMap {

@@ -428,7 +428,7 @@ pub(crate) struct SampleLane {
 /// the lane's own selected, with no branch on the data, so that a loop over lanes vectorises
 /// ([`evaluate_many`]).
 #[inline(always)]
-pub(crate) fn evaluate_pdf_lane<const ALL_DIFFUSE: bool>(x: &SampleLane, wi: Vec3) -> (Vec3, f32) {
+fn evaluate_pdf_lane<const ALL_DIFFUSE: bool>(x: &SampleLane, wi: Vec3) -> (Vec3, f32) {
     let wo = x.wo;
     let below = (wo.z <= 0.0) | (wi.z <= 0.0);
     let lambert = (x.rho * (FRAC_1_PI * wi.z), wi.z * FRAC_1_PI);
@@ -445,24 +445,25 @@ pub(crate) fn evaluate_pdf_lane<const ALL_DIFFUSE: bool>(x: &SampleLane, wi: Vec
 }
 
 /// [`SAMPLE_LANES`] BSDFs as one array per number ([`SampleLane`] without its `u`): what
-/// [`sample_many`] and [`evaluate_many`] move their BSDFs into before the loop over the lanes.
+/// [`sample_many`] and [`evaluate_many`] move their BSDFs into before the loop over the lanes
+/// (and what the path loop in lanes keeps its vertices' BSDFs in).
 #[derive(Default)]
-struct BsdfLanes {
-    diffuse: [bool; SAMPLE_LANES],
+pub(crate) struct BsdfLanes {
+    pub(crate) diffuse: [bool; SAMPLE_LANES],
     rho: [[f32; SAMPLE_LANES]; 3],
     metallic: [f32; SAMPLE_LANES],
     alpha: [f32; SAMPLE_LANES],
     f0: [[f32; SAMPLE_LANES]; 3],
     f90: [f32; SAMPLE_LANES],
     wo: [[f32; SAMPLE_LANES]; 3],
-    ps: [f32; SAMPLE_LANES],
-    sd_wo: [f32; SAMPLE_LANES],
+    pub(crate) ps: [f32; SAMPLE_LANES],
+    pub(crate) sd_wo: [f32; SAMPLE_LANES],
 }
 
 impl BsdfLanes {
     /// Lane `k` := `l`.
     #[inline(always)]
-    fn set(&mut self, k: usize, l: &SampleLane) {
+    pub(crate) fn set(&mut self, k: usize, l: &SampleLane) {
         self.diffuse[k] = l.diffuse;
         for c in 0..3 {
             self.rho[c][k] = l.rho[c];
@@ -474,7 +475,7 @@ impl BsdfLanes {
 
     /// Lane `k`, with the numbers `u`.
     #[inline(always)]
-    fn get(&self, k: usize, u: Vec2) -> SampleLane {
+    pub(crate) fn get(&self, k: usize, u: Vec2) -> SampleLane {
         let v3 = |a: &[[f32; SAMPLE_LANES]; 3]| Vec3::new(a[0][k], a[1][k], a[2][k]);
         SampleLane {
             diffuse: self.diffuse[k],
@@ -502,11 +503,6 @@ pub fn evaluate_many<'a>(bsdfs: impl Fn(usize) -> &'a BsdfAt, wi: &[Vec3], value
     const L: usize = SAMPLE_LANES;
     let n = wi.len();
     assert!(values.len() == n, "evaluate_many: slices of different lengths");
-    #[derive(Default)]
-    struct Out {
-        f: [[f32; L]; 3],
-        pdf: [f32; L],
-    }
     for start in (0..n).step_by(L) {
         let m = (n - start).min(L);
         // Unused lanes hold zeros; their results are dropped.
@@ -516,29 +512,36 @@ pub fn evaluate_many<'a>(bsdfs: impl Fn(usize) -> &'a BsdfAt, wi: &[Vec3], value
             x.set(k, &bsdfs(start + k).lane(Vec2::ZERO));
             (x_wi[0][k], x_wi[1][k], x_wi[2][k]) = (w.x, w.y, w.z);
         }
-        /// The loop over the lanes, computing only the Lambertian model where `ALL_DIFFUSE`.
-        // `k` indexes the lanes, the inner dimension of every array: the loop over it is what
-        // vectorises.
-        #[allow(clippy::needless_range_loop)]
-        #[inline(always)]
-        fn lanes<const ALL_DIFFUSE: bool>(x: &BsdfLanes, x_wi: &[[f32; L]; 3], y: &mut Out) {
-            for k in 0..L {
-                let (f, pdf) = evaluate_pdf_lane::<ALL_DIFFUSE>(&x.get(k, Vec2::ZERO), Vec3::new(x_wi[0][k], x_wi[1][k], x_wi[2][k]));
-                for c in 0..3 {
-                    y.f[c][k] = f[c];
-                }
-                y.pdf[k] = pdf;
-            }
-        }
-        let mut y = Out::default();
-        if x.diffuse[..m].iter().all(|&d| d) {
-            lanes::<true>(&x, &x_wi, &mut y);
-        } else {
-            lanes::<false>(&x, &x_wi, &mut y);
-        }
+        let (mut f, mut pdf) = ([[0.0f32; L]; 3], [0.0f32; L]);
+        evaluate_lanes(&x, x.diffuse[..m].iter().all(|&d| d), &x_wi, &mut f, &mut pdf);
         for k in 0..m {
-            values[start + k] = (Vec3::new(y.f[0][k], y.f[1][k], y.f[2][k]), y.pdf[k]);
+            values[start + k] = (Vec3::new(f[0][k], f[1][k], f[2][k]), pdf[k]);
         }
+    }
+}
+
+/// `(f[k], pdf[k]) = x.get(k).evaluate_pdf(wi[k])` for the eight lanes ([`evaluate_pdf_lane`]):
+/// one loop over the lanes, computing only the Lambertian model where `all_diffuse` (every lane
+/// that matters is Lambertian).
+#[inline(always)]
+pub(crate) fn evaluate_lanes(x: &BsdfLanes, all_diffuse: bool, wi: &[[f32; SAMPLE_LANES]; 3], f: &mut [[f32; SAMPLE_LANES]; 3], pdf: &mut [f32; SAMPLE_LANES]) {
+    // `k` indexes the lanes, the inner dimension of every array: the loop over it is what
+    // vectorises.
+    #[allow(clippy::needless_range_loop)]
+    #[inline(always)]
+    fn lanes<const ALL_DIFFUSE: bool>(x: &BsdfLanes, wi: &[[f32; SAMPLE_LANES]; 3], f: &mut [[f32; SAMPLE_LANES]; 3], pdf: &mut [f32; SAMPLE_LANES]) {
+        for k in 0..SAMPLE_LANES {
+            let (v, p) = evaluate_pdf_lane::<ALL_DIFFUSE>(&x.get(k, Vec2::ZERO), Vec3::new(wi[0][k], wi[1][k], wi[2][k]));
+            for c in 0..3 {
+                f[c][k] = v[c];
+            }
+            pdf[k] = p;
+        }
+    }
+    if all_diffuse {
+        lanes::<true>(x, wi, f, pdf);
+    } else {
+        lanes::<false>(x, wi, f, pdf);
     }
 }
 
@@ -547,7 +550,7 @@ pub fn evaluate_many<'a>(bsdfs: impl Fn(usize) -> &'a BsdfAt, wi: &[Vec3], value
 /// data, so that a loop over lanes vectorises ([`sample_many`]); the selected values are the
 /// operations the model's sampling describes (see [`MetallicRoughness`]).
 #[inline(always)]
-pub(crate) fn sample_lane<const ALL_DIFFUSE: bool>(x: SampleLane) -> (Vec3, Vec3, f32, bool) {
+fn sample_lane<const ALL_DIFFUSE: bool>(x: SampleLane) -> (Vec3, Vec3, f32, bool) {
     let SampleLane { diffuse, rho, metallic, alpha, f0, f90, wo, ps, sd_wo, u } = x;
     if ALL_DIFFUSE {
         // The Lambertian model's values below, alone (for lanes that are all Lambertian).
@@ -584,13 +587,6 @@ const SAMPLE_LANES: usize = 8;
 #[inline(always)]
 pub fn sample_many(bsdfs: &[BsdfAt], u: &[Vec2], out: &mut [Option<BsdfSample>]) {
     const L: usize = SAMPLE_LANES;
-    #[derive(Default)]
-    struct Out {
-        wi: [[f32; L]; 3],
-        weight: [[f32; L]; 3],
-        pdf: [f32; L],
-        ok: [bool; L],
-    }
     let n = bsdfs.len();
     assert!(u.len() == n && out.len() == n, "sample_many: slices of different lengths");
     for start in (0..n).step_by(L) {
@@ -602,28 +598,8 @@ pub fn sample_many(bsdfs: &[BsdfAt], u: &[Vec2], out: &mut [Option<BsdfSample>])
             x.set(k, &b.lane(uk));
             (x_u[0][k], x_u[1][k]) = (uk.x, uk.y);
         }
-        /// The loop over the lanes, computing only the Lambertian model where `ALL_DIFFUSE`.
-        // `k` indexes the lanes, the inner dimension of every array: the loop over it is what
-        // vectorises.
-        #[allow(clippy::needless_range_loop)]
-        #[inline(always)]
-        fn lanes<const ALL_DIFFUSE: bool>(x: &BsdfLanes, x_u: &[[f32; L]; 2], y: &mut Out) {
-            for k in 0..L {
-                let (wi, weight, pdf, ok) = sample_lane::<ALL_DIFFUSE>(x.get(k, Vec2::new(x_u[0][k], x_u[1][k])));
-                for c in 0..3 {
-                    y.wi[c][k] = wi[c];
-                    y.weight[c][k] = weight[c];
-                }
-                y.pdf[k] = pdf;
-                y.ok[k] = ok;
-            }
-        }
-        let mut y = Out::default();
-        if x.diffuse[..m].iter().all(|&d| d) {
-            lanes::<true>(&x, &x_u, &mut y);
-        } else {
-            lanes::<false>(&x, &x_u, &mut y);
-        }
+        let mut y = SampledLanes::default();
+        sample_lanes(&x, x.diffuse[..m].iter().all(|&d| d), &x_u, &mut y);
         for k in 0..m {
             out[start + k] = y.ok[k].then(|| BsdfSample {
                 wi: Vec3::new(y.wi[0][k], y.wi[1][k], y.wi[2][k]),
@@ -631,6 +607,43 @@ pub fn sample_many(bsdfs: &[BsdfAt], u: &[Vec2], out: &mut [Option<BsdfSample>])
                 pdf: y.pdf[k],
             });
         }
+    }
+}
+
+/// Eight BSDF samples as one array per number ([`sample_lanes`]): the direction (local frame),
+/// the weight, the density and whether the sample is valid.
+#[derive(Default)]
+pub(crate) struct SampledLanes {
+    pub(crate) wi: [[f32; SAMPLE_LANES]; 3],
+    pub(crate) weight: [[f32; SAMPLE_LANES]; 3],
+    pub(crate) pdf: [f32; SAMPLE_LANES],
+    pub(crate) ok: [bool; SAMPLE_LANES],
+}
+
+/// The eight lanes' BSDF samples with the numbers `u` ([`sample_lane`]): one loop over the
+/// lanes, computing only the Lambertian model where `all_diffuse` (every lane that matters is
+/// Lambertian).
+#[inline(always)]
+pub(crate) fn sample_lanes(x: &BsdfLanes, all_diffuse: bool, u: &[[f32; SAMPLE_LANES]; 2], y: &mut SampledLanes) {
+    // `k` indexes the lanes, the inner dimension of every array: the loop over it is what
+    // vectorises.
+    #[allow(clippy::needless_range_loop)]
+    #[inline(always)]
+    fn lanes<const ALL_DIFFUSE: bool>(x: &BsdfLanes, u: &[[f32; SAMPLE_LANES]; 2], y: &mut SampledLanes) {
+        for k in 0..SAMPLE_LANES {
+            let (wi, weight, pdf, ok) = sample_lane::<ALL_DIFFUSE>(x.get(k, Vec2::new(u[0][k], u[1][k])));
+            for c in 0..3 {
+                y.wi[c][k] = wi[c];
+                y.weight[c][k] = weight[c];
+            }
+            y.pdf[k] = pdf;
+            y.ok[k] = ok;
+        }
+    }
+    if all_diffuse {
+        lanes::<true>(x, u, y);
+    } else {
+        lanes::<false>(x, u, y);
     }
 }
 

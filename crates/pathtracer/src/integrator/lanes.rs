@@ -38,7 +38,8 @@
 //!   loop skips the lights a vertex cannot see.
 
 use super::*;
-use crate::material::{SampleLane, evaluate_pdf_lane, sample_lane, wo_terms};
+use crate::light::solid_angle_density;
+use crate::material::{BsdfLanes, SampleLane, SampledLanes, evaluate_lanes, sample_lanes, wo_terms};
 use crate::sampler::SamplerLanes;
 
 /// Lanes of the loop: eight, the `f32` lanes of an AVX2 register.
@@ -222,9 +223,9 @@ impl PathIntegrator<'_> {
         // lights and environment samples, and the emitter's choice.
         let mut shading = [false; L];
         let mut dims = [0u32; L];
-        let mut x = BsdfLanesIn::default();
+        let mut x = BsdfLanes::default();
         let mut sl = SamplerLanes::default();
-        let mut e_prim = [u32::MAX; L];
+        let mut e_sampled = [false; L];
         let mut e_pos = [[[0.0f32; L]; 3]; 3];
         let mut e_bary = [[0.0f32; L]; 3];
         let mut e_double = [false; L];
@@ -276,7 +277,7 @@ impl PathIntegrator<'_> {
                 let idx = m.indices[es.prim as usize];
                 let lmat = m.material.get(es.prim as usize).and_then(|&q| mats.get(q as usize));
                 if let Some(lmat) = lmat {
-                    e_prim[k] = es.prim;
+                    e_sampled[k] = true;
                     for v in 0..3 {
                         set3(&mut e_pos[v], k, m.positions[idx[v] as usize]);
                         e_bary[v][k] = es.b[v];
@@ -308,41 +309,35 @@ impl PathIntegrator<'_> {
         let mut e_tmax = [0.0f32; L];
         let mut e_f = [[0.0f32; L]; 3];
         let mut e_bsdf_pdf = [0.0f32; L];
-        let any_emitter = e_prim.iter().any(|&p| p != u32::MAX);
-        for k in (0..L).filter(|_| any_emitter) {
-            let p = [get3(&e_pos[0], k), get3(&e_pos[1], k), get3(&e_pos[2], k)];
-            let b = [e_bary[0][k], e_bary[1][k], e_bary[2][k]];
-            let sp = get3(&point, k);
-            let g = get3(&ng, k);
-            let (q, q_err) = hit_point_error(p, b);
-            let n_l = (p[1] - p[0]).cross(p[2] - p[0]).normalize_or_zero();
-            let d = q - sp;
-            let dist = d.length();
-            let wi = d / dist;
-            let cos_l = n_l.dot(-wi);
-            let le = get3(&e_le, k);
-            let light_pdf = pdf_solid_angle(e_pmf[k], e_area[k], dist, cos_l);
-            let target = offset_ray_origin(q, q_err, n_l, -wi);
-            let seg = target - get3(&origin, k);
-            let len = seg.length();
-            let frame = Frame { s: get3(&fs, k), t: get3(&ft, k), n: get3(&fnn, k) };
-            set3(&mut e_wi_l, k, frame.to_local(wi));
-            set3(&mut e_dir, k, seg / len);
-            e_tmax[k] = len * (1.0 - SHADOW_EPSILON);
-            e_pdf[k] = light_pdf;
-            e_ok[k] = (dist > 0.0) & !(wi.dot(g) <= 0.0) & (e_double[k] | !(cos_l <= 0.0)) & !(le.max_element() <= 0.0) & (light_pdf > 0.0) & light_pdf.is_finite() & (len > 0.0);
-        }
-        if any_emitter {
-            if all_diffuse {
-                evaluate_lanes::<true>(&x, &e_wi_l, &mut e_f, &mut e_bsdf_pdf);
-            } else {
-                evaluate_lanes::<false>(&x, &e_wi_l, &mut e_f, &mut e_bsdf_pdf);
+        if e_sampled.contains(&true) {
+            for k in 0..L {
+                let p = [get3(&e_pos[0], k), get3(&e_pos[1], k), get3(&e_pos[2], k)];
+                let b = [e_bary[0][k], e_bary[1][k], e_bary[2][k]];
+                let sp = get3(&point, k);
+                let g = get3(&ng, k);
+                let (q, q_err) = hit_point_error(p, b);
+                let n_l = (p[1] - p[0]).cross(p[2] - p[0]).normalize_or_zero();
+                let d = q - sp;
+                let dist = d.length();
+                let wi = d / dist;
+                let cos_l = n_l.dot(-wi);
+                let le = get3(&e_le, k);
+                let light_pdf = solid_angle_density(e_pmf[k], e_area[k], dist, cos_l);
+                let target = offset_ray_origin(q, q_err, n_l, -wi);
+                let seg = target - get3(&origin, k);
+                let len = seg.length();
+                set3(&mut e_wi_l, k, frame_of(k).to_local(wi));
+                set3(&mut e_dir, k, seg / len);
+                e_tmax[k] = len * (1.0 - SHADOW_EPSILON);
+                e_pdf[k] = light_pdf;
+                e_ok[k] = e_sampled[k] & (dist > 0.0) & !(wi.dot(g) <= 0.0) & (e_double[k] | !(cos_l <= 0.0)) & !(le.max_element() <= 0.0) & (light_pdf > 0.0) & light_pdf.is_finite() & (len > 0.0);
             }
+            evaluate_lanes(&x, all_diffuse, &e_wi_l, &mut e_f, &mut e_bsdf_pdf);
         }
         // The other light samples' BSDF values, eight at a time in lanes.
         other_values.clear();
         for group in others.chunks(L) {
-            let mut y = BsdfLanesIn::default();
+            let mut y = BsdfLanes::default();
             let mut wi = [[0.0f32; L]; 3];
             for (j, o) in group.iter().enumerate() {
                 y.set(j, &x.get(o.lane, Vec2::ZERO));
@@ -350,11 +345,7 @@ impl PathIntegrator<'_> {
             }
             let mut f = [[0.0f32; L]; 3];
             let mut pdf = [0.0f32; L];
-            if group.iter().all(|o| x.diffuse[o.lane]) {
-                evaluate_lanes::<true>(&y, &wi, &mut f, &mut pdf);
-            } else {
-                evaluate_lanes::<false>(&y, &wi, &mut f, &mut pdf);
-            }
+            evaluate_lanes(&y, group.iter().all(|o| x.diffuse[o.lane]), &wi, &mut f, &mut pdf);
             other_values.extend((0..group.len()).map(|j| (get3(&f, j), pdf[j])));
         }
 
@@ -370,13 +361,9 @@ impl PathIntegrator<'_> {
                 self.add_light_estimate(path, &others[cursor].light, other_values[cursor]);
                 cursor += 1;
             }
-            if e_prim[k] != u32::MAX && e_ok[k] {
-                let f = get3(&e_f, k);
-                let shadow = Ray::new(get3(&origin, k), get3(&e_dir, k));
-                if !(f.max_element() <= 0.0) && !self.occluded(&shadow, e_tmax[k]) {
-                    let light_pdf = e_pdf[k];
-                    path.l += path.beta * (f * get3(&e_le, k) * (power_heuristic(light_pdf, e_bsdf_pdf[k]) / light_pdf));
-                }
+            if e_ok[k] {
+                let e = PendingLight { vertex: 0, wi_l: get3(&e_wi_l, k), radiance: get3(&e_le, k), light_pdf: Some(e_pdf[k]), shadow: Ray::new(get3(&origin, k), get3(&e_dir, k)), t_max: e_tmax[k] };
+                self.add_light_estimate(path, &e, (get3(&e_f, k), e_bsdf_pdf[k]));
             }
             while cursor < others.len() && others[cursor].lane == k {
                 self.add_light_estimate(path, &others[cursor].light, other_values[cursor]);
@@ -385,14 +372,11 @@ impl PathIntegrator<'_> {
         }
 
         // In lanes: the BSDF samples, their world directions.
+        let mut sampled = SampledLanes::default();
+        sample_lanes(&x, all_diffuse, &u_bsdf, &mut sampled);
         let mut s_wi = [[0.0f32; L]; 3];
-        let mut s_weight = [[0.0f32; L]; 3];
-        let mut s_pdf = [0.0f32; L];
-        let mut s_ok = [false; L];
-        if all_diffuse {
-            sample_lanes::<true>(&x, &u_bsdf, &fs, &ft, &fnn, &mut s_wi, &mut s_weight, &mut s_pdf, &mut s_ok);
-        } else {
-            sample_lanes::<false>(&x, &u_bsdf, &fs, &ft, &fnn, &mut s_wi, &mut s_weight, &mut s_pdf, &mut s_ok);
+        for k in 0..L {
+            set3(&mut s_wi, k, frame_of(k).to_world(get3(&sampled.wi, k)).normalize());
         }
 
         // Per lane: `continue_path` (Russian roulette, the next ray traced).
@@ -401,104 +385,12 @@ impl PathIntegrator<'_> {
                 continue;
             }
             let path = &mut paths[id as usize];
-            let goes_on = s_ok[k] && self.continue_along(path, get3(&origin, k), get3(&ng, k), get3(&s_wi, k), get3(&s_weight, k), s_pdf[k], || u_roulette[k]);
+            let goes_on = sampled.ok[k] && self.continue_along(path, get3(&origin, k), get3(&ng, k), get3(&s_wi, k), get3(&sampled.weight, k), sampled.pdf[k], || u_roulette[k]);
             if goes_on {
                 next.push(id);
             } else {
                 out[id as usize].radiance = path.l;
             }
         }
-    }
-
-    /// Adds a light sample's estimate to `path` where its BSDF value `f` (with density
-    /// `bsdf_pdf`) is not zero and its shadow ray is not blocked: a punctual light's `f · E`,
-    /// an environment sample's `f · Le · w_light / pdf_light`.
-    #[inline(always)]
-    fn add_light_estimate(&self, path: &mut PathState, e: &PendingLight, (f, bsdf_pdf): (Vec3, f32)) {
-        if !(f.max_element() <= 0.0) && !self.occluded(&e.shadow, e.t_max) {
-            path.l += match e.light_pdf {
-                None => path.beta * f * e.radiance,
-                Some(light_pdf) => path.beta * (f * e.radiance * (power_heuristic(light_pdf, bsdf_pdf) / light_pdf)),
-            };
-        }
-    }
-}
-
-/// [`EmissiveTriangles::pdf_solid_angle`] from the triangle's probability and area.
-#[inline(always)]
-fn pdf_solid_angle(pmf: f32, area: f32, distance: f32, cos_light: f32) -> f32 {
-    let c = cos_light.abs();
-    if pmf <= 0.0 || area <= 0.0 || c <= 0.0 {
-        return 0.0;
-    }
-    pmf / area * distance * distance / c
-}
-
-/// Eight [`SampleLane`]s (without their numbers) as one array per number.
-#[derive(Default)]
-struct BsdfLanesIn {
-    diffuse: [bool; L],
-    rho: Lanes3,
-    metallic: Lanes,
-    alpha: Lanes,
-    f0: Lanes3,
-    f90: Lanes,
-    wo: Lanes3,
-    ps: Lanes,
-    sd_wo: Lanes,
-}
-
-impl BsdfLanesIn {
-    #[inline(always)]
-    fn set(&mut self, k: usize, l: &SampleLane) {
-        self.diffuse[k] = l.diffuse;
-        set3(&mut self.rho, k, l.rho);
-        set3(&mut self.f0, k, l.f0);
-        set3(&mut self.wo, k, l.wo);
-        (self.metallic[k], self.alpha[k], self.f90[k], self.ps[k], self.sd_wo[k]) = (l.metallic, l.alpha, l.f90, l.ps, l.sd_wo);
-    }
-
-    #[inline(always)]
-    fn get(&self, k: usize, u: Vec2) -> SampleLane {
-        SampleLane {
-            diffuse: self.diffuse[k],
-            rho: get3(&self.rho, k),
-            metallic: self.metallic[k],
-            alpha: self.alpha[k],
-            f0: get3(&self.f0, k),
-            f90: self.f90[k],
-            wo: get3(&self.wo, k),
-            ps: self.ps[k],
-            sd_wo: self.sd_wo[k],
-            u,
-        }
-    }
-}
-
-/// The BSDFs' values and densities towards `wi` (local), in lanes.
-// `k` indexes the lanes, the inner dimension of every array: the loop over it is what
-// vectorises.
-#[allow(clippy::needless_range_loop)]
-#[inline(always)]
-fn evaluate_lanes<const ALL_DIFFUSE: bool>(x: &BsdfLanesIn, wi: &Lanes3, f: &mut Lanes3, pdf: &mut Lanes) {
-    for k in 0..L {
-        let (v, p) = evaluate_pdf_lane::<ALL_DIFFUSE>(&x.get(k, Vec2::ZERO), get3(wi, k));
-        set3(f, k, v);
-        pdf[k] = p;
-    }
-}
-
-/// The BSDFs' samples with numbers `u`, in lanes: their world directions (`to_world`,
-/// normalised), weights, densities and validity.
-#[allow(clippy::too_many_arguments)]
-#[inline(always)]
-fn sample_lanes<const ALL_DIFFUSE: bool>(x: &BsdfLanesIn, u: &[Lanes; 2], fs: &Lanes3, ft: &Lanes3, fnn: &Lanes3, wi_out: &mut Lanes3, weight: &mut Lanes3, pdf: &mut Lanes, ok: &mut [bool; L]) {
-    for k in 0..L {
-        let (wi, w, p, o) = sample_lane::<ALL_DIFFUSE>(x.get(k, Vec2::new(u[0][k], u[1][k])));
-        let frame = Frame { s: get3(fs, k), t: get3(ft, k), n: get3(fnn, k) };
-        set3(wi_out, k, frame.to_world(wi).normalize());
-        set3(weight, k, w);
-        pdf[k] = p;
-        ok[k] = o;
     }
 }
