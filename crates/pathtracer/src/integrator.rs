@@ -377,25 +377,45 @@ pub fn tangent_at(scene: &Scene, prim: u32, b: [f32; 3], tex_coord: u32, n: Vec3
 pub fn interaction(scene: &Scene, ray: &Ray, hit: &Hit) -> Interaction {
     let m = &scene.mesh;
     let idx = m.indices[hit.prim as usize];
-    let p = idx.map(|i| m.positions[i as usize]);
-    let (point, p_err) = hit_point_error(p, hit.b);
-    let ng_front = (p[1] - p[0]).cross(p[2] - p[0]).normalize_or_zero();
-    let ns = (0..3).fold(Vec3::ZERO, |acc, k| acc + hit.b[k] * m.normals.get(idx[k] as usize).copied().unwrap_or(Vec3::ZERO));
-    let ns = if ns.length_squared() > 1e-12 { ns } else { ng_front };
-    let ns_front = ns.normalize_or_zero();
-    let (ng, n) = facing_normals(ng_front, ns, ray.direction);
+    let g = hit_geometry(idx.map(|i| m.positions[i as usize]), idx.map(|i| m.normals.get(i as usize).copied().unwrap_or(Vec3::ZERO)), hit.b, ray.direction);
     Interaction {
         prim: hit.prim,
-        p: point,
-        p_err,
-        ng,
-        ng_front,
-        n,
-        ns_front,
+        p: g.p,
+        p_err: g.p_err,
+        ng: g.ng,
+        ng_front: g.ng_front,
+        n: g.n,
+        ns_front: g.ns_front,
         b: hit.b,
         attr: surface_attributes(scene, hit.prim, hit.b),
         material: m.material.get(hit.prim as usize).copied().unwrap_or(0),
     }
+}
+
+/// The geometric part of an [`Interaction`] (its fields of the same names).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct HitGeometry {
+    pub(crate) p: Vec3,
+    pub(crate) p_err: Vec3,
+    pub(crate) ng: Vec3,
+    pub(crate) ng_front: Vec3,
+    pub(crate) n: Vec3,
+    pub(crate) ns_front: Vec3,
+}
+
+/// The hit at barycentrics `b` of the triangle with vertices `p` and vertex normals `normals`
+/// (zero where the mesh has none) by a ray along `dir`: the point and its error bound, and the
+/// geometric and interpolated normals, facing the ray and of the front side. Shared by
+/// [`interaction`] and the path loop in lanes (one lane each).
+#[inline(always)]
+pub(crate) fn hit_geometry(p: [Vec3; 3], normals: [Vec3; 3], b: [f32; 3], dir: Vec3) -> HitGeometry {
+    let (point, p_err) = hit_point_error(p, b);
+    let ng_front = (p[1] - p[0]).cross(p[2] - p[0]).normalize_or_zero();
+    let ns = (0..3).fold(Vec3::ZERO, |acc, k| acc + b[k] * normals[k]);
+    let ns = if ns.length_squared() > 1e-12 { ns } else { ng_front };
+    let ns_front = ns.normalize_or_zero();
+    let (ng, n) = facing_normals(ng_front, ns, dir);
+    HitGeometry { p: point, p_err, ng, ng_front, n, ns_front }
 }
 
 /// The shading frame and the BSDF seen from `wo` (unit, world) at a path vertex: the

@@ -643,13 +643,14 @@ impl Renderer {
                                     for first in (s0..s0 + n as u32).step_by(8) {
                                         let count = (s0 + n as u32 - first).min(8) as usize;
                                         let mut lanes = SamplerLanes::default();
-                                        let samplers: [Sampler; 8] = std::array::from_fn(|k| pixel_sampler.with_sample(first + k as u32));
+                                        let mut samplers: [Sampler; 8] = std::array::from_fn(|k| pixel_sampler.with_sample(first + k as u32));
+                                        // The dimensions `next_2d` would draw.
+                                        let dims = std::array::from_fn(|k| samplers[k].skip(2));
                                         for (k, sampler) in samplers.iter().enumerate() {
                                             lanes.set(k, sampler);
                                         }
-                                        let u = lanes.get_2d(&[0; 8]);
-                                        for (k, mut sampler) in samplers.into_iter().take(count).enumerate() {
-                                            sampler.skip(2);
+                                        let u = lanes.get_2d(&dims);
+                                        for (k, sampler) in samplers.into_iter().take(count).enumerate() {
                                             batch.rays.push(rays.ray(i as f32 + u[0][k], j as f32 + u[1][k]));
                                             batch.samplers.push(sampler);
                                         }

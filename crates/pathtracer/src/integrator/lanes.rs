@@ -200,22 +200,17 @@ impl PathIntegrator<'_> {
             let p = [get3(&pos[0], k), get3(&pos[1], k), get3(&pos[2], k)];
             let b = [bary[0][k], bary[1][k], bary[2][k]];
             let d = get3(&dir, k);
-            let (pt, p_err) = hit_point_error(p, b);
-            let ngf = (p[1] - p[0]).cross(p[2] - p[0]).normalize_or_zero();
-            let ns = (0..3).fold(Vec3::ZERO, |acc, v| acc + b[v] * get3(&nrm[v], k));
-            let ns = if ns.length_squared() > 1e-12 { ns } else { ngf };
-            let ns_front = ns.normalize_or_zero();
-            let (g, nn) = facing_normals(ngf, ns, d);
+            let h = hit_geometry(p, [get3(&nrm[0], k), get3(&nrm[1], k), get3(&nrm[2], k)], b, d);
             let wo = -d;
-            let frame = shading_frame(ns_front, nn.dot(ns_front) < 0.0, wo);
-            set3(&mut point, k, pt);
-            set3(&mut ng, k, g);
-            set3(&mut ng_front, k, ngf);
+            let frame = shading_frame(h.ns_front, h.n.dot(h.ns_front) < 0.0, wo);
+            set3(&mut point, k, h.p);
+            set3(&mut ng, k, h.ng);
+            set3(&mut ng_front, k, h.ng_front);
             set3(&mut fs, k, frame.s);
             set3(&mut ft, k, frame.t);
             set3(&mut fnn, k, frame.n);
             set3(&mut wo_l, k, frame.to_local(wo));
-            set3(&mut origin, k, offset_ray_origin(pt, p_err, g, g));
+            set3(&mut origin, k, offset_ray_origin(h.p, h.p_err, h.ng, h.ng));
         }
         let frame_of = |k: usize| Frame { s: get3(&fs, k), t: get3(&ft, k), n: get3(&fnn, k) };
 
