@@ -308,11 +308,13 @@ impl CausticPaths {
             let splats: Vec<Vec<(u32, Vec3)>> = (batch..(batch + BATCH_CHUNKS).min(chunks))
                 .into_par_iter()
                 .map(|c| {
-                    let mut out = Vec::new();
-                    for k in c * CHUNK..((c + 1) * CHUNK).min(n) {
-                        self.trace(&eye, max_vertices, &key.with_sample(k as u32), &mut out);
-                    }
-                    out
+                    integ.tallied(|| {
+                        let mut out = Vec::new();
+                        for k in c * CHUNK..((c + 1) * CHUNK).min(n) {
+                            self.trace(&eye, max_vertices, &key.with_sample(k as u32), &mut out);
+                        }
+                        out
+                    })
                 })
                 .collect();
             for &(pixel, v) in splats.iter().flatten() {
@@ -350,11 +352,13 @@ impl CausticPaths {
         let splats: u64 = (0..pilot.div_ceil(PILOT_CHUNK))
             .into_par_iter()
             .map(|c| {
-                let mut out = Vec::new();
-                for k in c * PILOT_CHUNK..((c + 1) * PILOT_CHUNK).min(pilot) {
-                    self.trace(&eye, max_vertices, &key.with_sample(k as u32), &mut out);
-                }
-                out.len() as u64
+                integ.tallied(|| {
+                    let mut out = Vec::new();
+                    for k in c * PILOT_CHUNK..((c + 1) * PILOT_CHUNK).min(pilot) {
+                        self.trace(&eye, max_vertices, &key.with_sample(k as u32), &mut out);
+                    }
+                    out.len() as u64
+                })
             })
             .sum();
         if splats as f64 >= MIN_YIELD * pilot as f64 { n } else { 0 }

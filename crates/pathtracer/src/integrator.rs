@@ -488,6 +488,53 @@ struct PendingLight {
     t_max: f32,
 }
 
+/// Rays traced, by query: closest hits (camera, bounce, ground-truth and light-tracer rays)
+/// and any-hit (shadow) rays.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct RayCounts {
+    /// Closest-hit queries.
+    pub closest: u64,
+    /// Any-hit (shadow) queries.
+    pub any_hit: u64,
+}
+
+impl RayCounts {
+    /// Both counts together.
+    pub fn total(&self) -> u64 {
+        self.closest + self.any_hit
+    }
+}
+
+impl std::ops::Add for RayCounts {
+    type Output = RayCounts;
+    fn add(self, o: RayCounts) -> RayCounts {
+        RayCounts { closest: self.closest + o.closest, any_hit: self.any_hit + o.any_hit }
+    }
+}
+
+thread_local! {
+    /// The rays this thread has traced through any [`PathIntegrator`] (running totals, read
+    /// before and after a task by [`PathIntegrator::tallied`]): a thread-local counter costs
+    /// a ray an addition, where a shared atomic one would cost a locked instruction.
+    static THREAD_RAYS: std::cell::Cell<RayCounts> = const { std::cell::Cell::new(RayCounts { closest: 0, any_hit: 0 }) };
+}
+
+/// Adds to this thread's ray counts.
+#[inline(always)]
+fn count_rays(closest: u64, any_hit: u64) {
+    THREAD_RAYS.with(|c| {
+        let v = c.get();
+        c.set(RayCounts { closest: v.closest.wrapping_add(closest), any_hit: v.any_hit.wrapping_add(any_hit) });
+    });
+}
+
+/// A [`PathIntegrator`]'s rays, added once per task ([`PathIntegrator::tallied`]).
+#[derive(Debug, Default)]
+struct RayTally {
+    closest: std::sync::atomic::AtomicU64,
+    any_hit: std::sync::atomic::AtomicU64,
+}
+
 /// A path tracer over one scene (see the module docs).
 pub struct PathIntegrator<'a> {
     /// The scene.
@@ -510,6 +557,8 @@ pub struct PathIntegrator<'a> {
     pub lane_materials: Option<&'a LaneMaterials>,
     /// Settings.
     pub settings: IntegratorSettings,
+    /// The rays of the tasks run through [`PathIntegrator::tallied`].
+    tally: RayTally,
 }
 
 impl std::fmt::Debug for PathIntegrator<'_> {
@@ -518,10 +567,46 @@ impl std::fmt::Debug for PathIntegrator<'_> {
     }
 }
 
+impl<'a> PathIntegrator<'a> {
+    /// The integrator over `scene` with its acceleration structure, emitters, resolved
+    /// materials and settings; no caustic light tracing ([`PathIntegrator::caustics`]).
+    pub fn new(
+        scene: &'a Scene,
+        accel: &'a Accel,
+        emitters: &'a EmissiveTriangles,
+        uniform_surfaces: &'a [Option<SurfaceMaterial>],
+        lane_materials: Option<&'a LaneMaterials>,
+        settings: IntegratorSettings,
+    ) -> Self {
+        PathIntegrator { scene, accel, emitters, caustics: None, uniform_surfaces, lane_materials, settings, tally: RayTally::default() }
+    }
+
+    /// Runs `f` (one sequential task, on this thread) and adds the rays it traced to
+    /// [`PathIntegrator::rays_traced`]. The count is exact and the same for any thread count
+    /// as long as `f` runs no parallel work of its own (a thread waiting on a parallel join
+    /// may run other tasks, whose rays would then count here too).
+    pub fn tallied<R>(&self, f: impl FnOnce() -> R) -> R {
+        use std::sync::atomic::Ordering::Relaxed;
+        let before = THREAD_RAYS.with(|c| c.get());
+        let r = f();
+        let after = THREAD_RAYS.with(|c| c.get());
+        self.tally.closest.fetch_add(after.closest.wrapping_sub(before.closest), Relaxed);
+        self.tally.any_hit.fetch_add(after.any_hit.wrapping_sub(before.any_hit), Relaxed);
+        r
+    }
+
+    /// The rays traced so far by the tasks run through [`PathIntegrator::tallied`].
+    pub fn rays_traced(&self) -> RayCounts {
+        use std::sync::atomic::Ordering::Relaxed;
+        RayCounts { closest: self.tally.closest.load(Relaxed), any_hit: self.tally.any_hit.load(Relaxed) }
+    }
+}
+
 impl PathIntegrator<'_> {
     /// Closest hit honouring alpha masks and back-face culling.
     #[inline(always)]
     pub fn intersect(&self, ray: &Ray) -> Option<Hit> {
+        count_rays(1, 0);
         self.accel.closest_hit(ray, f32::INFINITY, |prim, h| alpha_test(self.scene, ray, prim, h.b))
     }
 
@@ -529,12 +614,14 @@ impl PathIntegrator<'_> {
     /// of rays ([`Accel::closest_hits`]).
     #[inline(always)]
     pub fn intersect_many(&self, rays: &[Ray], out: &mut [Option<Hit>]) {
+        count_rays(rays.len() as u64, 0);
         self.accel.closest_hits(rays, f32::INFINITY, |r, prim, h| alpha_test(self.scene, &rays[r], prim, h.b), out)
     }
 
     /// Whether anything blocks `ray` before `t_max`.
     #[inline(always)]
     pub fn occluded(&self, ray: &Ray, t_max: f32) -> bool {
+        count_rays(0, 1);
         self.accel.occluded(ray, t_max, |prim, h| alpha_test(self.scene, ray, prim, h.b))
     }
 

@@ -59,7 +59,7 @@ use crate::PathTracerError;
 use crate::accel::{Accel, AccelParams, Hit};
 use crate::caustics::CausticPaths;
 use crate::geometry::{Ray, ray_triangle_plane_distance_f64};
-use crate::integrator::{IntegratorSettings, PathIntegrator, interaction};
+use crate::integrator::{IntegratorSettings, PathIntegrator, RayCounts, interaction};
 use crate::light::{EmissiveTriangles, Environment, EnvironmentMap};
 use crate::material::SurfaceMaterial;
 use std::path::{Path, PathBuf};
@@ -254,6 +254,10 @@ pub struct ViewOutput {
     pub nonfinite_samples: u64,
     /// Minimum and maximum pixel-centre hit distance (`f64`), `None` when nothing was hit.
     pub distance_range: Option<(f64, f64)>,
+    /// The rays the view traced: its path samples', the ground truth's, the emitter-edge
+    /// pixels' and the caustic light tracer's (its pilot included). The same for any thread
+    /// count.
+    pub rays: RayCounts,
 }
 
 /// One pixel's exact ground truth: (z-depth, distance, unit normal, `f64` distance).
@@ -505,15 +509,7 @@ impl Renderer {
 
     /// The path integrator over this renderer's scene with `settings`.
     fn integrator_with(&self, settings: IntegratorSettings) -> PathIntegrator<'_> {
-        PathIntegrator {
-            scene: &self.scene,
-            accel: &self.accel,
-            emitters: &self.emitters,
-            caustics: None,
-            uniform_surfaces: &self.uniform_surfaces,
-            lane_materials: self.lane_materials.as_ref(),
-            settings,
-        }
+        PathIntegrator::new(&self.scene, &self.accel, &self.emitters, &self.uniform_surfaces, self.lane_materials.as_ref(), settings)
     }
 
     /// A world-space (`f64`) ray moved into the scene's local `f32` frame.
@@ -603,82 +599,84 @@ impl Renderer {
         let rows: Vec<Vec<PixelOut>> = (0..h)
             .into_par_iter()
             .map(|j| {
-                let mut batch = PathBatch::default();
-                (0..w)
-                    .map(|i| {
-                        let pixel = j as u64 * w as u64 + i as u64;
-                        let mut sum = [0.0f64; 3];
-                        let mut hits = 0u32;
-                        let mut nonfinite = 0u64;
-                        // Emitter-edge pixels: the camera vertex's emission from `split` rays per
-                        // sample (their own stratified set), the rest of each path as usual.
-                        let split = edges.as_ref().filter(|e| e.flagged[pixel as usize]).map(|e| e.split);
-                        if let Some(m) = split {
-                            let edge_sampler = Sampler::new(edge_seed, view_index, pixel, 0);
-                            for e in 0..spp * m {
-                                let u = edge_sampler.with_sample(e).next_2d();
-                                let le = integ.primary_emission(&rays.ray(i as f32 + u.x, j as f32 + u.y)) / m as f32;
-                                if le.is_finite() {
-                                    sum[0] += le.x as f64;
-                                    sum[1] += le.y as f64;
-                                    sum[2] += le.z as f64;
-                                } else {
-                                    nonfinite += 1;
-                                }
-                            }
-                        }
-                        let pixel_sampler = Sampler::new(settings.seed, view_index, pixel, 0);
-                        // The pixel's samples traced as batches of paths (the same bits as one
-                        // path at a time), summed in sample order.
-                        for s0 in (0..spp).step_by(PATH_BATCH) {
-                            let n = (spp - s0).min(PATH_BATCH as u32) as usize;
-                            batch.samplers.clear();
-                            batch.rays.clear();
-                            // Each sample's first two numbers (`next_2d`) place its camera ray:
-                            // eight samples' at a time in lanes, at the SIMD level of the path
-                            // loop.
-                            integ.accel.at_level(
-                                #[inline(always)]
-                                || {
-                                    for first in (s0..s0 + n as u32).step_by(8) {
-                                        let count = (s0 + n as u32 - first).min(8) as usize;
-                                        let mut lanes = SamplerLanes::default();
-                                        let mut samplers: [Sampler; 8] = std::array::from_fn(|k| pixel_sampler.with_sample(first + k as u32));
-                                        // The dimensions `next_2d` would draw.
-                                        let dims = std::array::from_fn(|k| samplers[k].skip(2));
-                                        for (k, sampler) in samplers.iter().enumerate() {
-                                            lanes.set(k, sampler);
-                                        }
-                                        let u = lanes.get_2d(&dims);
-                                        for (k, sampler) in samplers.into_iter().take(count).enumerate() {
-                                            batch.rays.push(rays.ray(i as f32 + u[0][k], j as f32 + u[1][k]));
-                                            batch.samplers.push(sampler);
-                                        }
+                integ.tallied(|| {
+                    let mut batch = PathBatch::default();
+                    (0..w)
+                        .map(|i| {
+                            let pixel = j as u64 * w as u64 + i as u64;
+                            let mut sum = [0.0f64; 3];
+                            let mut hits = 0u32;
+                            let mut nonfinite = 0u64;
+                            // Emitter-edge pixels: the camera vertex's emission from `split` rays per
+                            // sample (their own stratified set), the rest of each path as usual.
+                            let split = edges.as_ref().filter(|e| e.flagged[pixel as usize]).map(|e| e.split);
+                            if let Some(m) = split {
+                                let edge_sampler = Sampler::new(edge_seed, view_index, pixel, 0);
+                                for e in 0..spp * m {
+                                    let u = edge_sampler.with_sample(e).next_2d();
+                                    let le = integ.primary_emission(&rays.ray(i as f32 + u.x, j as f32 + u.y)) / m as f32;
+                                    if le.is_finite() {
+                                        sum[0] += le.x as f64;
+                                        sum[1] += le.y as f64;
+                                        sum[2] += le.z as f64;
+                                    } else {
+                                        nonfinite += 1;
                                     }
-                                },
-                            );
-                            batch.out.resize(n, crate::integrator::RadianceSample { radiance: Vec3::ZERO, primary_hit: false });
-                            integ.radiance_batch(&batch.rays, &mut batch.samplers, split.is_none(), &mut batch.out);
-                            for r in &batch.out {
-                                let mut rad = r.radiance;
-                                if !rad.is_finite() {
-                                    nonfinite += 1;
-                                    rad = Vec3::ZERO;
                                 }
-                                if r.primary_hit {
-                                    hits += 1;
-                                }
-                                sum[0] += rad.x as f64;
-                                sum[1] += rad.y as f64;
-                                sum[2] += rad.z as f64;
                             }
-                        }
-                        let inv = if spp > 0 { 1.0 / spp as f64 } else { 0.0 };
-                        let alpha = if settings.transparent_background { hits as f64 * inv } else if spp > 0 { 1.0 } else { 0.0 };
-                        let gt = self.pixel_ground_truth(camera, i, j);
-                        PixelOut { rgb: [sum[0] * inv, sum[1] * inv, sum[2] * inv], alpha: alpha as f32, gt, nonfinite }
-                    })
-                    .collect()
+                            let pixel_sampler = Sampler::new(settings.seed, view_index, pixel, 0);
+                            // The pixel's samples traced as batches of paths (the same bits as one
+                            // path at a time), summed in sample order.
+                            for s0 in (0..spp).step_by(PATH_BATCH) {
+                                let n = (spp - s0).min(PATH_BATCH as u32) as usize;
+                                batch.samplers.clear();
+                                batch.rays.clear();
+                                // Each sample's first two numbers (`next_2d`) place its camera ray:
+                                // eight samples' at a time in lanes, at the SIMD level of the path
+                                // loop.
+                                integ.accel.at_level(
+                                    #[inline(always)]
+                                    || {
+                                        for first in (s0..s0 + n as u32).step_by(8) {
+                                            let count = (s0 + n as u32 - first).min(8) as usize;
+                                            let mut lanes = SamplerLanes::default();
+                                            let mut samplers: [Sampler; 8] = std::array::from_fn(|k| pixel_sampler.with_sample(first + k as u32));
+                                            // The dimensions `next_2d` would draw.
+                                            let dims = std::array::from_fn(|k| samplers[k].skip(2));
+                                            for (k, sampler) in samplers.iter().enumerate() {
+                                                lanes.set(k, sampler);
+                                            }
+                                            let u = lanes.get_2d(&dims);
+                                            for (k, sampler) in samplers.into_iter().take(count).enumerate() {
+                                                batch.rays.push(rays.ray(i as f32 + u[0][k], j as f32 + u[1][k]));
+                                                batch.samplers.push(sampler);
+                                            }
+                                        }
+                                    },
+                                );
+                                batch.out.resize(n, crate::integrator::RadianceSample { radiance: Vec3::ZERO, primary_hit: false });
+                                integ.radiance_batch(&batch.rays, &mut batch.samplers, split.is_none(), &mut batch.out);
+                                for r in &batch.out {
+                                    let mut rad = r.radiance;
+                                    if !rad.is_finite() {
+                                        nonfinite += 1;
+                                        rad = Vec3::ZERO;
+                                    }
+                                    if r.primary_hit {
+                                        hits += 1;
+                                    }
+                                    sum[0] += rad.x as f64;
+                                    sum[1] += rad.y as f64;
+                                    sum[2] += rad.z as f64;
+                                }
+                            }
+                            let inv = if spp > 0 { 1.0 / spp as f64 } else { 0.0 };
+                            let alpha = if settings.transparent_background { hits as f64 * inv } else if spp > 0 { 1.0 } else { 0.0 };
+                            let gt = self.pixel_ground_truth(camera, i, j);
+                            PixelOut { rgb: [sum[0] * inv, sum[1] * inv, sum[2] * inv], alpha: alpha as f32, gt, nonfinite }
+                        })
+                        .collect()
+                })
             })
             .collect();
         let (caustic, caustic_nonfinite) = self.caustics.render(&integ, &rays, (w, h), settings.seed, view_index, light_paths);
@@ -708,7 +706,14 @@ impl Renderer {
                 }
             }
         }
-        ViewOutput { color, ground_truth: gt, samples: n as u64 * spp as u64, nonfinite_samples: nonfinite + caustic_nonfinite, distance_range: range }
+        ViewOutput {
+            color,
+            ground_truth: gt,
+            samples: n as u64 * spp as u64,
+            nonfinite_samples: nonfinite + caustic_nonfinite,
+            distance_range: range,
+            rays: integ.rays_traced(),
+        }
     }
 
     /// The pixels of `camera` on an edge of a directly seen emitter, and how many camera rays
@@ -722,7 +727,7 @@ impl Renderer {
         // The emission seen along the ray through every pixel corner.
         let corners: Vec<Vec<Vec3>> = (0..=h)
             .into_par_iter()
-            .map(|j| (0..=w).map(|i| integ.primary_emission(&self.local_ray(&camera.pixel_ray(i as f64, j as f64)))).collect())
+            .map(|j| integ.tallied(|| (0..=w).map(|i| integ.primary_emission(&self.local_ray(&camera.pixel_ray(i as f64, j as f64)))).collect()))
             .collect();
         let flagged: Vec<bool> = (0..w * h)
             .map(|k| {
@@ -1655,6 +1660,29 @@ mod tests {
     }
 
     #[test]
+    fn a_view_counts_the_rays_it_traces() {
+        // A single-sided Lambertian floor filling the view, lit by one point light above it
+        // and by nothing else (no emissive triangle, a black environment, no caster).
+        let mut b = Builder::new();
+        let m = b.material(0.5, 0.0, false);
+        b.quad([Vec3::new(-50.0, 0.0, 50.0), Vec3::new(50.0, 0.0, 50.0), Vec3::new(50.0, 0.0, -50.0), Vec3::new(-50.0, 0.0, -50.0)], 1, m);
+        b.lights.push(Light::Point { position: Vec3::new(0.0, 3.0, 0.0), intensity: Vec3::splat(10.0), range: None });
+        let r = Renderer::new(b.build(DVec3::ZERO), &AccelParams::medium_build()).unwrap();
+        let cam = camera(12, 8, 40.0, DVec3::new(0.0, 2.0, 0.5), DVec3::ZERO);
+        let pixels = 12 * 8;
+        // Emission only: one camera ray per sample and one ground-truth ray per pixel.
+        let v = r.render_view(&cam, 0, &settings(8, 0, 0.0, false));
+        assert_eq!(v.samples, 8 * pixels);
+        assert_eq!(v.rays, RayCounts { closest: v.samples + pixels, any_hit: 0 });
+        // Direct light: every camera ray hits the floor, whose vertex traces one shadow ray to
+        // the light and at most one continuation ray (which escapes).
+        let v = r.render_view(&cam, 0, &settings(8, 1, 0.0, false));
+        assert_eq!(v.rays.any_hit, v.samples);
+        assert!((v.samples + pixels..=2 * v.samples + pixels).contains(&v.rays.closest), "{:?}", v.rays);
+        assert!(v.ground_truth.alpha.iter().all(|&a| a == 1.0));
+    }
+
+    #[test]
     fn renders_are_bit_identical_across_thread_counts_and_simd_widths() {
         let mut b = Builder::new();
         let m = b.material(0.7, 0.0, false);
@@ -1686,6 +1714,9 @@ mod tests {
         let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
         assert_eq!(bits(&a.color.data), bits(&b2.color.data));
         assert_eq!(a.ground_truth, b2.ground_truth);
+        // So are the rays counted (the path samples', the light tracer's and its pilot's).
+        assert_eq!(a.rays, b2.rays);
+        assert!(a.rays.closest > a.samples && a.rays.any_hit > 0);
         assert!(a.color.data.iter().all(|x| x.is_finite()) && a.color.data.iter().any(|&x| x > 0.0));
         // A different view index or seed changes the noise.
         let c = r.render_view(&cam, 4, &s);
