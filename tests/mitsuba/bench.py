@@ -28,6 +28,17 @@ lists them all (in render order). With `--serve` the caller asks for each export
 it (`serve()`): `cargo xtask bench render` right after its own renders of that image.
 Scene building is not timed. Samples are camera samples: width x height x spp.
 
+Rays per sample: Mitsuba keeps no count of the rays it traces, so `rays_per_sample` (per BSDF
+mode, on each of its records; not timed) replays the control flow of its `path` integrator
+(src/integrators/path.cpp of Mitsuba 3.5 and later) as an evaluated Dr.Jit loop on the same scene
+and counts the live lanes: one closest-hit ray per live path and iteration (the camera ray
+included), and one shadow ray (`ray_test` inside `sample_emitter_direction`) per live path whose
+BSDF has a smooth component and whose emitter sample has a non-zero density. The loop continues
+as path.cpp's does: `depth + 1 < max_depth`, a valid hit, then Russian roulette from `rr_depth`
+with survival min(0.95, max throughput x eta^2), and stops where the throughput is zero. The
+counts are means over the render's samples (the independent sampler; the sampler changes which
+paths are drawn, not how long they are on average).
+
 Error: when the export folder holds `reference.npy` (our high-spp RGB image of the same camera)
 and `reference_noise.json` (that image's own mean squared noise), `mse` is the mean squared RGB
 error of the timed renders against it, less the reference's noise, the median over the renders
@@ -120,6 +131,51 @@ def timed_render(mi, dr, scene, spp, seed):
     return time.perf_counter() - t, img
 
 
+def ray_counts(mi, dr, scene, spp, max_depth, rr_depth, seed=7):
+    """Closest-hit and shadow rays per camera sample of Mitsuba's `path` integrator on `scene`
+    (see the module docs): its loop replayed on `spp` samples of every pixel."""
+    sensor = scene.sensors()[0]
+    size = sensor.film().crop_size()
+    n = int(size.x) * int(size.y) * spp
+    sampler = mi.load_dict({"type": "independent"})
+    sampler.seed(seed, n)
+    idx = dr.arange(mi.UInt32, n) // spp
+    pos = mi.Vector2f(mi.Float(idx % size.x), mi.Float(idx // size.x)) + sampler.next_2d()
+    ray, _ = sensor.sample_ray(0.0, 0.5, pos / mi.Vector2f(size), mi.Point2f(0.5))
+    beta = dr.full(mi.Spectrum, 1.0, n)
+    eta = dr.full(mi.Float, 1.0, n)
+    active = dr.full(mi.Bool, True, n)
+    depth = dr.zeros(mi.UInt32, n)
+    closest = shadow = 0
+
+    def count(mask):
+        return int(dr.count(mask)[0]) if dr.width(dr.count(mask)) > 0 else 0
+
+    for _ in range(max_depth + 1):
+        live = count(active)
+        if live == 0:
+            break
+        closest += live
+        si = scene.ray_intersect(ray, active)
+        active_next = active & (depth + 1 < max_depth) & si.is_valid()
+        bsdf = si.bsdf(ray)
+        active_em = active_next & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
+        ds, _ = scene.sample_emitter_direction(si, sampler.next_2d(), False, active_em)
+        shadow += count(active_em & (ds.pdf != 0.0))
+        bs, weight = bsdf.sample(mi.BSDFContext(), si, sampler.next_1d(), sampler.next_2d(), active_next)
+        ray = si.spawn_ray(si.to_world(bs.wo))
+        beta = dr.select(active_next, beta * weight, beta)
+        eta = dr.select(active_next, eta * bs.eta, eta)
+        depth = dr.select(active & si.is_valid(), depth + 1, depth)
+        beta_max = dr.max(beta)
+        rr_prob = dr.minimum(beta_max * eta * eta, 0.95)
+        rr_active = depth >= rr_depth
+        beta = dr.select(rr_active, beta / rr_prob, beta)
+        active = active_next & (~rr_active | (sampler.next_1d() < rr_prob)) & (beta_max != 0.0)
+        dr.eval(ray, beta, eta, depth, active)
+    return {"closest": closest / n, "shadow": shadow / n}
+
+
 def load_reference(folder):
     """Our reference image, its noise and the mask of the pixels to measure (all without
     `reference_mask.npy`)."""
@@ -168,6 +224,7 @@ class Bench:
         cam = man["cameras"][0]
         samples = cam["width"] * cam["height"] * spp
         out = []
+        rays = {}
         for mode, sampler in [(m, s) for m in args.modes.split(",") for s in args.samplers.split(",")]:
             rec = {"export": folder, "scene": man["scene"], "variant": self.variant, "mode": mode, "sampler": sampler, "width": cam["width"],
                    "height": cam["height"], "spp": spp, "max_depth": int(man["settings"]["max_bounces"]) + 1, "samples": samples}
@@ -184,6 +241,9 @@ class Bench:
                 rec["rr_depth"] = args.rr_depth
                 rec["first_seconds"] = timed_render(mi, dr, scene, spp, 0)[0]
                 finish(rec, [timed_render(mi, dr, scene, spp, 1 + k) for k in range(max(1, runs))], folder)
+                if mode not in rays:  # once per mode, after its timings
+                    rays[mode] = ray_counts(mi, dr, scene, spp, rec["max_depth"], args.rr_depth)
+                rec["rays_per_sample"] = rays[mode]
             except scene_loader.Unsupported as e:
                 rec["error"] = f"unsupported: {e}"
             out.append(rec)

@@ -824,12 +824,20 @@ struct CmpRun {
     /// several catches a firefly of 10^4 in one sample, for either renderer, and the mean of a
     /// few renders is then decided by luck).
     mse: Vec<f64>,
+    /// The rays the timed renders traced, all of them together ([`pathtracer::render::ViewOutput::rays`]).
+    rays: pathtracer::integrator::RayCounts,
 }
 
 impl CmpRun {
     /// Samples per second of each timed render.
     fn rate(&self) -> Spread {
         Spread::of(&self.seconds.iter().map(|s| self.samples as f64 / s.max(1e-9)).collect::<Vec<_>>())
+    }
+
+    /// Closest-hit and any-hit rays per camera sample, over the timed renders.
+    fn rays_per_sample(&self) -> [f64; 2] {
+        let n = (self.samples as f64 * self.seconds.len() as f64).max(1.0);
+        [self.rays.closest as f64 / n, self.rays.any_hit as f64 / n]
     }
 }
 
@@ -861,14 +869,16 @@ fn compare_run(
     let mut times = Vec::new();
     let mut errors = Vec::new();
     let mut samples = 0;
+    let mut rays = pathtracer::integrator::RayCounts::default();
     for k in 0..runs {
         let t = std::time::Instant::now();
         let out = renderer.render_view(cam, 10 + k as u32, settings);
         times.push(t.elapsed().as_secs_f64());
         samples = out.samples;
+        rays = rays + out.rays;
         errors.push(mse(&rgb_of(&out.color), &reference, Some(&keep)) - ref_noise);
     }
-    Ok(CmpRun { seconds: times, samples, mse: errors })
+    Ok(CmpRun { seconds: times, samples, mse: errors, rays })
 }
 
 /// Our figures for one scene and material model, with its export for Mitsuba.
@@ -990,6 +1000,7 @@ fn bench_render_mitsuba(ours: &[OursQuick], runs: usize, mitsuba: &MitsubaState,
             "seconds": Spread::of(&o.cmp.seconds),
             "samples_per_s": o.cmp.rate(),
             "mse": Spread::of(&o.cmp.mse),
+            "rays_per_sample": { "closest": o.cmp.rays_per_sample()[0], "any_hit": o.cmp.rays_per_sample()[1] },
         })
     };
     // Without Mitsuba's figures, ours alone: enough to compare two builds of ours (error ×
@@ -1135,10 +1146,12 @@ fn bench_render_mitsuba(ours: &[OursQuick], runs: usize, mitsuba: &MitsubaState,
                 "ratio_range": speed_range,
                 "equal_error_speedup": eq,
                 "equal_error_speedup_range": eq_range,
+                "rays_per_sample": t["rays_per_sample"],
             }));
         }
         rows.push(serde_json::json!({ "scene": o.scene, "model": o.model, "ours": ours_json(o), "mitsuba": mitsuba }));
     }
+    ray_work_table(report, ours, &lines);
     for (worst, target, what) in [(worst_speed, 1.0, "raw samples/s >= 1.0x Mitsuba"), (worst_eq, 2.0, ">= 2x at equal error")] {
         if let Some((w, r, row)) = worst {
             report.line(format!(
@@ -1150,6 +1163,55 @@ fn bench_render_mitsuba(ours: &[OursQuick], runs: usize, mitsuba: &MitsubaState,
         }
     }
     Ok(rows)
+}
+
+/// How many rays a camera sample traces in each renderer, and the raw speed ratio per ray:
+/// ours counted ([`pathtracer::render::ViewOutput::rays`], over the timed renders), Mitsuba's
+/// from its `path` integrator's loop replayed on the same scene (`rays_per_sample` of
+/// `tests/mitsuba/bench.py`). Our samples trace more rays (a shadow ray to every punctual
+/// light, paths kept longer, the light tracer's paths), so samples/s alone compares unequal
+/// work; rays/s inside the render does not.
+fn ray_work_table(report: &mut Report, ours: &[OursQuick], lines: &[serde_json::Value]) {
+    let mut header = false;
+    for o in ours {
+        let dir = o.export.display().to_string();
+        // Mitsuba's `independent` row: its default sampler, and its fastest.
+        let Some(t) = lines.iter().find(|t| t["export"].as_str() == Some(dir.as_str()) && t["sampler"].as_str() == Some("independent")) else { continue };
+        let (Some(mc), Some(ms)) = (t["rays_per_sample"]["closest"].as_f64(), t["rays_per_sample"]["shadow"].as_f64()) else { continue };
+        let Some(mi_times) = t["times"].as_array().filter(|a| !a.is_empty()) else { continue };
+        let mi_samples = t["samples"].as_f64().unwrap_or(0.0);
+        let mi_rate = Spread::of(&mi_times.iter().filter_map(|v| v.as_f64()).map(|s| mi_samples / s.max(1e-9)).collect::<Vec<_>>());
+        let [oc, oa] = o.cmp.rays_per_sample();
+        let speed = o.cmp.rate().median / mi_rate.median;
+        let work = (oc + oa) / (mc + ms).max(1e-9);
+        if !header {
+            report.line(
+                "rays per camera sample, ours counted (closest-hit + any-hit queries of the timed renders: path samples, ground truth, \
+                 emitter-edge pixels, light tracer) and Mitsuba's from its `path` integrator's loop replayed on the same scene (tests/mitsuba/bench.py \
+                 ray_counts: closest hits + shadow rays); speed = our samples/s over Mitsuba's `independent` (as above); per ray = speed x our rays \
+                 per sample / Mitsuba's: the ratio of rays traced per second within the render",
+            );
+            report.line(format!(
+                "{:<10} {:<9} {:>11} {:>9} {:>9} {:>11} {:>9} {:>9} {:>9} {:>8} {:>8}",
+                "scene", "model", "ours closest", "any-hit", "total", "Mi closest", "shadow", "total", "ours/Mi", "speed", "per ray"
+            ));
+            header = true;
+        }
+        report.line(format!(
+            "{:<10} {:<9} {:>11.3} {:>9.3} {:>9.3} {:>11.3} {:>9.3} {:>9.3} {:>8.2}x {:>7.2}x {:>7.2}x",
+            o.scene,
+            o.model,
+            oc,
+            oa,
+            oc + oa,
+            mc,
+            ms,
+            mc + ms,
+            work,
+            speed,
+            speed * work
+        ));
+    }
 }
 
 /// Whether a ratio meets `target`, from its median and its quartile range (our quartile
@@ -1183,6 +1245,30 @@ for line in sys.stdin:
     else:
         sys.exit(3)
 "#;
+
+    #[test]
+    fn the_ray_table_weighs_the_speed_ratio_by_the_rays_each_sample_traces() {
+        // Ours: 100 samples in 1 s with 300 closest-hit and 100 any-hit rays (4 per sample);
+        // Mitsuba: 100 samples in 0.5 s with 2 rays per sample. Half the samples/s, twice the
+        // rays per sample: the same rays per second.
+        let ours = OursQuick {
+            scene: "s".into(),
+            model: "Lambert",
+            cmp: CmpRun { seconds: vec![1.0], samples: 100, mse: vec![0.0], rays: pathtracer::integrator::RayCounts { closest: 300, any_hit: 100 } },
+            export: "dir".into(),
+            mitsuba: None,
+        };
+        let mi = serde_json::json!({ "export": "dir", "sampler": "independent", "samples": 100, "times": [0.5], "rays_per_sample": { "closest": 1.5, "shadow": 0.5 } });
+        let mut report = Report(String::new());
+        ray_work_table(&mut report, std::slice::from_ref(&ours), &[mi]);
+        let row = report.0.lines().last().unwrap();
+        let cols: Vec<&str> = row.split_whitespace().collect();
+        assert_eq!(&cols[2..], ["3.000", "1.000", "4.000", "1.500", "0.500", "2.000", "2.00x", "0.50x", "1.00x"], "{row}");
+        // No row without Mitsuba's counts.
+        let mut report = Report(String::new());
+        ray_work_table(&mut report, &[ours], &[serde_json::json!({ "export": "dir", "sampler": "independent", "samples": 100, "times": [0.5] })]);
+        assert!(report.0.is_empty());
+    }
 
     #[test]
     fn the_mitsuba_server_answers_requests_and_stops_at_its_first_error() {
