@@ -300,7 +300,8 @@ pub(super) fn traverse<
                     while m != 0 {
                         let k = m.trailing_zeros() as usize;
                         m &= m - 1;
-                        let e = (t_near[k].to_bits() as u64) << 32 | node.child[k] as u64;
+                        // The any-hit query's limit never shrinks: its entries need no distance.
+                        let e = if NEAREST_FIRST { (t_near[k].to_bits() as u64) << 32 } else { 0 } | node.child[k] as u64;
                         if sp < N {
                             let mut j = sp;
                             while NEAREST_FIRST && j > base && stack[j - 1] < e {
@@ -326,7 +327,7 @@ pub(super) fn traverse<
             } else {
                 return;
             };
-            if f32::from_bits((e >> 32) as u32) <= limit {
+            if !NEAREST_FIRST || f32::from_bits((e >> 32) as u32) <= limit {
                 cur = e as u32;
                 break;
             }
