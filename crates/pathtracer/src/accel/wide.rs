@@ -249,7 +249,9 @@ impl WideTest for super::EightWide {
 /// Nearest-child-first traversal of `bvh` for ray `r` up to `limit`: `leaf(id)` tests BVH
 /// primitive `id` and returns `Some(t)` to shrink the limit to `t`, or `None`; it returns
 /// `ControlFlow::Break` to stop (any-hit queries). Children are pushed sorted by entry distance
-/// (the nearest popped first) and skipped when popped beyond the current limit.
+/// (the nearest popped first) and skipped when popped beyond the current limit; without
+/// `NEAREST_FIRST` (any-hit queries, whose limit never shrinks) they are pushed unsorted,
+/// without their distances, and every one pushed is visited.
 #[inline(always)]
 pub(super) fn traverse<
     const NEAREST_FIRST: bool,
