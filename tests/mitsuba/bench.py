@@ -30,7 +30,7 @@ Scene building is not timed. Samples are camera samples: width x height x spp.
 
 Rays per sample: Mitsuba keeps no count of the rays it traces, so `rays_per_sample` (per BSDF
 mode, on each of its records; not timed) replays the control flow of its `path` integrator
-(src/integrators/path.cpp of Mitsuba 3.5 and later) as an evaluated Dr.Jit loop on the same scene
+(its src/integrators/path.cpp) as an evaluated Dr.Jit loop on the same scene
 and counts the live lanes: one closest-hit ray per live path and iteration (the camera ray
 included), and one shadow ray (`ray_test` inside `sample_emitter_direction`) per live path whose
 BSDF has a smooth component and whose emitter sample has a non-zero density. The loop continues
