@@ -520,13 +520,6 @@ pub struct RayCounts {
     pub any_hit: u64,
 }
 
-impl RayCounts {
-    /// Both counts together.
-    pub fn total(&self) -> u64 {
-        self.closest + self.any_hit
-    }
-}
-
 impl std::ops::Add for RayCounts {
     type Output = RayCounts;
     fn add(self, o: RayCounts) -> RayCounts {
