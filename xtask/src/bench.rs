@@ -1074,6 +1074,7 @@ fn bench_render_mitsuba(ours: &[OursQuick], runs: usize, mitsuba: &MitsubaState,
     // With the row's quartile range, so that a verdict within the run-to-run spread says so.
     let mut worst_speed: Option<(f64, [f64; 2], String)> = None;
     let mut worst_eq: Option<(f64, [f64; 2], String)> = None;
+    let mut unjudged = std::collections::BTreeSet::new();
     for o in ours {
         let dir = o.export.display().to_string();
         let secs = Spread::of(&o.cmp.seconds);
@@ -1107,11 +1108,16 @@ fn bench_render_mitsuba(ours: &[OursQuick], runs: usize, mitsuba: &MitsubaState,
             let eq = mi_mse.map(|m| (m.median * mi_s.median) / (our_mse.median * secs.median));
             let eq_range = mi_mse.map(|m| [(m.q1 * mi_s.q1) / (our_mse.q3 * secs.q3), (m.q3 * mi_s.q3) / (our_mse.q1 * secs.q1)]);
             let row_name = format!("{} {} vs {}", o.scene, o.model, text("sampler"));
-            if worst_speed.as_ref().is_none_or(|(w, _, _)| speed < *w) {
+            // The targets are against `llvm_ad_rgb`: a row of another variant (`scalar_rgb`
+            // where Dr.Jit found no working LLVM, many times slower) is shown, not judged.
+            if text("variant") != TARGET_VARIANT {
+                unjudged.insert(text("variant"));
+            } else if worst_speed.as_ref().is_none_or(|(w, _, _)| speed < *w) {
                 worst_speed = Some((speed, speed_range, row_name.clone()));
             }
             if let Some(e) = eq
                 && let Some(r) = eq_range
+                && text("variant") == TARGET_VARIANT
                 && worst_eq.as_ref().is_none_or(|(w, _, _)| e < *w)
             {
                 worst_eq = Some((e, r, row_name));
@@ -1152,15 +1158,8 @@ fn bench_render_mitsuba(ours: &[OursQuick], runs: usize, mitsuba: &MitsubaState,
         rows.push(serde_json::json!({ "scene": o.scene, "model": o.model, "ours": ours_json(o), "mitsuba": mitsuba }));
     }
     ray_work_table(report, ours, &lines);
-    for (worst, target, what) in [(worst_speed, 1.0, "raw samples/s >= 1.0x Mitsuba"), (worst_eq, 2.0, ">= 2x at equal error")] {
-        if let Some((w, r, row)) = worst {
-            report.line(format!(
-                "target {what} on every row: {} (lowest {w:.2}x, quartile range {:.2}-{:.2}x, {row})",
-                verdict(w, r, target),
-                r[0],
-                r[1]
-            ));
-        }
+    for line in target_lines(worst_speed, worst_eq, &unjudged) {
+        report.line(line);
     }
     Ok(rows)
 }
@@ -1175,8 +1174,13 @@ fn ray_work_table(report: &mut Report, ours: &[OursQuick], lines: &[serde_json::
     let mut header = false;
     for o in ours {
         let dir = o.export.display().to_string();
-        // Mitsuba's `independent` row: its default sampler, and its fastest.
-        let Some(t) = lines.iter().find(|t| t["export"].as_str() == Some(dir.as_str()) && t["sampler"].as_str() == Some("independent")) else { continue };
+        // Mitsuba's `independent` row in the targets' variant: its default sampler, and its
+        // fastest.
+        let Some(t) = lines.iter().find(|t| {
+            t["export"].as_str() == Some(dir.as_str()) && t["sampler"].as_str() == Some("independent") && t["variant"].as_str() == Some(TARGET_VARIANT)
+        }) else {
+            continue;
+        };
         let (Some(mc), Some(ms)) = (t["rays_per_sample"]["closest"].as_f64(), t["rays_per_sample"]["shadow"].as_f64()) else { continue };
         let Some(mi_times) = t["times"].as_array().filter(|a| !a.is_empty()) else { continue };
         let mi_samples = t["samples"].as_f64().unwrap_or(0.0);
@@ -1214,6 +1218,38 @@ fn ray_work_table(report: &mut Report, ours: &[OursQuick], lines: &[serde_json::
     }
 }
 
+/// The Mitsuba variant the targets are set against.
+const TARGET_VARIANT: &str = "llvm_ad_rgb";
+
+/// One line per target: its verdict from the lowest judged row (ratio, quartile range, row),
+/// or why it was not judged (no row of [`TARGET_VARIANT`]; `unjudged` holds the variants the
+/// rows ran instead).
+fn target_lines(
+    worst_speed: Option<(f64, [f64; 2], String)>,
+    worst_eq: Option<(f64, [f64; 2], String)>,
+    unjudged: &std::collections::BTreeSet<String>,
+) -> Vec<String> {
+    let mut out = Vec::new();
+    for (worst, target, what) in [(worst_speed, 1.0, "raw samples/s >= 1.0x Mitsuba"), (worst_eq, 2.0, ">= 2x at equal error")] {
+        match worst {
+            Some((w, r, row)) => out.push(format!(
+                "target {what} on every row: {} (lowest {w:.2}x, quartile range {:.2}-{:.2}x, {row}){}",
+                verdict(w, r, target),
+                r[0],
+                r[1],
+                if unjudged.is_empty() { String::new() } else { format!("; rows of {} not judged", unjudged.iter().cloned().collect::<Vec<_>>().join(", ")) }
+            )),
+            None if !unjudged.is_empty() => out.push(format!(
+                "target {what} on every row: not judged: Mitsuba ran {} here, and the targets are against {TARGET_VARIANT} \
+                 (Dr.Jit needs a working LLVM: apt-get install libllvm19)",
+                unjudged.iter().cloned().collect::<Vec<_>>().join(", ")
+            )),
+            None => {}
+        }
+    }
+    out
+}
+
 /// Whether a ratio meets `target`, from its median and its quartile range (our quartile
 /// against Mitsuba's, [`bench_render_mitsuba`]): a median on either side of the target whose
 /// range straddles it says so, since another run could read the other way.
@@ -1247,6 +1283,24 @@ for line in sys.stdin:
 "#;
 
     #[test]
+    fn targets_are_judged_only_against_llvm_ad_rgb() {
+        let none = std::collections::BTreeSet::new();
+        let scalar: std::collections::BTreeSet<String> = ["scalar_rgb".to_string()].into();
+        let worst = Some((1.5, [1.4, 1.6], "row".to_string()));
+        // Judged rows: a verdict each.
+        let lines = target_lines(worst.clone(), Some((3.0, [2.5, 3.5], "row".into())), &none);
+        assert!(lines[0].starts_with("target raw samples/s >= 1.0x Mitsuba on every row: met (lowest 1.50x"), "{lines:?}");
+        assert!(lines[1].contains(": met (lowest 3.00x"), "{lines:?}");
+        // Only scalar_rgb rows (no working LLVM): no verdict, and why.
+        let lines = target_lines(None, None, &scalar);
+        assert_eq!(lines.len(), 2);
+        assert!(lines.iter().all(|l| l.contains("not judged: Mitsuba ran scalar_rgb") && !l.contains(" met")), "{lines:?}");
+        // Both kinds: the verdict from the judged rows, the others named.
+        let lines = target_lines(worst, None, &scalar);
+        assert!(lines[0].contains("met (lowest 1.50x") && lines[0].ends_with("rows of scalar_rgb not judged"), "{lines:?}");
+    }
+
+    #[test]
     fn the_ray_table_weighs_the_speed_ratio_by_the_rays_each_sample_traces() {
         // Ours: 100 samples in 1 s with 300 closest-hit and 100 any-hit rays (4 per sample);
         // Mitsuba: 100 samples in 0.5 s with 2 rays per sample. Half the samples/s, twice the
@@ -1258,7 +1312,7 @@ for line in sys.stdin:
             export: "dir".into(),
             mitsuba: None,
         };
-        let mi = serde_json::json!({ "export": "dir", "sampler": "independent", "samples": 100, "times": [0.5], "rays_per_sample": { "closest": 1.5, "shadow": 0.5 } });
+        let mi = serde_json::json!({ "export": "dir", "sampler": "independent", "variant": "llvm_ad_rgb", "samples": 100, "times": [0.5], "rays_per_sample": { "closest": 1.5, "shadow": 0.5 } });
         let mut report = Report(String::new());
         ray_work_table(&mut report, std::slice::from_ref(&ours), &[mi]);
         let row = report.0.lines().last().unwrap();
@@ -1266,7 +1320,12 @@ for line in sys.stdin:
         assert_eq!(&cols[2..], ["3.000", "1.000", "4.000", "1.500", "0.500", "2.000", "2.00x", "0.50x", "1.00x"], "{row}");
         // No row without Mitsuba's counts.
         let mut report = Report(String::new());
-        ray_work_table(&mut report, &[ours], &[serde_json::json!({ "export": "dir", "sampler": "independent", "samples": 100, "times": [0.5] })]);
+        ray_work_table(&mut report, std::slice::from_ref(&ours), &[serde_json::json!({ "export": "dir", "sampler": "independent", "variant": "llvm_ad_rgb", "samples": 100, "times": [0.5] })]);
+        assert!(report.0.is_empty());
+        // Nor against another variant.
+        let mut report = Report(String::new());
+        let scalar = serde_json::json!({ "export": "dir", "sampler": "independent", "variant": "scalar_rgb", "samples": 100, "times": [0.5], "rays_per_sample": { "closest": 1.5, "shadow": 0.5 } });
+        ray_work_table(&mut report, &[ours], &[scalar]);
         assert!(report.0.is_empty());
     }
 
