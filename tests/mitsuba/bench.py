@@ -149,7 +149,8 @@ def ray_counts(mi, dr, scene, spp, max_depth, rr_depth, seed=7):
     closest = shadow = 0
 
     def count(mask):
-        return int(dr.count(mask)[0]) if dr.width(dr.count(mask)) > 0 else 0
+        c = dr.count(mask)
+        return int(c[0]) if dr.width(c) > 0 else 0
 
     for _ in range(max_depth + 1):
         live = count(active)

@@ -995,12 +995,13 @@ fn bench_render_mitsuba(ours: &[OursQuick], runs: usize, mitsuba: &MitsubaState,
     let quick = pathtracer::dataset_render::DatasetRenderConfig::preset(pathtracer::dataset_render::Preset::Quick);
     report.line("");
     let ours_json = |o: &OursQuick| {
+        let [closest, any_hit] = o.cmp.rays_per_sample();
         serde_json::json!({
             "samples": o.cmp.samples,
             "seconds": Spread::of(&o.cmp.seconds),
             "samples_per_s": o.cmp.rate(),
             "mse": Spread::of(&o.cmp.mse),
-            "rays_per_sample": { "closest": o.cmp.rays_per_sample()[0], "any_hit": o.cmp.rays_per_sample()[1] },
+            "rays_per_sample": { "closest": closest, "any_hit": any_hit },
         })
     };
     // Without Mitsuba's figures, ours alone: enough to compare two builds of ours (error ×
@@ -1099,8 +1100,7 @@ fn bench_render_mitsuba(ours: &[OursQuick], runs: usize, mitsuba: &MitsubaState,
                 mitsuba.push(t.clone());
                 continue;
             }
-            let mi_samples = t["samples"].as_f64().unwrap_or(0.0);
-            let mi_rate = Spread::of(&mi_secs.iter().map(|s| mi_samples / s.max(1e-9)).collect::<Vec<_>>());
+            let mi_rate = mitsuba_rate(t, &mi_secs);
             let mi_s = Spread::of(&mi_secs);
             let mi_mse = if mi_err.is_empty() { None } else { Some(Spread::of(&mi_err)) };
             let speed = rate.median / mi_rate.median;
@@ -1110,14 +1110,16 @@ fn bench_render_mitsuba(ours: &[OursQuick], runs: usize, mitsuba: &MitsubaState,
             let row_name = format!("{} {} vs {}", o.scene, o.model, text("sampler"));
             // The targets are against `llvm_ad_rgb`: a row of another variant (`scalar_rgb`
             // where Dr.Jit found no working LLVM, many times slower) is shown, not judged.
-            if text("variant") != TARGET_VARIANT {
+            let judged = text("variant") == TARGET_VARIANT;
+            if !judged {
                 unjudged.insert(text("variant"));
-            } else if worst_speed.as_ref().is_none_or(|(w, _, _)| speed < *w) {
+            }
+            if judged && worst_speed.as_ref().is_none_or(|(w, _, _)| speed < *w) {
                 worst_speed = Some((speed, speed_range, row_name.clone()));
             }
-            if let Some(e) = eq
+            if judged
+                && let Some(e) = eq
                 && let Some(r) = eq_range
-                && text("variant") == TARGET_VARIANT
                 && worst_eq.as_ref().is_none_or(|(w, _, _)| e < *w)
             {
                 worst_eq = Some((e, r, row_name));
@@ -1182,9 +1184,11 @@ fn ray_work_table(report: &mut Report, ours: &[OursQuick], lines: &[serde_json::
             continue;
         };
         let (Some(mc), Some(ms)) = (t["rays_per_sample"]["closest"].as_f64(), t["rays_per_sample"]["shadow"].as_f64()) else { continue };
-        let Some(mi_times) = t["times"].as_array().filter(|a| !a.is_empty()) else { continue };
-        let mi_samples = t["samples"].as_f64().unwrap_or(0.0);
-        let mi_rate = Spread::of(&mi_times.iter().filter_map(|v| v.as_f64()).map(|s| mi_samples / s.max(1e-9)).collect::<Vec<_>>());
+        let mi_times: Vec<f64> = t["times"].as_array().map(|a| a.iter().filter_map(|v| v.as_f64()).collect()).unwrap_or_default();
+        if mi_times.is_empty() {
+            continue;
+        }
+        let mi_rate = mitsuba_rate(t, &mi_times);
         let [oc, oa] = o.cmp.rays_per_sample();
         let speed = o.cmp.rate().median / mi_rate.median;
         let work = (oc + oa) / (mc + ms).max(1e-9);
@@ -1216,6 +1220,12 @@ fn ray_work_table(report: &mut Report, ours: &[OursQuick], lines: &[serde_json::
             speed * work
         ));
     }
+}
+
+/// Samples per second of each of a Mitsuba record's timed renders (`seconds`, its `times`).
+fn mitsuba_rate(t: &serde_json::Value, seconds: &[f64]) -> Spread {
+    let samples = t["samples"].as_f64().unwrap_or(0.0);
+    Spread::of(&seconds.iter().map(|s| samples / s.max(1e-9)).collect::<Vec<_>>())
 }
 
 /// The Mitsuba variant the targets are set against.
