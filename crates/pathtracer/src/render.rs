@@ -1485,16 +1485,22 @@ mod tests {
         // Lambertian, glTF (dielectric and metal, rough and smooth) and emitting surfaces, a
         // point light and an environment: every path of a batch (batches of 1 to 70, so lanes
         // are left over) equals the path traced alone, and so does the second half of the
-        // split at the camera vertex.
+        // split at the camera vertex; in the lane loop and in the one-path loop (whose camera
+        // vertices' shadow rays a batch traces as packets, grouped by light).
         let mut b = Builder::new();
         b.glossy_room(2);
+        // Light from behind the boxes, so that the camera sees their shadows.
+        b.lights.push(Light::Directional { direction: Vec3::new(0.6, -0.7, 0.5).normalize(), illuminance: Vec3::splat(0.7) });
         let r = Renderer::new(b.build(DVec3::ZERO), &AccelParams::medium_build()).unwrap();
-        let integ = r.integrator(&settings(1, 6, 0.2, false));
+        let lanes = r.integrator(&settings(1, 6, 0.2, false));
+        assert!(lanes.lane_materials.is_some(), "the lane loop applies");
+        let mut one = r.integrator(&settings(1, 6, 0.2, false));
+        one.lane_materials = None;
         let cam = camera(16, 16, 70.0, DVec3::new(2.5, 1.8, 2.0), DVec3::new(0.0, 0.7, 0.0));
         let bits = |v: Vec3| v.to_array().map(f32::to_bits);
         let mut k = 0u32;
         let mut lit = 0;
-        for n in [1usize, 7, 8, 9, 64, 70] {
+        for (n, integ) in [1usize, 7, 8, 9, 64, 70].into_iter().flat_map(|n| [(n, &lanes), (n, &one)]) {
             for primary_emission in [true, false] {
                 let rays: Vec<Ray> = (k..k + n as u32).map(|q| r.local_ray(&cam.pixel_ray((q % 16) as f64 + 0.3, ((q / 16) % 16) as f64 + 0.6))).collect();
                 let mut samplers: Vec<Sampler> = (k..k + n as u32).map(|q| Sampler::new(7, 0, q as u64, 0)).collect();
@@ -1508,7 +1514,7 @@ mod tests {
                 k += n as u32;
             }
         }
-        assert!(lit > 100, "{lit} lit paths");
+        assert!(lit > 200, "{lit} lit paths");
     }
 
     #[test]

@@ -357,7 +357,7 @@ impl PathIntegrator<'_> {
                 cursor += 1;
             }
             if e_ok[k] {
-                let e = PendingLight { vertex: 0, wi_l: get3(&e_wi_l, k), radiance: get3(&e_le, k), light_pdf: Some(e_pdf[k]), shadow: Ray::new(get3(&origin, k), get3(&e_dir, k)), t_max: e_tmax[k] };
+                let e = PendingLight { vertex: 0, wi_l: get3(&e_wi_l, k), radiance: get3(&e_le, k), light_pdf: Some(e_pdf[k]), shadow: Ray::new(get3(&origin, k), get3(&e_dir, k)), t_max: e_tmax[k], light: LIGHT_EMITTERS };
                 self.add_light_estimate(path, &e, (get3(&e_f, k), e_bsdf_pdf[k]));
             }
             while cursor < others.len() && others[cursor].lane == k {
