@@ -17,6 +17,13 @@
 //!   (`thin`, Lambert) the error at 64 spp, from penumbrae, where the lights' visibilities
 //!   differ; at equal error it lost on 22 of those scenes' 24 rows. Measured at stop 55
 //!   with `xtask bench render` (15 renders per row); not kept.)
+//!   (Stop 67: one punctual light only at the vertices after the camera vertex, picked in
+//!   proportion to the luminance of its irradiance times `cos θ` at the geometric normal, a
+//!   number of its own in the vertex's block, every light at the camera vertex: `xtask bench
+//!   render --no-mitsuba`, 15 renders per row, MSE × time against the same day's run of the
+//!   kept code: `deep` (four lights) 3–5 % better, `materials` (three) 3–4 % worse,
+//!   `tabletop` (two) 10–14 % worse; samples/s `deep` +6–8 %, the others within ±3 %. Not
+//!   kept.)
 //! - Where `cornell`'s error is, and what did not lower it (stop 56, `xtask bench render
 //!   --scenes cornell --no-mitsuba`, 5 renders per row, 128 px, 64 spp, MSE against the same
 //!   build's 1024-spp reference less that reference's noise; each change unbiased, the
