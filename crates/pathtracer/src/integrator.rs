@@ -857,7 +857,7 @@ impl PathIntegrator<'_> {
                 if camera_vertex && lights.len() >= PACKET_MIN_RAYS {
                     self.occluded_by_light(&lights, &values, &mut shadow);
                     for ((e, &value), &b) in lights.iter().zip(&values).zip(&shadow.blocked) {
-                        self.add_light_estimate_with(&mut paths[pending[e.vertex as usize].path as usize], e, value, || b);
+                        Self::add_light_estimate_traced(&mut paths[pending[e.vertex as usize].path as usize], e, value, b);
                     }
                 } else {
                     for (e, &value) in lights.iter().zip(&values) {
@@ -988,20 +988,27 @@ impl PathIntegrator<'_> {
     /// `bsdf_pdf`) is not zero and its shadow ray is not blocked: a punctual light's `f · E`,
     /// an emitter's or the environment's `f · Le · w_light / pdf_light`.
     #[inline(always)]
-    fn add_light_estimate(&self, path: &mut PathState, e: &PendingLight, value: (Vec3, f32)) {
-        self.add_light_estimate_with(path, e, value, || self.occluded(&e.shadow, e.t_max))
+    fn add_light_estimate(&self, path: &mut PathState, e: &PendingLight, (f, bsdf_pdf): (Vec3, f32)) {
+        if !(f.max_element() <= 0.0) && !self.occluded(&e.shadow, e.t_max) {
+            Self::add_unblocked(path, e, f, bsdf_pdf);
+        }
     }
 
-    /// [`PathIntegrator::add_light_estimate`] with the shadow ray's answer from `blocked`
-    /// (consulted only where the BSDF's value is not zero).
+    /// [`PathIntegrator::add_light_estimate`] with the shadow ray's answer known: `blocked`.
     #[inline(always)]
-    fn add_light_estimate_with(&self, path: &mut PathState, e: &PendingLight, (f, bsdf_pdf): (Vec3, f32), blocked: impl FnOnce() -> bool) {
-        if !(f.max_element() <= 0.0) && !blocked() {
-            path.l += match e.light_pdf {
-                None => path.beta * f * e.radiance,
-                Some(light_pdf) => path.beta * (f * e.radiance * (power_heuristic(light_pdf, bsdf_pdf) / light_pdf)),
-            };
+    fn add_light_estimate_traced(path: &mut PathState, e: &PendingLight, (f, bsdf_pdf): (Vec3, f32), blocked: bool) {
+        if !(f.max_element() <= 0.0) && !blocked {
+            Self::add_unblocked(path, e, f, bsdf_pdf);
         }
+    }
+
+    /// The estimate of an unblocked light sample with BSDF value `f` (density `bsdf_pdf`).
+    #[inline(always)]
+    fn add_unblocked(path: &mut PathState, e: &PendingLight, f: Vec3, bsdf_pdf: f32) {
+        path.l += match e.light_pdf {
+            None => path.beta * f * e.radiance,
+            Some(light_pdf) => path.beta * (f * e.radiance * (power_heuristic(light_pdf, bsdf_pdf) / light_pdf)),
+        };
     }
 
     /// Adds the emission `emission` that a path's vertex shows (its surface's, geometric
