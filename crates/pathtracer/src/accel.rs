@@ -139,6 +139,11 @@
 //!   Mitsuba's `deep` rays −5 %. The node a ray no longer visits costs about what the extra
 //!   triangles do.
 //!
+//! Kept at stop 67: a tree that never needs more than 24 stack entries
+//! ([`wide::WideBvh::stack_need`], `cornell`'s 21) is traversed with a stack of 24 instead
+//! of 64, which each query clears: on Mitsuba's incoherent `cornell` rays (three alternating
+//! pairs) closest hits +3.5–4 % and any-hit +3.5–5 %, `cornell` samples per CPU-second
+//! +3–4 %; a third size of 48 for `deep` and `tabletop` (42 and 45) gained at most 2 %.
 //! Measured and not kept at stop 67: the set-up's six divisions as two four-lane ones (the
 //! box test's `1/d` and the shear `(−dx, −dy, 1)/dz`, the same bits): on Mitsuba's incoherent
 //! rays (`--rays`, three alternating pairs) `deep` closest hits +1 to +3 % and any-hit −1 to
@@ -724,6 +729,12 @@ pub struct Accel {
     /// ([`EightWide`]); otherwise four wide ([`FourWide`]). Same answers either way.
     #[cfg(target_arch = "x86_64")]
     avx2: Option<pulp::x86::V3>,
+    /// Whether the tree never needs more than [`wide::SMALL_STACK`] stack entries
+    /// ([`wide::WideBvh::stack_need`]): the one-ray queries then clear only that many per
+    /// query (stop 67, on Mitsuba's incoherent rays of `cornell`, whose tree needs 21, three
+    /// alternating pairs: closest hits +3.5–4 %, any-hit +3.5–5 %; a third size of 48 entries
+    /// for `deep` and `tabletop`, which need 42 and 45 of the 64, gained at most 2 %).
+    small_stack: bool,
     build_time: Duration,
 }
 
@@ -776,6 +787,7 @@ impl Accel {
                 tris: Vec::new(),
                 #[cfg(target_arch = "x86_64")]
                 avx2: pulp::x86::V3::try_new(),
+                small_stack: true,
                 build_time: Duration::ZERO,
             });
         }
@@ -814,6 +826,7 @@ impl Accel {
         // The build time includes the wide tree's boxes.
         let build_time = start.elapsed();
         Ok(Accel {
+            small_stack: wide.stack_need() <= wide::SMALL_STACK,
             wide,
             tris: bvh_tris,
             #[cfg(target_arch = "x86_64")]
@@ -906,7 +919,11 @@ impl Accel {
     pub fn closest_hit<F: Fn(u32, &TriangleHit) -> bool>(&self, ray: &Ray, t_max: f32, alpha_test: F) -> Option<Hit> {
         #[cfg(target_arch = "x86_64")]
         if let Some(simd) = self.avx2 {
-            return in_v3(simd, #[inline(always)] || self.closest_hit_with::<{ wide::STACK }, _, _>(EightWide(simd), ray, t_max, alpha_test));
+            return in_v3(simd, #[inline(always)] || if self.small_stack {
+                self.closest_hit_with::<{ wide::SMALL_STACK }, _, _>(EightWide(simd), ray, t_max, alpha_test)
+            } else {
+                self.closest_hit_with::<{ wide::STACK }, _, _>(EightWide(simd), ray, t_max, alpha_test)
+            });
         }
         self.closest_hit_with::<{ wide::STACK }, _, _>(FourWide, ray, t_max, alpha_test)
     }
@@ -916,7 +933,11 @@ impl Accel {
     pub fn occluded<F: Fn(u32, &TriangleHit) -> bool>(&self, ray: &Ray, t_max: f32, alpha_test: F) -> bool {
         #[cfg(target_arch = "x86_64")]
         if let Some(simd) = self.avx2 {
-            return in_v3(simd, #[inline(always)] || self.occluded_with::<{ wide::STACK }, _, _>(EightWide(simd), ray, t_max, alpha_test));
+            return in_v3(simd, #[inline(always)] || if self.small_stack {
+                self.occluded_with::<{ wide::SMALL_STACK }, _, _>(EightWide(simd), ray, t_max, alpha_test)
+            } else {
+                self.occluded_with::<{ wide::STACK }, _, _>(EightWide(simd), ray, t_max, alpha_test)
+            });
         }
         self.occluded_with::<{ wide::STACK }, _, _>(FourWide, ray, t_max, alpha_test)
     }
@@ -1206,6 +1227,47 @@ mod tests {
             }
             assert!(hits > 100, "{n} triangles: too few hits ({hits})");
         }
+    }
+
+    #[test]
+    fn a_stack_of_the_trees_need_never_spills() {
+        // Whatever the rays, a traversal with as many stack entries as `stack_need` never
+        // spills, and with fewer it does for some trees (so the count can fail). The trees
+        // of a few triangles get the small stack.
+        let spills = || wide::SPILLS.with(|c| c.get());
+        let (mut small, mut large, mut spilled_below) = (0, 0, 0);
+        for (n, params) in [(12, AccelParams::medium_build()), (40, AccelParams::medium_build()), (300, AccelParams::fastest_build()), (3000, AccelParams::medium_build()), (3000, AccelParams::slow_build())] {
+            let scene = soup(n);
+            let accel = Accel::build(&scene, &params).unwrap();
+            let need = accel.wide.stack_need();
+            assert_eq!(accel.small_stack, need <= wide::SMALL_STACK, "{n} triangles need {need}");
+            assert!(need <= wide::STACK, "{n} triangles need {need}");
+            if accel.small_stack { small += 1 } else { large += 1 }
+            let mut rng = Sampler::new(23, 0, 5, 0);
+            for k in 0..4000 {
+                // Rays from outside and inside the soup, some along an axis.
+                let o = Vec3::new(rng.next_1d(), rng.next_1d(), rng.next_1d()) * 4.0 - 2.0;
+                let mut d = sample_uniform_sphere(rng.next_2d());
+                if k % 16 == 0 {
+                    d = Vec3::X * d.x.signum();
+                }
+                let ray = Ray::new(o, d);
+                let before = spills();
+                let (h, o) = if accel.small_stack {
+                    (accel.closest_hit_with::<{ wide::SMALL_STACK }, _, _>(FourWide, &ray, f32::INFINITY, |_, _| true), accel.occluded_with::<{ wide::SMALL_STACK }, _, _>(FourWide, &ray, f32::INFINITY, |_, _| true))
+                } else {
+                    (accel.closest_hit_with::<{ wide::STACK }, _, _>(FourWide, &ray, f32::INFINITY, |_, _| true), accel.occluded_with::<{ wide::STACK }, _, _>(FourWide, &ray, f32::INFINITY, |_, _| true))
+                };
+                assert_eq!(spills(), before, "{n} triangles (need {need}), ray {k}");
+                assert_eq!(h.is_some(), o);
+                // A stack of 4 is below every tree's need here but the smallest's.
+                let before = spills();
+                accel.occluded_with::<4, _, _>(FourWide, &ray, f32::INFINITY, |_, _| true);
+                spilled_below += (spills() > before) as u32;
+            }
+        }
+        assert!(small >= 1 && large >= 1, "{small} small and {large} large stacks");
+        assert!(spilled_below > 100, "a too small stack spilled {spilled_below} times");
     }
 
     #[test]

@@ -41,6 +41,16 @@ const LEAF_FIRST_MASK: u32 = (1 << LEAF_COUNT_SHIFT) - 1;
 pub(super) const WIDEN: f32 = 1.0 / (1 << 21) as f32;
 /// Entries of the traversal stack on the call stack; deeper pushes spill to a `Vec`.
 pub(super) const STACK: usize = 64;
+/// The stack of trees that never need more ([`WideBvh::stack_need`]): fewer entries to clear
+/// per query.
+pub(super) const SMALL_STACK: usize = 24;
+
+#[cfg(test)]
+thread_local! {
+    /// Entries this thread's traversals pushed beyond their stack (tests of
+    /// [`WideBvh::stack_need`]).
+    pub(super) static SPILLS: std::cell::Cell<u64> = const { std::cell::Cell::new(0) };
+}
 
 /// One node: eight child boxes, `b[axis][0]` the lower planes and `b[axis][1]` the upper, and
 /// the eight child references (224 bytes).
@@ -154,6 +164,31 @@ impl WideBvh {
             bounds[i] = Some((lo_all, hi_all));
         }
         Ok(WideBvh { nodes })
+    }
+
+    /// The most entries [`traverse`]'s stack can hold for this tree: a node whose `m`
+    /// children are all entered leaves `m − 1` of them pending while the nearest is visited,
+    /// so a node needs `m − 1` more than its neediest inner child (a leaf child needs none).
+    pub(super) fn stack_need(&self) -> usize {
+        let n = self.nodes.len();
+        let mut need = vec![0usize; n];
+        let mut todo = vec![(0usize, false)];
+        while let Some((i, expanded)) = todo.pop() {
+            if i >= n {
+                continue;
+            }
+            let node = &self.nodes[i];
+            let used = |k: usize| node.b[0][0][k] <= node.b[0][1][k];
+            let inner = (0..8).filter(|&k| used(k)).filter_map(|k| node.child(k).ok());
+            if !expanded {
+                todo.push((i, true));
+                todo.extend(inner.map(|c| (c as usize, false)));
+                continue;
+            }
+            let deepest = inner.map(|c| need.get(c as usize).copied().unwrap_or(0)).max().unwrap_or(0);
+            need[i] = (0..8).filter(|&k| used(k)).count().saturating_sub(1) + deepest;
+        }
+        need.first().copied().unwrap_or(0)
     }
 
     /// Bytes of the nodes.
@@ -313,6 +348,8 @@ pub(super) fn traverse<
                             stack[j] = e;
                             sp += 1;
                         } else {
+                            #[cfg(test)]
+                            SPILLS.with(|c| c.set(c.get() + 1));
                             spill.push(e);
                         }
                     }
