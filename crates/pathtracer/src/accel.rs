@@ -139,11 +139,16 @@
 //!   Mitsuba's `deep` rays −5 %. The node a ray no longer visits costs about what the extra
 //!   triangles do.
 //!
-//! Kept at stop 67: a tree that never needs more than 24 stack entries
-//! ([`wide::WideBvh::stack_need`], `cornell`'s 21) is traversed with a stack of 24 instead
-//! of 64, which each query clears: on Mitsuba's incoherent `cornell` rays (three alternating
-//! pairs) closest hits +3.5–4 % and any-hit +3.5–5 %, `cornell` samples per CPU-second
-//! +3–4 %; a third size of 48 for `deep` and `tabletop` (42 and 45) gained at most 2 %.
+//! Kept at stop 67: the one-ray queries' traversal stack (64 entries) is their thread's,
+//! reused by every query and never cleared (`wide::with_stack`; a query inside another,
+//! from an alpha test, gets a fresh one), instead of an array on the call stack that each
+//! query zeroed (512 bytes). First, a 24-entry stack for trees that never need more (a
+//! bound from the tree's shape: `cornell` needs 21, the other scenes 42–49) gave `cornell`'s
+//! incoherent rays +3.5–4 % (closest) and +3.5–5 % (any-hit) and its samples per CPU-second
+//! +3–4 %; then the thread's stack, against that (three alternating pairs, samples per
+//! CPU-second): `cornell` +0.2–3 %, `deep` +1.8–4 %, `tabletop` −0.6 to +3.5 %, `thin`
+//! +2 %, `materials` ±0. The same bits. (`LocalKey::with` is not inlined: the stack is fetched before the query enters the
+//! AVX2 level, else the traversal ran compiled for the baseline, 4x slower.)
 //! Measured and not kept at stop 67: the set-up's six divisions as two four-lane ones (the
 //! box test's `1/d` and the shear `(−dx, −dy, 1)/dz`, the same bits): on Mitsuba's incoherent
 //! rays (`--rays`, three alternating pairs) `deep` closest hits +1 to +3 % and any-hit −1 to
@@ -729,12 +734,6 @@ pub struct Accel {
     /// ([`EightWide`]); otherwise four wide ([`FourWide`]). Same answers either way.
     #[cfg(target_arch = "x86_64")]
     avx2: Option<pulp::x86::V3>,
-    /// Whether the tree never needs more than [`wide::SMALL_STACK`] stack entries
-    /// ([`wide::WideBvh::stack_need`]): the one-ray queries then clear only that many per
-    /// query (stop 67, on Mitsuba's incoherent rays of `cornell`, whose tree needs 21, three
-    /// alternating pairs: closest hits +3.5–4 %, any-hit +3.5–5 %; a third size of 48 entries
-    /// for `deep` and `tabletop`, which need 42 and 45 of the 64, gained at most 2 %).
-    small_stack: bool,
     build_time: Duration,
 }
 
@@ -787,7 +786,6 @@ impl Accel {
                 tris: Vec::new(),
                 #[cfg(target_arch = "x86_64")]
                 avx2: pulp::x86::V3::try_new(),
-                small_stack: true,
                 build_time: Duration::ZERO,
             });
         }
@@ -826,7 +824,6 @@ impl Accel {
         // The build time includes the wide tree's boxes.
         let build_time = start.elapsed();
         Ok(Accel {
-            small_stack: wide.stack_need() <= wide::SMALL_STACK,
             wide,
             tris: bvh_tris,
             #[cfg(target_arch = "x86_64")]
@@ -919,13 +916,9 @@ impl Accel {
     pub fn closest_hit<F: Fn(u32, &TriangleHit) -> bool>(&self, ray: &Ray, t_max: f32, alpha_test: F) -> Option<Hit> {
         #[cfg(target_arch = "x86_64")]
         if let Some(simd) = self.avx2 {
-            return in_v3(simd, #[inline(always)] || if self.small_stack {
-                self.closest_hit_with::<{ wide::SMALL_STACK }, _, _>(EightWide(simd), ray, t_max, alpha_test)
-            } else {
-                self.closest_hit_with::<{ wide::STACK }, _, _>(EightWide(simd), ray, t_max, alpha_test)
-            });
+            return wide::with_stack(#[inline(always)] |stack| in_v3(simd, #[inline(always)] || self.closest_hit_with(EightWide(simd), ray, t_max, alpha_test, stack)));
         }
-        self.closest_hit_with::<{ wide::STACK }, _, _>(FourWide, ray, t_max, alpha_test)
+        wide::with_stack(#[inline(always)] |stack| self.closest_hit_with(FourWide, ray, t_max, alpha_test, stack))
     }
 
     /// Whether any accepted hit exists with `t < t_max` (shadow rays).
@@ -933,13 +926,9 @@ impl Accel {
     pub fn occluded<F: Fn(u32, &TriangleHit) -> bool>(&self, ray: &Ray, t_max: f32, alpha_test: F) -> bool {
         #[cfg(target_arch = "x86_64")]
         if let Some(simd) = self.avx2 {
-            return in_v3(simd, #[inline(always)] || if self.small_stack {
-                self.occluded_with::<{ wide::SMALL_STACK }, _, _>(EightWide(simd), ray, t_max, alpha_test)
-            } else {
-                self.occluded_with::<{ wide::STACK }, _, _>(EightWide(simd), ray, t_max, alpha_test)
-            });
+            return wide::with_stack(#[inline(always)] |stack| in_v3(simd, #[inline(always)] || self.occluded_with(EightWide(simd), ray, t_max, alpha_test, stack)));
         }
-        self.occluded_with::<{ wide::STACK }, _, _>(FourWide, ray, t_max, alpha_test)
+        wide::with_stack(#[inline(always)] |stack| self.occluded_with(FourWide, ray, t_max, alpha_test, stack))
     }
 
     /// [`Accel::closest_hit`] for many rays: `out[r]` is `closest_hit(&rays[r], t_max, …)`, the
@@ -1051,36 +1040,37 @@ impl Accel {
         }
     }
 
-    /// [`Accel::closest_hit`] with the child-box test `test` and `N` stack entries before the
-    /// traversal spills to the heap.
+    /// [`Accel::closest_hit`] with the child-box test `test` and the traversal stack `stack`.
     #[inline(always)]
-    fn closest_hit_with<const N: usize, K: wide::WideTest, F: Fn(u32, &TriangleHit) -> bool>(&self, test: K, ray: &Ray, t_max: f32, alpha_test: F) -> Option<Hit> {
+    fn closest_hit_with<K: wide::WideTest, F: Fn(u32, &TriangleHit) -> bool>(&self, test: K, ray: &Ray, t_max: f32, alpha_test: F, stack: &mut [u64]) -> Option<Hit> {
         let (wray, wr) = Self::wide_query(ray, t_max)?;
         let mut best: Option<Hit> = None;
         let mut best_t = t_max;
         let dir = ray.direction;
-        wide::traverse::<true, N, _, _>(test, &self.wide, &wray, t_max, |id| {
+        let leaf = |id: usize| {
             closest_candidate(&self.tris[id], &wr, dir, &mut best, &mut best_t, &alpha_test);
             // obvhs shrinks its ray only when t < tmax; ties keep it.
             std::ops::ControlFlow::Continue(Some(best_t))
-        });
+        };
+        wide::traverse::<true, _, _>(test, &self.wide, &wray, t_max, leaf, stack);
         best
     }
 
-    /// [`Accel::occluded`] with the child-box test `test` and `N` stack entries.
+    /// [`Accel::occluded`] with the child-box test `test` and the traversal stack `stack`.
     #[inline(always)]
-    fn occluded_with<const N: usize, K: wide::WideTest, F: Fn(u32, &TriangleHit) -> bool>(&self, test: K, ray: &Ray, t_max: f32, alpha_test: F) -> bool {
+    fn occluded_with<K: wide::WideTest, F: Fn(u32, &TriangleHit) -> bool>(&self, test: K, ray: &Ray, t_max: f32, alpha_test: F, stack: &mut [u64]) -> bool {
         let Some((wray, wr)) = Self::wide_query(ray, t_max) else { return false };
         let dir = ray.direction;
         let mut hit = false;
-        wide::traverse::<false, N, _, _>(test, &self.wide, &wray, t_max, |id| {
+        let leaf = |id: usize| {
             if occludes(&self.tris[id], &wr, dir, t_max, &alpha_test) {
                 hit = true;
                 std::ops::ControlFlow::Break(())
             } else {
                 std::ops::ControlFlow::Continue(None)
             }
-        });
+        };
+        wide::traverse::<false, _, _>(test, &self.wide, &wray, t_max, leaf, stack);
         hit
     }
 }
@@ -1216,10 +1206,10 @@ mod tests {
                 let t_max = if k % 4 == 0 { 0.3 + rng.next_1d() } else { f32::INFINITY };
                 let key = |h: Option<Hit>| h.map(|h| (h.prim, h.t.to_bits(), h.b.map(f32::to_bits), h.front));
                 let full = key(accel.closest_hit(&ray, t_max, |_, _| true));
-                let spilled = key(accel.closest_hit_with::<1, _, _>(FourWide, &ray, t_max, |_, _| true));
+                let spilled = key(accel.closest_hit_with(FourWide, &ray, t_max, |_, _| true, &mut [0; 1]));
                 assert_eq!(spilled, full, "{n} triangles, ray {k}");
                 let occluded = accel.occluded(&ray, t_max, |_, _| true);
-                assert_eq!(accel.occluded_with::<1, _, _>(FourWide, &ray, t_max, |_, _| true), occluded, "{n} triangles, ray {k}");
+                assert_eq!(accel.occluded_with(FourWide, &ray, t_max, |_, _| true, &mut [0; 1]), occluded, "{n} triangles, ray {k}");
                 let (want, any) = brute_force(&scene, &ray, t_max);
                 assert_eq!(full.map(|f| (f.0, f32::from_bits(f.1))), want, "{n} triangles, ray {k}");
                 assert_eq!(occluded, any);
@@ -1230,44 +1220,41 @@ mod tests {
     }
 
     #[test]
-    fn a_stack_of_the_trees_need_never_spills() {
-        // Whatever the rays, a traversal with as many stack entries as `stack_need` never
-        // spills, and with fewer it does for some trees (so the count can fail). The trees
-        // of a few triangles get the small stack.
-        let spills = || wide::SPILLS.with(|c| c.get());
-        let (mut small, mut large, mut spilled_below) = (0, 0, 0);
-        for (n, params) in [(12, AccelParams::medium_build()), (40, AccelParams::medium_build()), (300, AccelParams::fastest_build()), (3000, AccelParams::medium_build()), (3000, AccelParams::slow_build())] {
-            let scene = soup(n);
-            let accel = Accel::build(&scene, &params).unwrap();
-            let need = accel.wide.stack_need();
-            assert_eq!(accel.small_stack, need <= wide::SMALL_STACK, "{n} triangles need {need}");
-            assert!(need <= wide::STACK, "{n} triangles need {need}");
-            if accel.small_stack { small += 1 } else { large += 1 }
-            let mut rng = Sampler::new(23, 0, 5, 0);
-            for k in 0..4000 {
-                // Rays from outside and inside the soup, some along an axis.
-                let o = Vec3::new(rng.next_1d(), rng.next_1d(), rng.next_1d()) * 4.0 - 2.0;
-                let mut d = sample_uniform_sphere(rng.next_2d());
-                if k % 16 == 0 {
-                    d = Vec3::X * d.x.signum();
-                }
-                let ray = Ray::new(o, d);
-                let before = spills();
-                let (h, o) = if accel.small_stack {
-                    (accel.closest_hit_with::<{ wide::SMALL_STACK }, _, _>(FourWide, &ray, f32::INFINITY, |_, _| true), accel.occluded_with::<{ wide::SMALL_STACK }, _, _>(FourWide, &ray, f32::INFINITY, |_, _| true))
-                } else {
-                    (accel.closest_hit_with::<{ wide::STACK }, _, _>(FourWide, &ray, f32::INFINITY, |_, _| true), accel.occluded_with::<{ wide::STACK }, _, _>(FourWide, &ray, f32::INFINITY, |_, _| true))
-                };
-                assert_eq!(spills(), before, "{n} triangles (need {need}), ray {k}");
-                assert_eq!(h.is_some(), o);
-                // A stack of 4 is below every tree's need here but the smallest's.
-                let before = spills();
-                accel.occluded_with::<4, _, _>(FourWide, &ray, f32::INFINITY, |_, _| true);
-                spilled_below += (spills() > before) as u32;
-            }
+    fn a_query_made_inside_another_answers_as_alone() {
+        // The one-ray queries share their thread's traversal stack; an alpha test that makes
+        // a query of its own (while the outer query's stack is in use) gets a fresh one, and
+        // both answer as when made alone. Every triangle alpha-masked, so that the alpha test
+        // runs (it keeps every surface).
+        let mut scene = soup(500);
+        for m in &mut scene.materials {
+            m.alpha_mode = crate::scene::AlphaMode::Mask { cutoff: 0.5 };
         }
-        assert!(small >= 1 && large >= 1, "{small} small and {large} large stacks");
-        assert!(spilled_below > 100, "a too small stack spilled {spilled_below} times");
+        let accel = Accel::build(&scene, &AccelParams::medium_build()).unwrap();
+        let mut rng = Sampler::new(29, 0, 7, 0);
+        let mut inner_queries = 0;
+        for k in 0..2000 {
+            let o = Vec3::new(rng.next_1d(), rng.next_1d(), rng.next_1d()) * 3.0 - 1.5;
+            let ray = Ray::new(o, sample_uniform_sphere(rng.next_2d()));
+            let other = Ray::new(-o, sample_uniform_sphere(rng.next_2d()));
+            let key = |h: Option<Hit>| h.map(|h| (h.prim, h.t.to_bits()));
+            let (alone, other_alone) = (key(accel.closest_hit(&ray, f32::INFINITY, |_, _| true)), key(accel.closest_hit(&other, f32::INFINITY, |_, _| true)));
+            let other_blocked = accel.occluded(&other, f32::INFINITY, |_, _| true);
+            let nested = std::cell::Cell::new(0);
+            let got = key(accel.closest_hit(&ray, f32::INFINITY, |_, _| {
+                assert_eq!(key(accel.closest_hit(&other, f32::INFINITY, |_, _| true)), other_alone, "ray {k}");
+                assert_eq!(accel.occluded(&other, f32::INFINITY, |_, _| true), other_blocked, "ray {k}");
+                nested.set(nested.get() + 1);
+                true
+            }));
+            let blocked = accel.occluded(&ray, f32::INFINITY, |_, _| {
+                assert_eq!(key(accel.closest_hit(&other, f32::INFINITY, |_, _| true)), other_alone, "ray {k}");
+                true
+            });
+            assert_eq!(got, alone, "ray {k}");
+            assert_eq!(blocked, alone.is_some(), "ray {k}");
+            inner_queries += nested.get();
+        }
+        assert!(inner_queries > 100, "{inner_queries} nested queries");
     }
 
     #[test]

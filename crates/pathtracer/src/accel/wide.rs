@@ -39,19 +39,9 @@ const LEAF_COUNT_SHIFT: u32 = 29;
 const LEAF_FIRST_MASK: u32 = (1 << LEAF_COUNT_SHIFT) - 1;
 /// Relative widening of the box test's interval (see the module docs).
 pub(super) const WIDEN: f32 = 1.0 / (1 << 21) as f32;
-/// Entries of the traversal stack on the call stack; deeper pushes spill to a `Vec`.
+/// Entries of the one-ray queries' traversal stack ([`with_stack`]); deeper pushes spill to
+/// a `Vec`.
 pub(super) const STACK: usize = 64;
-/// The stack of trees that never need more ([`WideBvh::stack_need`]): fewer entries to clear
-/// per query.
-pub(super) const SMALL_STACK: usize = 24;
-
-#[cfg(test)]
-thread_local! {
-    /// Entries this thread's traversals pushed beyond their stack (tests of
-    /// [`WideBvh::stack_need`]).
-    pub(super) static SPILLS: std::cell::Cell<u64> = const { std::cell::Cell::new(0) };
-}
-
 /// One node: eight child boxes, `b[axis][0]` the lower planes and `b[axis][1]` the upper, and
 /// the eight child references (224 bytes).
 #[derive(Clone, Copy, Debug)]
@@ -166,31 +156,6 @@ impl WideBvh {
         Ok(WideBvh { nodes })
     }
 
-    /// The most entries [`traverse`]'s stack can hold for this tree: a node whose `m`
-    /// children are all entered leaves `m − 1` of them pending while the nearest is visited,
-    /// so a node needs `m − 1` more than its neediest inner child (a leaf child needs none).
-    pub(super) fn stack_need(&self) -> usize {
-        let n = self.nodes.len();
-        let mut need = vec![0usize; n];
-        let mut todo = vec![(0usize, false)];
-        while let Some((i, expanded)) = todo.pop() {
-            if i >= n {
-                continue;
-            }
-            let node = &self.nodes[i];
-            let used = |k: usize| node.b[0][0][k] <= node.b[0][1][k];
-            let inner = (0..8).filter(|&k| used(k)).filter_map(|k| node.child(k).ok());
-            if !expanded {
-                todo.push((i, true));
-                todo.extend(inner.map(|c| (c as usize, false)));
-                continue;
-            }
-            let deepest = inner.map(|c| need.get(c as usize).copied().unwrap_or(0)).max().unwrap_or(0);
-            need[i] = (0..8).filter(|&k| used(k)).count().saturating_sub(1) + deepest;
-        }
-        need.first().copied().unwrap_or(0)
-    }
-
     /// Bytes of the nodes.
     pub(super) fn memory_bytes(&self) -> usize {
         self.nodes.len() * std::mem::size_of::<WideNode>()
@@ -281,16 +246,33 @@ impl WideTest for super::EightWide {
     }
 }
 
+thread_local! {
+    /// The one-ray queries' traversal stack: one per thread, reused by every query and never
+    /// cleared (a query reads only the entries it pushed).
+    static THREAD_STACK: std::cell::RefCell<[u64; STACK]> = const { std::cell::RefCell::new([0; STACK]) };
+}
+
+/// `f` with this thread's traversal stack ([`STACK`] entries), or a fresh one where a query
+/// is already using it (an alpha test that made a query of its own).
+#[inline(always)]
+pub(super) fn with_stack<R>(f: impl FnOnce(&mut [u64]) -> R) -> R {
+    THREAD_STACK.with(|s| match s.try_borrow_mut() {
+        Ok(mut s) => f(&mut s[..]),
+        Err(_) => f(&mut [0u64; STACK]),
+    })
+}
+
 /// Nearest-child-first traversal of `bvh` for ray `r` up to `limit`: `leaf(id)` tests BVH
 /// primitive `id` and returns `Some(t)` to shrink the limit to `t`, or `None`; it returns
 /// `ControlFlow::Break` to stop (any-hit queries). Children are pushed sorted by entry distance
 /// (the nearest popped first) and skipped when popped beyond the current limit; without
 /// `NEAREST_FIRST` (any-hit queries, whose limit never shrinks) they are pushed unsorted,
-/// without their distances, and every one pushed is visited.
+/// without their distances, and every one pushed is visited. `stack` holds the pending
+/// children (its contents are not read before they are written); beyond its length they
+/// spill to a `Vec`.
 #[inline(always)]
 pub(super) fn traverse<
     const NEAREST_FIRST: bool,
-    const N: usize,
     K: WideTest,
     F: FnMut(usize) -> ControlFlow<(), Option<f32>>,
 >(
@@ -299,14 +281,15 @@ pub(super) fn traverse<
     r: &WideRay,
     mut limit: f32,
     mut leaf: F,
+    stack: &mut [u64],
 ) {
     let nodes = &bvh.nodes[..];
     if nodes.is_empty() {
         return;
     }
+    let n = stack.len();
     // Entries are `entry distance bits << 32 | child reference`: the distances are ≥ 0, so
     // the entries order as the distances do.
-    let mut stack = [0u64; N];
     let mut sp = 0usize;
     let mut spill: Vec<u64> = Vec::new();
     let mut cur = 0u32;
@@ -339,7 +322,7 @@ pub(super) fn traverse<
                         m &= m - 1;
                         // The any-hit query's limit never shrinks: its entries need no distance.
                         let e = if NEAREST_FIRST { (t_near[k].to_bits() as u64) << 32 } else { 0 } | node.child[k] as u64;
-                        if sp < N {
+                        if sp < n {
                             let mut j = sp;
                             while NEAREST_FIRST && j > base && stack[j - 1] < e {
                                 stack[j] = stack[j - 1];
@@ -348,8 +331,6 @@ pub(super) fn traverse<
                             stack[j] = e;
                             sp += 1;
                         } else {
-                            #[cfg(test)]
-                            SPILLS.with(|c| c.set(c.get() + 1));
                             spill.push(e);
                         }
                     }
