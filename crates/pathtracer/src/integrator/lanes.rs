@@ -30,6 +30,11 @@
 //! - a chunk's emitter shadow rays traced as one packet ([`crate::accel::Accel::occluded_many`]):
 //!   `cornell` −16 %, the others −2 to −3 %, `cornell`'s instructions +41 %: after the camera
 //!   vertex the rays of a chunk go in all directions (as stop 61 found for a bounce's rays).
+//! - (stop 67) the camera vertices' shadow rays traced as packets grouped by light, as the
+//!   one-path loop does: every chunk of a batch's camera vertices shaded with its light
+//!   estimates and continuations deferred, then the rays traced, the estimates added and the
+//!   paths continued in the order they would have run (the same bits): `cornell` −4 to
+//!   −12 %, `thin` −1 to −4 % samples per CPU-second (three alternating pairs);
 //! - each punctual light's samples for the eight vertices in lanes (the incidence, the BSDF's
 //!   value and the shadow ray of every lane at once, light after light, instead of a scalar
 //!   loop over the lights per vertex): `thin` −5 %; with it, the lane loop for every scene
