@@ -152,7 +152,8 @@
 //! Measured and not kept at stop 67: the watertight test's form of the ray made at the first
 //! leaf instead of at the query's start (a ray that reaches no leaf never pays for it; the same
 //! bits): samples per CPU-second, three alternating pairs, `deep` +3 to +5 %, but `tabletop`
-//! −0.5 to −5 %, `cornell` −2 to +6 %, `thin` −2 to +3 %. And the set-up's six divisions as
+//! −0.5 to −5 %, `cornell` −2 to +6 %, `thin` −2 to +3 % (for the any-hit query alone: every
+//! scene within ±2 %). And the set-up's six divisions as
 //! two four-lane ones (the
 //! box test's `1/d` and the shear `(−dx, −dy, 1)/dz`, the same bits): on Mitsuba's incoherent
 //! rays (`--rays`, three alternating pairs) `deep` closest hits +1 to +3 % and any-hit −1 to
