@@ -537,12 +537,21 @@ struct PendingLight {
 /// Buffers of [`PathIntegrator::occluded_by_light`].
 #[derive(Default)]
 struct ShadowScratch {
+    /// Each group's first slot, and the next free one while filling.
     start: Vec<usize>,
+    next: Vec<usize>,
     order: Vec<u32>,
     rays: Vec<Ray>,
     t_max: Vec<f32>,
     out: Vec<bool>,
     blocked: Vec<bool>,
+}
+
+/// Whether a light sample whose BSDF value is `f` has its shadow ray traced: where `f` is
+/// not zero (nor NaN), the same rule for one ray at a time and for packets.
+#[inline(always)]
+fn traces_shadow_ray(f: Vec3) -> bool {
+    !(f.max_element() <= 0.0)
 }
 
 /// [`PendingLight::light`] of an emissive-triangle sample.
@@ -688,7 +697,7 @@ impl PathIntegrator<'_> {
     /// rays to one light nearly coincide.
     #[inline(always)]
     fn occluded_by_light(&self, lights: &[PendingLight], values: &[(Vec3, f32)], scratch: &mut ShadowScratch) {
-        let ShadowScratch { start, order, rays, t_max, out, blocked } = scratch;
+        let ShadowScratch { start, next, order, rays, t_max, out, blocked } = scratch;
         let n = self.scene.lights.len();
         // Punctual light `i` is group `i`, the emitters `n`, the environment `n + 1`.
         let group = |e: &PendingLight| match e.light {
@@ -699,7 +708,7 @@ impl PathIntegrator<'_> {
         start.clear();
         start.resize(n + 3, 0);
         for (e, v) in lights.iter().zip(values) {
-            if !(v.0.max_element() <= 0.0) {
+            if traces_shadow_ray(v.0) {
                 start[group(e) + 1] += 1;
             }
         }
@@ -713,9 +722,10 @@ impl PathIntegrator<'_> {
         rays.resize(traced, Ray::new(Vec3::ZERO, Vec3::Z));
         t_max.clear();
         t_max.resize(traced, 0.0);
-        let mut next = start.clone();
+        next.clear();
+        next.extend_from_slice(start);
         for (i, (e, v)) in lights.iter().zip(values).enumerate() {
-            if !(v.0.max_element() <= 0.0) {
+            if traces_shadow_ray(v.0) {
                 let slot = &mut next[group(e)];
                 (order[*slot], rays[*slot], t_max[*slot]) = (i as u32, e.shadow, e.t_max);
                 *slot += 1;
@@ -989,7 +999,7 @@ impl PathIntegrator<'_> {
     /// an emitter's or the environment's `f · Le · w_light / pdf_light`.
     #[inline(always)]
     fn add_light_estimate(&self, path: &mut PathState, e: &PendingLight, (f, bsdf_pdf): (Vec3, f32)) {
-        if !(f.max_element() <= 0.0) && !self.occluded(&e.shadow, e.t_max) {
+        if traces_shadow_ray(f) && !self.occluded(&e.shadow, e.t_max) {
             Self::add_unblocked(path, e, f, bsdf_pdf);
         }
     }
@@ -997,7 +1007,7 @@ impl PathIntegrator<'_> {
     /// [`PathIntegrator::add_light_estimate`] with the shadow ray's answer known: `blocked`.
     #[inline(always)]
     fn add_light_estimate_traced(path: &mut PathState, e: &PendingLight, (f, bsdf_pdf): (Vec3, f32), blocked: bool) {
-        if !(f.max_element() <= 0.0) && !blocked {
+        if traces_shadow_ray(f) && !blocked {
             Self::add_unblocked(path, e, f, bsdf_pdf);
         }
     }

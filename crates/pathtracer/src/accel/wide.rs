@@ -42,6 +42,7 @@ pub(super) const WIDEN: f32 = 1.0 / (1 << 21) as f32;
 /// Entries of the one-ray queries' traversal stack ([`with_stack`]); deeper pushes spill to
 /// a `Vec`.
 pub(super) const STACK: usize = 64;
+
 /// One node: eight child boxes, `b[axis][0]` the lower planes and `b[axis][1]` the upper, and
 /// the eight child references (224 bytes).
 #[derive(Clone, Copy, Debug)]
