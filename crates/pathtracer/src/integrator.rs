@@ -241,7 +241,7 @@
 // Negated comparisons (`!(x > 0.0)`) are deliberate: they also reject NaN.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
-use crate::accel::{Accel, Hit};
+use crate::accel::{Accel, Hit, TraversalStack};
 use crate::geometry::{Frame, Ray, hit_point_error, offset_ray_origin};
 use crate::caustics::CausticPaths;
 use crate::light::{EmissiveTriangles, Environment, punctual_incidence};
@@ -682,6 +682,22 @@ impl PathIntegrator<'_> {
         self.accel.closest_hits(rays, f32::INFINITY, |r, prim, h| alpha_test(self.scene, &rays[r], prim, h.b), out)
     }
 
+    /// [`PathIntegrator::intersect`] with the traversal stack `stack` ([`Accel::closest_hit_in`]).
+    #[inline(always)]
+    fn intersect_in(&self, stack: &mut TraversalStack, ray: &Ray) -> Option<Hit> {
+        let hit = self.accel.closest_hit_in(stack, ray, f32::INFINITY, |prim, h| alpha_test(self.scene, ray, prim, h.b));
+        count_rays(1, 0);
+        hit
+    }
+
+    /// [`PathIntegrator::occluded`] with the traversal stack `stack` ([`Accel::occluded_in`]).
+    #[inline(always)]
+    fn occluded_in(&self, stack: &mut TraversalStack, ray: &Ray, t_max: f32) -> bool {
+        let blocked = self.accel.occluded_in(stack, ray, t_max, |prim, h| alpha_test(self.scene, ray, prim, h.b));
+        count_rays(0, 1);
+        blocked
+    }
+
     /// Whether anything blocks `ray` before `t_max`.
     #[inline(always)]
     pub fn occluded(&self, ray: &Ray, t_max: f32) -> bool {
@@ -836,7 +852,8 @@ impl PathIntegrator<'_> {
         if let Some(mats) = self.lane_materials {
             return self.radiance_lanes(mats, rays, samplers, primary_emission, out);
         }
-        let (mut paths, mut active) = self.camera_vertices(rays, out);
+        let mut stack = TraversalStack::default();
+        let (mut paths, mut active) = self.camera_vertices(&mut stack, rays, out);
         let mut pending: Vec<Pending> = Vec::with_capacity(active.len());
         let mut sampled: Vec<Option<BsdfSample>> = Vec::with_capacity(active.len());
         let mut bsdfs: Vec<BsdfAt> = Vec::with_capacity(active.len());
@@ -871,7 +888,7 @@ impl PathIntegrator<'_> {
                     }
                 } else {
                     for (e, &value) in lights.iter().zip(&values) {
-                        self.add_light_estimate(&mut paths[pending[e.vertex as usize].path as usize], e, value);
+                        self.add_light_estimate(&mut stack, &mut paths[pending[e.vertex as usize].path as usize], e, value);
                     }
                 }
             }
@@ -886,7 +903,7 @@ impl PathIntegrator<'_> {
             active.clear();
             for (v, bs) in pending.iter().zip(&sampled) {
                 let k = v.path as usize;
-                if self.continue_path(&mut paths[k], &samplers[k], v, bs) {
+                if self.continue_path(&mut stack, &mut paths[k], &samplers[k], v, bs) {
                     active.push(k as u32);
                 } else {
                     out[k].radiance = paths[k].l;
@@ -899,7 +916,7 @@ impl PathIntegrator<'_> {
     /// path at its first vertex, the paths that hit something (their indices), and `out`
     /// set for every ray (the environment for a miss).
     #[inline(always)]
-    fn camera_vertices(&self, rays: &[Ray], out: &mut [RadianceSample]) -> (Vec<PathState>, Vec<u32>) {
+    fn camera_vertices(&self, stack: &mut TraversalStack, rays: &[Ray], out: &mut [RadianceSample]) -> (Vec<PathState>, Vec<u32>) {
         let env = &self.settings.environment;
         let mut paths: Vec<PathState> = Vec::with_capacity(rays.len());
         let mut active: Vec<u32> = Vec::with_capacity(rays.len());
@@ -910,7 +927,7 @@ impl PathIntegrator<'_> {
             self.intersect_many(rays, &mut hits);
         } else {
             for (h, r) in hits.iter_mut().zip(rays) {
-                *h = self.intersect(r);
+                *h = self.intersect_in(stack, r);
             }
         }
         for (k, (ray, &hit)) in rays.iter().zip(&hits).enumerate() {
@@ -998,8 +1015,8 @@ impl PathIntegrator<'_> {
     /// `bsdf_pdf`) is not zero and its shadow ray is not blocked: a punctual light's `f · E`,
     /// an emitter's or the environment's `f · Le · w_light / pdf_light`.
     #[inline(always)]
-    fn add_light_estimate(&self, path: &mut PathState, e: &PendingLight, (f, bsdf_pdf): (Vec3, f32)) {
-        if traces_shadow_ray(f) && !self.occluded(&e.shadow, e.t_max) {
+    fn add_light_estimate(&self, stack: &mut TraversalStack, path: &mut PathState, e: &PendingLight, (f, bsdf_pdf): (Vec3, f32)) {
+        if traces_shadow_ray(f) && !self.occluded_in(stack, &e.shadow, e.t_max) {
             Self::add_unblocked(path, e, f, bsdf_pdf);
         }
     }
@@ -1090,10 +1107,10 @@ impl PathIntegrator<'_> {
     /// Continues a path from its vertex `v` along the BSDF sample `bs` (Russian roulette, the
     /// next ray traced); false when the path ends (its escape to the environment added).
     #[inline(always)]
-    fn continue_path(&self, path: &mut PathState, sampler: &Sampler, v: &Pending, bs: &Option<BsdfSample>) -> bool {
+    fn continue_path(&self, stack: &mut TraversalStack, path: &mut PathState, sampler: &Sampler, v: &Pending, bs: &Option<BsdfSample>) -> bool {
         let Some(bs) = bs else { return false };
         let wi = v.frame.to_world(bs.wi).normalize();
-        self.continue_along(path, v.origin, v.ng, wi, bs.weight, bs.pdf, || sampler.get_1d(v.dim + DIM_ROULETTE))
+        self.continue_along(stack, path, v.origin, v.ng, wi, bs.weight, bs.pdf, || sampler.get_1d(v.dim + DIM_ROULETTE))
     }
 
     /// Continues a path from its vertex (rays leave from `origin`, geometric normal `ng`
@@ -1102,7 +1119,7 @@ impl PathIntegrator<'_> {
     /// false when the path ends (its escape to the environment added).
     #[allow(clippy::too_many_arguments)]
     #[inline(always)]
-    fn continue_along(&self, path: &mut PathState, origin: Vec3, ng: Vec3, wi: Vec3, weight: Vec3, pdf: f32, roulette: impl FnOnce() -> f32) -> bool {
+    fn continue_along(&self, stack: &mut TraversalStack, path: &mut PathState, origin: Vec3, ng: Vec3, wi: Vec3, weight: Vec3, pdf: f32, roulette: impl FnOnce() -> f32) -> bool {
         let env = &self.settings.environment;
         if wi.dot(ng) <= 0.0 {
             return false;
@@ -1117,7 +1134,7 @@ impl PathIntegrator<'_> {
             path.beta /= survive;
         }
         path.ray = Ray::new(origin, wi);
-        match self.intersect(&path.ray) {
+        match self.intersect_in(stack, &path.ray) {
             Some(h) => {
                 path.hit = h;
                 path.depth += 1;

@@ -136,14 +136,15 @@ impl PathIntegrator<'_> {
     /// bits).
     #[inline(always)]
     pub(super) fn radiance_lanes(&self, mats: &LaneMaterials, rays: &[Ray], samplers: &mut [Sampler], primary_emission: bool, out: &mut [RadianceSample]) {
-        let (mut paths, mut active) = self.camera_vertices(rays, out);
+        let mut stack = TraversalStack::default();
+        let (mut paths, mut active) = self.camera_vertices(&mut stack, rays, out);
         let mut next: Vec<u32> = Vec::with_capacity(active.len());
         let mut others: Vec<OtherLight> = Vec::new();
         let mut other_values: Vec<(Vec3, f32)> = Vec::new();
         while !active.is_empty() {
             next.clear();
             for chunk in active.chunks(L) {
-                self.vertices_in_lanes(&mats.0, chunk, &mut paths, samplers, primary_emission, out, &mut next, &mut others, &mut other_values);
+                self.vertices_in_lanes(&mut stack, &mats.0, chunk, &mut paths, samplers, primary_emission, out, &mut next, &mut others, &mut other_values);
             }
             std::mem::swap(&mut active, &mut next);
         }
@@ -154,7 +155,7 @@ impl PathIntegrator<'_> {
     /// written to `out`.
     #[allow(clippy::too_many_arguments, clippy::needless_range_loop)]
     #[inline(always)]
-    fn vertices_in_lanes(&self, mats: &[LaneMaterial], chunk: &[u32], paths: &mut [PathState], samplers: &mut [Sampler], primary_emission: bool, out: &mut [RadianceSample], next: &mut Vec<u32>, others: &mut Vec<OtherLight>, other_values: &mut Vec<(Vec3, f32)>) {
+    fn vertices_in_lanes(&self, stack: &mut TraversalStack, mats: &[LaneMaterial], chunk: &[u32], paths: &mut [PathState], samplers: &mut [Sampler], primary_emission: bool, out: &mut [RadianceSample], next: &mut Vec<u32>, others: &mut Vec<OtherLight>, other_values: &mut Vec<(Vec3, f32)>) {
         let scene = self.scene;
         let m = &scene.mesh;
         let max_bounces = self.settings.max_bounces;
@@ -358,15 +359,15 @@ impl PathIntegrator<'_> {
             }
             let path = &mut paths[id as usize];
             while cursor < others.len() && others[cursor].lane == k && others[cursor].punctual {
-                self.add_light_estimate(path, &others[cursor].light, other_values[cursor]);
+                self.add_light_estimate(stack, path, &others[cursor].light, other_values[cursor]);
                 cursor += 1;
             }
             if e_ok[k] {
                 let e = PendingLight { vertex: 0, wi_l: get3(&e_wi_l, k), radiance: get3(&e_le, k), light_pdf: Some(e_pdf[k]), shadow: Ray::new(get3(&origin, k), get3(&e_dir, k)), t_max: e_tmax[k], light: LIGHT_EMITTERS };
-                self.add_light_estimate(path, &e, (get3(&e_f, k), e_bsdf_pdf[k]));
+                self.add_light_estimate(stack, path, &e, (get3(&e_f, k), e_bsdf_pdf[k]));
             }
             while cursor < others.len() && others[cursor].lane == k {
-                self.add_light_estimate(path, &others[cursor].light, other_values[cursor]);
+                self.add_light_estimate(stack, path, &others[cursor].light, other_values[cursor]);
                 cursor += 1;
             }
         }
@@ -385,7 +386,7 @@ impl PathIntegrator<'_> {
                 continue;
             }
             let path = &mut paths[id as usize];
-            let goes_on = sampled.ok[k] && self.continue_along(path, get3(&origin, k), get3(&ng, k), get3(&s_wi, k), get3(&sampled.weight, k), sampled.pdf[k], || u_roulette[k]);
+            let goes_on = sampled.ok[k] && self.continue_along(stack, path, get3(&origin, k), get3(&ng, k), get3(&s_wi, k), get3(&sampled.weight, k), sampled.pdf[k], || u_roulette[k]);
             if goes_on {
                 next.push(id);
             } else {
