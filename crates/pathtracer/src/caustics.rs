@@ -71,7 +71,7 @@
 // Negated comparisons (`!(x > 0.0)`) are deliberate: they also reject NaN.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
-use crate::accel::Hit;
+use crate::accel::{Hit, TraversalStack};
 use crate::geometry::{Ray, hit_point_error, offset_ray_origin};
 use crate::integrator::{PathIntegrator, interaction, vertex_bsdf};
 use crate::light::punctual_incidence;
@@ -310,9 +310,15 @@ impl CausticPaths {
                 .map(|c| {
                     integ.tallied(|| {
                         let mut out = Vec::new();
-                        for k in c * CHUNK..((c + 1) * CHUNK).min(n) {
-                            self.trace(&eye, max_vertices, &key.with_sample(k as u32), &mut out);
-                        }
+                        let mut stack = TraversalStack::default();
+                        integ.accel.at_level(
+                            #[inline(always)]
+                            || {
+                                for k in c * CHUNK..((c + 1) * CHUNK).min(n) {
+                                    self.trace(&eye, &mut stack, max_vertices, &key.with_sample(k as u32), &mut out);
+                                }
+                            },
+                        );
                         out
                     })
                 })
@@ -354,9 +360,15 @@ impl CausticPaths {
             .map(|c| {
                 integ.tallied(|| {
                     let mut out = Vec::new();
-                    for k in c * PILOT_CHUNK..((c + 1) * PILOT_CHUNK).min(pilot) {
-                        self.trace(&eye, max_vertices, &key.with_sample(k as u32), &mut out);
-                    }
+                    let mut stack = TraversalStack::default();
+                    integ.accel.at_level(
+                        #[inline(always)]
+                        || {
+                            for k in c * PILOT_CHUNK..((c + 1) * PILOT_CHUNK).min(pilot) {
+                                self.trace(&eye, &mut stack, max_vertices, &key.with_sample(k as u32), &mut out);
+                            }
+                        },
+                    );
                     out.len() as u64
                 })
             })
@@ -366,7 +378,8 @@ impl CausticPaths {
 
     /// One light path: the pixels its vertices after the caster land in, with their values
     /// (times `N`), pushed to `out`.
-    fn trace(&self, eye: &Eye<'_>, max_vertices: u32, sampler: &Sampler, out: &mut Vec<(u32, Vec3)>) {
+    #[inline(always)]
+    fn trace(&self, eye: &Eye<'_>, stack: &mut TraversalStack, max_vertices: u32, sampler: &Sampler, out: &mut Vec<(u32, Vec3)>) {
         let integ = eye.integ;
         let scene = integ.scene;
         // The light, in proportion to its weight.
@@ -395,7 +408,7 @@ impl CausticPaths {
         }
         // The light reaches the point when the ray's first hit is it (its triangle, or another
         // caster at the same distance, as at a shared edge).
-        let Some(hit) = integ.intersect(&ray_l) else { return };
+        let Some(hit) = integ.intersect_in(stack, &ray_l) else { return };
         if hit.prim != prim && !((hit.t - expected).abs() <= 1e-4 * expected) {
             return;
         }
@@ -425,7 +438,7 @@ impl CausticPaths {
                 return;
             }
             let ray_b = Ray::new(offset_ray_origin(cur_si.p, cur_si.p_err, cur_si.ng, cur_si.ng), wb);
-            let Some(next) = integ.intersect(&ray_b) else { return };
+            let Some(next) = integ.intersect_in(stack, &ray_b) else { return };
             let next_si = interaction(scene, &ray_b, &next);
             if self.is_sharp(next_si.material) {
                 return;
@@ -444,7 +457,7 @@ impl CausticPaths {
             }
             beta *= f * g;
             let p_next = ray_b.origin + wb * next.t;
-            if let Some(splat) = self.connect(eye, next.prim, p_next, cur_pt.p, beta) {
+            if let Some(splat) = self.connect(eye, stack, next.prim, p_next, cur_pt.p, beta) {
                 out.push(splat);
             }
             (cur, cur_si, arrival, toward_prev) = (next, next_si, wb, -wb);
@@ -479,7 +492,8 @@ impl CausticPaths {
     /// next vertex on the light's side), and the pixel it falls in with
     /// `beta · f · W · |cos| / d²`; `None` when the camera does not see `p` first, `p` is off the
     /// image or on a sharp material.
-    fn connect(&self, eye: &Eye<'_>, prim: u32, p: Vec3, toward: Vec3, beta: Vec3) -> Option<(u32, Vec3)> {
+    #[inline(always)]
+    fn connect(&self, eye: &Eye<'_>, stack: &mut TraversalStack, prim: u32, p: Vec3, toward: Vec3, beta: Vec3) -> Option<(u32, Vec3)> {
         let (integ, rays, (width, height)) = (eye.integ, eye.rays, eye.size);
         let scene = integ.scene;
         let (px, py, cos_c, dist_c) = rays.project(p)?;
@@ -487,7 +501,7 @@ impl CausticPaths {
             return None;
         }
         let ray_c = rays.ray(px, py);
-        let hit1 = integ.intersect(&ray_c)?;
+        let hit1 = integ.intersect_in(stack, &ray_c)?;
         if hit1.prim != prim && !((hit1.t - dist_c).abs() <= 1e-4 * dist_c) {
             return None;
         }

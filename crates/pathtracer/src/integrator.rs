@@ -684,7 +684,7 @@ impl PathIntegrator<'_> {
 
     /// [`PathIntegrator::intersect`] with the traversal stack `stack` ([`Accel::closest_hit_in`]).
     #[inline(always)]
-    fn intersect_in(&self, stack: &mut TraversalStack, ray: &Ray) -> Option<Hit> {
+    pub(crate) fn intersect_in(&self, stack: &mut TraversalStack, ray: &Ray) -> Option<Hit> {
         let hit = self.accel.closest_hit_in(stack, ray, f32::INFINITY, |prim, h| alpha_test(self.scene, ray, prim, h.b));
         count_rays(1, 0);
         hit
