@@ -173,7 +173,14 @@
 //! caller's stack alone `cornell` +1–2 %; with the ray as vectors but the counter bumped
 //! first, no gain (the caller then reloaded the ray the same way); both, `cornell`
 //! +4.5–5 %, `materials` +2 % (two pairs), `deep`, `tabletop` and `thin` within ±0.7 %.
-//! The same bits.
+//! The same bits. The lane loop's emitter shadow ray had the same stall (its ray read back
+//! from the light sample's record, written field by field just before): traced from
+//! registers before the record is made, `cornell` +3–4 % more (three pairs; `thin`, with no
+//! emitters, ±1 %). Two more such loads were removed and measured within the noise, so they
+//! are not kept: the triangle test's hit copied into the closest hit (`cornell` 0 to +1 %,
+//! `deep` ±0.3 %) and the closest hit returned as two four-lane vectors instead of an
+//! `Option<Hit>` (`cornell` −0.4 to +1.5 %, `deep` and `tabletop` ±1.5 %): the CPU's
+//! out-of-order window hides a stall that does not gate the query's start.
 //!
 //! Shadow rays use the same traversal as an any-hit query that stops at the first accepted
 //! hit ([`Accel::occluded`]).

@@ -363,8 +363,14 @@ impl PathIntegrator<'_> {
                 cursor += 1;
             }
             if e_ok[k] {
-                let e = PendingLight { vertex: 0, wi_l: get3(&e_wi_l, k), radiance: get3(&e_le, k), light_pdf: Some(e_pdf[k]), shadow: Ray::new(get3(&origin, k), get3(&e_dir, k)), t_max: e_tmax[k], light: LIGHT_EMITTERS };
-                self.add_light_estimate(stack, path, &e, (get3(&e_f, k), e_bsdf_pdf[k]));
+                // `add_light_estimate` with the shadow ray traced before the light sample is
+                // gathered into a `PendingLight` (the same bits): the query then reads its ray
+                // from registers, not back from the record's memory just written.
+                let (f, shadow) = (get3(&e_f, k), Ray::new(get3(&origin, k), get3(&e_dir, k)));
+                if traces_shadow_ray(f) && !self.occluded_in(stack, &shadow, e_tmax[k]) {
+                    let e = PendingLight { vertex: 0, wi_l: get3(&e_wi_l, k), radiance: get3(&e_le, k), light_pdf: Some(e_pdf[k]), shadow, t_max: e_tmax[k], light: LIGHT_EMITTERS };
+                    Self::add_unblocked(path, &e, f, e_bsdf_pdf[k]);
+                }
             }
             while cursor < others.len() && others[cursor].lane == k {
                 self.add_light_estimate(stack, path, &others[cursor].light, other_values[cursor]);
