@@ -856,7 +856,6 @@ impl PathIntegrator<'_> {
         let (mut paths, mut active) = self.camera_vertices(&mut stack, rays, out);
         let mut pending: Vec<Pending> = Vec::with_capacity(active.len());
         let mut sampled: Vec<Option<BsdfSample>> = Vec::with_capacity(active.len());
-        let mut bsdfs: Vec<BsdfAt> = Vec::with_capacity(active.len());
         let mut numbers: Vec<Vec2> = Vec::with_capacity(active.len());
         let mut light_wi: Vec<Vec3> = Vec::with_capacity(active.len());
         let mut values: Vec<(Vec3, f32)> = Vec::with_capacity(active.len());
@@ -893,13 +892,11 @@ impl PathIntegrator<'_> {
                 }
             }
             camera_vertex = false;
-            bsdfs.clear();
-            bsdfs.extend(pending.iter().map(|v| v.bsdf));
             numbers.clear();
             numbers.extend(pending.iter().map(|v| samplers[v.path as usize].get_2d(v.dim + DIM_BSDF)));
             sampled.clear();
             sampled.resize(pending.len(), None);
-            sample_many(&bsdfs, &numbers, &mut sampled);
+            sample_many(|k| &pending[k].bsdf, &numbers, &mut sampled);
             active.clear();
             for (v, bs) in pending.iter().zip(&sampled) {
                 let k = v.path as usize;

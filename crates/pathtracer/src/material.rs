@@ -578,24 +578,25 @@ fn sample_lane<const ALL_DIFFUSE: bool>(x: SampleLane) -> (Vec3, Vec3, f32, bool
 /// Lanes of [`sample_many`]: eight, the `f32` lanes of an AVX2 register.
 const SAMPLE_LANES: usize = 8;
 
-/// `out[k] = bsdfs[k].sample(u[k])` for every `k` (the same bits), the samples drawn eight
-/// (`SAMPLE_LANES`) at a time: the inputs transposed into one array per number, one
-/// vectorised loop over the lanes (`sample_lane`), the results transposed back.
+/// `out[k] = bsdfs(k).sample(u[k])` for every `k < u.len()` (the same bits), the samples
+/// drawn eight (`SAMPLE_LANES`) at a time: the inputs transposed into one array per number,
+/// one vectorised loop over the lanes (`sample_lane`), the results transposed back. The
+/// BSDFs are read where they lie (as in [`evaluate_many`]), not gathered into a slice first.
 ///
 /// # Panics
 /// If the slices differ in length.
 #[inline(always)]
-pub fn sample_many(bsdfs: &[BsdfAt], u: &[Vec2], out: &mut [Option<BsdfSample>]) {
+pub fn sample_many<'a>(bsdfs: impl Fn(usize) -> &'a BsdfAt, u: &[Vec2], out: &mut [Option<BsdfSample>]) {
     const L: usize = SAMPLE_LANES;
-    let n = bsdfs.len();
-    assert!(u.len() == n && out.len() == n, "sample_many: slices of different lengths");
+    let n = u.len();
+    assert!(out.len() == n, "sample_many: slices of different lengths");
     for start in (0..n).step_by(L) {
         let m = (n - start).min(L);
         // Unused lanes hold zeros; their results are dropped.
         let mut x = BsdfLanes::default();
         let mut x_u = [[0.0f32; L]; 2];
-        for (k, (b, &uk)) in bsdfs[start..start + m].iter().zip(&u[start..start + m]).enumerate() {
-            x.set(k, &b.lane(uk));
+        for (k, &uk) in u[start..start + m].iter().enumerate() {
+            x.set(k, &bsdfs(start + k).lane(uk));
             (x_u[0][k], x_u[1][k]) = (uk.x, uk.y);
         }
         let mut y = SampledLanes::default();
@@ -1267,7 +1268,7 @@ mod tests {
             }
             let wis: Vec<Vec3> = (0..n).map(|k| if k % 6 == 5 { -Vec3::Z } else { crate::sampler::sample_uniform_sphere(rng.next_2d()) }).collect();
             let mut out = vec![None; n];
-            sample_many(&bsdfs, &us, &mut out);
+            sample_many(|k| &bsdfs[k], &us, &mut out);
             let mut values = vec![(Vec3::NAN, f32::NAN); n];
             evaluate_many(|k| &bsdfs[k], &wis, &mut values);
             let key = |s: Option<BsdfSample>| s.map(|s| (s.wi.to_array().map(f32::to_bits), s.weight.to_array().map(f32::to_bits), s.pdf.to_bits()));
