@@ -903,8 +903,8 @@ impl PathIntegrator<'_> {
                     dims[k] = v.dim + DIM_BSDF;
                 }
                 let u = lanes.get_2d(&dims);
-                for (&x, &y) in u[0].iter().zip(&u[1]).take(chunk.len()) {
-                    numbers.push(Vec2::new(x, y));
+                for k in 0..chunk.len() {
+                    numbers.push(Vec2::new(u[0][k], u[1][k]));
                 }
             }
             sampled.clear();
