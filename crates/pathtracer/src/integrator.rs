@@ -246,7 +246,7 @@ use crate::geometry::{Frame, Ray, hit_point_error, offset_ray_origin};
 use crate::caustics::CausticPaths;
 use crate::light::{EmissiveTriangles, Environment, punctual_incidence};
 use crate::material::{BsdfAt, BsdfSample, SurfaceAttributes, evaluate_many, sample_many, SurfaceMaterial, base_color, emission, facing_normals, normal_mapped, resolve, shading_frame, triangle_tangent};
-use crate::sampler::{Sampler, SamplerLanes, power_heuristic, splitmix64};
+use crate::sampler::{Sampler, power_heuristic, splitmix64};
 use crate::scene::{AlphaMode, Material, Scene};
 use glam::{Vec2, Vec3, Vec4};
 
@@ -892,21 +892,8 @@ impl PathIntegrator<'_> {
                 }
             }
             camera_vertex = false;
-            // The BSDF samples' numbers, eight paths' at a time in lanes (each lane its
-            // sampler's `get_2d`).
             numbers.clear();
-            for chunk in pending.chunks(8) {
-                let mut lanes = SamplerLanes::default();
-                let mut dims = [0u32; 8];
-                for (k, v) in chunk.iter().enumerate() {
-                    lanes.set(k, &samplers[v.path as usize]);
-                    dims[k] = v.dim + DIM_BSDF;
-                }
-                let u = lanes.get_2d(&dims);
-                for k in 0..chunk.len() {
-                    numbers.push(Vec2::new(u[0][k], u[1][k]));
-                }
-            }
+            numbers.extend(pending.iter().map(|v| samplers[v.path as usize].get_2d(v.dim + DIM_BSDF)));
             sampled.clear();
             sampled.resize(pending.len(), None);
             sample_many(|k| &pending[k].bsdf, &numbers, &mut sampled);
