@@ -187,7 +187,13 @@
 //! one-ray queries on the same ray files (which this change does not touch) 8–15 % slower
 //! on `tabletop` and `deep`, in three alternating runs and again with every function aligned
 //! to 64 bytes (`-C llvm-args=-align-all-functions=6`), unexplained; a change whose side
-//! effect is not understood is not kept.
+//! effect is not understood is not kept. Nor is the one-path loop's BSDF numbers drawn eight
+//! paths at a time in lanes (`SamplerLanes`, instead of an outlined `Vec::extend` compiled
+//! for the baseline; the same bits): `deep` +0.4–1.4 %, `tabletop` +0.1–1.3 %, `materials`
+//! −0.6 to +1.8 %, but `cornell` −0.3 to −2.6 % (its lane loop, which the change does not
+//! touch, is compiled into the same function); and a whole `cargo xtask bench render` with
+//! it read 3–7 % lower on every row, Mitsuba's own included, so the machine had drifted and
+//! that run decided nothing.
 //!
 //! Shadow rays use the same traversal as an any-hit query that stops at the first accepted
 //! hit ([`Accel::occluded`]).
