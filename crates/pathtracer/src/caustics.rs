@@ -310,15 +310,7 @@ impl CausticPaths {
                 .map(|c| {
                     integ.tallied(|| {
                         let mut out = Vec::new();
-                        let mut stack = TraversalStack::default();
-                        integ.accel.at_level(
-                            #[inline(always)]
-                            || {
-                                for k in c * CHUNK..((c + 1) * CHUNK).min(n) {
-                                    self.trace(&eye, &mut stack, max_vertices, &key.with_sample(k as u32), &mut out);
-                                }
-                            },
-                        );
+                        self.trace_range(&eye, max_vertices, &key, c * CHUNK..((c + 1) * CHUNK).min(n), &mut out);
                         out
                     })
                 })
@@ -360,20 +352,27 @@ impl CausticPaths {
             .map(|c| {
                 integ.tallied(|| {
                     let mut out = Vec::new();
-                    let mut stack = TraversalStack::default();
-                    integ.accel.at_level(
-                        #[inline(always)]
-                        || {
-                            for k in c * PILOT_CHUNK..((c + 1) * PILOT_CHUNK).min(pilot) {
-                                self.trace(&eye, &mut stack, max_vertices, &key.with_sample(k as u32), &mut out);
-                            }
-                        },
-                    );
+                    self.trace_range(&eye, max_vertices, &key, c * PILOT_CHUNK..((c + 1) * PILOT_CHUNK).min(pilot), &mut out);
                     out.len() as u64
                 })
             })
             .sum();
         if splats as f64 >= MIN_YIELD * pilot as f64 { n } else { 0 }
+    }
+
+    /// The light paths `paths` (sample indices of the sampler `key`), [`CausticPaths::trace`]d
+    /// in order at the path loop's SIMD level ([`crate::accel::Accel::at_level`]), their
+    /// queries on one stack of their own.
+    fn trace_range(&self, eye: &Eye<'_>, max_vertices: u32, key: &Sampler, paths: std::ops::Range<u64>, out: &mut Vec<(u32, Vec3)>) {
+        let mut stack = TraversalStack::default();
+        eye.integ.accel.at_level(
+            #[inline(always)]
+            || {
+                for k in paths {
+                    self.trace(eye, &mut stack, max_vertices, &key.with_sample(k as u32), out);
+                }
+            },
+        );
     }
 
     /// One light path: the pixels its vertices after the caster land in, with their values
