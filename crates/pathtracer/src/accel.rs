@@ -195,6 +195,29 @@
 //! it read 3–7 % lower on every row, Mitsuba's own included, so the machine had drifted and
 //! that run decided nothing.
 //!
+//! Measured and not kept at stop 69 (the same bits each; 2-core Zen 4, alternating runs):
+//! - [`Accel::closest_hit`] and [`Accel::occluded`] as one line each over the `_in` queries
+//!   (the thread-local holding a [`TraversalStack`]; `duplicates` pairs the two forms): on
+//!   Mitsuba's incoherent `cornell` rays, six alternating runs, closest hits 24.8–25.4 →
+//!   21.4–21.9 M/s and any-hit 32.8–33.5 → 30.3–31.3 (`deep` and `tabletop` closest −1 to
+//!   −9 %). pulp's `vectorize` hands a closure of at most 64 bytes to the code compiled at the
+//!   level in registers and a larger one through memory; the thread-stack queries' closure
+//!   (the ray by reference) fits, the `_in` queries' (the ray as two `Vec3A`) does not. For
+//!   the path loop the `_in` form still gains (stop 68).
+//! - The `_in` queries' closure brought under 64 bytes (`t_max` in the fourth lane of the
+//!   origin), so that it too is passed in registers: samples per CPU-second at 128 px and
+//!   64 spp, three alternating pairs, `cornell` +0.5, +1.2, +8 %, `deep` −1, −7, −1.5 %,
+//!   `tabletop` +2, 0, −3 %: nothing to keep.
+//! - The any-hit query's children popped in obvhs's octant order (slot `k ^ octant`, which
+//!   the CWBVH conversion fills roughly near to far for each direction octant) instead of
+//!   slot order: on Mitsuba's incoherent rays (two alternating runs; 12 % to 63 %
+//!   of them are blocked) every scene within the run-to-run spread (±10 % that hour).
+//! - The ray-throughput benchmarks' one-ray queries made as the path loop makes them (each
+//!   chunk at its SIMD level with one [`TraversalStack`]) instead of through the thread's
+//!   stack: the same Mray/s on Mitsuba's incoherent rays within ±5 % (`cornell`, `deep`,
+//!   `tabletop`, two alternating runs), so the per-ray table keeps measuring the thread-stack
+//!   queries.
+//!
 //! Shadow rays use the same traversal as an any-hit query that stops at the first accepted
 //! hit ([`Accel::occluded`]).
 //!
