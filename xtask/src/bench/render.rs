@@ -21,11 +21,11 @@ pub enum BenchWhat {
     /// Path tracer (release profile): samples/s, BVH build time and memory against the triangle count (generated stress scenes).
     Scaling(ScalingBenchArgs),
     /// NeRF training (release profile): throughput of both models, the fast model's roofline, and the time to render a full-size view from a fast model.
-    Nerf(crate::bench_nerf::NerfBenchArgs),
+    Nerf(super::nerf::NerfBenchArgs),
     /// `--model auto` against fixed fast sizes and paper on every scene (train, eval, compare).
-    Auto(crate::bench_auto::AutoBenchArgs),
+    Auto(super::auto::AutoBenchArgs),
     /// Quality at equal time before and after a change: two `bench auto` output folders (two builds, the same runs) compared figure by figure against the seeds' noise.
-    AutoDiff(crate::bench_auto_diff::AutoDiffArgs),
+    AutoDiff(super::auto_diff::AutoDiffArgs),
 }
 
 /// Options of `bench render`.
@@ -79,12 +79,12 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         }
         BenchWhat::Nerf(a) => {
             if a.no_release || !rerun_in_release()? {
-                crate::bench_nerf::run(a)?;
+                super::nerf::run(a)?;
             }
             Ok(())
         }
-        BenchWhat::Auto(a) => crate::bench_auto::run(a),
-        BenchWhat::AutoDiff(a) => crate::bench_auto_diff::run(a),
+        BenchWhat::Auto(a) => super::auto::run(a),
+        BenchWhat::AutoDiff(a) => super::auto_diff::run(a),
     }
 }
 
