@@ -1,7 +1,7 @@
 //! Helpers shared by the workspace's tests; a dev-dependency of the crates that use them, never
 //! a dependency of shipped code. Folder helpers are always here; the training tests' builders
-//! ([`training`], feature `nerf`) and small renders of the project's scenes ([`render`],
-//! feature `pathtracer`) come with the feature named after the crate they need.
+//! (`training`, feature `nerf`) and small renders of the project's scenes (`render`, feature
+//! `pathtracer`) come with the feature named after the crate they need.
 //!
 //! ```
 //! let tmp = tempfile::tempdir().unwrap();
