@@ -9,7 +9,7 @@ with it (the child is killed when its parent dies). At the end the driver runs
 `xtask compare` over the evaluated runs into OUT (`compare.md`, `compare.png`).
 
 Model names: `auto`, `fast`, `paper` are `xtask train --model`; `fast-small`, `fast-medium`,
-`fast-large` are the fixed sizes of `cargo xtask bench auto` (xtask/src/bench_auto.rs):
+`fast-large` are the fixed sizes of `cargo xtask bench auto` (xtask/src/bench/auto.rs):
 the `fast` preset's config (read from a one-step probe run, so every other setting is the
 trainer's own) with the same model fields changed, passed with `--config`. Run folders are
 named as `bench auto` names them: `MODEL` for the first seed, `MODEL-seedS` for the others.
@@ -36,7 +36,7 @@ from .raysession import ray_session
 TRAIN_MODELS = ("auto", "fast", "paper")
 
 #: bench auto's fixed sizes: the fields of the `fast` preset's model config they change
-#: (xtask/src/bench_auto.rs `config_of`; fast-medium is the preset itself).
+#: (xtask/src/bench/auto.rs `config_of`; fast-medium is the preset itself).
 FIXED_SIZES: dict[str, dict] = {
     "fast-small": {"levels": 8, "log2_table_size": 15, "finest_resolution": 256, "grid_resolution": 32, "steps_per_diagonal": 256},
     "fast-medium": {},

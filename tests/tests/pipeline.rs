@@ -3,8 +3,8 @@
 //! the report and pictures exist.
 
 use dataset::SplitKind;
-use pathtracer::dataset_render::{DatasetRenderConfig, Preset, RunOptions, render_dataset};
 use std::sync::atomic::AtomicBool;
+use test_support::render::quick_dataset;
 
 #[test]
 fn render_train_eval_writes_a_complete_report() {
@@ -12,11 +12,8 @@ fn render_train_eval_writes_a_complete_report() {
     let data = tmp.path().join("dataset");
     let run = tmp.path().join("run");
 
-    let mut cfg = DatasetRenderConfig::preset(Preset::Quick);
-    (cfg.width, cfg.height, cfg.train, cfg.val, cfg.test, cfg.spp) = (48, 48, 12, 2, 2, 8);
+    quick_dataset(&test_support::scene("tabletop"), &data, 48, [12, 2, 2], 8);
     let stop = AtomicBool::new(false);
-    render_dataset(&e2e_tests::scene("tabletop"), &data, &cfg, &RunOptions { threads: None, force: false }, &mut |_| {}, &stop)
-        .expect("render");
 
     let mut tc = nerf::train::TrainConfig::preset("fast", data.clone()).unwrap();
     tc.steps = Some(40);
@@ -86,12 +83,7 @@ fn render_train_eval_writes_a_complete_report() {
     // off-surface tolerance comes from the box around the true surface points the test views
     // see, no larger than the scene's box, and the mass stays a measurement (with a zero
     // tolerance every sample would count as off the surface).
-    for split in ["train", "val", "test"] {
-        let p = data.join(format!("transforms_{split}.json"));
-        let mut v: serde_json::Value = serde_json::from_slice(&std::fs::read(&p).unwrap()).unwrap();
-        v.as_object_mut().unwrap().remove("scene_facts");
-        std::fs::write(&p, serde_json::to_vec(&v).unwrap()).unwrap();
-    }
+    test_support::strip_scene_facts(&data);
     let bare = eval::evaluate_run(&run, &eval::EvalRunOptions { mesh: None, ..eval::EvalRunOptions::split(SplitKind::Test) }, &mut |_, _| {}).expect("eval without facts");
     let (tol, facts_tol) = (bare.report.surface_tol, out.report.surface_tol);
     eprintln!("surface tolerance {tol} (facts: {facts_tol}), off-surface mass {:?} (facts: {:?})", bare.report.mean.off_surface_mass, m.off_surface_mass);
@@ -112,11 +104,8 @@ fn eval_measures_at_the_training_resolution() {
     let tmp = tempfile::tempdir().unwrap();
     let data = tmp.path().join("dataset");
     let run = tmp.path().join("run");
-    let mut cfg = DatasetRenderConfig::preset(Preset::Quick);
-    (cfg.width, cfg.height, cfg.train, cfg.val, cfg.test, cfg.spp) = (48, 48, 12, 3, 1, 8);
+    quick_dataset(&test_support::scene("tabletop"), &data, 48, [12, 3, 1], 8);
     let stop = AtomicBool::new(false);
-    render_dataset(&e2e_tests::scene("tabletop"), &data, &cfg, &RunOptions { threads: None, force: false }, &mut |_| {}, &stop)
-        .expect("render");
 
     let mut tc = nerf::train::TrainConfig::preset("fast", data.clone()).unwrap();
     (tc.steps, tc.batch_rays, tc.downscale) = (Some(30), 1024, 2);

@@ -5,19 +5,17 @@
 //! of skipped (non-finite) steps agrees between the trainer and `metrics.jsonl`.
 
 use nerf::models::ModelConfig;
-use nerf::models::fast::FastConfig;
 use nerf::train::{TrainConfig, Trainer};
-use pathtracer::dataset_render::{DatasetRenderConfig, Preset, RunOptions, render_dataset};
 use std::path::Path;
 use std::sync::atomic::AtomicBool;
+use test_support::render::quick_dataset;
+use test_support::training::tiny_fast;
 
 const STEPS: u64 = 2000;
 
+/// The datasets: 24×24 views, 8 train, 1 val, 1 test, 4 spp.
 fn render(scene: &Path, out: &Path) {
-    let mut cfg = DatasetRenderConfig::preset(Preset::Quick);
-    (cfg.width, cfg.height, cfg.train, cfg.val, cfg.test, cfg.spp) = (24, 24, 8, 1, 1, 4);
-    let opts = RunOptions { threads: None, force: false };
-    render_dataset(scene, out, &cfg, &opts, &mut |_| {}, &AtomicBool::new(false)).expect("render");
+    quick_dataset(scene, out, 24, [8, 1, 1], 4);
 }
 
 /// The tabletop scene with a 2 mm sphere hovering above it that emits 10⁶ (linear radiance):
@@ -44,14 +42,7 @@ fn all_finite(s: &nerf::checkpoint::StateDict) -> Option<String> {
 
 /// Trains 2,000 steps and checks every number that comes out.
 fn train_and_check(data: &Path, run: &Path, what: &str) {
-    let fast = FastConfig::new()
-        .with_levels(4)
-        .with_log2_table_size(12)
-        .with_finest_resolution(64)
-        .with_grid_resolution(16)
-        .with_steps_per_diagonal(64)
-        .with_grid_warmup_steps(16)
-        .with_grid_update_interval(8);
+    let fast = tiny_fast(16, 8);
     // The fast preset (random background, learning rates) with a small model and batch.
     let mut cfg = TrainConfig::preset("fast", data.to_path_buf()).unwrap();
     (cfg.model, cfg.batch_rays, cfg.lr_decay_steps) = (ModelConfig::Fast(fast), 128, STEPS);
@@ -117,7 +108,7 @@ fn train_and_check(data: &Path, run: &Path, what: &str) {
 fn fast_trains_2000_finite_steps_on_the_thin_structure_scene() {
     let tmp = tempfile::tempdir().unwrap();
     let data = tmp.path().join("thin");
-    render(&e2e_tests::scene("thin"), &data);
+    render(&test_support::scene("thin"), &data);
     train_and_check(&data, &tmp.path().join("run"), "thin");
 }
 

@@ -6,9 +6,6 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, OnceLock};
 
 mod bench;
-mod bench_auto;
-mod bench_auto_diff;
-mod bench_nerf;
 mod crosscheck;
 mod evaluate;
 mod gen_scenes;

@@ -5,7 +5,7 @@
 use nerf::models::ModelConfig;
 use nerf::train::{TrainConfig, Trainer};
 use std::path::Path;
-use std::sync::atomic::AtomicBool;
+use test_support::training::{run_to_end, synthetic_dataset};
 
 /// The spheres' true bounding box (see `nerf::data::synthetic`).
 const TRUE_MIN: [f32; 3] = [-0.8, -0.6, -0.6];
@@ -28,9 +28,7 @@ fn fast(cfg: &TrainConfig) -> &nerf::models::fast::FastConfig {
 
 #[test]
 fn auto_with_scene_facts_records_its_reasons_and_resumes_identically() {
-    let tmp = tempfile::tempdir().unwrap();
-    let data = tmp.path().join("data");
-    nerf::data::synthetic::write(&data, 32, [12, 2, 2], false).unwrap();
+    let (tmp, data) = synthetic_dataset(32, [12, 2, 2]);
     let run = tmp.path().join("run");
     let mut t = Trainer::new(auto_config(&data, 10), &run, false).unwrap();
     let written = TrainConfig::read(&run.join("config.json")).unwrap();
@@ -46,7 +44,7 @@ fn auto_with_scene_facts_records_its_reasons_and_resumes_identically() {
     let b = written.bounds.clone().unwrap();
     assert!((0..3).all(|k| b.aabb_min[k] < TRUE_MIN[k] && b.aabb_max[k] > TRUE_MAX[k]), "{b:?}");
     assert!(written.plateau_stop.is_some());
-    t.run(&AtomicBool::new(false), &mut |_| {}).unwrap();
+    run_to_end(&mut t);
     assert!(t.model.parameters() < 1 << 22);
 
     // Resume with more steps: the recorded config is used as is, not sized again.
@@ -56,7 +54,7 @@ fn auto_with_scene_facts_records_its_reasons_and_resumes_identically() {
     assert_eq!(r.step, 10);
     assert_eq!(serde_json::to_value(&r.config.model).unwrap(), serde_json::to_value(&written.model).unwrap());
     assert_eq!(r.config.auto_reasons, written.auto_reasons);
-    let s = r.run(&AtomicBool::new(false), &mut |_| {}).unwrap();
+    let s = run_to_end(&mut r);
     assert_eq!(s.steps, 15);
 }
 
@@ -82,12 +80,7 @@ fn auto_without_facts_uses_the_visual_hull_and_tests_view_dependence_from_depth(
     // Our layout with the facts removed: ground-truth depth lets auto test colour constancy.
     let ours = tmp.path().join("ours");
     nerf::data::synthetic::write(&ours, 32, [16, 1, 1], false).unwrap();
-    for split in ["train", "val", "test"] {
-        let p = ours.join(format!("transforms_{split}.json"));
-        let mut v: serde_json::Value = serde_json::from_slice(&std::fs::read(&p).unwrap()).unwrap();
-        v.as_object_mut().unwrap().remove("scene_facts");
-        std::fs::write(&p, serde_json::to_vec(&v).unwrap()).unwrap();
-    }
+    test_support::strip_scene_facts(&ours);
     assert!(dataset::Dataset::load(&ours).unwrap().facts.is_none());
     let t = Trainer::new(auto_config(&ours, 1), &tmp.path().join("run-o"), false).unwrap();
     assert!(!fast(&t.config).is_view_dependent(), "{:#?}", t.config.auto_reasons);
@@ -109,7 +102,7 @@ fn auto_tests_view_dependence_on_the_depth_the_model_learns() {
         let run = tmp.path().join(format!("run-{gloss}"));
         let mut t = Trainer::new(cfg, &run, false).unwrap();
         assert!(fast(&t.config).is_view_dependent() && t.config.view_test_at == Some(120));
-        t.run(&AtomicBool::new(false), &mut |_| {}).unwrap();
+        run_to_end(&mut t);
         let written = TrainConfig::read(&run.join("config.json")).unwrap();
         let reason = written.auto_reasons.iter().flatten().find(|r| r.starts_with("view_dependent")).unwrap().clone();
         eprintln!("gloss {gloss}: {reason}");
@@ -122,7 +115,7 @@ fn auto_tests_view_dependence_on_the_depth_the_model_learns() {
         cfg.steps = Some(150);
         let mut r = Trainer::new(cfg, &run, true).unwrap();
         assert_eq!(r.step, 140);
-        assert!(r.run(&AtomicBool::new(false), &mut |_| {}).unwrap().val.is_some_and(|v| v.val_psnr.is_finite()));
+        assert!(run_to_end(&mut r).val.is_some_and(|v| v.val_psnr.is_finite()));
     }
 }
 
@@ -153,9 +146,7 @@ fn configs_written_before_auto_still_read() {
 
 #[test]
 fn the_trainer_stops_when_the_val_psnr_plateaus() {
-    let tmp = tempfile::tempdir().unwrap();
-    let data = tmp.path().join("data");
-    nerf::data::synthetic::write(&data, 16, [6, 1, 1], false).unwrap();
+    let (tmp, data) = synthetic_dataset(16, [6, 1, 1]);
     let mut cfg = TrainConfig::preset("fast", data).unwrap();
     cfg.steps = Some(100_000);
     cfg.val_max_pixels = 64;
@@ -165,7 +156,7 @@ fn the_trainer_stops_when_the_val_psnr_plateaus() {
     // interval: then the last five validations are fitted, about five steps).
     cfg.plateau_stop = Some(nerf::auto::PlateauStop { window_s: 0.2, min_gain_db: 100.0, trend_sigmas: Some(1.0) });
     let mut t = Trainer::new(cfg, &tmp.path().join("run"), false).unwrap();
-    let s = t.run(&AtomicBool::new(false), &mut |_| {}).unwrap();
+    let s = run_to_end(&mut t);
     assert!(s.plateaued && !s.interrupted, "{s:?}");
     assert!(s.steps < 100_000 && s.wall_s >= 0.4 && s.wall_s < 5.0, "{s:?}");
 }

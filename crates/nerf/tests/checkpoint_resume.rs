@@ -2,22 +2,14 @@
 //! interrupted (as by Ctrl-C) and resumed ends bit-identical to an uninterrupted one.
 
 use nerf::models::ModelConfig;
-use nerf::models::fast::FastConfig;
 use nerf::render::RunModel;
 use nerf::train::{TrainConfig, Trainer};
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
+use test_support::training::{run_to_end, synthetic_dataset, tiny_fast};
 
 fn config(data: &Path, steps: u64) -> TrainConfig {
-    let fast = FastConfig::new()
-        .with_levels(4)
-        .with_log2_table_size(12)
-        .with_finest_resolution(64)
-        .with_grid_resolution(16)
-        .with_steps_per_diagonal(64)
-        .with_grid_warmup_steps(8)
-        .with_grid_update_interval(4);
-    TrainConfig::new(data.to_path_buf(), ModelConfig::Fast(fast), 128, 1e-2, 1e-3, 100)
+    TrainConfig::new(data.to_path_buf(), ModelConfig::Fast(tiny_fast(8, 4)), 128, 1e-2, 1e-3, 100)
         .with_steps(Some(steps))
         .with_log_interval_steps(5)
         .with_checkpoint_interval_steps(15)
@@ -37,9 +29,7 @@ fn train_lines(run: &Path) -> Vec<String> {
 
 #[test]
 fn checkpoint_round_trip_and_exact_resume() {
-    let tmp = tempfile::tempdir().unwrap();
-    let data = tmp.path().join("data");
-    nerf::data::synthetic::write(&data, 24, [6, 2, 2], false).unwrap();
+    let (tmp, data) = synthetic_dataset(24, [6, 2, 2]);
     let never = AtomicBool::new(false);
 
     // Uninterrupted: 40 steps.
@@ -82,12 +72,10 @@ fn checkpoint_round_trip_and_exact_resume() {
 /// resumes.
 #[test]
 fn resume_refuses_a_dataset_whose_views_changed() {
-    let tmp = tempfile::tempdir().unwrap();
-    let data = tmp.path().join("data");
-    nerf::data::synthetic::write(&data, 16, [4, 1, 1], false).unwrap();
+    let (tmp, data) = synthetic_dataset(16, [4, 1, 1]);
     let run = tmp.path().join("run");
     let mut t = Trainer::new(config(&data, 20), &run, false).unwrap();
-    t.run(&AtomicBool::new(false), &mut |_| {}).unwrap();
+    run_to_end(&mut t);
     drop(t);
     let recorded = TrainConfig::read(&run.join(nerf::train::CONFIG_FILE)).unwrap().dataset_hash;
     assert!(recorded.as_deref().is_some_and(|h| h.len() == 16), "{recorded:?}");

@@ -2,9 +2,9 @@
 //! one training pixel is made NaN, so exactly the steps whose batch draws it produce a NaN loss.
 
 use nerf::models::ModelConfig;
-use nerf::models::fast::FastConfig;
 use nerf::train::{TrainConfig, Trainer};
 use std::sync::atomic::AtomicBool;
+use test_support::training::{synthetic_dataset, tiny_fast};
 
 const STEPS: u64 = 60;
 const RAYS: usize = 128;
@@ -15,18 +15,8 @@ fn all_finite(s: &nerf::checkpoint::StateDict) -> bool {
 
 #[test]
 fn a_nan_target_pixel_skips_exactly_its_steps_and_training_continues() {
-    let tmp = tempfile::tempdir().unwrap();
-    let data = tmp.path().join("data");
-    nerf::data::synthetic::write(&data, 16, [3, 1, 0], false).unwrap();
-    let fast = FastConfig::new()
-        .with_levels(4)
-        .with_log2_table_size(12)
-        .with_finest_resolution(64)
-        .with_grid_resolution(16)
-        .with_steps_per_diagonal(64)
-        .with_grid_warmup_steps(8)
-        .with_grid_update_interval(4);
-    let cfg = TrainConfig::new(data, ModelConfig::Fast(fast), RAYS, 1e-2, 1e-3, 100)
+    let (tmp, data) = synthetic_dataset(16, [3, 1, 0]);
+    let cfg = TrainConfig::new(data, ModelConfig::Fast(tiny_fast(8, 4)), RAYS, 1e-2, 1e-3, 100)
         .with_seed(3)
         .with_steps(Some(STEPS))
         .with_log_interval_steps(10)

@@ -3,13 +3,11 @@
 use nerf::models::ModelConfig;
 use nerf::models::fast::FastConfig;
 use nerf::train::{TrainConfig, Trainer};
-use std::sync::atomic::AtomicBool;
+use test_support::training::{run_to_end, small_fast, synthetic_dataset};
 
 #[test]
 fn fast_reaches_20_db_on_held_out_views() {
-    let tmp = tempfile::tempdir().unwrap();
-    let data = tmp.path().join("data");
-    nerf::data::synthetic::write(&data, 64, [20, 4, 4], false).unwrap();
+    let (tmp, data) = synthetic_dataset(64, [20, 4, 4]);
     let fast = FastConfig::new()
         .with_levels(8)
         .with_log2_table_size(15)
@@ -24,7 +22,7 @@ fn fast_reaches_20_db_on_held_out_views() {
         .with_checkpoint_interval_steps(1000);
     let run = tmp.path().join("run");
     let mut t = Trainer::new(cfg, &run, false).unwrap();
-    let s = t.run(&AtomicBool::new(false), &mut |_| {}).unwrap();
+    let s = run_to_end(&mut t);
     let val = s.val.unwrap();
     eprintln!("steps {} in {:.1}s, val psnr {:.2}, depth mae {:?}", s.steps, s.wall_s, val.val_psnr, val.val_depth_mae);
     assert!(run.join("config.json").is_file());
@@ -38,17 +36,8 @@ fn fast_reaches_20_db_on_held_out_views() {
 /// rayon threads end in the same parameters, Adam moments and occupancy grid.
 #[test]
 fn fast_training_is_bit_identical_across_thread_counts() {
-    let tmp = tempfile::tempdir().unwrap();
-    let data = tmp.path().join("data");
-    nerf::data::synthetic::write(&data, 32, [6, 1, 1], false).unwrap();
-    let fast = FastConfig::new()
-        .with_levels(6)
-        .with_log2_table_size(12)
-        .with_finest_resolution(128)
-        .with_grid_resolution(16)
-        .with_steps_per_diagonal(64)
-        .with_grid_warmup_steps(4)
-        .with_grid_update_interval(4);
+    let (tmp, data) = synthetic_dataset(32, [6, 1, 1]);
+    let fast = small_fast(4, 4);
     let run = |threads: usize| {
         let cfg = TrainConfig::new(data.clone(), ModelConfig::Fast(fast.clone()), 700, 1e-2, 2e-3, 400)
             .with_steps(Some(12))
@@ -80,21 +69,12 @@ fn fast_training_is_bit_identical_across_thread_counts() {
 fn distortion_loss_skips_mixed_pixels() {
     use nerf::data::{Background, SceneBounds, TrainData};
     use nerf::models::fast::FastModel;
-    let tmp = tempfile::tempdir().unwrap();
-    let data = tmp.path().join("data");
-    nerf::data::synthetic::write(&data, 32, [6, 1, 1], false).unwrap();
+    let (_tmp, data) = synthetic_dataset(32, [6, 1, 1]);
     let ds = nerf::data::load_dataset(&data).unwrap();
     let train = TrainData::load(&ds.train, 1, Background::White, false).unwrap();
     let cams: Vec<_> = ds.train.iter().map(|f| f.camera).collect();
     let bounds = SceneBounds::for_dataset(ds.facts.as_ref(), &cams, 0.05, 1.5);
-    let base = FastConfig::new()
-        .with_levels(6)
-        .with_log2_table_size(12)
-        .with_finest_resolution(128)
-        .with_grid_resolution(16)
-        .with_steps_per_diagonal(64)
-        .with_grid_warmup_steps(2)
-        .with_grid_update_interval(2);
+    let base = small_fast(2, 2);
     let run = |cfg: FastConfig, mixed: bool| {
         let mut m = FastModel::new(cfg, bounds.clone(), 7).unwrap();
         let mut losses = Vec::new();
@@ -123,9 +103,7 @@ fn distortion_loss_skips_mixed_pixels() {
 /// Impossible distortion settings are refused before anything is written, naming the option.
 #[test]
 fn impossible_distortion_settings_are_refused() {
-    let tmp = tempfile::tempdir().unwrap();
-    let data = tmp.path().join("data");
-    nerf::data::synthetic::write(&data, 16, [2, 1, 1], false).unwrap();
+    let (tmp, data) = synthetic_dataset(16, [2, 1, 1]);
     for (fast, name) in [
         (FastConfig::new().with_distortion_weight(Some(-0.01)), "distortion_weight"),
         (FastConfig::new().with_distortion_weight(Some(f32::NAN)), "distortion_weight"),
@@ -150,9 +128,7 @@ fn impossible_distortion_settings_are_refused() {
 fn impossible_model_and_bounds_settings_are_refused() {
     use nerf::data::SceneBounds;
     use nerf::models::paper::PaperConfig;
-    let tmp = tempfile::tempdir().unwrap();
-    let data = tmp.path().join("data");
-    nerf::data::synthetic::write(&data, 16, [2, 1, 1], false).unwrap();
+    let (tmp, data) = synthetic_dataset(16, [2, 1, 1]);
     let fast = |f: FastConfig| TrainConfig::new(data.clone(), ModelConfig::Fast(f), 64, 1e-2, 1e-3, 10).with_steps(Some(1));
     let set = |f: &dyn Fn(&mut TrainConfig)| {
         let mut c = fast(FastConfig::new());

@@ -1,10 +1,21 @@
-//! The binary side of the glTF writer ([`crate::builder`]): [`BinWriter`] packs the buffer,
-//! its bufferViews and accessors (4-byte aligned, exact `min`/`max`), and [`canonical_json`]
-//! prints a document with sorted keys so that identical scenes give identical bytes.
+//! The encoding side of the glTF writer (`SceneBuilder` uses it): [`BinWriter`] packs the
+//! buffer, its bufferViews and accessors (4-byte aligned, exact `min`/`max`), [`jf`] writes an
+//! f32 as its shortest round-trip decimal, and [`canonical_json`] prints a document with sorted
+//! keys, so that identical scenes give identical bytes.
 
 use serde_json::{Map, Value, json};
 
-use crate::builder::jf_slice;
+/// A JSON number holding the f32 `x` in its shortest round-trip decimal form.
+pub(crate) fn jf(x: f32) -> Value {
+    // Display for f32 prints the shortest decimal that parses back to the same f32.
+    let shortest: f64 = format!("{x}").parse().unwrap_or(x as f64);
+    serde_json::Number::from_f64(shortest).map_or(Value::Null, Value::Number)
+}
+
+/// A JSON array of [`jf`] numbers.
+pub(crate) fn jf_slice(xs: &[f32]) -> Value {
+    Value::Array(xs.iter().map(|&x| jf(x)).collect())
+}
 
 /// Accumulates the binary buffer, its bufferViews and accessors.
 #[derive(Default)]

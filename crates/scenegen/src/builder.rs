@@ -19,7 +19,7 @@ use image::RgbImage;
 use serde_json::{Map, Value, json};
 
 use crate::SceneGenError;
-use crate::bin_writer::{BinWriter, canonical_json};
+use crate::bin_writer::{BinWriter, canonical_json, jf, jf_slice};
 use crate::mesh::Mesh;
 use crate::texture::encode_png;
 
@@ -292,17 +292,6 @@ fn check_name(name: &str, what: &str) -> Result<(), SceneGenError> {
             reason: format!("{what} names must be non-empty and use only A-Z a-z 0-9 _ -"),
         })
     }
-}
-
-/// A JSON number holding the f32 `x` in its shortest round-trip decimal form.
-fn jf(x: f32) -> Value {
-    // Display for f32 prints the shortest decimal that parses back to the same f32.
-    let shortest: f64 = format!("{x}").parse().unwrap_or(x as f64);
-    serde_json::Number::from_f64(shortest).map_or(Value::Null, Value::Number)
-}
-
-pub(crate) fn jf_slice(xs: &[f32]) -> Value {
-    Value::Array(xs.iter().map(|&x| jf(x)).collect())
 }
 
 impl SceneBuilder {

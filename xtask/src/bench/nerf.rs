@@ -124,8 +124,8 @@ struct RandomAccessLimits {
 #[derive(serde::Serialize)]
 struct NerfBenchJson {
     profile: &'static str,
-    /// The machine ([`crate::bench::CpuInfo`]).
-    cpu: crate::bench::CpuInfo,
+    /// The machine ([`super::cpu::CpuInfo`]).
+    cpu: super::cpu::CpuInfo,
     dataset: String,
     gemm_peak_gflops: f64,
     burn_matmul_gflops: f64,
@@ -159,8 +159,8 @@ struct ModelLine {
 /// phase's time, work and fraction of this machine's limits, [`nerf::roofline`]) and
 /// full-size render times; writes `bench-nerf.json` into `--out`.
 pub fn run(args: NerfBenchArgs) -> anyhow::Result<()> {
-    println!("profile: {}", crate::bench::build_profile());
-    let cpu = crate::bench::CpuInfo::detect();
+    println!("profile: {}", super::cpu::build_profile());
+    let cpu = super::cpu::CpuInfo::detect();
     println!("cpu: {}", cpu.summary());
     let tmp = tempfile::Builder::new().prefix("nerf-bench-").tempdir()?;
     let dir = tmp.path().to_path_buf();
@@ -193,7 +193,7 @@ pub fn run(args: NerfBenchArgs) -> anyhow::Result<()> {
     );
     networks_fused_vs_burn(peak);
     let mut json = NerfBenchJson {
-        profile: crate::bench::build_profile(),
+        profile: super::cpu::build_profile(),
         cpu,
         dataset: data.display().to_string(),
         gemm_peak_gflops: peak,

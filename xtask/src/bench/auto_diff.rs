@@ -15,7 +15,7 @@
 //! builds record the same setting: the dataset folder may differ (a note says whether the
 //! two resolve to the same folder).
 
-use crate::bench_auto::two_se;
+use super::auto::two_se;
 use anyhow::Context;
 use eval::RunSummary;
 use std::collections::BTreeMap;
