@@ -4,7 +4,7 @@
 //! intrinsics keys and our `scene_facts` block), and the image files of a view (sRGB PNG,
 //! linear EXR, ground-truth EXR, nerfstudio depth `.npy`), all written atomically.
 //!
-//! Conventions (see `shared/DESIGN.md`): metres, glTF world (+Y up); the camera frame is
+//! Conventions (see `docs/design.md`): metres, glTF world (+Y up); the camera frame is
 //! OpenGL's (+X right, +Y up, looking down −Z); pixel (i, j) = (column, row) has its centre at
 //! (i + 0.5, j + 0.5) with row 0 at the top; `depth` is z-depth along the camera's −Z axis and
 //! `distance` the Euclidean length along the ray.
