@@ -1,294 +1,41 @@
 //! The acceleration structure: one type, [`Accel`], an eight-wide BVH over the scene's
-//! triangles: obvhs's compressed wide BVH (CWBVH, built in parallel with PLOC) re-laid with
-//! exact `f32` child boxes (module `wide`); the CWBVH itself is dropped after the build.
-//! Triangles are tested with the watertight test of [`crate::geometry`].
+//! triangles. obvhs builds a compressed wide BVH (CWBVH, PLOC, in parallel) with the settings
+//! of [`AccelParams`] (named presets mirroring obvhs's `BvhBuildParams`); the tree is then
+//! re-laid as eight-wide nodes with exact `f32` child boxes in structure-of-arrays form (module
+//! `wide`, 224 bytes per node) and the CWBVH is dropped. Triangles are packed in BVH order with
+//! their face normals, and tested with the watertight test of [`crate::geometry`].
 //!
-//! **One-ray queries** ([`Accel::closest_hit`], [`Accel::occluded`]; stop 62) traverse the same
-//! tree re-laid as eight-wide nodes with exact `f32` child boxes (the union of each child's
-//! padded triangle boxes, so no looser than the quantised ones), in structure-of-arrays form
-//! (module `wide`): per node one eight-lane slab test with the near planes picked by the
-//! ray's direction signs and the interval widened by `2⁻²¹` relative (conservative against its
-//! own rounding), children pushed sorted by entry distance and culled when popped beyond the
-//! current hit (the any-hit query pushes them unsorted, which measured faster). 224 bytes per
-//! node instead of the CWBVH's 80 (stop 63: the packets below traverse it too, and the CWBVH
-//! is no longer kept). Why: on exactly the same rays, written by Mitsuba 3 for the same
-//! exported scenes (`tests/mitsuba/rays.py`; `cargo xtask bench render` prints the table,
-//! `cargo bench -p pathtracer --bench render -- SCENE --rays FILE` times ours alone),
-//! Mitsuba's `llvm_ad_rgb` (Embree) traced incoherent closest-hit rays 1.85–2.3x as fast as
-//! the CWBVH loop, camera rays 1.9–3.4x and incoherent any-hit rays 2.9–3.9x. The wide tree,
-//! per ray (2-core Zen 5, medians of 15, one ray at a time): incoherent closest hits +14–23 %
-//! (`cornell` 27.0 → 32.7 M/s, `deep` 19.8 → 24.3, `materials` 18.1 → 20.6, `tabletop`
-//! 15.8 → 18.0, `thin` 23.9 → 27.9), camera rays +11–65 %; samples per CPU-second (`cargo
-//! bench -p pathtracer --bench render -- SCENE --seconds 3`, two alternating pairs) `cornell`
-//! +8–9 %, `deep` +8–11 %, `tabletop` +6–8 %; the same bits on every scene. Measured and not
-//! kept: a leaf child's triangles tested as soon as its node is (not when popped): any-hit
-//! rays −5 to +29 % by scene, samples per CPU-second within the noise; the stack on the call
-//! stack only (64 entries, a `Vec` for trees too deep for it) instead of 64 entries with a
-//! `Vec` for overflow: no change. (Stop 63, on Mitsuba's incoherent rays, medians of 15, two
-//! alternating runs:) a batch's one-ray queries made in one call, the level entered and the
-//! stack set up once per batch (`closest_hit_each`, `occluded_each`): closest hits `cornell`
-//! +7 %, any-hit and the other scenes within ±3 %; the watertight ray's dominant axis chosen by
-//! selects instead of branches: within the noise (cachegrind's branch simulator blames that
-//! choice for about one mispredicted branch per query, this CPU's predictor evidently not).
-//! What the queries cost is not their per-call set-up. Nor is it the test of the triangle a
-//! secondary ray leaves from (its origin offset off that plane, so it cannot hit it at
-//! `t > 0`): skipping it by index gave the same bits and 1–3 % fewer samples per CPU-second
-//! on every scene (two alternating pairs; the test rejects it at the sign of `t`, before its
-//! division, and the index compare costs every other triangle).
+//! Queries, all answering the same bits for the same ray:
+//! - one ray: [`Accel::closest_hit`] and [`Accel::occluded`] (any hit, for shadow rays) on the
+//!   thread's traversal stack; [`Accel::closest_hit_in`] and [`Accel::occluded_in`] on the
+//!   caller's [`TraversalStack`] (the path loop's form). Per node one eight-lane slab test with
+//!   the near planes picked by the direction's signs; closest-hit children are pushed sorted by
+//!   entry distance and culled when popped beyond the current hit, any-hit children unsorted;
+//! - packets: [`Accel::closest_hits`] and [`Accel::occluded_many`] trace up to [`PACKET`] (64)
+//!   rays together, each node loaded once for every ray that enters it. Each lane of the box
+//!   test is the one-ray test's arithmetic for that ray (so the same children are entered); the
+//!   lane triangle test only drops a ray where the exact test certainly rejects it (a zero edge
+//!   function or a NaN is kept), and every ray kept is then tested by the exact test alone.
 //!
-//! The CWBVH traversal the one-ray queries used before (obvhs's algorithm, Ylitie et al. 2017,
-//! the loop of its `traverse!` macro, over obvhs's quantised nodes) had these changes, which
-//! only saved work and kept every answer bit for bit (the packets below traversed the CWBVH
-//! this way until stop 63):
-//! - each node's eight quantised `u8` child boxes are widened to `f32` in registers, all eight
-//!   at once (`vpmovzxbd` + `vcvtdq2ps`). Converting them once at build time into a separate
-//!   `f32` array (192 bytes per node beside obvhs's 80) was measured no faster, on the
-//!   committed scenes and on 10³–10⁶-triangle stress scenes, and took 87 instead of 68 bytes
-//!   per triangle in all;
-//! - the box test runs with exactly obvhs's `f32` operations (`q·(e·d⁻¹) + (p − o)·d⁻¹`,
-//!   `maxps`/`minps`), so it enters the children obvhs's test enters, and also those nearer
-//!   than obvhs's near limit of 1e-4 (ours is 0, `BOX_T_MIN`): all eight children at once in AVX registers where the CPU has AVX2 (detected at
-//!   run time through pulp, `EightWide`), else four at a time in SSE (glam's `Vec4`,
-//!   `FourWide`; four scalars on other architectures);
-//! - triangles are packed in BVH order with their face normals (`PackedTriangle`), so a
-//!   leaf's triangles are adjacent in memory and culling needs no cross product per ray.
-//!   (A four-lane structure-of-arrays copy of each leaf, tested all at once, gave the same
-//!   bits but was 5–10 % slower on the committed scenes: most triangles a ray reaches are
-//!   rejected by the first edge-sign test, which the scalar test does early.)
+//! The SIMD level (AVX2 eight lanes, else SSE four, else scalar) is found at run time through
+//! pulp; [`Accel::at_level`] runs a closure at it.
 //!
-//! Measured and not kept (each gave the same bits; `cargo bench -p pathtracer --bench render`,
-//! alternating with the kept code on a 2-core Zen 4, stop 55). A ray of the committed scenes'
-//! quick views visits only 1.6–3.8 nodes and tests 2.3–6.0 triangles on average, so what a ray
-//! costs is mostly its setup and the latency of its dependent loads and branches:
-//! - closest-first order (children sorted by entry distance, a popped child dropped without
-//!   loading it when the ray's `tmax` has shrunk below its entry): no faster;
-//! - all of a node's leaf triangles in one eight-lane AVX2 watertight test (a structure-of-arrays
-//!   copy per node, lanes the scalar test must answer, a zero edge or a NaN, tested alone):
-//!   3–10 % slower;
-//! - the child hit mask from eight lanes at once (`vpsllvd` and an OR across lanes) instead of a
-//!   loop over the hit children: 3–6 % slower;
-//! - two traversals interleaved step by step: two neighbouring pixels' camera rays up to 35 %
-//!   more primary rays/s (cornell +26–35 %, deep +24 %, materials +14 %; tabletop −2 to +28 %
-//!   and thin −11 to +10 % over two pairs), but two samples' whole paths advanced together
-//!   (every query paired) 5–9 % fewer samples/s. The gain needs coherent rays, or lanes of SIMD
-//!   across paths.
-//! - the whole crate compiled for x86-64-v3 (`RUSTFLAGS=-C target-cpu=x86-64-v3`): +15–20 %
-//!   primary rays/s and +3–7 % samples/s on the quick views (2-core Zen 5, stop 56), but the
-//!   build must run on any x86-64 CPU. What is kept instead: the whole path loop runs inside
-//!   pulp's `vectorize` at the level found at run time
-//!   ([`crate::integrator::PathIntegrator::radiance_split`]), which gave more;
-//! - the dominant axis chosen without branches and one branch on it per ray (the traversal
-//!   and triangle test compiled once per axis) instead of a `match` in every triangle test:
-//!   same bits, cachegrind's branch simulator counted 16 % fewer mispredicted branches on
-//!   `cornell` (4.64 M → 3.92 M per quick view; 8.6 % of its conditional branches mispredict
-//!   there, most in the edge-sign test, the leaf loop, this `match` and back-face culling)
-//!   and 1.1 % fewer instructions, but in time `cornell` gained 0–1 %, `deep` lost 2 %,
-//!   `tabletop` 5–13 % and `thin` gained 2–5 % (three alternating pairs, stop 58).
-//! - spatial pre-splits of large triangles' boxes (obvhs's `split_aabbs_preset` and
-//!   `split_aabbs_precise` on the exact triangles, each piece's box then padded as below, so
-//!   that a ray still tests every triangle it touches: the same bits on all five scenes),
-//!   stop 59, samples per CPU-second in two alternating pairs: obvhs's preset splits 0–3 % of
-//!   the triangles (none of `cornell`'s 38) and changed nothing measurable (−3 to +2 %);
-//!   splitting more (38 → 70–90 references on `cornell`, 1.1–2.5x references elsewhere)
-//!   was slower everywhere, `cornell` −14 to −16 %, the others −2 to −20 %: a ray then tests a
-//!   triangle once per piece it enters, and the tree is deeper;
-//! - fat LTO for the whole bench binary (stop 59): no change (`cornell` −1 to +0.3 %, `deep`
-//!   −0.5 to −0.7 %).
+//! Conservative boxes (watertightness): the `f32` slab test can round a ray through a box
+//! corner to a miss, so the tree is built over triangle boxes padded on every side by
+//! `2·10⁻⁶ · max |coordinate|` of the scene (about 16 ulps), each node's child box is the union
+//! of its children's padded boxes, the ray's `[t_near, t_far]` is widened by `2⁻²¹` relative,
+//! and boxes are entered from `t = 0` (`BOX_T_MIN`).
 //!
-//! What a one-ray query costs now (stop 64; callgrind, one thread, on Mitsuba's incoherent rays
-//! of `tests/mitsuba/rays.py`): instructions per closest hit / any hit, `cornell` 630 / 450,
-//! `deep` 726 / 510, `tabletop` 800 / 676. Of `cornell`'s closest hit, about 150 are the set-up
-//! (the validity test, the dominant axis, six divisions, the 64-entry stack zeroed, the ray
-//! broadcast to lanes); a ray then makes 1.5 eight-child box tests, enters 1.1 leaves and
-//! reaches 2.2 triangles, 1.6 of them past back-face culling and 0.6 past the edge and range
-//! tests (`deep`: 3.2 box tests, 1.35 leaves; its any-hit rays 2.35 box tests, 0.95 leaves,
-//! 1.6 triangles, half of them culled). No part dominates. In time (`perf` on the CPU clock,
-//! `deep` at 128 px and 64 spp) the any-hit query is 28 % of the render, and its samples
-//! fall after the child mask's branch, the child reference's leaf test and the loads of
-//! the spilled ray lanes: mispredicted branches and load latency. Only 10 % (`cornell`),
-//! 12 % (`deep`), 14 % (`thin`), 21 % (`materials`) and 26 % (`tabletop`) of the path loop's
-//! shadow rays are blocked, so an any-hit query nearly always walks its whole segment.
-//! Measured and not kept at stop 64 (the same bits each; samples per CPU-second at 128 px
-//! and 64 spp, two alternating pairs):
-//! - an occluder hint: per light (and one for the emitter samples), the triangle that last
-//!   blocked a shadow ray in the batch tested before the traversal. It blocked again for
-//!   24 % (`deep`) to 48 % (`cornell`) of the blocked rays, but it costs every unblocked ray a
-//!   triangle test: `deep` −3 to −5 %, `cornell` −3 to −4 %, `tabletop` −2 to +0.5 %, `thin`
-//!   −2 to 0 %, `materials` +0.2 to +2 %;
-//! - a bounce's shadow rays traced grouped by light (a counting sort; the estimates still
-//!   added in vertex order), so that rays towards one light follow each other: `deep` −2 to
-//!   −3 %, `tabletop` −3 to −4 %, `cornell` −0.6 to +4 %, `materials` and `thin` ±2 %;
-//! - a bounce's shadow rays two at a time, their any-hit traversals interleaved a step (a
-//!   node or a leaf) at a time: `cornell` −4 to −6 %, `deep` −1 to −2.5 %, `materials` −3 to
-//!   0 %. As with the interleaved paths of stop 55, the second traversal's state spills
-//!   and its branches mispredict as often;
-//! - the BVH built with obvhs's `slow_build` settings (PLOC search 24, 20 % reinsertion,
-//!   128-bit Morton codes) instead of `medium_build`: `deep` +2 to +4 %, `tabletop` −1 to
-//!   +1 %; its collapse cost 1 or 6 instead of 3: within ±1 % on `deep` and `cornell`. The
-//!   committed scenes are too small for the tree's quality to matter;
-//! - each entered inner child's node prefetched when it is pushed (pulp's safe
-//!   `_mm_prefetch`, every cache line of it): `deep` +0.7 to +2.4 %, `tabletop` +1 %,
-//!   `materials` −2 to 0 % (its 1.7 MB tree is the one that leaves the L2 cache);
-//! - the one-ray queries entered at pulp's x86-64-v4 level (AVX-512VL: 32 vector registers,
-//!   so the ray's lanes need not spill): the same Mray/s on Mitsuba's incoherent rays (`deep`,
-//!   `tabletop`, two alternating pairs), `cornell` +1 to +3 % and `deep` ±0.5 % samples per
-//!   CPU-second;
-//! - a shallower tree: an inner child whose whole subtree is at most 8 contiguous triangles
-//!   made a leaf (40 of `deep`'s 244 nodes), its triangles tested one at a time as in any
-//!   leaf: `deep` −1 to +0.1 %, `tabletop` +0.5 to +2 %, `cornell` ±0.7 %; the closest hits on
-//!   Mitsuba's `deep` rays −5 %. The node a ray no longer visits costs about what the extra
-//!   triangles do.
-//!
-//! Kept at stop 67: the one-ray queries' traversal stack (64 entries) is their thread's,
-//! reused by every query and never cleared (`wide::with_stack`; a query inside another,
-//! from an alpha test, gets a fresh one), instead of an array on the call stack that each
-//! query zeroed (512 bytes). First, a 24-entry stack for trees that never need more (a
-//! bound from the tree's shape: `cornell` needs 21, the other scenes 42–49) gave `cornell`'s
-//! incoherent rays +3.5–4 % (closest) and +3.5–5 % (any-hit) and its samples per CPU-second
-//! +3–4 %; then the thread's stack, against that (three alternating pairs, samples per
-//! CPU-second): `cornell` +0.2–3 %, `deep` +1.8–4 %, `tabletop` −0.6 to +3.5 %, `thin`
-//! +2 %, `materials` ±0. The same bits. (`LocalKey::with` is not inlined: the stack is fetched before the query enters the
-//! AVX2 level, else the traversal ran compiled for the baseline, 4x slower.)
-//! Measured and not kept at stop 67: the watertight test's form of the ray made at the first
-//! leaf instead of at the query's start (a ray that reaches no leaf never pays for it; the same
-//! bits): samples per CPU-second, three alternating pairs, `deep` +3 to +5 %, but `tabletop`
-//! −0.5 to −5 %, `cornell` −2 to +6 %, `thin` −2 to +3 % (for the any-hit query alone: every
-//! scene within ±2 %). And the set-up's six divisions as
-//! two four-lane ones (the
-//! box test's `1/d` and the shear `(−dx, −dy, 1)/dz`, the same bits): on Mitsuba's incoherent
-//! rays (`--rays`, three alternating pairs) `deep` closest hits +1 to +3 % and any-hit −1 to
-//! +6 %, but `cornell` closest hits −5 to −13 % and any-hit −7 to −20 %.
-//!
-//! Kept at stop 68: the path loop's one-ray queries take their stack from the loop
-//! ([`TraversalStack`], one per batch, [`Accel::closest_hit_in`] and [`Accel::occluded_in`])
-//! instead of the thread's, and hand the query its ray as two 16-byte vectors made before
-//! the query's call. `perf annotate` showed why: through the thread's stack a query was two
-//! calls away (std's `LocalKey::with` is not inlined), and its first loads of the ray, eight
-//! bytes at a time, each spanned two of the four-byte stores that had just written it, so
-//! the CPU could not forward them from its store buffer and each query waited for the stores
-//! to reach the cache (the load after the first was 3.5–4 % of `cornell`'s path-loop time).
-//! The ray counter is now bumped after the query, so that nothing stored between writing
-//! the ray and reading it keeps the compiler from reusing its registers. Samples per
-//! CPU-second (128 px, 64 spp, three alternating triples on the same 2-core Zen 4): the
-//! caller's stack alone `cornell` +1–2 %; with the ray as vectors but the counter bumped
-//! first, no gain (the caller then reloaded the ray the same way); both, `cornell`
-//! +4.5–5 %, `materials` +2 % (two pairs), `deep`, `tabletop` and `thin` within ±0.7 %.
-//! The same bits. The lane loop's emitter shadow ray had the same stall (its ray read back
-//! from the light sample's record, written field by field just before): traced from
-//! registers before the record is made, `cornell` +3–4 % more (three pairs; `thin`, with no
-//! emitters, ±1 %). Two more such loads were removed and measured within the noise, so they
-//! are not kept: the triangle test's hit copied into the closest hit (`cornell` 0 to +1 %,
-//! `deep` ±0.3 %) and the closest hit returned as two four-lane vectors instead of an
-//! `Option<Hit>` (`cornell` −0.4 to +1.5 %, `deep` and `tabletop` ±1.5 %): the CPU's
-//! out-of-order window hides a stall that does not gate the query's start. Also measured and
-//! not kept: the packets' child slots added to the packet's masks as each is found (a node's
-//! eight `u32` were read back four at a time from eight stores): the camera packets +2–7 %
-//! on Mitsuba's camera rays and samples per CPU-second +0.5–2 % over the kept code, but the
-//! one-ray queries on the same ray files (which this change does not touch) 8–15 % slower
-//! on `tabletop` and `deep`, in three alternating runs and again with every function aligned
-//! to 64 bytes (`-C llvm-args=-align-all-functions=6`), unexplained; a change whose side
-//! effect is not understood is not kept. Nor is the one-path loop's BSDF numbers drawn eight
-//! paths at a time in lanes (`SamplerLanes`, instead of an outlined `Vec::extend` compiled
-//! for the baseline; the same bits): `deep` +0.4–1.4 %, `tabletop` +0.1–1.3 %, `materials`
-//! −0.6 to +1.8 %, but `cornell` −0.3 to −2.6 % (its lane loop, which the change does not
-//! touch, is compiled into the same function); and a whole `cargo xtask bench render` with
-//! it read 3–7 % lower on every row, Mitsuba's own included, so the machine had drifted and
-//! that run decided nothing.
-//!
-//! Measured and not kept at stop 69 (the same bits each; 2-core Zen 4, alternating runs):
-//! - [`Accel::closest_hit`] and [`Accel::occluded`] as one line each over the `_in` queries
-//!   (the thread-local holding a [`TraversalStack`]; `duplicates` pairs the two forms): on
-//!   Mitsuba's incoherent `cornell` rays, six alternating runs, closest hits 24.8–25.4 →
-//!   21.4–21.9 M/s and any-hit 32.8–33.5 → 30.3–31.3 (`deep` and `tabletop` closest −1 to
-//!   −9 %). pulp's `vectorize` hands a closure of at most 64 bytes to the code compiled at the
-//!   level in registers and a larger one through memory; the thread-stack queries' closure
-//!   (the ray by reference) fits, the `_in` queries' (the ray as two `Vec3A`) does not. For
-//!   the path loop the `_in` form still gains (stop 68).
-//! - The `_in` queries' closure brought under 64 bytes (`t_max` in the fourth lane of the
-//!   origin), so that it too is passed in registers: samples per CPU-second at 128 px and
-//!   64 spp, three alternating pairs, `cornell` +0.5, +1.2, +8 %, `deep` −1, −7, −1.5 %,
-//!   `tabletop` +2, 0, −3 %: nothing to keep.
-//! - The any-hit query's children popped in obvhs's octant order (slot `k ^ octant`, which
-//!   the CWBVH conversion fills roughly near to far for each direction octant) instead of
-//!   slot order: on Mitsuba's incoherent rays (two alternating runs; 12 % to 63 %
-//!   of them are blocked) every scene within the run-to-run spread (±10 % that hour).
-//! - The ray-throughput benchmarks' one-ray queries made as the path loop makes them (each
-//!   chunk at its SIMD level with one [`TraversalStack`]) instead of through the thread's
-//!   stack: the same Mray/s on Mitsuba's incoherent rays within ±5 % (`cornell`, `deep`,
-//!   `tabletop`, two alternating runs), so the per-ray table keeps measuring the thread-stack
-//!   queries.
-//!
-//! Shadow rays use the same traversal as an any-hit query that stops at the first accepted
-//! hit ([`Accel::occluded`]).
-//!
-//! **Packets.** [`Accel::closest_hits`] and [`Accel::occluded_many`] trace up to 64 rays
-//! ([`PACKET`]) together: each node is loaded once for every ray that enters it, and the rays
-//! test its children's boxes and their leaves' triangles in groups of eight lanes, one ray
-//! per lane. Each lane of the box test is the one-ray test's arithmetic for that ray (so the
-//! same children are entered); the triangle test in lanes is a filter that leaves a ray out
-//! only where the exact test certainly rejects it (the same operations up to its range test
-//! on `t`; a zero edge function or a NaN is kept), and every ray kept is then tested by the
-//! exact test alone. A ray thus tests every triangle whose box it enters, as the one-ray
-//! traversal does, and the answers are the same bits (closest hit with ties to the lowest
-//! index; any hit). The path loop traces a pixel's camera rays this way
-//! ([`crate::integrator::PathIntegrator::intersect_many`]): they are nearly the same ray.
-//! Samples per CPU-second against one ray at a time (`cargo bench -p pathtracer --bench
-//! render`, two alternating pairs, 2-core Zen 5, stop 61): `thin` +6–12 %, `tabletop`
-//! +3–15 %, `cornell` +1 %, `deep` ±0; pixel-centre rays of a row, 64 to a packet, 1.3x the
-//! primary rays/s (`cornell` 19 → 25 M/s, `tabletop` 16 → 23, `thin` 19 → 26, `deep` 18 →
-//! 19–22). Against the wide tree's one-ray loop (stop 62) the camera packets still pay at
-//! 32 spp and more (64 spp: `tabletop` +4–5 %, `thin` +3–5 %, `cornell` +1–2 %, `deep`
-//! +0.5–1 %, `materials` 0–0.7 %) but not at 16 (±1 %), so the path loop uses them for
-//! batches of at least 32 rays (`PACKET_MIN_RAYS` in the integrator). Since stop 63 the
-//! packets traverse the wide nodes as well (per child slot, eight rays' slab tests in lanes,
-//! each lane the one-ray test's arithmetic), and the CWBVH is dropped after the build: the same
-//! bits (the quick views, and at 128 px and 64 spp, where the camera rays go as packets:
-//! `cargo bench -p pathtracer --bench render -- --hash --spp 64 --width 128`), Mitsuba's
-//! 256-px camera rays as packets `tabletop` 40.8–41.0 → 47.4–47.6 M/s, `thin` 45.8–46.4 → 57.1
-//! and `cornell` 46.7–47.6 → 51.7–53.6 (two alternating runs), samples per CPU-second at
-//! 128 px and 64 spp `tabletop` +2–3 %, `thin` +2 %, `cornell` +0.3–1 %, `deep` 0 to +4 %,
-//! `materials` −1 to +2 % (two alternating pairs; the camera rays are a fifth of a sample's
-//! queries or less), and 74–78 bytes per triangle in all instead of 84–90 (`cargo xtask
-//! bench render`, `bench scaling`).
-//! Measured and not kept (the same bits each):
-//! - every bounce's rays as packets (the continuation rays of a batch's live paths, and its
-//!   shadow rays): `cornell` −16 %, `deep` −23 %, `tabletop` −13 %, `thin` −12 %, of which
-//!   the loop restructured to gather those rays costs `deep` 7–11 % with every ray still
-//!   traced alone. After the camera vertex a batch's rays go in all directions, and a packet
-//!   then only adds its own bookkeeping to each ray's work;
-//! - the camera vertices' shadow rays as packets, one per light (a pixel's shadow rays towards
-//!   one light, all other shadow rays one at a time): `deep` −10 %, `materials` −5 %, `thin`
-//!   −3 %;
-//! - (stop 63, on the wide nodes) the camera vertices' shadow rays as packets (a pixel's, in
-//!   the order the vertices made them, or grouped by light), at 128 px and 64 spp, samples per
-//!   CPU-second in two alternating pairs: `materials` +3–5 %, `tabletop` +1–4 %, `thin` +1 %,
-//!   but `cornell` −0.3 to −2.7 % and `deep` −2 to −5 %;
-//! - one box test for the whole packet instead of one per ray, by interval arithmetic over
-//!   the packet's origins and inverse directions where its rays share their direction signs
-//!   (a conservative superset of the children its rays enter, on boxes widened by 10⁻⁵ of the
-//!   scene's scale, so the same bits): within ±2 % of the per-ray test on the camera rays,
-//!   and with the shadow packets above `deep` −14 %, `materials` −15 %, `thin` −18 %: the
-//!   bounds of a spread of origins times a spread of inverse directions enclose far more than
-//!   the rays (a direction component near zero spreads its inverse widely).
-//!
-//! Build settings are one struct, [`AccelParams`], with named presets mirroring obvhs's
-//! `BvhBuildParams` presets.
-//!
-//! Conservative boxes: obvhs's `f32` ray/box test can round a ray that passes exactly
-//! through a triangle's extreme vertex (a box corner) to a miss, which would break
-//! watertightness. The BVH is therefore built over triangle boxes padded by
-//! `2·10⁻⁶ × (largest absolute coordinate of the scene)` (about 16 ulps) on every side, so
-//! rounding in the box test can no longer reject a box that the ray touches. (Spatial
-//! pre-splits, whose pieces' boxes would be padded the same way, were measured slower and are
-//! not offered; see above.)
-//!
-//! Hit rules, shared by closest-hit and any-hit queries:
+//! Hit rules, shared by every query:
 //! - A single-sided triangle hit from behind (`d · ((p₁−p₀)×(p₂−p₀)) ≥ 0`) is ignored: glTF
 //!   culls back faces, so they are invisible and do not occlude.
 //! - An alpha-masked triangle (glTF `MASK`) is hit only where the caller's alpha test
 //!   accepts the hit (base-colour alpha ≥ cutoff).
 //! - Among hits at exactly the same `t` (e.g. on a shared edge) the lowest triangle index
 //!   wins, so the answer does not depend on the BVH's layout or build.
+//!
+//! Why this layout, and the traversal variants tried instead: `docs/renderer.md` and
+//! `docs/experiments.md`.
 
 // Negated comparisons (`!(x > 0.0)`) are deliberate: they also reject NaN.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
@@ -911,17 +658,10 @@ impl Accel {
     /// Runs `f` at pulp's x86-64-v3 level (AVX2, FMA, VEX encoding) when this CPU has it and
     /// it is enabled (see [`Accel::set_avx2`]), else as compiled for the baseline: what `f`
     /// inlines is compiled for that level. The path loop runs this way
-    /// ([`crate::integrator::PathIntegrator::radiance_split`]; the pixel loop around it, run
-    /// this way too, was no faster, nor were the caustic light paths at stop 56, but with
-    /// their queries on a stack of their own ([`Accel::closest_hit_in`]) they were, stop 68:
-    /// samples per CPU-second `thin` +2.6–3.3 %, `tabletop` +1.6–2.3 %, `materials`
-    /// +1.7–2.2 %, three alternating pairs, the same bits; so was the path loop at pulp's
-    /// x86-64-v4 level, AVX-512, where the CPU has it: the same bits, cornell 3 % slower, the
-    /// other scenes within the noise, stop 56). The bits are the same at either level: no
-    /// operation is contracted into an FMA. The ray queries enter the level again from
-    /// inside the path loop, a call per ray; inlining the traversal into the loop instead
-    /// (the same bits) executed 25 % more instructions on `cornell` (callgrind) and was 20 %
-    /// slower (stop 57): the call keeps the traversal's registers its own.
+    /// ([`crate::integrator::PathIntegrator::radiance_split`]), and so do the caustic light
+    /// paths. The bits are the same at either level: no operation is contracted into an FMA.
+    /// The ray queries enter the level again from inside the path loop, a call per ray: the
+    /// call keeps the traversal's registers its own (inlined, it ran slower; `docs/experiments.md`).
     #[inline(always)]
     pub fn at_level<R>(&self, f: impl FnOnce() -> R) -> R {
         #[cfg(target_arch = "x86_64")]
@@ -958,7 +698,7 @@ impl Accel {
         self.build_time
     }
 
-    /// Number of BVH primitive references (one per triangle: no pre-splits, see the module docs).
+    /// Number of BVH primitive references (one per triangle: no spatial pre-splits).
     pub fn primitive_count(&self) -> usize {
         self.tris.len()
     }

@@ -7,16 +7,15 @@
 //!   order `s = 0, 1, …`, so the image is bit-identical for any thread count.
 //! - Emitter edges: a pixel that straddles the edge of a directly seen emitter (the emission
 //!   seen through its four corners differs by more than [`EDGE_CONTRAST`]) is mostly noise
-//!   from how many of its few camera rays land on the emitter: on the `cornell` scene at
-//!   64 spp, about 50 such pixels around the ceiling light made 56 % of the image's squared
-//!   error. There the camera vertex's emission ([`PathIntegrator::primary_emission`]) is
+//!   from how many of its few camera rays land on the emitter (`docs/renderer.md`). There the
+//!   camera vertex's emission ([`PathIntegrator::primary_emission`]) is
 //!   estimated from `split · spp` camera rays of their own stratified set (keys
 //!   `(splitmix64(seed ⊕ EDGE_SEED_KEY), view, pixel, e)`), and each path sample adds the rest
 //!   ([`PathIntegrator::radiance_split`]): the same expectation with far less noise, for a
 //!   closest hit per extra ray. `split` ([`edge_split`]) is the largest power of two up to
 //!   [`EDGE_MAX_SPLIT`] that keeps the extra rays within [`EDGE_RAY_BUDGET`] of the view's
-//!   camera samples; views without such pixels (or scenes without emitters) render exactly as
-//!   before. The corners are traced once per view, so which pixels are split does not depend
+//!   camera samples; views without such pixels (or scenes without emitters) have no split.
+//!   The corners are traced once per view, so which pixels are split does not depend
 //!   on any random number (the estimate stays unbiased).
 //! - Caustics: when the scene has casters that a punctual light reaches and `max_bounces ≥ 2`,
 //!   the caustic paths are traced from the lights instead ([`crate::caustics`]; light path `k`
@@ -31,29 +30,11 @@
 //!   [`dataset::Camera::z_depth_from_distance`]; the normal is the world shading normal facing
 //!   the camera. Misses: depth, distance, normal and alpha 0.
 //! - Non-finite radiance samples are replaced by zero and counted.
-//! - Every pixel gets `spp` samples. Adaptive sampling was built and measured, and not kept
-//!   (stop 57): a pilot of `spp / 4` samples everywhere, then the rest of the budget in
-//!   proportion to `σ̂ / √ĉ` (Neyman allocation with the cost ĉ in rays per sample), with
-//!   `σ̂` and `ĉ` read from the pixel's four edge neighbours only (a checkerboard: a pixel's
-//!   count never depends on its own samples, so each pixel mean stays unbiased), a uniform
-//!   floor of 10–50 % of the budget, a cap at 8 · spp, and the spread measured on
-//!   `v / (1 + v)`. At 128 px and 64 spp (8 seeds, MSE against a 4096-spp render) it gave
-//!   MSE × time 1.07–1.13x better on `cornell`, 1.07x on `tabletop` and `thin`, none on
-//!   `deep` (its MSE fell 17–20 % but the time rose 20–25 %: samples move from cheap
-//!   background misses to long paths), and **2.4–7x worse on `materials`**, whose error is
-//!   fireflies in small highlights: a pixel inside a feature a pixel or two wide is judged
-//!   by neighbours outside it and starved. Allocating from a pixel's own pilot sees the
-//!   feature but biases the mean; the unbiased form of that (the second pass from a sampler
-//!   stream of its own, the two passes' means combined with the fixed weights ¼ and ¾) was
-//!   2.6x better on `materials` and 1.05–1.46x worse on the four others (each pass is
-//!   stratified alone, and the fixed weights waste samples).
+//! - Every pixel gets `spp` samples (adaptive sampling, tried: `docs/experiments.md`).
 //! - Cameras are in true world coordinates (`f64`); rays are moved into the scene's local
 //!   frame by subtracting [`Scene::origin`] before conversion to `f32`. The jittered camera
 //!   rays of path samples are generated in `f32` from the camera's pose converted once per
-//!   view ([`SampleRays`]): the same map as [`dataset::Camera::pixel_ray`] (image point →
-//!   camera-frame direction → rotated, normalised once), without its two `f64` divisions and
-//!   three normalisations per sample (5 % of a render's time); the ground truth keeps the
-//!   `f64` pixel-centre ray.
+//!   view ([`SampleRays`]); the ground truth keeps the `f64` pixel-centre ray.
 
 use crate::PathTracerError;
 use crate::accel::{Accel, AccelParams, Hit};
@@ -151,10 +132,8 @@ pub struct EmitterEdges {
 pub const EDGE_MAX_SPLIT: u32 = 64;
 /// The emission rays of all emitter-edge pixels together are at most this share of the view's
 /// camera samples (a closest hit each, against a path of several hits and shadow rays).
-/// Measured on `cornell` (`bench render --no-mitsuba`, 9 renders per row, 128 px, 64 spp):
-/// 1/8 → 1/4 lowered the MSE by 1.5 % (glTF) and 1.6 % (Lambert) with no time that showed
-/// (glTF 1.553 and 1.571 M samples/s); 1/2 by 1.8 % and 1.9 %; 1/16 raised it by 4.6 % and 6.4 %.
-/// Views without a directly seen emitter's edge render as before.
+/// A quarter lowers `cornell`'s error at no visible cost (`docs/experiments.md`). Views
+/// without a directly seen emitter's edge trace no emission rays.
 pub const EDGE_RAY_BUDGET: f64 = 0.25;
 /// A pixel is an emitter edge when the emission seen at its four corners differs, in some
 /// channel, by more than this share of the brightest corner's largest channel.
@@ -1142,7 +1121,7 @@ mod tests {
             }
         }
         // Independent jitter would give a mean squared z-score near 1; 64 stratified positions
-        // per pixel (a (0,6,2)-net) give far less (measured 1e-4).
+        // per pixel (a (0,6,2)-net) give far less (about 1e-4).
         let chi2 = chi2 / 192.0;
         assert!(chi2 < 0.05, "mean squared z-score {chi2}: pixel positions are not stratified");
         assert_eq!(out.nonfinite_samples, 0);
