@@ -3,15 +3,8 @@
 //! easy to find (the path tracer finds them only by chance, with large weights; why and how
 //! much noise they held: `docs/renderer.md`).
 //!
-//! **Which paths.** The path space is partitioned, so no MIS weights are needed:
-//! - a *caustic path* `camera → x₁ → … → x_n → punctual light` has `2 ≤ n ≤`
-//!   [`MAX_CAUSTIC_VERTICES`] scattering vertices, `x_n` of a *caster* material and
-//!   `x₁ … x_{n−1}` (`x₁` the first surface the camera ray hits) of materials that are not
-//!   *sharp*: casters have a narrow, bright specular lobe, GGX `α <` [`CASTER_ALPHA`] and
-//!   `F0 / α ≥` [`CASTER_F0_PER_ALPHA`] ([`is_caster`]); sharp ones are metallic ([`is_sharp`]);
-//! - the path tracer leaves out the punctual lights' next-event estimate at such an `x_n`
-//!   ([`crate::integrator::PathIntegrator::caustics`], [`CausticPaths::is_caustic_vertex`]);
-//!   the light tracer estimates exactly that term. Everything else is unchanged.
+//! **Which paths:** the caustic paths of [`crate::caustic_partition`], whose last vertex's
+//! punctual-light term the path tracer leaves out; this tracer estimates exactly that term.
 //!
 //! **The estimator.** Per view, `N = ⌈width · height · spp · LIGHT_PATHS_PER_SAMPLE⌉` light
 //! paths, or none when a pilot's paths rarely reach the image
@@ -44,21 +37,16 @@
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 use crate::accel::{Hit, TraversalStack};
+use crate::camera_rays::SampleRays;
+use crate::caustic_partition::{CausticVertices, MAX_CAUSTIC_VERTICES};
 use crate::geometry::{Ray, hit_point_error, offset_ray_origin};
 use crate::integrator::{PathIntegrator, interaction, vertex_bsdf};
 use crate::light::punctual_incidence;
-use crate::material::{MIN_ALPHA, max_dielectric_f0, min_roughness_texel};
-use crate::render::SampleRays;
 use crate::sampler::{Sampler, sample_uniform_triangle, splitmix64};
-use crate::scene::{Light, Material, Scene, Texture};
+use crate::scene::{Light, Scene};
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 
-/// GGX `α` below which a reflecting material can be a caster (roughness ≈ 0.45), see
-/// [`is_caster`]. Why not lower: `docs/renderer.md`.
-pub const CASTER_ALPHA: f32 = 0.2;
-/// Least `F0 / α` of a caster (see [`is_caster`]).
-pub const CASTER_F0_PER_ALPHA: f32 = 2.0;
 /// Light paths per camera sample of a view (when the scene has casters and punctual lights):
 /// the best of the rates tried on the committed scenes (`docs/experiments.md`).
 pub const LIGHT_PATHS_PER_SAMPLE: f64 = 0.0625;
@@ -75,37 +63,10 @@ pub const MIN_YIELD: f64 = 0.1;
 pub const MAX_TABLE_ENTRIES: usize = 1 << 22;
 /// Sampler seed key of the light paths (`splitmix64(seed ^ CAUSTIC_SEED_KEY)`).
 pub const CAUSTIC_SEED_KEY: u64 = 0x6361_7573_7469_6373;
-/// Most vertices of a caustic path (the caster included): longer ones stay with the path
-/// tracer.
-pub const MAX_CAUSTIC_VERTICES: u32 = 4;
 /// Light paths per parallel task.
 const CHUNK: u64 = 4096;
 /// Tasks whose splats are held at once.
 const BATCH_CHUNKS: u64 = 64;
-
-/// Whether a material is a caster: its specular lobe can be narrow (GGX `α`, from the
-/// roughness factor × the smallest G of its metallic-roughness texture, below
-/// [`CASTER_ALPHA`]) and bright for its width (`F0 / α ≥` [`CASTER_F0_PER_ALPHA`], `F0` the
-/// largest normal-incidence reflectance it can have: the base colour factor where it can be
-/// metallic, else the dielectric layer's).
-///
-/// Why the second rule: the path tracer's variance for a caustic grows like `(F0 / α)²`, the
-/// light tracer's cost is the same for every caster (`docs/renderer.md`).
-pub fn is_caster(material: &Material, textures: &[Texture]) -> bool {
-    let dielectric = max_dielectric_f0(material) * material.specular_factor.max(0.0);
-    let f0 = if material.metallic_factor > 0.0 { material.base_color_factor.truncate().max_element().max(dielectric) } else { dielectric };
-    if !(f0 > 0.0) {
-        return false;
-    }
-    let r = (material.roughness_factor * min_roughness_texel(material, textures)).clamp(0.0, 1.0);
-    let alpha = (r * r).max(MIN_ALPHA);
-    alpha < CASTER_ALPHA && f0 >= CASTER_F0_PER_ALPHA * alpha
-}
-
-/// Whether a caster is sharp: metallic, so that its whole reflection is the narrow lobe.
-pub fn is_sharp(material: &Material, textures: &[Texture]) -> bool {
-    material.metallic_factor > 0.0 && is_caster(material, textures)
-}
 
 /// One punctual light as the light tracer samples it.
 #[derive(Clone, Debug)]
@@ -118,8 +79,8 @@ struct Emitter {
 /// The caustic light tracer of one scene (see the module docs).
 #[derive(Clone, Debug, Default)]
 pub struct CausticPaths {
-    caster: Vec<bool>,
-    sharp: Vec<bool>,
+    /// Which materials are casters and which are sharp.
+    vertices: CausticVertices,
     /// The caster triangles (mesh triangle indices; finite, of positive area) and their areas.
     triangles: Vec<u32>,
     areas: Vec<f32>,
@@ -143,13 +104,12 @@ impl CausticPaths {
 
     /// [`CausticPaths::build`] with per-light tables up to `limit` entries in all.
     pub(crate) fn build_with_limit(scene: &Scene, limit: usize) -> Self {
-        let caster: Vec<bool> = scene.materials.iter().map(|m| is_caster(m, &scene.textures)).collect();
-        let sharp: Vec<bool> = scene.materials.iter().map(|m| is_sharp(m, &scene.textures)).collect();
+        let vertices = CausticVertices::new(scene);
         let m = &scene.mesh;
         let (mut triangles, mut areas) = (Vec::new(), Vec::new());
         for t in 0..m.indices.len() {
             let Some(&k) = m.material.get(t) else { continue };
-            if !caster.get(k as usize).copied().unwrap_or(false) {
+            if !vertices.is_caster(k) {
                 continue;
             }
             let Some(p) = triangle_positions(scene, t as u32) else { continue };
@@ -208,23 +168,12 @@ impl CausticPaths {
                 (acc / total) as f32
             })
             .collect();
-        Self { caster, sharp, triangles, areas, tables, emitters, cdf, scene_sphere }
+        Self { vertices, triangles, areas, tables, emitters, cdf, scene_sphere }
     }
 
-    /// Whether material `m` is sharp (a light path stops there; a caustic path has none
-    /// before its caster).
-    #[inline]
-    pub fn is_sharp(&self, m: u32) -> bool {
-        self.sharp.get(m as usize).copied().unwrap_or(true)
-    }
-
-    /// Whether the path tracer leaves out the punctual lights' estimate at its vertex
-    /// `vertex` (1-based: the camera ray's hit is vertex 1) of material `m`, when every vertex
-    /// before it is not sharp: a caustic path of `vertex` vertices, which the light tracer
-    /// estimates.
-    #[inline]
-    pub fn is_caustic_vertex(&self, vertex: u32, m: u32) -> bool {
-        (2..=MAX_CAUSTIC_VERTICES).contains(&vertex) && self.is_caster(m)
+    /// Which vertices the path tracer leaves to this light tracer (see [`CausticVertices`]).
+    pub fn vertices(&self) -> &CausticVertices {
+        &self.vertices
     }
 
     /// The punctual lights the light paths start from (indices into the scene's lights), in
@@ -374,7 +323,7 @@ impl CausticPaths {
             return;
         }
         let si = interaction(scene, &ray_l, &hit);
-        if !self.is_caster(si.material) {
+        if !self.vertices.is_caster(si.material) {
             return;
         }
         let Some(inc) = punctual_incidence(light, si.p) else { return };
@@ -401,7 +350,7 @@ impl CausticPaths {
             let ray_b = Ray::new(offset_ray_origin(cur_si.p, cur_si.p_err, cur_si.ng, cur_si.ng), wb);
             let Some(next) = integ.intersect_in(stack, &ray_b) else { return };
             let next_si = interaction(scene, &ray_b, &next);
-            if self.is_sharp(next_si.material) {
+            if self.vertices.is_sharp(next_si.material) {
                 return;
             }
             // The path tracer's f at z_{j−1}, seen from z_j, towards z_{j−2} or the light.
@@ -442,12 +391,6 @@ impl CausticPaths {
         (p_area > 0.0 && p_area.is_finite()).then_some((prim, z, p_area))
     }
 
-    /// Whether material `m` is a caster.
-    #[inline]
-    fn is_caster(&self, m: u32) -> bool {
-        self.caster.get(m as usize).copied().unwrap_or(false)
-    }
-
     /// The camera's end of a caustic path: the light-path vertex `p` (on triangle `prim`) seen by
     /// the camera ray through its image point, the path tracer's f there towards `toward` (the
     /// next vertex on the light's side), and the pixel it falls in with
@@ -467,7 +410,7 @@ impl CausticPaths {
             return None;
         }
         let si1 = interaction(scene, &ray_c, &hit1);
-        if self.is_sharp(si1.material) {
+        if self.vertices.is_sharp(si1.material) {
             return None;
         }
         let mat1 = scene.materials.get(si1.material as usize)?;
@@ -553,24 +496,3 @@ pub(crate) fn light_weight(light: &Light, p: [Vec3; 3], double_sided: bool) -> f
     }
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn casters_are_narrow_bright_lobes_and_sharp_ones_are_metal() {
-        let m = |metallic: f32, roughness: f32| Material { metallic_factor: metallic, roughness_factor: roughness, ..Material::gltf_default() };
-        // Metals: narrow enough (α < 0.2, roughness < 0.447) is bright enough.
-        assert!(is_caster(&m(1.0, 0.05), &[]) && is_sharp(&m(1.0, 0.05), &[]));
-        assert!(is_caster(&m(1.0, 0.44), &[]));
-        assert!(!is_caster(&m(1.0, 0.45), &[]));
-        // A dark metal's lobe is dim: F0 0.05 needs α ≤ 0.025.
-        let dark = Material { base_color_factor: glam::Vec4::new(0.05, 0.05, 0.05, 1.0), ..m(1.0, 0.2) };
-        assert!(!is_caster(&dark, &[]));
-        // Dielectrics (F0 0.04): only below α = 0.02 (roughness 0.14), and never sharp.
-        assert!(is_caster(&m(0.0, 0.05), &[]) && !is_sharp(&m(0.0, 0.05), &[]));
-        assert!(!is_caster(&m(0.0, 0.2), &[]));
-        // No specular layer, no caster.
-        assert!(!is_caster(&Material { specular_factor: 0.0, ..m(0.0, 0.0) }, &[]));
-    }
-}

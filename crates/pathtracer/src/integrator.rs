@@ -44,8 +44,8 @@
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 use crate::accel::{Accel, Hit, TraversalStack};
+use crate::caustic_partition::CausticVertices;
 use crate::geometry::{Frame, Ray, hit_point_error, offset_ray_origin};
-use crate::caustics::CausticPaths;
 use crate::light::{EmissiveTriangles, Environment, punctual_incidence};
 use crate::material::{BsdfAt, BsdfSample, SurfaceAttributes, evaluate_many, sample_many, SurfaceMaterial, base_color, emission, facing_normals, normal_mapped, resolve, shading_frame, triangle_tangent};
 use crate::sampler::{Sampler, power_heuristic, splitmix64};
@@ -395,7 +395,7 @@ pub struct PathIntegrator<'a> {
     /// When set, the light tracer of [`crate::caustics`] estimates the caustic paths
     /// (camera → surfaces that are not sharp → caster → punctual light) and this integrator
     /// leaves them out; `None`: every path is estimated here.
-    pub caustics: Option<&'a CausticPaths>,
+    pub caustics: Option<&'a CausticVertices>,
     /// Per material, the material resolved once where it is the same at every point
     /// ([`crate::material::uniform_surface`]), else `None` (resolved per vertex). Empty: every
     /// material is resolved per vertex (the same bits, slower).

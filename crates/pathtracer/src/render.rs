@@ -38,6 +38,7 @@
 
 use crate::PathTracerError;
 use crate::accel::{Accel, AccelParams, Hit};
+use crate::camera_rays::SampleRays;
 use crate::caustics::CausticPaths;
 use crate::geometry::{Ray, ray_triangle_plane_distance_f64};
 use crate::integrator::{IntegratorSettings, PathIntegrator, RayCounts, interaction};
@@ -51,72 +52,6 @@ use dataset::{Camera, GroundTruth, RgbaImage};
 use glam::{DVec3, Vec2, Vec3, Vec4};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
-
-/// The jittered camera rays of one view's path samples, in the scene's local frame and `f32`
-/// (see the module docs): image point `(px, py)` → camera-frame direction
-/// `((px − cx)/f_x, −(py − cy)/f_y, −1)` → `c2w` rotation → normalised.
-#[derive(Clone, Copy, Debug)]
-pub struct SampleRays {
-    origin: Vec3,
-    x: Vec3,
-    y: Vec3,
-    z: Vec3,
-    cx: f32,
-    cy: f32,
-    inv_fx: f32,
-    inv_fy: f32,
-    fx: f32,
-    fy: f32,
-}
-
-impl SampleRays {
-    /// The rays of `camera` for a scene whose local frame is centred at `scene_origin`.
-    pub fn new(camera: &Camera, scene_origin: DVec3) -> Self {
-        let k = &camera.intrinsics;
-        let m = camera.c2w;
-        Self {
-            origin: (camera.origin() - scene_origin).as_vec3(),
-            x: m.x_axis.truncate().as_vec3(),
-            y: m.y_axis.truncate().as_vec3(),
-            z: m.z_axis.truncate().as_vec3(),
-            cx: k.cx as f32,
-            cy: k.cy as f32,
-            inv_fx: (1.0 / k.fl_x) as f32,
-            inv_fy: (1.0 / k.fl_y) as f32,
-            fx: k.fl_x as f32,
-            fy: k.fl_y as f32,
-        }
-    }
-
-    /// The image point of the (scene-local) point `p` with the cosine between its direction
-    /// and the optical axis and its distance from the camera: `(px, py, cos θ, distance)`
-    /// such that [`SampleRays::ray`]`(px, py)` points at `p`; `None` behind the camera.
-    #[inline]
-    #[allow(clippy::neg_cmp_op_on_partial_ord)] // (also rejects NaN)
-    pub fn project(&self, p: Vec3) -> Option<(f32, f32, f32, f32)> {
-        let v = p - self.origin;
-        let (a, b, c) = (v.dot(self.x), v.dot(self.y), -v.dot(self.z));
-        let dist = v.length();
-        if !(c > 0.0) || !(dist > 0.0) {
-            return None;
-        }
-        Some((self.cx + a / c * self.fx, self.cy - b / c * self.fy, c / dist, dist))
-    }
-
-    /// The density per steradian of a camera ray uniform over one pixel, at angle `θ` from
-    /// the optical axis (`cos_theta`): `f_x f_y / cos³ θ`.
-    #[inline]
-    pub fn pixel_density(&self, cos_theta: f32) -> f32 {
-        self.fx * self.fy / (cos_theta * cos_theta * cos_theta)
-    }
-
-    /// The ray through image point (`px`, `py`) (pixels from the top-left corner).
-    #[inline]
-    pub fn ray(&self, px: f32, py: f32) -> Ray {
-        let (dx, dy) = ((px - self.cx) * self.inv_fx, -(py - self.cy) * self.inv_fy);
-        Ray::new(self.origin, (self.x * dx + self.y * dy - self.z).normalize_or_zero())
-    }
-}
 
 /// Pixels of one view whose camera vertex's emission is estimated with extra rays
 /// ([`Renderer::emitter_edges`]).
@@ -564,7 +499,7 @@ impl Renderer {
         let rays = SampleRays::new(camera, self.scene.origin);
         let light_paths = if self.caustic_light_tracing { self.caustics.paths_for_view(&integ, &rays, (w, h), settings.seed, view_index, spp) } else { 0 };
         if light_paths > 0 {
-            integ.caustics = Some(&self.caustics);
+            integ.caustics = Some(self.caustics.vertices());
         }
         let edges = self.emitter_edges(camera, &integ, spp);
         let edge_seed = splitmix64(settings.seed ^ EDGE_SEED_KEY);
@@ -1540,8 +1475,8 @@ mod tests {
                 let mut one = r.integrator(&s);
                 one.lane_materials = None;
                 if caustics {
-                    lanes.caustics = Some(r.caustics());
-                    one.caustics = Some(r.caustics());
+                    lanes.caustics = Some(r.caustics().vertices());
+                    one.caustics = Some(r.caustics().vertices());
                 }
                 for n in [1usize, 7, 8, 9, 70] {
                     for primary_emission in [true, false] {
