@@ -15,10 +15,6 @@
 //! Everything else (longer paths, emissive triangles, the environment) stays with the path
 //! tracer.
 
-// Negated comparisons (`!(x > 0.0)`) are deliberate: they also reject NaN.
-#![allow(clippy::neg_cmp_op_on_partial_ord)]
-
-use crate::material::{MIN_ALPHA, max_dielectric_f0, min_roughness_texel};
 use crate::scene::{Material, Scene, Texture};
 
 /// GGX `α` below which a reflecting material can be a caster (roughness ≈ 0.45), see
@@ -30,23 +26,14 @@ pub const CASTER_F0_PER_ALPHA: f32 = 2.0;
 /// tracer.
 pub const MAX_CAUSTIC_VERTICES: u32 = 4;
 
-/// Whether a material is a caster: its specular lobe can be narrow (GGX `α`, from the
-/// roughness factor × the smallest G of its metallic-roughness texture, below
-/// [`CASTER_ALPHA`]) and bright for its width (`F0 / α ≥` [`CASTER_F0_PER_ALPHA`], `F0` the
-/// largest normal-incidence reflectance it can have: the base colour factor where it can be
-/// metallic, else the dielectric layer's).
+/// Whether a material is a caster: its sharpest specular lobe
+/// ([`Material::sharpest_specular_lobe`]) can be narrow (GGX `α <` [`CASTER_ALPHA`]) and bright
+/// for its width (`F0 / α ≥` [`CASTER_F0_PER_ALPHA`]).
 ///
 /// Why the second rule: the path tracer's variance for a caustic grows like `(F0 / α)²`, the
 /// light tracer's cost is the same for every caster (`docs/renderer.md`).
 pub fn is_caster(material: &Material, textures: &[Texture]) -> bool {
-    let dielectric = max_dielectric_f0(material) * material.specular_factor.max(0.0);
-    let f0 = if material.metallic_factor > 0.0 { material.base_color_factor.truncate().max_element().max(dielectric) } else { dielectric };
-    if !(f0 > 0.0) {
-        return false;
-    }
-    let r = (material.roughness_factor * min_roughness_texel(material, textures)).clamp(0.0, 1.0);
-    let alpha = (r * r).max(MIN_ALPHA);
-    alpha < CASTER_ALPHA && f0 >= CASTER_F0_PER_ALPHA * alpha
+    material.sharpest_specular_lobe(textures).is_some_and(|lobe| lobe.alpha < CASTER_ALPHA && lobe.f0 >= CASTER_F0_PER_ALPHA * lobe.alpha)
 }
 
 /// Whether a caster is sharp: metallic, so that its whole reflection is the narrow lobe.

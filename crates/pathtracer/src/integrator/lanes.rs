@@ -15,7 +15,7 @@
 
 use super::*;
 use crate::light::solid_angle_density;
-use crate::material::{BsdfLanes, SampleLane, SampledLanes, evaluate_lanes, sample_lanes, wo_terms};
+use crate::material::{BsdfLanes, SampleLane, SampledLanes, evaluate_lanes, sample_lanes};
 use crate::sampler::SamplerLanes;
 
 /// Lanes of the loop: eight, the `f32` lanes of an AVX2 register.
@@ -236,7 +236,7 @@ impl PathIntegrator<'_> {
             let path = &mut paths[id as usize];
             let lm = &mats[mat[k]];
             let frame = frame_of(k);
-            x.set(k, &SampleLane { wo: get3(&wo_l, k), ..lm.bsdf });
+            x.set(k, &lm.bsdf.with_wo(get3(&wo_l, k)));
             let p = get3(&point, k);
             let g = get3(&ng, k);
             let o = get3(&origin, k);
@@ -269,9 +269,9 @@ impl PathIntegrator<'_> {
 
         // In lanes: what the BSDFs compute once from `wo` (`Bsdf::at`).
         for k in 0..L {
-            (x.ps[k], x.sd_wo[k]) = wo_terms(&x.get(k, Vec2::ZERO));
+            x.set_wo_terms(k);
         }
-        let all_diffuse = (0..n).all(|k| !shading[k] || x.diffuse[k]);
+        let all_diffuse = (0..n).all(|k| !shading[k] || x.is_lambertian(k));
 
         // In lanes: the emitter sample (`emitter_pending`) and the BSDF's value towards it.
         let mut e_ok = [false; L];
@@ -317,7 +317,7 @@ impl PathIntegrator<'_> {
             }
             let mut f = [[0.0f32; L]; 3];
             let mut pdf = [0.0f32; L];
-            evaluate_lanes(&y, group.iter().all(|o| x.diffuse[o.lane]), &wi, &mut f, &mut pdf);
+            evaluate_lanes(&y, group.iter().all(|o| x.is_lambertian(o.lane)), &wi, &mut f, &mut pdf);
             other_values.extend((0..group.len()).map(|j| (get3(&f, j), pdf[j])));
         }
 
