@@ -1,7 +1,7 @@
 //! Path-tracer throughput without the rest of the workspace: the figures of
 //! `cargo xtask bench render` (primary rays at 256 px wide, path samples at the quick preset:
 //! 64×64, 16 spp, 4 bounces) for every scene in `scenes/`, so that an old commit can be
-//! measured side by side from a worktree that builds only this crate.
+//! compared side by side from a worktree that builds only this crate.
 //!
 //! ```text
 //! cargo bench -p pathtracer --bench render [-- SCENE…] [--runs N] [--seconds S] [--accel PRESET] [--spp N] [--width W]

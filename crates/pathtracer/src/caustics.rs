@@ -1,149 +1,72 @@
 //! Light tracing of caustic paths: the light a glossy object focuses from a punctual light
-//! onto the surfaces the camera sees, estimated from the light's side.
+//! onto the surfaces the camera sees, estimated from the light's side, where such paths are
+//! easy to find (the path tracer finds them only by chance, with large weights; why and how
+//! much noise they held: `docs/renderer.md`).
 //!
-//! **Why.** A path `camera → x₁ → x₂ → punctual light` with a rough `x₁` (the surface the
-//! camera sees) and a glossy `x₂` (a polished metal sphere) is found by the path tracer only
-//! when the direction it samples at `x₁` happens to hit the small part of `x₂` whose mirror
-//! image of the light falls towards `x₁`; such rare paths carry large weights. On the
-//! committed scenes this one path class held most of the noise left in `tabletop` (its
-//! images' variance fell by 85 % without it) and 40–60 % in `materials`. From the light's
-//! side the same paths are easy: a ray from the light that hits the glossy object reflects
-//! along its lobe onto `x₁`, which is then connected to the camera.
-//!
-//! **Which paths.** The path space is partitioned, so every path is estimated by exactly one
-//! technique and no MIS weights are needed:
-//! - a *caustic path* `camera → x₁ → … → x_n → punctual light` has `2 ≤ n ≤`
-//!   [`MAX_CAUSTIC_VERTICES`] scattering vertices, `x_n` of a *caster* material and
-//!   `x₁ … x_{n−1}` (`x₁` the first surface the camera ray hits) of materials that are not
-//!   *sharp*;
-//! - casters are materials whose specular lobe can be narrow and bright: GGX `α` below
-//!   [`CASTER_ALPHA`] (roughness ≈ 0.45) and `F0 / α ≥` [`CASTER_F0_PER_ALPHA`]
-//!   ([`is_caster`]); sharp materials are the metallic casters, whose whole reflection is
-//!   that narrow lobe (the path tracer samples their reflections well, and a light tracer
-//!   could not connect through them);
-//! - the path tracer leaves out the punctual lights' next-event estimate at such an `x_n`
-//!   ([`crate::integrator::PathIntegrator::caustics`], [`CausticPaths::is_caustic_vertex`]);
-//!   the light tracer estimates exactly that term. Everything else (longer paths, emissive
-//!   triangles, the environment) is unchanged.
-//! - Paths of 3 and 4 vertices (a caustic seen after a diffuse bounce) held about a third of
-//!   the variance left on `materials` after those of 2 (64×64, 64 spp, 16 seeds: 4.0e-4 →
-//!   2.8e-4, for 2 % more time); on `tabletop` they made no difference.
+//! **Which paths:** the caustic paths of [`crate::caustic_partition`], whose last vertex's
+//! punctual-light term the path tracer leaves out; this tracer estimates exactly that term.
 //!
 //! **The estimator.** Per view, `N = ⌈width · height · spp · LIGHT_PATHS_PER_SAMPLE⌉` light
 //! paths, or none when a pilot's paths rarely reach the image
 //! ([`CausticPaths::paths_for_view`], [`MIN_YIELD`]): a punctual light in proportion to its
-//! intensity times the casters' solid angle from it (for a directional light, its illuminance
-//! times their area across the beam); a caster triangle in proportion to how strongly that
-//! light can light it (`light_weight`: its solid angle from the light or its projected
-//! area, zero where the light cannot reach its front), and a point `z₁` uniform on it, of
-//! area density `A₁ = P(triangle) / area`; `z₁` is kept when the ray from the light towards
-//! it hits it first. (The first version aimed cones at the casters' bounding spheres: on
-//! `thin`, whose casters are wires and a spring, 92 % of those rays missed them.) Then, for
-//! `j = 2, 3, …` up to `min(max_bounces, MAX_CAUSTIC_VERTICES)`, a direction from
-//! `z_{j−1}`'s BSDF seen from the light's side and its first hit `z_j`, the path ending at a
-//! sharp `z_j`. Each `z_j` in the image whose camera ray hits it first is connected to the
-//! camera: the path
-//! `camera → z_j → … → z₁ → light` of `j` vertices. Its value is computed as the path tracer
-//! would compute it (the camera ray's hit, the shading frames and BSDFs seen from the
-//! camera's side, [`crate::light::punctual_incidence`]) and its density converted to the path
-//! tracer's measure: with `W = f_x f_y / cos³θ_c` the density of pixel sampling per steradian,
-//! the contribution to the pixel `z_j` falls in is
+//! intensity times the casters' solid angle from it (directional: illuminance times their area
+//! across the beam); a caster triangle in proportion to how strongly that light can light it
+//! (`light_weight`), and a point `z₁` uniform on it, of area density `A₁ = P(triangle) / area`,
+//! kept when the ray from the light hits it first. Then, for `j = 2, 3, …` up to
+//! `min(max_bounces, MAX_CAUSTIC_VERTICES)`, a direction from `z_{j−1}`'s BSDF seen from the
+//! light's side and its first hit `z_j`, the path ending at a sharp `z_j`. Each `z_j` whose
+//! camera ray hits it first is connected to the camera, valued as the path tracer would value
+//! it; with `W = f_x f_y / cos³θ_c` the density of pixel sampling per steradian, the
+//! contribution to the pixel `z_j` falls in is
 //! `W · |cosᶜ| / d² · E / (P_light · A₁) · Π_{i<j} f_i · |cos_i| / (p_i · |cos'_{i+1}|) · f_j / N`,
 //! where the `f` are the BSDFs times their shading cosines (`f_j` towards `z_{j−1}` seen from
 //! the camera, `f_i` towards `z_{i−1}` or the light seen from `z_{i+1}`), `E` the light's
-//! irradiance at `z₁`, `A₁` the area density of `z₁`, `p_i` the solid-angle density of the
-//! direction sampled at `z_i`, `cos_i` and `cos'_{i+1}` the geometric cosines of the segment
-//! `z_i z_{i+1}` at its two ends and `cosᶜ`, `d` those of the camera's segment at `z_j`.
+//! irradiance at `z₁`, `p_i` the solid-angle density of the direction sampled at `z_i`,
+//! `cos_i`, `cos'_{i+1}` the geometric cosines of `z_i z_{i+1}` at its two ends and `cosᶜ`, `d`
+//! those of the camera's segment at `z_j`.
 //!
-//! **Determinism.** Light path `k` of view `v` draws its numbers from
-//! `Sampler::new(splitmix64(seed ⊕ CAUSTIC_SEED_KEY), v, 0, k)` (one stratified set per view;
-//! the pilot's from pixel index 1): dimension 0 the light, 1 the triangle, 2–3 the point on
-//! it, `4 + 2 (j − 2)` the BSDF direction at `z_{j−1}`;
-//! paths are traced in fixed chunks in parallel and their contributions summed in `f64` in
-//! path order, so the image is bit-identical for any thread count.
+//! **Determinism.** Light path `k` of view `v` draws from
+//! `Sampler::new(splitmix64(seed ⊕ CAUSTIC_SEED_KEY), v, 0, k)` (the pilot's from pixel index
+//! 1): dimension 0 the light, 1 the triangle, 2–3 the point, `4 + 2 (j − 2)` the direction at
+//! `z_{j−1}`; chunks run in parallel and are summed in `f64` in path order (any thread count).
 //!
-//! **Known asymmetry.** The light path's segments are traced from the light's side, the path
-//! tracer traces them from the camera's side. The two agree except where a
-//! single-sided (back-face culled) triangle lies across a segment with its back to one end,
-//! or a `Blend` triangle does (its stochastic coverage is drawn per ray): there the partition
-//! is estimated with the light-side visibility.
+//! **Known asymmetry.** Segments are traced from the light's side: where a back-face-culled or
+//! `Blend` triangle lies across one, the partition uses the light-side visibility.
 
 // Negated comparisons (`!(x > 0.0)`) are deliberate: they also reject NaN.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 use crate::accel::{Hit, TraversalStack};
+use crate::camera_rays::SampleRays;
+use crate::caustic_partition::{CausticVertices, MAX_CAUSTIC_VERTICES};
 use crate::geometry::{Ray, hit_point_error, offset_ray_origin};
 use crate::integrator::{PathIntegrator, interaction, vertex_bsdf};
 use crate::light::punctual_incidence;
-use crate::material::{MIN_ALPHA, max_dielectric_f0, min_roughness_texel};
-use crate::render::SampleRays;
 use crate::sampler::{Sampler, sample_uniform_triangle, splitmix64};
-use crate::scene::{Light, Material, Scene, Texture};
+use crate::scene::{Light, Scene};
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 
-/// GGX `α` below which a reflecting material can be a caster (roughness ≈ 0.45), see
-/// [`is_caster`]. At 0.1 (the first cut), `thin`'s copper (α 0.16) was left to the path
-/// tracer and held most of its noise: its light tracing halved `thin`'s variance × time.
-pub const CASTER_ALPHA: f32 = 0.2;
-/// Least `F0 / α` of a caster (see [`is_caster`]).
-pub const CASTER_F0_PER_ALPHA: f32 = 2.0;
-/// Light paths per camera sample of a view (when the scene has casters and punctual lights).
-/// Measured with the caster triangles drawn per light (128 px, 64 spp, 8 seeds; variance of
-/// a render over the pixels less the noisiest 0.1 %, times its time): 0.0625 was 5–8 % better
-/// than 0.125 on `materials`, `tabletop` and `thin`, and 0.25 12–25 % worse. (With cones
-/// towards bounding spheres, 0.125 had been best: a spot light's cone then sent many paths
-/// where it does not shine, which ended at once.)
+/// Light paths per camera sample of a view (when the scene has casters and punctual lights):
+/// the best of the rates tried on the committed scenes (`docs/experiments.md`).
 pub const LIGHT_PATHS_PER_SAMPLE: f64 = 0.0625;
 /// Most light paths of the pilot that decides whether a view is light-traced
 /// ([`CausticPaths::paths_for_view`]): a sixteenth of the view's light paths, at least 256
 /// (or all of them) and at most this many.
 pub const PILOT_PATHS: u64 = 4096;
 /// Least camera connections per light path (the pixels its vertices land in) for a view to be
-/// light-traced. Light paths that rarely reach the image cost their rays and remove little
-/// noise: on `deep` (0.05 per path, from its brass) tracing them cost 15 % of the samples per
-/// second and left the error unchanged; on `tabletop` (0.18), `thin` (0.26) and `materials`
-/// (0.28) they remove most of the noise.
+/// light-traced: light paths that rarely reach the image cost their rays and remove little
+/// noise (`docs/renderer.md`).
 pub const MIN_YIELD: f64 = 0.1;
 /// Most entries (caster triangles × punctual lights) of per-light caster tables; beyond it
 /// every light draws its triangles from one table of their areas.
 pub const MAX_TABLE_ENTRIES: usize = 1 << 22;
 /// Sampler seed key of the light paths (`splitmix64(seed ^ CAUSTIC_SEED_KEY)`).
 pub const CAUSTIC_SEED_KEY: u64 = 0x6361_7573_7469_6373;
-/// Most vertices of a caustic path (the caster included): longer ones stay with the path
-/// tracer.
-pub const MAX_CAUSTIC_VERTICES: u32 = 4;
 /// Light paths per parallel task.
 const CHUNK: u64 = 4096;
 /// Tasks whose splats are held at once.
 const BATCH_CHUNKS: u64 = 64;
-
-/// Whether a material is a caster: its specular lobe can be narrow (GGX `α`, from the
-/// roughness factor × the smallest G of its metallic-roughness texture, below
-/// [`CASTER_ALPHA`]) and bright for its width (`F0 / α ≥` [`CASTER_F0_PER_ALPHA`], `F0` the
-/// largest normal-incidence reflectance it can have: the base colour factor where it can be
-/// metallic, else the dielectric layer's).
-///
-/// Why the second rule: the path tracer's variance for a caustic grows like `(F0 / α)²` (the
-/// lobe's brightness squared over the solid angle it is found in), while the light tracer's
-/// cost is the same for every caster. A dielectric's 4 % layer is a caster only below
-/// `α = 0.02` (roughness 0.14): on `deep`, whose globe (α 0.04, F0 0.04) was one, tracing its
-/// caustic cost 14 % of the render time and left its error unchanged.
-pub fn is_caster(material: &Material, textures: &[Texture]) -> bool {
-    let dielectric = max_dielectric_f0(material) * material.specular_factor.max(0.0);
-    let f0 = if material.metallic_factor > 0.0 { material.base_color_factor.truncate().max_element().max(dielectric) } else { dielectric };
-    if !(f0 > 0.0) {
-        return false;
-    }
-    let r = (material.roughness_factor * min_roughness_texel(material, textures)).clamp(0.0, 1.0);
-    let alpha = (r * r).max(MIN_ALPHA);
-    alpha < CASTER_ALPHA && f0 >= CASTER_F0_PER_ALPHA * alpha
-}
-
-/// Whether a caster is sharp: metallic, so that its whole reflection is the narrow lobe.
-pub fn is_sharp(material: &Material, textures: &[Texture]) -> bool {
-    material.metallic_factor > 0.0 && is_caster(material, textures)
-}
 
 /// One punctual light as the light tracer samples it.
 #[derive(Clone, Debug)]
@@ -156,8 +79,8 @@ struct Emitter {
 /// The caustic light tracer of one scene (see the module docs).
 #[derive(Clone, Debug, Default)]
 pub struct CausticPaths {
-    caster: Vec<bool>,
-    sharp: Vec<bool>,
+    /// Which materials are casters and which are sharp.
+    vertices: CausticVertices,
     /// The caster triangles (mesh triangle indices; finite, of positive area) and their areas.
     triangles: Vec<u32>,
     areas: Vec<f32>,
@@ -181,13 +104,12 @@ impl CausticPaths {
 
     /// [`CausticPaths::build`] with per-light tables up to `limit` entries in all.
     pub(crate) fn build_with_limit(scene: &Scene, limit: usize) -> Self {
-        let caster: Vec<bool> = scene.materials.iter().map(|m| is_caster(m, &scene.textures)).collect();
-        let sharp: Vec<bool> = scene.materials.iter().map(|m| is_sharp(m, &scene.textures)).collect();
+        let vertices = CausticVertices::new(scene);
         let m = &scene.mesh;
         let (mut triangles, mut areas) = (Vec::new(), Vec::new());
         for t in 0..m.indices.len() {
             let Some(&k) = m.material.get(t) else { continue };
-            if !caster.get(k as usize).copied().unwrap_or(false) {
+            if !vertices.is_caster(k) {
                 continue;
             }
             let Some(p) = triangle_positions(scene, t as u32) else { continue };
@@ -246,23 +168,12 @@ impl CausticPaths {
                 (acc / total) as f32
             })
             .collect();
-        Self { caster, sharp, triangles, areas, tables, emitters, cdf, scene_sphere }
+        Self { vertices, triangles, areas, tables, emitters, cdf, scene_sphere }
     }
 
-    /// Whether material `m` is sharp (a light path stops there; a caustic path has none
-    /// before its caster).
-    #[inline]
-    pub fn is_sharp(&self, m: u32) -> bool {
-        self.sharp.get(m as usize).copied().unwrap_or(true)
-    }
-
-    /// Whether the path tracer leaves out the punctual lights' estimate at its vertex
-    /// `vertex` (1-based: the camera ray's hit is vertex 1) of material `m`, when every vertex
-    /// before it is not sharp: a caustic path of `vertex` vertices, which the light tracer
-    /// estimates.
-    #[inline]
-    pub fn is_caustic_vertex(&self, vertex: u32, m: u32) -> bool {
-        (2..=MAX_CAUSTIC_VERTICES).contains(&vertex) && self.is_caster(m)
+    /// Which vertices the path tracer leaves to this light tracer (see [`CausticVertices`]).
+    pub fn vertices(&self) -> &CausticVertices {
+        &self.vertices
     }
 
     /// The punctual lights the light paths start from (indices into the scene's lights), in
@@ -412,7 +323,7 @@ impl CausticPaths {
             return;
         }
         let si = interaction(scene, &ray_l, &hit);
-        if !self.is_caster(si.material) {
+        if !self.vertices.is_caster(si.material) {
             return;
         }
         let Some(inc) = punctual_incidence(light, si.p) else { return };
@@ -439,7 +350,7 @@ impl CausticPaths {
             let ray_b = Ray::new(offset_ray_origin(cur_si.p, cur_si.p_err, cur_si.ng, cur_si.ng), wb);
             let Some(next) = integ.intersect_in(stack, &ray_b) else { return };
             let next_si = interaction(scene, &ray_b, &next);
-            if self.is_sharp(next_si.material) {
+            if self.vertices.is_sharp(next_si.material) {
                 return;
             }
             // The path tracer's f at z_{j−1}, seen from z_j, towards z_{j−2} or the light.
@@ -480,12 +391,6 @@ impl CausticPaths {
         (p_area > 0.0 && p_area.is_finite()).then_some((prim, z, p_area))
     }
 
-    /// Whether material `m` is a caster.
-    #[inline]
-    fn is_caster(&self, m: u32) -> bool {
-        self.caster.get(m as usize).copied().unwrap_or(false)
-    }
-
     /// The camera's end of a caustic path: the light-path vertex `p` (on triangle `prim`) seen by
     /// the camera ray through its image point, the path tracer's f there towards `toward` (the
     /// next vertex on the light's side), and the pixel it falls in with
@@ -505,7 +410,7 @@ impl CausticPaths {
             return None;
         }
         let si1 = interaction(scene, &ray_c, &hit1);
-        if self.is_sharp(si1.material) {
+        if self.vertices.is_sharp(si1.material) {
             return None;
         }
         let mat1 = scene.materials.get(si1.material as usize)?;
@@ -591,24 +496,3 @@ pub(crate) fn light_weight(light: &Light, p: [Vec3; 3], double_sided: bool) -> f
     }
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn casters_are_narrow_bright_lobes_and_sharp_ones_are_metal() {
-        let m = |metallic: f32, roughness: f32| Material { metallic_factor: metallic, roughness_factor: roughness, ..Material::gltf_default() };
-        // Metals: narrow enough (α < 0.2, roughness < 0.447) is bright enough.
-        assert!(is_caster(&m(1.0, 0.05), &[]) && is_sharp(&m(1.0, 0.05), &[]));
-        assert!(is_caster(&m(1.0, 0.44), &[]));
-        assert!(!is_caster(&m(1.0, 0.45), &[]));
-        // A dark metal's lobe is dim: F0 0.05 needs α ≤ 0.025.
-        let dark = Material { base_color_factor: glam::Vec4::new(0.05, 0.05, 0.05, 1.0), ..m(1.0, 0.2) };
-        assert!(!is_caster(&dark, &[]));
-        // Dielectrics (F0 0.04): only below α = 0.02 (roughness 0.14), and never sharp.
-        assert!(is_caster(&m(0.0, 0.05), &[]) && !is_sharp(&m(0.0, 0.05), &[]));
-        assert!(!is_caster(&m(0.0, 0.2), &[]));
-        // No specular layer, no caster.
-        assert!(!is_caster(&Material { specular_factor: 0.0, ..m(0.0, 0.0) }, &[]));
-    }
-}

@@ -14,7 +14,7 @@
 
 use crate::PathTracerError;
 use crate::accel::AccelParams;
-use crate::dataset_render::{RENDER_CONFIG_FILE, RenderRecord, SceneSource};
+use crate::dataset_folder::{RENDER_CONFIG_FILE, RenderRecord, SceneSource};
 use crate::import::{ImportOptions, load_gltf};
 use crate::render::Renderer;
 use std::path::{Path, PathBuf};

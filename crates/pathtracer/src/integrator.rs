@@ -2,225 +2,19 @@
 //! live in [`crate::render`].
 //!
 //! [`PathIntegrator::radiance`] is a unidirectional path tracer:
-//! - Next-event estimation at every vertex: every punctual light deterministically (they are
-//!   delta lights, so no MIS), one sample of the emissive triangles and, for an environment
-//!   map, one of the environment, each combined with BSDF sampling by multiple importance
-//!   sampling with the power heuristic (Veach 1997). A BSDF-sampled ray that hits an emitter or
-//!   escapes to the environment adds the complementary MIS-weighted term. A constant
-//!   environment is reached by BSDF sampling alone (weight 1): its light sampling (uniform
-//!   over the sphere) is nearly always the worse strategy against the BSDF's (for a Lambertian
-//!   surface, cosine sampling of a constant environment has no variance but visibility) and
-//!   would cost a shadow ray per vertex, usually occluded in closed scenes.
-//!   (A shadow ray to ONE punctual light per vertex, picked in proportion to the luminance of
-//!   its unoccluded contribution, as Mitsuba traces one ray to one sampled emitter, gave
-//!   5–15 % more samples/s on the multi-light scenes but 1.05x (`materials`, glTF) to 2.7x
-//!   (`thin`, Lambert) the error at 64 spp, from penumbrae, where the lights' visibilities
-//!   differ; at equal error it lost on 22 of those scenes' 24 rows. Measured at stop 55
-//!   with `xtask bench render` (15 renders per row); not kept.)
-//!   (Stop 67: one punctual light only at the vertices after the camera vertex, picked in
-//!   proportion to the luminance of its irradiance times `cos θ` at the geometric normal, a
-//!   number of its own in the vertex's block, every light at the camera vertex: `xtask bench
-//!   render --no-mitsuba`, 15 renders per row, MSE × time against the same day's run of the
-//!   kept code: `deep` (four lights) 3–5 % better, `materials` (three) 3–4 % worse,
-//!   `tabletop` (two) 10–14 % worse; samples/s `deep` +6–8 %, the others within ±3 %. Not
-//!   kept.)
-//! - Where `cornell`'s error is, and what did not lower it (stop 56, `xtask bench render
-//!   --scenes cornell --no-mitsuba`, 5 renders per row, 128 px, 64 spp, MSE against the same
-//!   build's 1024-spp reference less that reference's noise; each change unbiased, the
-//!   references' means equal to 1e-5):
-//!   - 16 emitter samples instead of one at every vertex after the first: MSE −11 % (glTF)
-//!     and −12 % (Lambert) at 4.3x the time. Light sampling at the bounces is not where the
-//!     error is.
-//!   - The BSDF numbers of vertices 0 and 1 (and 2 and 3) as one 4-D Owen-scrambled Sobol'
-//!     point (shared shuffled index, Sobol' dimensions 0–3) instead of two padded 2-D ones:
-//!     MSE −3 % and −4 %, less than its cost.
-//!   - Path guiding: a grid of 8³ to 32³ cells over the scene, each a histogram of incident
-//!     radiance (luminance / sampling density) over 16 × 8 equal-solid-angle direction bins
-//!     with a 10 % uniform floor, learned from a 4- or 64-spp camera pre-pass, sampled in a
-//!     one-sample mixture with the BSDF (guide probability ½ × the diffuse lobe's) and the
-//!     mixture density used in every MIS weight. MSE **+9 % to +28 %** at every setting,
-//!     +9 % even with the 64-spp, 32³-cell guide. Cosine sampling is already close to
-//!     incident radiance × cosine in a closed, diffusely lit room, and what error is left
-//!     sits in shadow and wall edges finer than a cell and a bin; the mixture spends half
-//!     the well-stratified BSDF samples on the coarse guide.
-//!   - (stop 58, the same bench) The error by path length, glTF: MSE 3.1e-6 with
-//!     `max_bounces` 0, 4.9e-6 with 1, 8.1e-5 with 2, 1.70e-4 with 4. **97 % of `cornell`'s
-//!     error is indirect light**, about half of it the first indirect bounce; 16 emitter
-//!     samples at the camera vertex alone: MSE −0.7 %.
-//!   - Splitting at the camera vertex: `n` continuations per camera ray, the continuation's
-//!     numbers from sample `s·n + k` of the pixel's sequence (so the `spp·n` continuations of
-//!     a pixel are one stratified set), radiance their mean. With `spp` camera rays (n× the
-//!     paths) the MSE fell as 1/n (×0.455 at n = 2, ×0.217 at 4: what the camera sample
-//!     decides is almost error-free at 64 Sobol' camera samples), but the time rose almost as
-//!     much: the camera vertex is 13 % of a sample's time on `cornell`, which bounds the gain
-//!     (MSE × time 1.17x and 1.2x). With `spp` paths as `spp / n` camera rays, MSE × time at
-//!     n = 2 (glTF / Lambert): `cornell` 0.97 / 0.99x, `deep` 1.29 / 1.14x, `materials`
-//!     1.79 / 1.31x, `tabletop` 1.13 / 1.21x, **`thin` 0.79 / 0.69x** (its error is the
-//!     anti-aliasing of thin geometry, which fewer camera rays worsen); n = 4 was worse than
-//!     2 on 8 of 10 rows. Choosing n per view needs a pilot: variances from independent
-//!     samples (between and within a camera sample) misjudged every scene (the Sobol' points
-//!     remove most of the camera part's error and much of a short continuation's: it chose
-//!     n = 8 everywhere, 0.46–0.78x); two replicates per candidate at the render's own `spp`
-//!     on 128 pixels (3 % of the time) chose right on `cornell` and `thin` but single
-//!     fireflies decided it on `materials` and `tabletop`, and the path loop split into a
-//!     camera vertex and a continuation cost 2.6 % more instructions at n = 1. Not kept.
-//! - Light sampling alone (weight 1) at the last scattering vertex, so that its BSDF
-//!   continuation ray, traced only to find an emitter's MIS-weighted share, is skipped: the
-//!   same MSE on every scene (within 0.4 %) and within ±5 % samples/s (the run-to-run noise);
-//!   not kept (stop 56).
-//! - The path loop is bound by latency, not by instruction count: stop 57 cut the
-//!   instructions of a quick view by 10 % on `cornell` and 6 % on `deep` (callgrind, one
-//!   thread: materials resolved once, unread attributes dropped, no interaction past the
-//!   last bounce, one validity test per query ray, the watertight ray by swizzle), for
-//!   +3 % samples per CPU-second on `cornell` and none measurable on `deep` (alternating
-//!   runs). What is left per vertex is chains of dependent square roots and divisions
-//!   (normalisations) and the traversal's pointer chasing.
-//!   A wavefront gave no more (stop 58): the camera rays of a whole row (or 64 of them) at
-//!   once, every path's closest hit in one loop over the batch and every path's vertex
-//!   shaded in another, until no path was left (the same bits, the queries of a loop
-//!   independent of each other) ran 0–7 % slower than this loop (`cornell` −3 to −7 %,
-//!   `deep` −4 %, the others within ±3 %), and sorting each batch's rays by direction (octant,
-//!   then 8³ bins) before intersecting them 10–15 % slower. One scalar path after another
-//!   is not what limits the speed; lanes of SIMD across paths (shading included) would be.
-//!   That is what [`PathIntegrator::radiance_batch`] now does for the BSDF sample (stop 60):
-//!   a pixel's camera samples advance together, a vertex at a time, and every live path's
-//!   BSDF sample is drawn in one loop over lanes that the compiler vectorises
-//!   ([`crate::material::sample_many`]: both lobes in every lane, sine and cosine by
-//!   [`crate::sampler::sin_cos`], the same bits as one sample alone). Samples per CPU-second
-//!   against one path at a time (`cargo bench -p pathtracer --bench render`, two alternating
-//!   pairs, 2-core Zen 5): `cornell` +6 %, `deep` +4 %, `tabletop` +1–4 %; the batch without
-//!   the vectorised sample was 2–5 % slower than one path at a time. The BSDF's values
-//!   towards the light samples (every punctual light, the emitter sample and the
-//!   environment-map sample of every vertex of the bounce) are computed the same way ([`crate::material::evaluate_many`]): a vertex
-//!   finds its light samples' directions, densities and shadow rays in scalar code, stopping
-//!   at the first zero factor, then the bounce's values are computed in one loop over lanes,
-//!   then the shadow rays traced. Against the BSDF sample alone in lanes (two to four
-//!   alternating pairs), with the value's two models still chosen by a branch (so the loop
-//!   did not vectorise): `cornell` +1–2 %, `deep` +1–4 %, `materials` +0–8 %, `tabletop`
-//!   +1–3 %, `thin` −7 to +4 %; then with both models computed in every lane and one
-//!   selected (the loop vectorised, the same bits), against that (two pairs): `cornell` +4 %,
-//!   `deep` +8 %, `materials` +3–5 %, `tabletop` +5–8 %, `thin` +2–4 %. Eight lanes that are
-//!   all Lambertian compute that model alone (the same bits): the scenes made Lambertian
-//!   (`xtask bench render --no-mitsuba`, 7 renders) `cornell` +2.5–3 %, `deep` +3.5–7 %; as
-//!   authored, `cornell` −0.2 to −1.4 % (three alternating pairs). Measured and not kept:
-//!   - the BSDF's set-up from `wo` (`P_s` and the Smith term, [`crate::material::Bsdf::at`])
-//!     in lanes as well, for the whole bounce before the light values (the environment-map
-//!     sample then also waiting for its value): the same bits, within ±2 % on every scene
-//!     (two alternating pairs);
-//!   - 16 lanes in AVX-512 (both loops called through a `target_feature` function where the
-//!     CPU has AVX-512, the same bits): `cornell` −1 %, `deep` ±0 %, `tabletop` −4 to −7 %
-//!     against 8 in AVX2; the loops are no longer where the time goes;
-//!   - the emitter value computed in the same loop as the BSDF sample (the BSDF moved into the
-//!     lanes once for both): `cornell` +4–7 %, but the scenes without emissive triangles
-//!     −1 to −4 % (code that runs for nothing there), and the punctual lights left scalar;
-//!   - the emitter sample's whole estimate in lanes (the triangle, emission and vertex
-//!     gathered per path; the geometry, light pdf, BSDF value and MIS weight of eight samples
-//!     in one loop): `cornell` −4 to −6 %, `deep` −3 to −5 %, `tabletop` −1 %. Each sample
-//!     moved about 57 numbers in and out of the lanes, and every lane paid the whole estimate
-//!     where the scalar code stops at the first zero factor (a light behind the surface).
-//!
-//!   A batch's camera rays (a pixel's, nearly the same ray) are traced as packets that load
-//!   each node once for all of them ([`crate::accel::Accel::closest_hits`], stop 61: the same
-//!   bits, `thin` +6–12 %, `tabletop` +3–15 %, `cornell` +1 %, `deep` ±0 against the CWBVH
-//!   one-ray loop of then) where the batch holds at least `PACKET_MIN_RAYS` (32; against stop
-//!   62's faster one-ray loop they still pay at 32 spp and more, not at 16); every later ray is
-//!   traced alone, which measured faster (the accel module docs).
-//!   The camera vertices' shadow rays too (stop 67): where a batch's camera vertices have at
-//!   least `PACKET_MIN_RAYS` light samples, their shadow rays are grouped by light (a counting
-//!   sort, each light's rays in vertex order) and traced as packets
-//!   ([`crate::accel::Accel::occluded_many`]); a pixel's rays to one light leave from nearly one
-//!   point towards nearly one point. The same bits on every scene; samples per CPU-second in
-//!   the one-path loop (`cargo bench -p pathtracer --bench render -- SCENE --seconds 8 --spp 64
-//!   --width 128`, three alternating pairs, 2-core Zen 4): `tabletop` −0.2 to +5 %, `materials`
-//!   +1.5 to +4.8 %, `deep` −1.3 to +1.1 %. (With a comparison sort instead of the counting
-//!   sort `deep` lost 0.3–3 %.) Measured and not kept: a conservative interval test of the
-//!   whole packet against a node's eight boxes before the rays' own tests (each box tested by
-//!   the packet's bounds on origin and inverse direction, so that a child no ray enters costs
-//!   the rays nothing): the same bits and no gain (`deep` and `tabletop` within ±3 %, `thin`
-//!   −4 to −1 %): the box tests of coherent packets are not where their time goes. The lane
-//!   loop below still traces its chunks' shadow rays one at a time.
-//! - Where every material is the same at every point and has no normal map (`cornell`,
-//!   `thin`), the whole vertex is shaded in lanes, eight paths at a time (module `lanes`,
-//!   stop 65: the same bits, `cornell` +14 % samples per CPU-second, `thin` +2–3 %); the
-//!   other scenes keep the loop above, which the lane loop is tested against. A batch's
-//!   camera-ray numbers are drawn eight samples at a time in lanes too (`SamplerLanes`, in
-//!   [`crate::render::Renderer::render_view`]: `deep` +3 %, `thin` +1–3 %). Measured in this
-//!   loop and not kept (stop 65, alternating pairs): the bounce's BSDF numbers drawn in lanes,
-//!   ±2 % (within the noise); every number of a bounce's vertices drawn in lanes beforehand,
-//!   `deep` −4 to −8 %, `materials` −2 to −4 %, `tabletop` −2 to −5 % (paths that end early
-//!   waste theirs).
-//! - Where a sample's time goes (stop 59, 2-core Zen 5). Each part below was run twice in
-//!   place, the copy's result discarded through `black_box`, and its cost read as the extra
-//!   CPU time per sample (`cargo bench -p pathtracer --bench render -- SCENE --seconds 3`,
-//!   alternating with the unchanged build, two or three pairs; a copy runs with warm caches,
-//!   so the figures are lower bounds). Per sample of the quick views:
-//!
-//!   | scene | CPU µs | closest hits | shadow rays | closest-hit time | shadow-ray time | traversal in all |
-//!   |---|---|---|---|---|---|---|
-//!   | `cornell` | 1.26 | 4.04 | 2.51 | 0.27 (21 %) | 0.09 (7 %) | 29 % |
-//!   | `deep` | 0.75 | 2.04 | 3.27 | 0.20 (26 %) | 0.13 (18 %) | 44 % |
-//!   | `materials` | 0.66 | 1.96 | 1.52 | 0.19 (29 %) | 0.12 (18 %) | 47 % |
-//!   | `tabletop` | 0.58 | 1.78 | 1.02 | 0.19 (32 %) | 0.10 (16 %) | 48 % |
-//!   | `thin` | 0.40 | 1.64 | 0.76 | 0.12 (31 %) | 0.05 (12 %) | 43 % |
-//!
-//!   A closest hit costs 67 ns (`cornell`) to 104 ns (`tabletop`), a shadow ray 36–93 ns; the
-//!   triangle tests are 17 % of `cornell`'s time (9 % `deep`, 14 % `tabletop`) and the child-box
-//!   tests 6 % (13 %, 14 %). The rest, 0.14–0.22 µs per path vertex (600–900 cycles), is
-//!   shading; on `cornell`: the BSDF's sample 20 %, the emitter sample's estimate without its
-//!   shadow ray 17 %, the interaction 10 %, the BSDF set-up 8 %, the sampler's five numbers 5 %.
-//!   Divisions and square roots are 1.4 % of the instructions (about 160 per sample, callgrind
-//!   per instruction), so they are not what bounds it; the scalar code's `Vec3` moves and
-//!   branches are. The glTF BRDF's set-up and sample (`Bsdf::at` + `BsdfAt::sample`) alone take
-//!   73 ns per call at x86-64-v3 even when every call is independent of the last; a
-//!   structure-of-arrays copy of it in 8 AVX2 lanes (both lobes computed in every lane and
-//!   one selected, sine and cosine by polynomials; not bit-identical to the scalar code,
-//!   which it matched to the rounding of grazing directions) took **13.8 ns per sample (5.3x)**,
-//!   and the same copy run one lane at a time 56 ns (a microbenchmark, not kept). In the
-//!   path loop, where a vertex's work is not independent of the last, neither piece of that
-//!   copy paid: polynomial sine and cosine alone gave `cornell` +1 %, `tabletop` +1 %, `deep`
-//!   −4 % samples per CPU-second, and with both lobes computed and one selected instead of a
-//!   branch every scene lost 2–10 %. Nor did gathering an emissive triangle's vertices, unit
-//!   normal, sidedness and (opaque, untextured) radiance once into the emitter table instead
-//!   of at every vertex's light sample: the same bits, `cornell` −0.4 %, `deep` +0.5 %
-//!   (three alternating pairs).
-//!   What this says about the raw target (samples/s at least Mitsuba's): if shading cost
-//!   nothing, samples/s would rise at most by 1 / (traversal share): 3.4x on `cornell`,
-//!   2.1–2.3x elsewhere, which on stop 58's lowest rows (0.30x `cornell`, 0.22–0.28x the
-//!   others) reaches about 1.0x on `cornell` and 0.5–0.6x on the other four. Lanes of SIMD
-//!   across paths for the shading are necessary and not sufficient: the traversal must also
-//!   become about twice as fast per ray (or a sample trace fewer rays: ours follow paths
-//!   longer, [`ROULETTE_SCALE`], and trace one shadow ray per punctual light).
-//! - How many rays a sample traces (stop 66, 2-core Zen 4, `cargo xtask bench render`: ours
-//!   counted, [`crate::render::ViewOutput::rays`], at 128 px and 64 spp; Mitsuba's `path`
-//!   integrator replayed on the same scenes, `tests/mitsuba/bench.py`'s `ray_counts`), closest
-//!   hits + any-hit rays per camera sample, glTF BRDF:
-//!
-//!   | scene | ours | Mitsuba | ours / Mitsuba | samples/s ratio | per ray |
-//!   |---|---|---|---|---|---|
-//!   | `cornell` | 3.94 + 2.51 | 2.82 + 2.64 | 1.18x | 0.58x | 0.68x |
-//!   | `deep` | 1.99 + 3.27 | 1.75 + 1.01 | 1.91x | 0.33x | 0.64x |
-//!   | `materials` | 1.91 + 1.52 | 1.63 + 0.74 | 1.45x | 0.37x | 0.54x |
-//!   | `tabletop` | 1.73 + 1.02 | 1.48 + 0.57 | 1.34x | 0.36x | 0.49x |
-//!   | `thin` | 1.60 + 0.76 | 1.37 + 0.42 | 1.31x | 0.37x | 0.48x |
-//!
-//!   (samples/s against Mitsuba's `independent` sampler; per ray = that ratio times the
-//!   ratio of rays per sample.) The extra rays are the estimator's: a shadow ray to every
-//!   punctual light (`deep` has four), paths kept longer by [`ROULETTE_SCALE`], the
-//!   emitter-edge pixels' camera rays and the caustic light tracer's paths, each kept
-//!   because it lowered the error at equal time (above, and [`crate::caustics`],
-//!   [`crate::render`]). So the raw samples/s ratio is the product of two factors: work per
-//!   sample (0.52–0.85x, by design) and speed per ray (0.48–0.68x, what the code can still
-//!   gain: on the same rays our traversal is 0.45–0.62x Embree's for closest hits and
-//!   0.22–0.39x for any-hit rays, and the shading).
-//! - Caustic paths (camera → 1 to 3 surfaces that are not sharp → a caster → a punctual
-//!   light, see [`crate::caustics`]) are left to the light tracer when
-//!   [`PathIntegrator::caustics`] is set (as [`crate::render::Renderer::render_view`] does
-//!   when it traces them): at such a caster vertex the punctual lights' estimate is skipped,
-//!   everything else is unchanged.
+//! - Next-event estimation at every vertex: every punctual light deterministically (delta
+//!   lights, no MIS), one sample of the emissive triangles and, for an environment map, one of
+//!   the environment, each combined with BSDF sampling by multiple importance sampling with the
+//!   power heuristic `w = p_a² / (p_a² + p_b²)` (Veach 1997). A BSDF-sampled ray that hits an
+//!   emitter or escapes to an environment map adds the complementary MIS-weighted term; a
+//!   constant environment is reached by BSDF sampling alone (weight 1).
 //! - `max_bounces` counts scattering events: 0 shows emitters and the environment only,
 //!   1 is direct lighting, `n` adds paths with up to `n` surface reflections.
 //! - Russian roulette from the third vertex on, with survival probability
 //!   `min(1, ROULETTE_SCALE · max throughput component)` ([`ROULETTE_SCALE`]).
+//! - Caustic paths (camera → 1 to 3 surfaces that are not sharp → a caster → a punctual light)
+//!   are left to the light tracer of [`crate::caustics`] when [`PathIntegrator::caustics`] is
+//!   set: at such a caster vertex the punctual lights' estimate is skipped.
 //! - Camera rays that miss return the environment radiance, or zero with `primary_hit =
 //!   false` when the background is transparent (the environment still lights the scene).
 //!   An environment map is sampled with its own density ([`Environment::sample`] /
@@ -235,15 +29,23 @@
 //!   decision is deterministic per ray and coverage averages to alpha over rays. Light
 //!   sampled on a blended emitter is weighted by its alpha (the expected coverage).
 //!
+//! Batches: [`PathIntegrator::radiance_batch`] advances a pixel's camera samples together, a
+//! vertex at a time, with the BSDF samples and the BSDF values towards the light samples
+//! computed in loops over lanes (the same bits as one path alone); a batch's camera rays (and
+//! its camera vertices' shadow rays, grouped by light) go as packets where it holds at least
+//! `PACKET_MIN_RAYS`. Where every material is uniform and has no normal map, module `lanes`
+//! shades whole vertices eight paths at a time.
+//!
 //! Shadow and bounce rays start at [`offset_ray_origin`] so they neither re-hit their own
 //! surface nor leak through it; shadow rays to a point stop `1e-4` (relative) short of it.
+//! Why these choices, and the estimators tried instead: `docs/renderer.md`, `docs/experiments.md`.
 
 // Negated comparisons (`!(x > 0.0)`) are deliberate: they also reject NaN.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 use crate::accel::{Accel, Hit, TraversalStack};
+use crate::caustic_partition::CausticVertices;
 use crate::geometry::{Frame, Ray, hit_point_error, offset_ray_origin};
-use crate::caustics::CausticPaths;
 use crate::light::{EmissiveTriangles, Environment, punctual_incidence};
 use crate::material::{BsdfAt, BsdfSample, SurfaceAttributes, evaluate_many, sample_many, SurfaceMaterial, base_color, emission, facing_normals, normal_mapped, resolve, shading_frame, triangle_tangent};
 use crate::sampler::{Sampler, power_heuristic, splitmix64};
@@ -268,27 +70,13 @@ const VERTEX_DIMENSIONS: u32 = DIM_ROULETTE + 1;
 
 /// Fewest camera rays in a batch (a pixel's samples) traced as one packet
 /// ([`PathIntegrator::intersect_many`]); smaller batches trace theirs one at a time (the same
-/// bits). Samples per CPU-second, packets against one ray at a time (`cargo bench -p pathtracer
-/// --bench render`, 128 px, two alternating pairs, stop 62): 16 spp `tabletop` +1 %, `thin`
-/// and `deep` ±1 % (at the quick view's 64 px one ray at a time was 1–4 % faster); 32 spp
-/// `tabletop` +3 %, `thin` +2–4 %, `deep` −1 to −2.5 %; 64 spp `tabletop` +4–5 %, `thin`
-/// +3–5 %, `cornell` +1–2 %, `deep` +0.5–1 %, `materials` 0–0.7 %. With the packets on the wide
-/// nodes (stop 63) 16 instead of 32, at 16 spp and 128 px (two pairs): `deep` −1.5 to +2.5 %,
-/// `cornell` −0.2 to −1 %, `tabletop` −0.6 to −1.6 %, `thin` +1 to +8 %; not changed.
+/// bits). Packets pay from about 32 rays on (`docs/experiments.md`).
 const PACKET_MIN_RAYS: usize = 32;
 
 /// Russian roulette's survival probability over the path's largest throughput component
 /// (capped at 1). pbrt and Mitsuba use 1; 2 keeps paths whose throughput is between ½ and 1
-/// alive. Measured (128 px, 64 spp, 16 seeds; a render's variance times its time, 4 bounces):
-/// 9 % better on `cornell`, 7.5 % on `deep`, 2.5–4.5 % on `materials`, `tabletop` and `thin`;
-/// at 8 bounces 16 % on `cornell` and 8 % on `tabletop`. (1.5 and 3 were within 1 % of 2 on
-/// `cornell`; no roulette at all, 6 %.) Mitsuba's rule instead, survival `min(0.95, max
-/// throughput component)` (stop 59, `xtask bench render --scenes cornell,deep --runs 5`,
-/// both rules in the same hour): samples/s +11 % on `cornell` and +2–4 % on `deep`, so
-/// against Mitsuba's `llvm_ad_rgb` `independent` 0.35x instead of 0.31x (`cornell`, glTF)
-/// and 0.22x as before (`deep`), but the MSE +19 % and +9 % (equal error against
-/// `multijitter` on `cornell` 1.82x instead of 1.94x): the raw-speed gap is not in our
-/// longer paths.
+/// alive, which lowers a render's variance × time on every committed scene (the figures, and
+/// Mitsuba's `min(0.95, …)` rule tried instead: `docs/experiments.md`).
 pub const ROULETTE_SCALE: f32 = 2.0;
 
 /// Fraction of a shadow ray's length left unchecked at its far end (pbrt's ShadowEpsilon).
@@ -412,10 +200,7 @@ pub fn tangent_at(scene: &Scene, prim: u32, b: [f32; 3], tex_coord: u32, n: Vec3
 }
 
 /// Builds the [`Interaction`] for `hit` of `ray` (hit point from barycentrics, normals
-/// facing the ray). (A table of every triangle's unit face normal, made at build, instead of
-/// the cross product and normalisation here and in the emitter sample: the same bits,
-/// samples per CPU-second at 128 px and 64 spp `cornell` +0.2–1.7 %, `deep` +2.5–4 %, `tabletop`
-/// ±0.3 % (two alternating pairs, stop 63), for 12 more bytes per triangle; not kept.)
+/// facing the ray).
 #[inline(always)]
 pub fn interaction(scene: &Scene, ray: &Ray, hit: &Hit) -> Interaction {
     let m = &scene.mesh;
@@ -610,7 +395,7 @@ pub struct PathIntegrator<'a> {
     /// When set, the light tracer of [`crate::caustics`] estimates the caustic paths
     /// (camera → surfaces that are not sharp → caster → punctual light) and this integrator
     /// leaves them out; `None`: every path is estimated here.
-    pub caustics: Option<&'a CausticPaths>,
+    pub caustics: Option<&'a CausticVertices>,
     /// Per material, the material resolved once where it is the same at every point
     /// ([`crate::material::uniform_surface`]), else `None` (resolved per vertex). Empty: every
     /// material is resolved per vertex (the same bits, slower).
@@ -817,14 +602,13 @@ impl PathIntegrator<'_> {
     /// (`interaction`, `vertex_bsdf`, the BSDF's `sample` and `evaluate_pdf`, the emitter
     /// sample, the ray queries) inlined into it so that they are compiled at that level too;
     /// elsewhere it runs compiled for baseline x86-64. The bits are the same either way (no
-    /// operation is contracted into an FMA); measured +6–14 % samples per CPU-second on the
-    /// quick views (2-core Zen 5, stop 56: cornell +10 %, deep +14 %, materials +8 %,
-    /// tabletop +7 %, thin +6 %). It is [`PathIntegrator::radiance_batch`] with a batch of one
-    /// (whose vectorised BSDF sample, [`crate::material::sample_many`], then runs one lane).
+/// operation is contracted into an FMA); the level is faster (`docs/renderer.md`). It is
+/// [`PathIntegrator::radiance_batch`] with a batch of one (whose vectorised BSDF sample,
+/// [`crate::material::sample_many`], then runs one lane).
     pub fn radiance_split(&self, ray: &Ray, sampler: &mut Sampler, primary_emission: bool) -> RadianceSample {
         // `inline(always)` on the closure: without it the closure, called from both of
-        // `at_level`'s branches, stays out of line and compiled for the baseline (measured at
-        // stop 56: the path loop then ran with SSE only, 4-7 % slower).
+        // `at_level`'s branches, stays out of line and compiled for the baseline (the path loop
+        // then runs with SSE only, slower).
         self.accel.at_level(#[inline(always)] || self.radiance_split_impl(ray, sampler, primary_emission))
     }
 

@@ -4,12 +4,15 @@
 //!
 //! Layers: [`import`] (glTF → flat [`scene::Scene`]), [`accel`] (obvhs BVH behind one type,
 //! watertight ray-triangle test in [`geometry`]), [`sampler`] (counter-based randomness),
-//! [`texture`], [`material`], [`light`], [`integrator`] (radiance of one ray), [`caustics`]
-//! (caustic paths traced from the lights), [`render`]
-//! (the shared per-view driver), [`rig`] (camera placement) and [`dataset_render`] (writing a
-//! dataset folder with resume and progress). For geometry metrics, [`reference`](mod@reference) gives the
-//! scene's camera-visible triangles in world space and [`nearest`] exact closest-point queries
-//! on a triangle set (the BVH's point-query counterpart).
+//! [`texture`], [`material`], [`light`], [`camera_rays`] (a view's camera rays in `f32`),
+//! [`integrator`] (radiance of one ray), [`caustics`] (caustic paths traced from the lights,
+//! the paths it owns set by [`caustic_partition`]), [`render`] (the shared per-view driver),
+//! [`rig`] (camera placement), [`dataset_folder`] (the dataset folder's types),
+//! [`dataset_render`] (writing a dataset folder with resume and progress) and [`shard`]
+//! (rendering it in shards and merging them). For geometry metrics,
+//! [`reference`](mod@reference) gives the scene's camera-visible triangles in world space and
+//! [`nearest`] exact closest-point queries on a triangle set (the BVH's point-query
+//! counterpart).
 //!
 //! ```no_run
 //! use pathtracer::import::{load_gltf, ImportOptions};
@@ -18,7 +21,10 @@
 //! ```
 
 pub mod accel;
+pub mod camera_rays;
+pub mod caustic_partition;
 pub mod caustics;
+pub mod dataset_folder;
 pub mod dataset_render;
 pub mod error;
 pub mod export;

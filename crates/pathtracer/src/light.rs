@@ -63,9 +63,8 @@ pub struct PunctualIncidence {
 /// contributes nothing there (outside the cone or range, at the light's position).
 ///
 /// Inlined so that the path loop, which calls it at every vertex for every light, compiles
-/// it at its own level (AVX2) without a call: the same bits, samples per CPU-second `deep`
-/// (four punctual lights) +7 %, `materials` +2.5–6 %, `tabletop` ±2 % (two alternating pairs,
-/// stop 61).
+/// it at its own level (AVX2) without a call: the same bits, faster on scenes with several
+/// punctual lights (`docs/experiments.md`).
 #[inline(always)]
 pub fn punctual_incidence(light: &Light, p: Vec3) -> Option<PunctualIncidence> {
     match *light {

@@ -39,10 +39,8 @@ pub const FRAMING_MARGIN: f64 = 1.05;
 const HEMISPHERE_ELEVATION: (f64, f64) = (5.0 * std::f64::consts::PI / 180.0, 85.0 * std::f64::consts::PI / 180.0);
 
 /// Radius of the glTF rig's disc of camera positions around each glTF camera, as a fraction of
-/// the median depth it sees (see `gltf_rig`). The first rig used 1.5 % of the bounds'
-/// diagonal: on `cornell` every camera lay within 6 cm of the glTF camera, a 12 cm baseline
-/// for walls 2.8–3.7 m away, so the train views' parallax (about 10 px at 200 px) could not fix
-/// the depth of the textureless walls, and every NeRF left fog there (depth MAE 0.3–0.6 m).
+/// the median depth it sees (see `gltf_rig`): a baseline too short for the depth gives the
+/// train views too little parallax to fix textureless walls (`docs/renderer.md`).
 pub const GLTF_BASELINE: f64 = 0.1;
 
 /// The disc stays within this fraction of the free distance around the glTF camera (the

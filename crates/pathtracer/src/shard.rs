@@ -25,81 +25,18 @@
 //! ```
 
 use crate::PathTracerError;
-use crate::dataset_render::{
-    DatasetRenderConfig, DatasetSummary, ProgressEvent, RENDER_CONFIG_FILE, RenderRecord, RunOptions, ViewImages,
-    ViewRenderer, render_dataset_part, view_files,
+use crate::dataset_folder::{
+    DatasetRenderConfig, DatasetSummary, ProgressEvent, RENDER_CONFIG_FILE, RenderRecord, RunOptions, SHARD_MANIFEST_FILE, SceneSource,
+    ShardManifest, ViewImages, ViewRenderer, describe_difference, shard_views, view_files,
 };
+use crate::dataset_render::{render_dataset_part, render_dataset_sharded};
 use crate::rig::build_rig;
 use dataset::{Camera, SplitKind};
-use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 
-pub use dataset::folder::SHARD_MANIFEST_FILE;
-
-/// Shard `index` of `count` (zero-based): the views at positions `p` with `p % count == index`
-/// in the rig's order over all splits.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-pub struct Shard {
-    /// Which shard, `0..count`.
-    pub index: u32,
-    /// How many shards.
-    pub count: u32,
-}
-
-impl Shard {
-    /// Whether the view at `position` (over all splits, in the rig's order) is this shard's.
-    pub fn owns(&self, position: u64) -> bool {
-        position % self.count as u64 == self.index as u64
-    }
-}
-
-impl std::fmt::Display for Shard {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "{}/{}", self.index, self.count)
-    }
-}
-
-impl std::str::FromStr for Shard {
-    type Err = String;
-    /// `K/N` with `0 ≤ K < N`.
-    fn from_str(s: &str) -> Result<Self, String> {
-        let bad = || format!("--shard '{s}': expected K/N with 0 <= K < N (e.g. 0/4), shards numbered from 0");
-        let (k, n) = s.split_once('/').ok_or_else(bad)?;
-        let (index, count): (u32, u32) = (k.trim().parse().map_err(|_| bad())?, n.trim().parse().map_err(|_| bad())?);
-        if count == 0 || index >= count {
-            return Err(bad());
-        }
-        Ok(Self { index, count })
-    }
-}
-
-/// The content of `shard.json`: which shard the folder holds and its views, written once every
-/// one of them is finished.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct ShardManifest {
-    /// The shard.
-    pub shard: Shard,
-    /// Its views as `<split>/r_<k>`, in the rig's order.
-    pub views: Vec<String>,
-}
-
-/// Every view of a dataset rendered with `cfg`, in the rig's order: (position, split, index).
-fn positions(cfg: &DatasetRenderConfig) -> Vec<(u64, SplitKind, u32)> {
-    let counts = [cfg.train, cfg.val, cfg.test];
-    let mut out = Vec::new();
-    for (s, split) in SplitKind::ALL.into_iter().enumerate() {
-        for k in 0..counts[s] {
-            out.push((out.len() as u64, split, k));
-        }
-    }
-    out
-}
-
-/// The views of `shard` for a dataset rendered with `cfg`, as `<split>/r_<k>`.
-pub fn shard_views(cfg: &DatasetRenderConfig, shard: Shard) -> Vec<String> {
-    positions(cfg).into_iter().filter(|(p, _, _)| shard.owns(*p)).map(|(_, s, k)| format!("{}/r_{k}", s.name())).collect()
-}
+/// A shard (defined with the folder's other types).
+pub use crate::dataset_folder::Shard;
 
 /// Renders shard `shard` of the dataset of `scene_path` into `out` (see the module docs):
 /// [`crate::dataset_render::render_dataset`] for the shard's views only, then `shard.json`.
@@ -113,13 +50,7 @@ pub fn render_shard(
     progress: &mut dyn FnMut(ProgressEvent),
     cancel: &AtomicBool,
 ) -> Result<DatasetSummary, PathTracerError> {
-    crate::dataset_render::render_dataset_sharded(scene_path, out, cfg, opts, Some(shard), progress, cancel)
-}
-
-/// Writes `shard.json` for a finished shard folder.
-pub(crate) fn write_manifest(out: &Path, cfg: &DatasetRenderConfig, shard: Shard) -> Result<(), PathTracerError> {
-    let manifest = ShardManifest { shard, views: shard_views(cfg, shard) };
-    Ok(dataset::io::atomic_write_json(&out.join(SHARD_MANIFEST_FILE), &manifest)?)
+    render_dataset_sharded(scene_path, out, cfg, opts, Some(shard), progress, cancel)
 }
 
 fn read_json<T: serde::de::DeserializeOwned>(path: &Path, what: &str) -> Result<T, PathTracerError> {
@@ -177,7 +108,7 @@ pub fn merge_shards(shards: &[PathBuf], out: &Path, scene: Option<&Path>) -> Res
                     dir.display(),
                     records[0].3.shard,
                     first_dir.display(),
-                    crate::dataset_render::describe_difference(first, &record)
+                    describe_difference(first, &record)
                 )));
             }
             if manifest.shard.count != records[0].3.shard.count {
@@ -290,7 +221,6 @@ fn parse_view(v: &str) -> Option<(SplitKind, u32)> {
 /// The scene file of a record: `given` (whose content must match), else the recorded path as
 /// given or relative to `dir`'s ancestors, the first with the recorded content.
 fn find_scene(dir: &Path, record: &RenderRecord, given: Option<&Path>) -> Result<PathBuf, PathTracerError> {
-    use crate::dataset_render::SceneSource;
     if let Some(p) = given {
         let s = SceneSource::from_scene(p)?;
         if s.hash != record.scene.hash {

@@ -48,9 +48,7 @@ impl Texture {
 
     /// Samples the texture at `uv` with the given wrap modes and filter. A texture with no
     /// texels (or a non-finite `uv`) returns opaque white, the neutral factor. (Not inlined:
-    /// with `#[inline(always)]` here and on [`sample_ref`], which compiles the lookups at the
-    /// path loop's SIMD level, `materials` lost 1 % of its samples per CPU-second, three
-    /// alternating pairs, stop 68.)
+    /// inlined at the path loop's SIMD level it was slower, `docs/experiments.md`.)
     pub fn sample(&self, uv: Vec2, wrap_s: Wrap, wrap_t: Wrap, filter: Filter) -> Vec4 {
         if self.width == 0 || self.height == 0 || !uv.is_finite() || self.texels.len() < (self.width as usize * self.height as usize) {
             return Vec4::ONE;

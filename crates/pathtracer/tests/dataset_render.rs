@@ -4,7 +4,8 @@
 
 use dataset::{Dataset, SplitKind};
 use glam::{DVec3, Vec2, Vec3};
-use pathtracer::dataset_render::{DatasetRenderConfig, DatasetSummary, Preset, RunOptions, render_dataset};
+use pathtracer::dataset_folder::{DatasetSummary, SceneSource};
+use pathtracer::dataset_render::{DatasetRenderConfig, Preset, RunOptions, render_dataset};
 use pathtracer::import::{ImportOptions, load_gltf};
 use pathtracer::rig::{RigKind, build_rig};
 use pathtracer::PathTracerError;
@@ -244,13 +245,13 @@ fn editing_a_scene_buffer_refuses_a_resume() {
     render(&scene, &out, &cfg, 2).unwrap();
     let bins: Vec<PathBuf> = std::fs::read_dir(&dir).unwrap().flatten().map(|e| e.path()).filter(|p| p.extension().is_some_and(|e| e == "bin")).collect();
     assert_eq!(bins.len(), 1, "the tiny scene keeps its geometry in one .bin: {bins:?}");
-    let before = pathtracer::dataset_render::SceneSource::from_scene(&scene).unwrap();
+    let before = SceneSource::from_scene(&scene).unwrap();
     let mut bytes = std::fs::read(&bins[0]).unwrap();
     // Move the cube's first vertex a little (little-endian f32 at the buffer's start is a
     // position coordinate in scenegen's layout; any changed byte must change the identity).
     bytes[0] ^= 0x01;
     std::fs::write(&bins[0], &bytes).unwrap();
-    let after = pathtracer::dataset_render::SceneSource::from_scene(&scene).unwrap();
+    let after = SceneSource::from_scene(&scene).unwrap();
     assert_ne!(before.hash, after.hash);
     let e = render(&scene, &out, &cfg, 2).unwrap_err().to_string();
     assert!(e.contains("differs") && e.contains("--force"), "{e}");
@@ -258,7 +259,7 @@ fn editing_a_scene_buffer_refuses_a_resume() {
     let sum = render_dataset(&scene, &out, &cfg, &opts, &mut |_| {}, &AtomicBool::new(false)).unwrap();
     assert_eq!(sum.views_rendered, 3);
     std::fs::remove_file(&bins[0]).unwrap();
-    let e = pathtracer::dataset_render::SceneSource::from_scene(&scene).unwrap_err().to_string();
+    let e = SceneSource::from_scene(&scene).unwrap_err().to_string();
     assert!(e.contains("cannot be read") && e.contains(".bin"), "{e}");
     let _ = std::fs::remove_dir_all(&dir);
 }

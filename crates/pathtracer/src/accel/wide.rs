@@ -2,8 +2,7 @@
 //! child boxes (structure of arrays). The one-ray queries traverse it nearest child first with
 //! a distance-culled stack (the layout and loop of CPU ray tracers such as Embree's BVH8,
 //! written here from the published design); the packets of [`crate::accel`] read the same
-//! nodes, one child box at a time for eight rays. See the module docs of [`crate::accel`] for
-//! why and what it gained.
+//! nodes, one child box at a time for eight rays. Why this layout: `docs/renderer.md`.
 //!
 //! Boxes: each child's box is the union of its triangles' padded boxes (the boxes the BVH was
 //! built over), computed bottom-up in `f32`, so it is at least as tight as the CWBVH's quantised

@@ -10,41 +10,12 @@
 //! the punctual lights' and environment's samples, the ray queries and the additions to the
 //! path's radiance (in the one-path loop's order).
 //!
-//! Stop 65, against stop 64's one-path loop (`cargo bench -p pathtracer --bench render --
-//! SCENE --seconds 3 --spp 64 --width 128`, two alternating pairs, 2-core Zen 5), samples per
-//! CPU-second: `cornell` 1.01–1.03 → 1.16–1.18 M (+14 %), `thin` +2–3 %; the other three
-//! scenes keep the one-path loop (`deep` +2 %, `materials` +1–2 %, `tabletop` ±0, from the
-//! sampler's functions now inlined there too). The same bits on all five scenes. A `cornell`
-//! quick view's instructions (callgrind, one thread): 735 M → 579 M (−21 %); the lanes
-//! themselves (the vertex, the emitter sample, the BSDF's values and sample) took the path
-//! loop's 6,080 instructions per sample to 4,940, the sampler's numbers in lanes
-//! ([`crate::sampler::SamplerLanes`]) and `Bsdf::at`'s terms in lanes ([`wo_terms`]) to
-//! 4,190. Measured and not kept (the same bits each, two alternating pairs):
-//! - the lane loop for every scene (a material that varies over its surface resolved and a
-//!   normal map applied per lane in scalar code, a light sample on a textured emitter taken by
-//!   the one-path loop's `emitter_pending`): against the one-path loop `deep` −5 to −6 %,
-//!   `materials` −3 %, `tabletop` −2.5 %, with the same instructions as the one-path loop on
-//!   those scenes (callgrind): they gain little from the lanes (no emissive triangles in
-//!   `deep`, the punctual lights' samples scalar either way) and pay the split of each
-//!   vertex's scalar work over several loops;
-//! - a chunk's emitter shadow rays traced as one packet ([`crate::accel::Accel::occluded_many`]):
-//!   `cornell` −16 %, the others −2 to −3 %, `cornell`'s instructions +41 %: after the camera
-//!   vertex the rays of a chunk go in all directions (as stop 61 found for a bounce's rays).
-//! - (stop 67) the camera vertices' shadow rays traced as packets grouped by light, as the
-//!   one-path loop does: every chunk of a batch's camera vertices shaded with its light
-//!   estimates and continuations deferred, then the rays traced, the estimates added and the
-//!   paths continued in the order they would have run (the same bits): `cornell` −4 to
-//!   −12 %, `thin` −1 to −4 % samples per CPU-second (three alternating pairs);
-//! - each punctual light's samples for the eight vertices in lanes (the incidence, the BSDF's
-//!   value and the shadow ray of every lane at once, light after light, instead of a scalar
-//!   loop over the lights per vertex): `thin` −5 %; with it, the lane loop for every scene
-//!   (as above) lost more: `deep` −15 %, `materials` −10 %, `tabletop` −3 to −5 %. Every lane
-//!   pays every light (and a spot light's `cos` calls keep that loop scalar), where the scalar
-//!   loop skips the lights a vertex cannot see.
+//! Only the scenes whose materials qualify use it: elsewhere the scalar work split over
+//! several loops costs more than the lanes gain (`docs/experiments.md`).
 
 use super::*;
 use crate::light::solid_angle_density;
-use crate::material::{BsdfLanes, SampleLane, SampledLanes, evaluate_lanes, sample_lanes, wo_terms};
+use crate::material::{BsdfLanes, SampleLane, SampledLanes, evaluate_lanes, sample_lanes};
 use crate::sampler::SamplerLanes;
 
 /// Lanes of the loop: eight, the `f32` lanes of an AVX2 register.
@@ -265,7 +236,7 @@ impl PathIntegrator<'_> {
             let path = &mut paths[id as usize];
             let lm = &mats[mat[k]];
             let frame = frame_of(k);
-            x.set(k, &SampleLane { wo: get3(&wo_l, k), ..lm.bsdf });
+            x.set(k, &lm.bsdf.with_wo(get3(&wo_l, k)));
             let p = get3(&point, k);
             let g = get3(&ng, k);
             let o = get3(&origin, k);
@@ -298,9 +269,9 @@ impl PathIntegrator<'_> {
 
         // In lanes: what the BSDFs compute once from `wo` (`Bsdf::at`).
         for k in 0..L {
-            (x.ps[k], x.sd_wo[k]) = wo_terms(&x.get(k, Vec2::ZERO));
+            x.set_wo_terms(k);
         }
-        let all_diffuse = (0..n).all(|k| !shading[k] || x.diffuse[k]);
+        let all_diffuse = (0..n).all(|k| !shading[k] || x.is_lambertian(k));
 
         // In lanes: the emitter sample (`emitter_pending`) and the BSDF's value towards it.
         let mut e_ok = [false; L];
@@ -346,7 +317,7 @@ impl PathIntegrator<'_> {
             }
             let mut f = [[0.0f32; L]; 3];
             let mut pdf = [0.0f32; L];
-            evaluate_lanes(&y, group.iter().all(|o| x.diffuse[o.lane]), &wi, &mut f, &mut pdf);
+            evaluate_lanes(&y, group.iter().all(|o| x.is_lambertian(o.lane)), &wi, &mut f, &mut pdf);
             other_values.extend((0..group.len()).map(|j| (get3(&f, j), pdf[j])));
         }
 
