@@ -38,6 +38,7 @@
 //! layout); activations are row-major `[samples][features]`.
 
 use crate::field::{HashField, Mlp};
+use crate::kernels::scatter_blocks;
 use burn::module::Param;
 use burn::optim::GradientsParams;
 use burn::tensor::{Tensor, TensorData};
@@ -158,8 +159,8 @@ fn read_mlp(mlp: &Mlp, name: &str) -> Result<Stack, String> {
         .iter()
         .map(|l| {
             let [d_in, d_out] = l.weight.val().dims();
-            let w = crate::field::to_vec(l.weight.val());
-            let b = l.bias.as_ref().map_or_else(|| vec![0.0; d_out], |b| crate::field::to_vec(b.val()));
+            let w = crate::kernels::to_vec(l.weight.val());
+            let b = l.bias.as_ref().map_or_else(|| vec![0.0; d_out], |b| crate::kernels::to_vec(b.val()));
             Dense { d_in, d_out, w, b }
         })
         .collect::<Vec<_>>();
@@ -169,18 +170,6 @@ fn read_mlp(mlp: &Mlp, name: &str) -> Result<Stack, String> {
         }
     }
     Ok(Stack::new(layers))
-}
-
-/// Row `s` of `rows` (`[t][pieces.len() · B]`) split into blocks of `B` columns: block `b`
-/// goes to `pieces[b][s · B..(s + 1) · B]`. Shared with the hash grid's level-major copy.
-pub(crate) fn scatter_blocks<const B: usize>(rows: &[f32], pieces: &mut [&mut [f32]]) {
-    let width = pieces.len() * B;
-    for (s, row) in rows.chunks_exact(width).enumerate() {
-        for (piece, src) in pieces.iter_mut().zip(row.chunks_exact(B)) {
-            let dst: &mut [f32; B] = (&mut piece[s * B..(s + 1) * B]).try_into().expect("B floats");
-            dst.copy_from_slice(src);
-        }
-    }
 }
 
 impl HashMlp {
@@ -1276,7 +1265,7 @@ pub fn burn_reference(
     sh: &[f32],
     grads: Option<(&[f32], &[[f32; 3]])>,
 ) -> (Vec<f32>, Vec<f32>, Option<(Vec<f32>, GradientsParams)>) {
-    use crate::field::{tensor2, to_vec};
+    use crate::kernels::{tensor2, to_vec};
     let ed = field.density.layers[0].weight.val().dims()[0];
     let n = enc.len() / ed.max(1);
     let sd = sh.len() / n.max(1);
@@ -1323,12 +1312,13 @@ pub struct NetworkSpeed {
 /// Measures [`NetworkSpeed`] for `enc_dims` encoding features, `dir_dims` direction features
 /// and `n` samples of fixed pseudo-random inputs.
 pub fn speed_against_burn(enc_dims: usize, dir_dims: usize, n: usize) -> NetworkSpeed {
-    use crate::field::{HashFieldConfig, seeded_init};
+    use crate::field::HashFieldConfig;
+    use crate::kernels::seeded_init;
     use burn::module::Module;
     let (ed, sd) = (enc_dims, dir_dims);
     let field = seeded_init(HashFieldConfig::new(ed, sd).init(&crate::backend::train_device()), 1);
     let mlp = HashMlp::from_field(&field).expect("the default field's shape");
-    let value = |k: usize, s: u64| crate::models::ops::uniform(s, 0, k as u64, 0) * 2.0 - 1.0;
+    let value = |k: usize, s: u64| crate::kernels::uniform(s, 0, k as u64, 0) * 2.0 - 1.0;
     let enc: Vec<f32> = (0..n * ed).map(|k| value(k, 1)).collect();
     let sh: Vec<f32> = (0..n * sd).map(|k| value(k, 2)).collect();
     let d_raw: Vec<f32> = (0..n).map(|k| 1e-3 * value(k, 3)).collect();
@@ -1370,8 +1360,8 @@ pub fn speed_against_burn(enc_dims: usize, dir_dims: usize, n: usize) -> Network
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::field::{HashFieldConfig, seeded_init, to_vec};
-    use crate::models::ops::uniform;
+    use crate::field::HashFieldConfig;
+    use crate::kernels::{seeded_init, to_vec, uniform};
 
     fn inputs(n: usize, d: usize, stream: u64) -> Vec<f32> {
         (0..n * d).map(|k| uniform(7, stream, k as u64, 0) * 2.0 - 1.0).collect()
@@ -1513,7 +1503,8 @@ mod tests {
     /// One Adam step with our gradients moves burn's parameters as one with burn's own.
     #[test]
     fn gradients_step_burns_optimiser() {
-        use crate::field::{AdamSettings, MlpAdam, param_vectors};
+        use crate::field::{AdamSettings, MlpAdam};
+        use crate::kernels::param_vectors;
         let (ed, sd, n) = (16, 9, 200);
         let field = seeded_init(HashFieldConfig::new(ed, sd).init(&crate::backend::train_device()), 5);
         let Batch { enc, sh, d_raw, d_rgb } = batch(n, ed, sd);

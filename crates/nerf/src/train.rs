@@ -26,7 +26,7 @@
 use crate::auto::{AutoConfig, PlateauStop};
 use crate::checkpoint::{self, CheckpointError, StateDict};
 use crate::data::{Background, DataError, SceneBounds, TrainData, ViewPixels, pixel_ray};
-use crate::models::ops::{stream, uniform};
+use crate::kernels::{stream, uniform};
 use crate::models::{Model, ModelConfig, StepStats, StepTimings, fast::FastConfig, paper::PaperConfig};
 use burn::config::Config;
 use serde::{Deserialize, Serialize};

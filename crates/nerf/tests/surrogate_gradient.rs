@@ -4,7 +4,8 @@
 
 use burn::module::Module;
 use burn::tensor::Tensor;
-use nerf::field::{NerfField, NerfFieldConfig, param_vectors, seeded_init, tensor2, to_vec};
+use nerf::field::{NerfField, NerfFieldConfig};
+use nerf::kernels::{param_vectors, seeded_init, tensor2, to_vec};
 use nerf::encoding::frequency_encode;
 use nerf::models::ops::{self, DensityActivation};
 use nerf::sampling::{RaySamples, SampleMode, stratified};
@@ -88,7 +89,7 @@ fn surrogate_gradient_matches_finite_differences() {
     ];
 
     let full_loss = |values: &[Vec<f32>]| {
-        let m = nerf::field::load_param_vectors(cfg.init(&plain), values).unwrap();
+        let m = nerf::kernels::load_param_vectors(cfg.init(&plain), values).unwrap();
         let (r, c) = outputs(&s, &m.valid(), &plain);
         loss_of(&s, &to_vec(r), &to_vec(c)).0
     };

@@ -480,7 +480,7 @@ fn level_major<const F: usize>(d_out: &[f32], n: usize, levels: usize) -> Vec<f3
         }
         per_chunk.into_par_iter().enumerate().for_each(|(c, mut pieces)| {
             let rows = &d_out[c * POINT_CHUNK * lf..((c + 1) * POINT_CHUNK).min(n) * lf];
-            crate::mlp::scatter_blocks::<F>(rows, &mut pieces);
+            crate::kernels::scatter_blocks::<F>(rows, &mut pieces);
         });
     } else {
         d_lvl.copy_from_slice(d_out);

@@ -15,14 +15,15 @@
 //! Training rays are compacted as in instant-ngp: a density-only pass finds where each ray
 //! becomes opaque, and only the samples before it are trained on.
 
-use super::ops::{DensityActivation, stream, stream_seed};
+use super::ops::DensityActivation;
 use super::{RayOutputs, StepStats, StepTimings, all_finite, check_adam, expected_distance, mse_and_grad, squared_error_and_grad};
 use crate::backend;
 use crate::checkpoint::StateDict;
 use crate::data::{RayBatch, SceneBounds};
 use crate::encoding::hashgrid::{Adam, AdamConfig, BackwardScratch, HashGrid, HashGridConfig};
 use crate::encoding::sh::{sh_encode, sh_output_dim};
-use crate::field::{AdamSettings, HashField, HashFieldConfig, MlpAdam, seeded_init};
+use crate::field::{AdamSettings, HashField, HashFieldConfig, MlpAdam};
+use crate::kernels::{seeded_init, stream, stream_seed};
 use crate::mlp::{GroupGrads, HashMlp};
 use crate::occupancy::{MarchOptions, OccupancyBlocks, OccupancyGrid, OccupancyGridConfig};
 use crate::sampling::{Aabb, RaySamples, SampleMode};
@@ -603,7 +604,7 @@ impl FastModel {
         if c.is_view_dependent() {
             // Parameter tensors in visiting order: the density network's, then the colour
             // network's first layer (weight [geo + dir, width] row-major, then bias).
-            let wi = crate::field::param_vectors(&self.field.density).len();
+            let wi = crate::kernels::param_vectors(&self.field.density).len();
             let (geo, width) = (c.geo_features, c.color_width);
             let y00 = crate::encoding::sh::sh_encode([0.0, 0.0, 1.0])[0];
             let key = |k: usize| format!("field.{k}");
@@ -645,7 +646,7 @@ impl FastModel {
     /// Restores [`Self::state`].
     pub fn load_state(&mut self, s: &StateDict) -> Result<(), String> {
         self.field = super::load_params(s, "field", self.field.clone())?;
-        let n = crate::field::param_vectors(&self.field).len();
+        let n = crate::kernels::param_vectors(&self.field).len();
         super::load_adam(s, "field_adam", &mut self.adam, n);
         let get = |k: &str, len: usize| -> Result<Vec<f32>, String> {
             let v = s.arrays.get(k).ok_or_else(|| format!("checkpoint lacks {k}"))?;
@@ -1231,7 +1232,7 @@ mod tests {
         let mut m = FastModel::new(cfg, bounds, 5).unwrap();
         // Dense enough that rays saturate: raise the density network's output bias.
         let mut s = m.state();
-        let n_density = crate::field::param_vectors(&m.field.density).len();
+        let n_density = crate::kernels::param_vectors(&m.field.density).len();
         if let Some(b) = s.arrays.get_mut(&format!("field.{}", n_density - 1)) {
             b[0] = 2.0;
         }

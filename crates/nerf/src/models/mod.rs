@@ -397,18 +397,18 @@ pub(crate) fn load_adam(s: &StateDict, prefix: &str, adam: &mut crate::field::Ml
 
 /// Saves a module's parameters under `prefix`.
 pub(crate) fn save_params<M: burn::module::Module>(s: &mut StateDict, prefix: &str, m: &M) {
-    for (k, v) in crate::field::param_vectors(m).into_iter().enumerate() {
+    for (k, v) in crate::kernels::param_vectors(m).into_iter().enumerate() {
         s.arrays.insert(format!("{prefix}.{k}"), v);
     }
 }
 
 /// Restores what [`save_params`] wrote.
 pub(crate) fn load_params<M: burn::module::Module>(s: &StateDict, prefix: &str, m: M) -> Result<M, String> {
-    let n = crate::field::param_vectors(&m).len();
+    let n = crate::kernels::param_vectors(&m).len();
     let values = (0..n)
         .map(|k| s.arrays.get(&format!("{prefix}.{k}")).cloned().ok_or_else(|| format!("checkpoint lacks {prefix}.{k}")))
         .collect::<Result<Vec<_>, _>>()?;
-    crate::field::load_param_vectors(m, &values)
+    crate::kernels::load_param_vectors(m, &values)
 }
 
 /// Refuses Adam settings that make no optimiser: β₁ and β₂ in [0, 1), ε finite and > 0 (the

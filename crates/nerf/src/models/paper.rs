@@ -8,7 +8,7 @@
 //! Blender scenes already lie in about [−1.5, 1.5]³; ours are in metres at any scale).
 //! Near/far come from [`SceneBounds`] (scene facts, or the cameras plus an assumed radius).
 
-use super::ops::{self, DensityActivation, stream, stream_seed};
+use super::ops::{self, DensityActivation};
 use crate::encoding::frequency_encode;
 use crate::sampling::{self, RaySamples, SampleMode};
 use crate::volrend;
@@ -16,7 +16,8 @@ use super::{RayOutputs, StepStats, StepTimings, all_finite, check_adam, expected
 use crate::backend;
 use crate::checkpoint::StateDict;
 use crate::data::{RayBatch, SceneBounds};
-use crate::field::{AdamSettings, MlpAdam, NerfField, NerfFieldConfig, seeded_init, tensor2, to_vec};
+use crate::field::{AdamSettings, MlpAdam, NerfField, NerfFieldConfig};
+use crate::kernels::{seeded_init, stream, stream_seed, tensor2, to_vec};
 use burn::config::Config;
 use burn::module::Module;
 use burn::optim::GradientsParams;
@@ -308,7 +309,7 @@ impl PaperModel {
     /// Restores [`Self::state`].
     pub fn load_state(&mut self, s: &StateDict) -> Result<(), String> {
         self.nets = super::load_params(s, "nets", self.nets.clone())?;
-        let n = crate::field::param_vectors(&self.nets).len();
+        let n = crate::kernels::param_vectors(&self.nets).len();
         super::load_adam(s, "nets_adam", &mut self.adam, n);
         Ok(())
     }
