@@ -156,21 +156,11 @@ impl PaperModel {
         let act = self.config.density_activation;
         let sigma: Vec<f32> = raw.iter().map(|x| act.forward(*x)).collect();
         let rgb3 = ops::rgb3(rgb);
-        let comp = volrend::composite_forward(&s.offsets, &sigma, &rgb3, &s.t_start, &s.t_end, &batch.background);
+        let inputs = volrend::CompositeInputs { offsets: &s.offsets, sigma: &sigma, rgb: &rgb3, t_start: &s.t_start, t_end: &s.t_end, background: &batch.background };
+        let comp = volrend::composite_forward(&inputs);
         let (mse, d_out) = mse_and_grad(&comp.rgb, &batch.target);
         let zeros = vec![0.0; d_out.len()];
-        let g = volrend::composite_backward(
-            &s.offsets,
-            &sigma,
-            &rgb3,
-            &s.t_start,
-            &s.t_end,
-            &batch.background,
-            &comp,
-            &d_out,
-            &zeros,
-            &zeros,
-        );
+        let g = volrend::composite_backward(&inputs, &comp, &volrend::OutputGrads { d_rgb: &d_out, d_opacity: &zeros, d_distance: &zeros, d_weights: None });
         let d_raw = g.d_sigma.iter().zip(raw).map(|(g, x)| act.backward(*x, *g)).collect();
         (comp, mse, d_raw, g.d_rgb.into_iter().flatten().collect())
     }
@@ -249,12 +239,12 @@ impl PaperModel {
         let (raw, _) = self.forward(&nets.coarse, self.encode(&coarse, origins, dirs), coarse.len(), &dev);
         let sig: Vec<f32> = to_vec(raw).iter().map(|x| act.forward(*x)).collect();
         let zeros = vec![[0.0; 3]; coarse.len()];
-        let comp_c = volrend::composite_forward(&coarse.offsets, &sig, &zeros, &coarse.t_start, &coarse.t_end, &bg);
+        let comp_c = volrend::composite_forward(&volrend::CompositeInputs { offsets: &coarse.offsets, sigma: &sig, rgb: &zeros, t_start: &coarse.t_start, t_end: &coarse.t_end, background: &bg });
         let fine = sampling::sample_pdf(&coarse, &comp_c.weights, self.config.fine_samples, SampleMode::Deterministic);
         let (raw, rgb) = self.forward(&nets.fine, self.encode(&fine, origins, dirs), fine.len(), &dev);
         let sig: Vec<f32> = to_vec(raw).iter().map(|x| act.forward(*x)).collect();
         let rgb = ops::rgb3(&to_vec(rgb));
-        let comp = volrend::composite_forward(&fine.offsets, &sig, &rgb, &fine.t_start, &fine.t_end, &bg);
+        let comp = volrend::composite_forward(&volrend::CompositeInputs { offsets: &fine.offsets, sigma: &sig, rgb: &rgb, t_start: &fine.t_start, t_end: &fine.t_end, background: &bg });
         let distance = comp.distance.iter().zip(&comp.opacity).map(|(d, o)| expected_distance(*d, *o)).collect();
         let t = sig.iter().zip(fine.t_start.iter().zip(&fine.t_end)).map(|(s, (a, b))| volrend::termination_distance(*s, *a, *b)).collect();
         RayOutputs { rgb: comp.rgb, opacity: comp.opacity, distance, t, offsets: fine.offsets, w: comp.weights }
