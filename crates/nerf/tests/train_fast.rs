@@ -79,7 +79,7 @@ fn fast_training_is_bit_identical_across_thread_counts() {
 #[test]
 fn distortion_loss_skips_mixed_pixels() {
     use nerf::data::{Background, SceneBounds, TrainData};
-    use nerf::models::fast::FastModel;
+    use nerf::models::{NerfModel, fast::FastModel};
     let tmp = tempfile::tempdir().unwrap();
     let data = tmp.path().join("data");
     nerf::data::synthetic::write(&data, 32, [6, 1, 1], false).unwrap();

@@ -4,7 +4,7 @@
 use crate::encoding::hashgrid::HashGridConfig;
 use crate::encoding::sh::sh_output_dim;
 use crate::field::HashFieldConfig;
-use crate::models::check_adam;
+use crate::models::base::check_adam;
 use burn::config::Config;
 
 /// Settings of the fast model.
@@ -168,7 +168,18 @@ impl FastConfig {
             return bad("cone_angle", "a finite angle ≥ 0", &a);
         }
         self.bf16_networks()?;
-        check_adam("model", self.beta1, self.beta2, self.eps)
+        check_adam("model", self.beta1, self.beta2, self.eps)?;
+        if let Some(w) = self.distortion_weight
+            && !(w.is_finite() && w >= 0.0)
+        {
+            return Err(format!("model.distortion_weight must be a finite number ≥ 0, not {w}"));
+        }
+        if let Some(k) = self.distortion_mixed_footprints
+            && !(k.is_finite() && k > 0.0)
+        {
+            return Err(format!("model.distortion_mixed_footprints must be a positive number of pixel footprints, not {k}"));
+        }
+        Ok(())
     }
 
     /// Whether the networks train in bf16 ([`Self::mlp_precision`]); an unknown precision is

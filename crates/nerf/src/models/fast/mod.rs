@@ -16,10 +16,10 @@
 //! becomes opaque, and only the samples before it are trained on.
 
 use super::ops::DensityActivation;
-use super::{RayOutputs, StepStats, StepTimings, all_finite, expected_distance, mse_and_grad, squared_error_and_grad};
+use super::base::{Model, ModelKind, NerfModel, RayOutputs, StepStats, StepTimings, TrainPreset, all_finite, expected_distance, load_adam, load_params, mse_and_grad, save_adam, save_params, squared_error_and_grad};
 use crate::backend;
 use crate::checkpoint::StateDict;
-use crate::data::{RayBatch, SceneBounds};
+use crate::data::{Background, RayBatch, SceneBounds};
 use crate::encoding::hashgrid::{Adam, AdamConfig, BackwardScratch, HashGrid};
 use crate::encoding::sh::sh_encode;
 use crate::field::{AdamSettings, HashField, MlpAdam};
@@ -126,6 +126,34 @@ const COLOR_MIN_WEIGHT: f32 = 1e-5;
 /// Rays per rayon task when rendering ([`FastModel::render_rays`]).
 const RENDER_CHUNK: usize = 1024;
 
+impl ModelKind for FastConfig {
+    fn name(&self) -> &'static str {
+        "fast"
+    }
+
+    fn check(&self) -> Result<(), String> {
+        FastConfig::check(self)
+    }
+
+    /// [`FastModel::new`] checks the settings and bounds itself.
+    fn init(&self, bounds: &SceneBounds, seed: u64) -> Result<Model, String> {
+        Ok(Box::new(FastModel::new(self.clone(), bounds.clone(), seed)?))
+    }
+
+    /// Batched by samples, 2^15 per step (instant-ngp: 2^18 on a GPU; on 2 CPU cores more,
+    /// smaller steps learn faster in minutes; the first step 256 rays), Adam 1e-2 → 1e-3 over
+    /// 5k steps (CPU runs are short), and a random background behind transparent pixels
+    /// (instant-ngp; without it the few-view CPU runs learn translucent objects).
+    fn preset(&self) -> TrainPreset {
+        TrainPreset { batch_rays: 256, batch_samples: Some(1 << 15), lr_init: 1e-2, lr_final: 1e-3, lr_decay_steps: 5_000, background: Background::Random }
+    }
+
+    /// The distortion loss, when on, leaves out mixed pixels of this many footprints.
+    fn mixed_pixel_footprints(&self) -> Option<f64> {
+        self.distortion_weight.filter(|w| *w > 0.0).and(self.distortion_mixed_footprints).map(|k| k as f64)
+    }
+}
+
 impl FastModel {
     /// A new model with parameters keyed by `seed`.
     pub fn new(config: FastConfig, bounds: SceneBounds, seed: u64) -> Result<Self, String> {
@@ -213,34 +241,54 @@ impl FastModel {
         self.occupancy.update(step, dt, thr, &mut |pts| density_at(grid, mlp, bounds, pts));
     }
 
-    /// Density at world points (inference).
-    pub fn density(&self, points: &[[f32; 3]]) -> Vec<f32> {
-        let mlp = self.mlp();
-        points.chunks(65536).flat_map(|c| density_at(&self.grid, &mlp, &self.bounds, c)).collect()
-    }
-
-    /// Density and display colour at world points, each seen along its unit direction
-    /// (inference; what a sample at that point of a ray with that direction evaluates to).
-    ///
-    /// # Shapes
-    /// `points`, `dirs`: n; returns n densities and n colours.
-    pub fn query(&self, points: &[[f32; 3]], dirs: &[[f32; 3]]) -> (Vec<f32>, Vec<[f32; 3]>) {
-        let mlp = self.mlp();
-        let shd = self.config.dir_dims();
-        let (mut sigma, mut rgb) = (Vec::with_capacity(points.len()), Vec::with_capacity(points.len()));
-        for (p, d) in points.chunks(65536).zip(dirs.chunks(65536)) {
-            let unit: Vec<[f32; 3]> = p.iter().map(|p| self.bounds.to_unit(*p)).collect();
-            let enc = self.hash_encode(&unit);
-            let sh: Vec<f32> = if shd == 0 { Vec::new() } else { d.iter().flat_map(|d| sh_encode(*d)[..shd].to_vec()).collect() };
-            let (raw, c) = mlp.forward(&enc, &sh);
-            sigma.extend(raw.into_iter().map(|x| ACT.forward(x)));
-            rgb.extend(c);
+    /// The same model without view dependence, for a run whose test found the scene's colour
+    /// constant across views ([`crate::auto`]): the colour network's direction inputs are
+    /// dropped and what it learned otherwise is kept. Its first layer sees `[geometry, SH]`;
+    /// the SH band-0 input is the constant Y₀₀ for every direction, so its weights times Y₀₀
+    /// fold into the bias, and bands ≥ 1 (which integrate to zero over the sphere) go, so the
+    /// first layer computes its mean over all directions. Hash tables, density network, the
+    /// rest of the colour network, the occupancy grid and all optimiser moments carry over
+    /// (the first layer's moments for the rows it keeps). Already without view dependence:
+    /// an unchanged copy.
+    pub fn without_view_dependence(&self) -> Result<Self, String> {
+        let c = &self.config;
+        let mut cfg = c.clone();
+        cfg.view_dependent = Some(false);
+        let mut out = Self::new(cfg, self.bounds.clone(), 0)?;
+        let mut s = self.state();
+        if c.is_view_dependent() {
+            // Parameter tensors in visiting order: the density network's, then the colour
+            // network's first layer (weight [geo + dir, width] row-major, then bias).
+            let wi = crate::kernels::param_vectors(&self.field.density).len();
+            let (geo, width) = (c.geo_features, c.color_width);
+            let y00 = crate::encoding::sh::sh_encode([0.0, 0.0, 1.0])[0];
+            let key = |k: usize| format!("field.{k}");
+            let w = s.arrays.get(&key(wi)).cloned().ok_or("the colour network has no first layer")?;
+            let b = s.arrays.get(&key(wi + 1)).cloned().ok_or("the colour network's first layer has no bias")?;
+            if w.len() != (geo + c.dir_dims()) * width || b.len() != width {
+                return Err(format!("the colour network's first layer has {} weights, not ({geo} + {}) × {width}", w.len(), c.dir_dims()));
+            }
+            let band0 = &w[geo * width..(geo + 1) * width];
+            let bias: Vec<f32> = b.iter().zip(band0).map(|(b, w0)| b + y00 * w0).collect();
+            s.arrays.insert(key(wi), w[..geo * width].to_vec());
+            s.arrays.insert(key(wi + 1), bias);
+            for m in ["m1", "m2"] {
+                if let Some(v) = s.arrays.get_mut(&format!("field_adam.{wi}.{m}")) {
+                    v.truncate(geo * width);
+                }
+            }
         }
-        (sigma, rgb)
+        out.load_state(&s)?;
+        out.lr = self.lr;
+        Ok(out)
     }
 
+}
+
+
+impl NerfModel for FastModel {
     /// One training step.
-    pub fn train_step(&mut self, batch: &RayBatch, step: u64, seed: u64) -> StepStats {
+    fn train_step(&mut self, batch: &RayBatch, step: u64, seed: u64) -> StepStats {
         let mut tm = StepTimings::default();
         let t0 = Instant::now();
         // The networks' weights, read once for the step (they change only in its Adam step);
@@ -356,6 +404,10 @@ impl FastModel {
         stats(false, tm, touched)
     }
 
+    fn set_lr(&mut self, lr: f64) {
+        self.lr = lr;
+    }
+
     /// Renders rays: marches the occupancy grid (no jitter), evaluates the density network in
     /// rounds of `INFERENCE_ROUND` samples per ray that is still live (transmittance ≥ 1e-4
     /// and samples left) and the colour network only for samples whose weight reaches
@@ -367,74 +419,56 @@ impl FastModel {
     /// pool), which keeps every buffer small and both cores busy (before, 8192-ray chunks in
     /// turn, each marched in full and evaluated in rounds of 16: 5.9 s for an 800×800 view,
     /// mostly one core, much of it zeroing freshly allocated pages).
-    pub fn render_rays(&self, origins: &[[f32; 3]], dirs: &[[f32; 3]], background: [f32; 3]) -> RayOutputs {
+    fn render_rays(&self, origins: &[[f32; 3]], dirs: &[[f32; 3]], background: [f32; 3]) -> RayOutputs {
         self.parts().render_rays(&self.mlp(), origins, dirs, background)
     }
 
+    /// Density at world points (inference).
+    fn density(&self, points: &[[f32; 3]]) -> Vec<f32> {
+        let mlp = self.mlp();
+        points.chunks(65536).flat_map(|c| density_at(&self.grid, &mlp, &self.bounds, c)).collect()
+    }
+
+    /// Density and display colour at world points, each seen along its unit direction
+    /// (inference; what a sample at that point of a ray with that direction evaluates to).
+    ///
+    /// # Shapes
+    /// `points`, `dirs`: n; returns n densities and n colours.
+    fn query(&self, points: &[[f32; 3]], dirs: &[[f32; 3]]) -> (Vec<f32>, Vec<[f32; 3]>) {
+        let mlp = self.mlp();
+        let shd = self.config.dir_dims();
+        let (mut sigma, mut rgb) = (Vec::with_capacity(points.len()), Vec::with_capacity(points.len()));
+        for (p, d) in points.chunks(65536).zip(dirs.chunks(65536)) {
+            let unit: Vec<[f32; 3]> = p.iter().map(|p| self.bounds.to_unit(*p)).collect();
+            let enc = self.hash_encode(&unit);
+            let sh: Vec<f32> = if shd == 0 { Vec::new() } else { d.iter().flat_map(|d| sh_encode(*d)[..shd].to_vec()).collect() };
+            let (raw, c) = mlp.forward(&enc, &sh);
+            sigma.extend(raw.into_iter().map(|x| ACT.forward(x)));
+            rgb.extend(c);
+        }
+        (sigma, rgb)
+    }
+
+    fn bounds(&self) -> &SceneBounds {
+        &self.bounds
+    }
+
+    /// A cell is empty when its running density (the decayed maximum of the densities sampled
+    /// in it) times the marching step is at most the grid threshold.
+    fn occupancy(&self) -> Option<(&OccupancyGrid, f32)> {
+        Some((&self.occupancy, self.config.grid_threshold / self.step_size()))
+    }
+
     /// Trainable parameters: hash tables plus networks.
-    pub fn parameters(&self) -> usize {
+    fn parameters(&self) -> usize {
         self.grid.params.len() + self.field.num_params()
     }
 
-    /// Forward multiply-adds per sample in the networks.
-    pub fn macs_per_sample(&self) -> f64 {
-        let c = &self.config;
-        let enc = (c.levels * c.features_per_level) as f64;
-        let dens = enc * c.density_width as f64 + c.density_width as f64 * c.geo_features as f64;
-        let cin = (c.geo_features + c.dir_dims()) as f64;
-        let col = cin * c.color_width as f64
-            + (c.color_depth.saturating_sub(1)) as f64 * (c.color_width * c.color_width) as f64
-            + c.color_width as f64 * 3.0;
-        dens + col
-    }
-
-    /// The same model without view dependence, for a run whose test found the scene's colour
-    /// constant across views ([`crate::auto`]): the colour network's direction inputs are
-    /// dropped and what it learned otherwise is kept. Its first layer sees `[geometry, SH]`;
-    /// the SH band-0 input is the constant Y₀₀ for every direction, so its weights times Y₀₀
-    /// fold into the bias, and bands ≥ 1 (which integrate to zero over the sphere) go, so the
-    /// first layer computes its mean over all directions. Hash tables, density network, the
-    /// rest of the colour network, the occupancy grid and all optimiser moments carry over
-    /// (the first layer's moments for the rows it keeps). Already without view dependence:
-    /// an unchanged copy.
-    pub fn without_view_dependence(&self) -> Result<Self, String> {
-        let c = &self.config;
-        let mut cfg = c.clone();
-        cfg.view_dependent = Some(false);
-        let mut out = Self::new(cfg, self.bounds.clone(), 0)?;
-        let mut s = self.state();
-        if c.is_view_dependent() {
-            // Parameter tensors in visiting order: the density network's, then the colour
-            // network's first layer (weight [geo + dir, width] row-major, then bias).
-            let wi = crate::kernels::param_vectors(&self.field.density).len();
-            let (geo, width) = (c.geo_features, c.color_width);
-            let y00 = crate::encoding::sh::sh_encode([0.0, 0.0, 1.0])[0];
-            let key = |k: usize| format!("field.{k}");
-            let w = s.arrays.get(&key(wi)).cloned().ok_or("the colour network has no first layer")?;
-            let b = s.arrays.get(&key(wi + 1)).cloned().ok_or("the colour network's first layer has no bias")?;
-            if w.len() != (geo + c.dir_dims()) * width || b.len() != width {
-                return Err(format!("the colour network's first layer has {} weights, not ({geo} + {}) × {width}", w.len(), c.dir_dims()));
-            }
-            let band0 = &w[geo * width..(geo + 1) * width];
-            let bias: Vec<f32> = b.iter().zip(band0).map(|(b, w0)| b + y00 * w0).collect();
-            s.arrays.insert(key(wi), w[..geo * width].to_vec());
-            s.arrays.insert(key(wi + 1), bias);
-            for m in ["m1", "m2"] {
-                if let Some(v) = s.arrays.get_mut(&format!("field_adam.{wi}.{m}")) {
-                    v.truncate(geo * width);
-                }
-            }
-        }
-        out.load_state(&s)?;
-        out.lr = self.lr;
-        Ok(out)
-    }
-
     /// The full state for a checkpoint.
-    pub fn state(&self) -> StateDict {
+    fn state(&self) -> StateDict {
         let mut s = StateDict::default();
-        super::save_params(&mut s, "field", &self.field);
-        super::save_adam(&mut s, "field_adam", &self.adam);
+        save_params(&mut s, "field", &self.field);
+        save_adam(&mut s, "field_adam", &self.adam);
         s.arrays.insert("grid.params".into(), self.grid.params.clone());
         s.arrays.insert("grid_adam.m".into(), self.grid_adam.m.clone());
         s.arrays.insert("grid_adam.v".into(), self.grid_adam.v.clone());
@@ -446,10 +480,10 @@ impl FastModel {
     }
 
     /// Restores [`Self::state`].
-    pub fn load_state(&mut self, s: &StateDict) -> Result<(), String> {
-        self.field = super::load_params(s, "field", self.field.clone())?;
+    fn load_state(&mut self, s: &StateDict) -> Result<(), String> {
+        self.field = load_params(s, "field", self.field.clone())?;
         let n = crate::kernels::param_vectors(&self.field).len();
-        super::load_adam(s, "field_adam", &mut self.adam, n);
+        load_adam(s, "field_adam", &mut self.adam, n);
         let get = |k: &str, len: usize| -> Result<Vec<f32>, String> {
             let v = s.arrays.get(k).ok_or_else(|| format!("checkpoint lacks {k}"))?;
             if v.len() != len {
@@ -473,6 +507,18 @@ impl FastModel {
         }
         self.refresh_empty_space();
         Ok(())
+    }
+
+    /// Forward multiply-adds per sample in the networks.
+    fn macs_per_sample(&self) -> f64 {
+        let c = &self.config;
+        let enc = (c.levels * c.features_per_level) as f64;
+        let dens = enc * c.density_width as f64 + c.density_width as f64 * c.geo_features as f64;
+        let cin = (c.geo_features + c.dir_dims()) as f64;
+        let col = cin * c.color_width as f64
+            + (c.color_depth.saturating_sub(1)) as f64 * (c.color_width * c.color_width) as f64
+            + c.color_width as f64 * 3.0;
+        dens + col
     }
 }
 
