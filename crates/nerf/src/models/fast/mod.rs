@@ -68,14 +68,12 @@ const ACT: DensityActivation = DensityActivation::TruncExp;
 
 /// Samples evaluated per live ray and round at inference, between early-termination checks.
 /// One: a trained surface stops most rays within a sample or two, so longer rounds evaluate
-/// samples behind it (a trained 800x800 tabletop view: 5.3 -> 4.8 samples per ray, 11 % less
-/// time than rounds of 4, same pixels since the composite stops at the same transmittance).
+/// samples behind it (figures in `docs/fast-model.md`).
 const INFERENCE_ROUND: usize = 1;
 /// Samples per ray in the first two rounds of training's marching and compaction
 /// ([`Parts::march_until_opaque`]); later rounds double. Late in training most rays turn
-/// opaque within 4 to 8 samples, so a second round of 8 (doubling at once) marched and encoded
-/// samples behind the surface: on a 5-minute tabletop-std fast run's checkpoint (7,536 rays per
-/// step) 46,848 samples marched per step that way, 42,546 with a second round of 4.
+/// opaque within 4 to 8 samples, so doubling at once marches samples behind the surface
+/// (figures in `docs/fast-model.md`).
 const COMPACTION_FIRST_ROUND: usize = 4;
 
 /// Groups of rays per thread in training's marching and compaction (more than one, so that a
@@ -529,8 +527,7 @@ const DENSITY_CHUNK: usize = 1024;
 /// σ at world points: hash encoding, the density network's first output, [`ACT`]. Chunks of
 /// [`DENSITY_CHUNK`] points go through both on one thread each ([`HashGrid::encode_serial`],
 /// [`HashMlp::raw_density_serial`]: the values of the parallel kernels, which do not depend
-/// on how points are split). Before, one pass encoded every point (an occupancy update's
-/// 65,536 at a time: 8 MiB of encodings) and a second read them back from memory.
+/// on how points are split), so no pass writes every point's encoding out of cache.
 fn density_at(grid: &HashGrid, mlp: &HashMlp, bounds: &SceneBounds, points: &[[f32; 3]]) -> Vec<f32> {
     let dims = grid.output_dim();
     let mut sigma = vec![0.0; points.len()];
