@@ -38,7 +38,7 @@ pub fn matmul_peak_gflops(n: usize) -> f64 {
     use burn::tensor::{Tensor, TensorData};
     let dev = inference_device();
     let data = |s: u64| {
-        let v: Vec<f32> = (0..n * n).map(|k| crate::models::ops::uniform(s, 0, 0, k as u64) - 0.5).collect();
+        let v: Vec<f32> = (0..n * n).map(|k| crate::kernels::uniform(s, 0, 0, k as u64) - 0.5).collect();
         Tensor::<2>::from_data(TensorData::new(v, [n, n]), &dev)
     };
     let (a, b) = (data(1), data(2));

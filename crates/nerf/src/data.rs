@@ -5,7 +5,7 @@
 //! the convention of the NeRF paper and its Blender loaders; straight-alpha RGBA is composited
 //! onto the background in that space: `c = a·rgb + (1 − a)·bg`.
 
-use crate::models::ops::{stream, uniform};
+use crate::kernels::{stream, uniform};
 use dataset::{Camera, Dataset, Frame, SceneFacts};
 use glam::DVec3;
 use serde::{Deserialize, Serialize};

@@ -1,14 +1,15 @@
 //! Fields: the burn networks that map encoded positions (and directions) to raw density and
-//! colour, plus the parameter plumbing every model shares: seeded initialisation, flattening
-//! parameters for checkpoints, and stepping them with burn's Adam.
+//! colour, and burn's Adam stepped parameter by parameter with a state that checkpoints can
+//! hold ([`MlpAdam`]). Seeded initialisation and flattening parameters are
+//! [`crate::kernels`]'.
 //!
 //! Each network has a `#[derive(Config)]` config with `init(&device)`. Networks output the
 //! *raw* density (the activation is applied in Rust next to the compositing kernel, so both
 //! models share it) and the colour after its sigmoid.
 
-use crate::models::ops::{stream, uniform};
+use crate::kernels::to_vec;
 use burn::config::Config;
-use burn::module::{Module, ModuleMapper, ModuleVisitor, Param};
+use burn::module::{Module, ModuleMapper, Param};
 use burn::nn::{Linear, LinearConfig};
 use burn::optim::{Adam, AdamConfig, AdamState, GradientsParams, Optimizer};
 use burn::tensor::activation::{relu, sigmoid};
@@ -46,7 +47,7 @@ pub struct Mlp {
 }
 
 impl MlpConfig {
-    /// Builds the network (values are later replaced by [`seeded_init`]).
+    /// Builds the network (values are later replaced by [`crate::kernels::seeded_init`]).
     pub fn init(&self, device: &Device) -> Mlp {
         let mut layers = Vec::new();
         let mut d = self.d_in;
@@ -157,21 +158,23 @@ impl NerfField {
 /// The fast model's two small networks (instant-ngp's): hash features → `density_width` ReLU →
 /// `geo_features` (the first is the raw density); [geo features, SH(d)] → `color_width` ×
 /// `color_depth` ReLU → RGB (sigmoid).
-/// The widths' defaults live in one place, [`crate::models::fast::FastConfig`], which builds this
-/// ([`HashFieldConfig::new`] for other inputs with its default widths).
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Config, Debug, PartialEq)]
 pub struct HashFieldConfig {
     /// Width of the hash encoding (levels × features per level).
     pub encoding_dims: usize,
     /// Width of the direction encoding (SH coefficients).
     pub dir_dims: usize,
     /// Hidden width of the density network.
+    #[config(default = 64)]
     pub density_width: usize,
     /// Geometry features passed to the colour network (the first is the raw density).
+    #[config(default = 16)]
     pub geo_features: usize,
     /// Hidden width of the colour network.
+    #[config(default = 64)]
     pub color_width: usize,
     /// Hidden layers of the colour network.
+    #[config(default = 2)]
     pub color_depth: usize,
 }
 
@@ -185,20 +188,6 @@ pub struct HashField {
 }
 
 impl HashFieldConfig {
-    /// `encoding_dims` and `dir_dims` inputs with the network widths of a default
-    /// [`crate::models::fast::FastConfig`].
-    pub fn new(encoding_dims: usize, dir_dims: usize) -> Self {
-        let f = crate::models::fast::FastConfig::new();
-        Self {
-            encoding_dims,
-            dir_dims,
-            density_width: f.density_width,
-            geo_features: f.geo_features,
-            color_width: f.color_width,
-            color_depth: f.color_depth,
-        }
-    }
-
     /// Builds the networks.
     pub fn init(&self, device: &Device) -> HashField {
         HashField {
@@ -218,115 +207,6 @@ impl HashField {
         let raw = geo.clone().slice([0..n, 0..1]);
         let rgb = sigmoid(self.color.forward(Tensor::cat(vec![geo, sh], 1)));
         (raw, rgb)
-    }
-}
-
-// ---------------------------------------------------------------------------------------------
-// Parameter plumbing
-// ---------------------------------------------------------------------------------------------
-
-/// A float tensor from a row-major slice.
-pub fn tensor2(data: Vec<f32>, rows: usize, cols: usize, device: &Device) -> Tensor<2> {
-    Tensor::from_data(TensorData::new(data, [rows, cols]), device)
-}
-
-/// A tensor's values as a flat vector.
-pub fn to_vec<const D: usize>(t: Tensor<D>) -> Vec<f32> {
-    t.into_data().convert::<f32>().try_into_vec::<f32>().unwrap_or_default()
-}
-
-struct Initialiser {
-    seed: u64,
-    index: u64,
-    fan_in: usize,
-}
-
-impl ModuleMapper for Initialiser {
-    fn map_float<const D: usize>(&mut self, param: Param<Tensor<D>>) -> Param<Tensor<D>> {
-        let (id, tensor, mapper) = param.consume();
-        let dims = tensor.dims();
-        if D == 2 {
-            self.fan_in = dims[0];
-        }
-        let bound = 1.0 / (self.fan_in.max(1) as f32).sqrt();
-        let n: usize = dims.iter().product();
-        let k = self.index;
-        self.index += 1;
-        let values: Vec<f32> =
-            (0..n).map(|j| (uniform(self.seed, stream::INIT, k, j as u64) * 2.0 - 1.0) * bound).collect();
-        let device = tensor.device();
-        let require_grad = tensor.is_require_grad();
-        let mut t = Tensor::<D>::from_data(TensorData::new(values, dims.to_vec()), &device);
-        if require_grad {
-            t = t.require_grad();
-        }
-        Param::from_mapped_value(id, t, mapper)
-    }
-}
-
-/// Re-initialises every parameter from counter-based random numbers keyed by `seed` (burn's
-/// default Linear scheme, U(−1/√fan_in, 1/√fan_in) for weights and biases), so a model is a
-/// function of its seed alone.
-pub fn seeded_init<M: Module>(module: M, seed: u64) -> M {
-    module.map(&mut Initialiser { seed, index: 0, fan_in: 1 })
-}
-
-struct Collector(Vec<Vec<f32>>);
-impl ModuleVisitor for Collector {
-    fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
-        self.0.push(to_vec(param.val()));
-    }
-}
-
-/// Every parameter tensor's values, in visiting order.
-pub fn param_vectors<M: Module>(module: &M) -> Vec<Vec<f32>> {
-    let mut c = Collector(Vec::new());
-    module.visit(&mut c);
-    c.0
-}
-
-struct Loader<'a> {
-    values: &'a [Vec<f32>],
-    index: usize,
-    error: Option<String>,
-}
-impl ModuleMapper for Loader<'_> {
-    fn map_float<const D: usize>(&mut self, param: Param<Tensor<D>>) -> Param<Tensor<D>> {
-        let (id, tensor, mapper) = param.consume();
-        let dims = tensor.dims();
-        let n: usize = dims.iter().product();
-        let k = self.index;
-        self.index += 1;
-        match self.values.get(k) {
-            Some(v) if v.len() == n => {
-                let require_grad = tensor.is_require_grad();
-                let mut t = Tensor::<D>::from_data(TensorData::new(v.clone(), dims.to_vec()), &tensor.device());
-                if require_grad {
-                    t = t.require_grad();
-                }
-                Param::from_mapped_value(id, t, mapper)
-            }
-            other => {
-                self.error.get_or_insert(format!(
-                    "parameter {k}: expected {n} values, found {}",
-                    other.map_or(0, Vec::len)
-                ));
-                Param::from_mapped_value(id, tensor, mapper)
-            }
-        }
-    }
-}
-
-/// Replaces every parameter's values (in visiting order); errors when a count differs.
-pub fn load_param_vectors<M: Module>(module: M, values: &[Vec<f32>]) -> Result<M, String> {
-    let mut l = Loader { values, index: 0, error: None };
-    let m = module.map(&mut l);
-    if l.index != values.len() && l.error.is_none() {
-        l.error = Some(format!("module has {} parameters, checkpoint {}", l.index, values.len()));
-    }
-    match l.error {
-        Some(e) => Err(e),
-        None => Ok(m),
     }
 }
 

@@ -5,7 +5,8 @@
 //! Layers (nerfstudio's order): data ([`data`]) → encodings ([`encoding`]) → fields
 //! ([`field`]) → samplers ([`sampling`], [`occupancy`]) and renderers ([`volrend`]) → models
 //! ([`models`]) → trainer ([`train`]); [`backend`] chooses the burn device in one place;
-//! [`auto`] sizes the fast model from the scene and its cameras (`--model auto`).
+//! [`auto`] sizes the fast model from the scene and its cameras (`--model auto`); [`kernels`]
+//! holds the small helpers every layer shares (random streams, tensor and parameter plumbing).
 
 pub mod auto;
 pub mod backend;
@@ -13,6 +14,7 @@ pub mod checkpoint;
 pub mod data;
 pub mod encoding;
 pub mod field;
+pub mod kernels;
 pub mod mlp;
 pub mod models;
 pub mod occupancy;

@@ -26,8 +26,9 @@
 use crate::auto::{AutoConfig, PlateauStop};
 use crate::checkpoint::{self, CheckpointError, StateDict};
 use crate::data::{Background, DataError, SceneBounds, TrainData, ViewPixels, pixel_ray};
-use crate::models::ops::{stream, uniform};
-use crate::models::{Model, ModelConfig, StepStats, StepTimings, fast::FastConfig, paper::PaperConfig};
+use crate::kernels::{stream, uniform};
+use crate::models::fast::FastModel;
+use crate::models::{Model, ModelConfig, StepStats, StepTimings};
 use burn::config::Config;
 use serde::{Deserialize, Serialize};
 use std::io::Write;
@@ -151,25 +152,20 @@ pub struct TrainConfig {
 }
 
 impl TrainConfig {
-    /// The published defaults of a model kind (`"paper"` or `"fast"`) with CPU-sized batches:
-    /// `paper` 1024 rays (4096 in the paper), Adam 5e-4 → 5e-5 over 200k steps; `fast`
-    /// batched by samples, 2^15 per step (instant-ngp: 2^18 on a GPU; on 2 CPU cores more,
-    /// smaller steps learn faster in minutes; the first step 256 rays), Adam
-    /// 1e-2 → 1e-3 over 5k steps (CPU runs are short), β = (0.9, 0.99), ε = 1e-15, and a random
-    /// background behind transparent pixels (instant-ngp; without it the few-view CPU runs
-    /// learn translucent objects: +4 dB test PSNR on the quick tabletop after 60 s).
+    /// The published defaults of a model kind ([`ModelConfig::names`]) with its training preset
+    /// ([`crate::models::ModelKind::preset`]).
     ///
     /// `"auto"` is the `fast` preset whose model is sized from the dataset when the trainer
     /// starts ([`crate::auto`]).
     pub fn preset(kind: &str, dataset: PathBuf) -> Result<Self, String> {
-        match kind {
-            "auto" => Ok(Self::preset("fast", dataset)?.with_auto(Some(AutoConfig::new()))),
-            "paper" => Ok(TrainConfig::new(dataset, ModelConfig::Paper(PaperConfig::new()), 1024, 5e-4, 5e-5, 200_000)),
-            "fast" => Ok(TrainConfig::new(dataset, ModelConfig::Fast(FastConfig::new()), 256, 1e-2, 1e-3, 5_000)
-                .with_batch_samples(Some(1 << 15))
-                .with_background(Background::Random)),
-            other => Err(format!("unknown model '{other}' (paper, fast or auto)")),
+        if kind == "auto" {
+            return Ok(Self::preset("fast", dataset)?.with_auto(Some(AutoConfig::new())));
         }
+        let model = ModelConfig::named(kind).ok_or_else(|| format!("unknown model '{kind}' ({} or auto)", ModelConfig::names().join(", ")))?;
+        let p = model.kind().preset();
+        Ok(TrainConfig::new(dataset, model, p.batch_rays, p.lr_init, p.lr_final, p.lr_decay_steps)
+            .with_batch_samples(p.batch_samples)
+            .with_background(p.background))
     }
 
     /// The model's name as chosen: `"auto"` for an auto-sized run, else the model kind.
@@ -253,18 +249,6 @@ impl TrainConfig {
             b.check()?;
         }
         self.model.check()?;
-        if let ModelConfig::Fast(f) = &self.model {
-            if let Some(w) = f.distortion_weight
-                && !(w.is_finite() && w >= 0.0)
-            {
-                return Err(format!("model.distortion_weight must be a finite number ≥ 0, not {w}"));
-            }
-            if let Some(k) = f.distortion_mixed_footprints
-                && !(k.is_finite() && k > 0.0)
-            {
-                return Err(format!("model.distortion_mixed_footprints must be a positive number of pixel footprints, not {k}"));
-            }
-        }
         Ok(())
     }
 
@@ -475,12 +459,11 @@ impl Trainer {
         let mut data = TrainData::load(&ds.train, config.downscale, config.background, false)?;
         apply_auto(&mut config, &ds, &mut data).map_err(TrainError::Invalid)?;
         // Mixed-pixel masks, unless a fresh `auto` run's resolve built them already.
-        if let ModelConfig::Fast(f) = &config.model
-            && let (Some(_), Some(k)) = (f.distortion_weight.filter(|w| *w > 0.0), f.distortion_mixed_footprints)
+        if let Some(k) = config.model.kind().mixed_pixel_footprints()
             && !data.has_mixed()
         {
             let depths = crate::data::frame_depths(&ds.train, config.downscale)?;
-            data.set_mixed(data.mixed_masks(depths.as_deref(), k as f64))?;
+            data.set_mixed(data.mixed_masks(depths.as_deref(), k))?;
         }
         if config.bounds.is_none() {
             let cams: Vec<_> = ds.train.iter().map(|f| f.camera).collect();
@@ -584,10 +567,7 @@ impl Trainer {
     pub fn step_once(&mut self) -> StepStats {
         let t0 = Instant::now();
         let lr = self.config.lr(self.step);
-        match &mut self.model {
-            Model::Paper(m) => m.lr = lr,
-            Model::Fast(m) => m.lr = lr,
-        }
+        self.model.set_lr(lr);
         let rays = self.config.rays_for(self.samples_per_ray);
         let batch = self.data.batch(self.config.seed, self.step, rays);
         let batch_s = t0.elapsed().as_secs_f64();
@@ -826,8 +806,8 @@ impl Trainer {
         );
         let switch = !vd && matches!(&self.config.model, ModelConfig::Fast(f) if f.is_view_dependent());
         if switch {
-            if let Model::Fast(m) = &self.model {
-                self.model = Model::Fast(Box::new(m.without_view_dependence().map_err(TrainError::Invalid)?));
+            if let Some(m) = self.model.downcast_ref::<FastModel>() {
+                self.model = Box::new(m.without_view_dependence().map_err(TrainError::Invalid)?);
             }
             if let ModelConfig::Fast(f) = &mut self.config.model {
                 f.view_dependent = Some(false);

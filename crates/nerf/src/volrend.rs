@@ -2,66 +2,39 @@
 //! density activations the fields use (nerfacc's `volrend.py`, in plain Rust over slices).
 //!
 //! # Layout
-//! A batch holds `n_rays` rays; ray `r` owns the samples `offsets[r]..offsets[r + 1]`
-//! (`offsets[0] == 0`, `offsets[n_rays] == n_samples`, non-decreasing). A ray may own no
-//! sample at all. Per sample: the density `sigma` (after activation, ≥ 0), the colour `rgb`
-//! (in [0, 1]) and the interval `[t_start, t_end]` along the ray (`delta = t_end − t_start`).
+//! Ray `r` owns the samples `offsets[r]..offsets[r + 1]` (`offsets[0] == 0`, non-decreasing,
+//! last = `n_samples`; a ray may own none). Per sample: the density `sigma` (after activation,
+//! ≥ 0), the colour `rgb` (in [0, 1]) and the interval `[t_start, t_end]` (`delta` its length).
 //!
 //! # Formula
-//! With the optical thickness `x_i = sigma_i · delta_i`:
-//!
 //! ```text
-//! alpha_i   = 1 − exp(−x_i)
-//! T_i       = exp(−Σ_{j<i} x_j)          (exclusive cumulative sum, never Π (1 − alpha_j))
-//! w_i       = T_i · alpha_i
-//! opacity   = Σ_i w_i
-//! colour    = Σ_i w_i c_i + T_N · background      (T_N = exp(−Σ_i x_i) = 1 − opacity)
-//! s_i       = t_start_i + delta_i · (1/x_i − 1/(e^{x_i} − 1))
-//! distance  = Σ_i w_i · s_i                 (NOT normalised by the opacity)
+//! x_i = sigma_i · delta_i,   alpha_i = 1 − exp(−x_i),   T_i = exp(−Σ_{j<i} x_j),   w_i = T_i · alpha_i
+//! opacity  = Σ_i w_i
+//! colour   = Σ_i w_i c_i + T_N · background      (T_N = exp(−Σ_i x_i) = 1 − opacity)
+//! s_i      = t_start_i + delta_i · (1/x_i − 1/(e^{x_i} − 1))
+//! distance = Σ_i w_i · s_i                 (NOT normalised by the opacity)
 //! ```
-//!
-//! `distance` is the expected distance at which the ray terminates, with the background
-//! counted as distance 0 (what the ground truth stores for a pixel that hits nothing);
-//! [`normalized_distance`] gives `distance / max(opacity, eps)` instead. The evaluation's
-//! z-depth is `distance` times the ray's z-factor (`dot(dir, camera −Z) / |dir|`), which the
-//! caller multiplies.
-//!
-//! `s_i` ([`termination_distance`]) is where the ray terminates on average given that it
-//! terminates in interval `i`, under the same piecewise-constant density that gives `alpha_i`:
-//! the mean of an exponential distribution of rate `sigma_i` truncated to the interval. It is
-//! the midpoint for a transparent interval (`x → 0`) and `t_start + 1/sigma` for an opaque one.
-//! The interval midpoint, which nerfacc and nerfstudio use, puts every opaque surface on
-//! average half a step behind the point where its density begins (the field is evaluated at
-//! midpoints, so a density rising at `z` is first seen by the interval whose midpoint lies
-//! in `[z, z + delta)`, which starts in `[z − delta/2, z + delta/2)`).
+//! `T_i` is an exclusive cumulative sum, never `Π (1 − alpha_j)`. `distance` counts the
+//! background as distance 0 (as the ground truth does); [`normalized_distance`] divides by the
+//! opacity, and the caller multiplies by the ray's z-factor for z-depth. `s_i`
+//! ([`termination_distance`]) is the mean termination distance within interval `i` under its
+//! constant density (the midpoint when transparent, `t_start + 1/sigma` when opaque), so an
+//! opaque surface is not placed half a step behind where its density begins.
 //!
 //! # Worked example
-//! One ray with two samples, `sigma = [1, 2]`, intervals `[1, 1.5]` and `[1.5, 2]`, colours
-//! red and green, black background:
+//! One ray, `sigma = [1, 2]`, intervals `[1, 1.5]`, `[1.5, 2]`, red then green, black background:
+//! `x = [0.5, 1]`, `w = [0.393469, 0.383400]`, `s = [1.229253, 1.709012]`,
+//! `opacity = 0.776870`, `colour = (0.393469, 0.383400, 0)`, `distance = 1.138909`.
 //!
-//! ```text
-//! x       = [0.5, 1.0]
-//! alpha   = [1 − e^−0.5, 1 − e^−1]   = [0.393469, 0.632121]
-//! T       = [1, e^−0.5]              = [1, 0.606531]
-//! w       = [0.393469, 0.383400]
-//! s       = [1 + 0.5 (2 − 1/(e^0.5 − 1)), 1.5 + 0.5 (1 − 1/(e − 1))] = [1.229253, 1.709012]
-//! opacity = 0.776870,  colour = (0.393469, 0.383400, 0),  distance = 1.138909
-//! ```
-//!
-//! # Robustness (defined behaviour for bad inputs)
-//! - A NaN or negative `sigma` is treated as the constant density 0 (its gradient is 0; at
-//!   exactly 0 the gradient is the one-sided derivative); `+inf` and
-//!   densities above [`SIGMA_MAX`] are clamped to it; `x_i` is clamped to [`SIGMA_MAX`].
-//! - A NaN or negative `delta` (`t_end < t_start`) is treated as 0.
-//! - A NaN colour channel, `t_start`, `t_end` or background channel is treated as 0.
-//! - Every NaN met is counted in [`CompositeOutput::n_nan`] (one per sample or background
-//!   holding at least one NaN), so the caller can log or fail.
-//! - Outputs and gradients are finite for densities 0 … 1e30, intervals 0 … 1e30 and any
-//!   number of samples per ray, including none (colour = background, opacity 0).
+//! # Robustness
+//! A NaN or negative `sigma` counts as 0 (gradient 0); `+inf` and values above [`SIGMA_MAX`]
+//! are clamped to it, as is `x_i`. A NaN or negative `delta` counts as 0; a NaN colour,
+//! `t_start`, `t_end` or background channel counts as 0. Each sample or background holding a
+//! NaN is counted in [`CompositeOutput::n_nan`]. Outputs and gradients are finite for densities
+//! and intervals 0 … 1e30 and any number of samples per ray.
 //!
 //! # Determinism
-//! Rays are independent and each is processed sequentially by one thread, so results are
-//! bit-identical whatever the number of rayon threads.
+//! Each ray is processed sequentially by one thread: bit-identical for any thread count.
 
 use rayon::prelude::*;
 
@@ -71,6 +44,45 @@ pub const SIGMA_MAX: f32 = 1e30;
 
 /// Rays per rayon task.
 const RAY_BLOCK: usize = 64;
+
+/// One batch of samples to composite (see the module doc's layout).
+///
+/// # Shapes
+/// - `offsets`: `[n_rays + 1]`
+/// - `sigma`, `t_start`, `t_end`: `[n_samples]`; `rgb`: `[n_samples]`
+/// - `background`: `[n_rays]`
+#[derive(Clone, Copy, Debug)]
+pub struct CompositeInputs<'a> {
+    /// Ray `r` owns the samples `offsets[r]..offsets[r + 1]`.
+    pub offsets: &'a [u32],
+    /// Density after activation.
+    pub sigma: &'a [f32],
+    /// Colour in [0, 1].
+    pub rgb: &'a [[f32; 3]],
+    /// Interval start along the ray.
+    pub t_start: &'a [f32],
+    /// Interval end along the ray.
+    pub t_end: &'a [f32],
+    /// Background colour per ray.
+    pub background: &'a [[f32; 3]],
+}
+
+/// Gradients of the loss with respect to [`composite_forward`]'s outputs, for
+/// [`composite_backward`].
+///
+/// # Shapes
+/// `d_rgb`, `d_opacity`, `d_distance`: `[n_rays]`; `d_weights`: `[n_samples]`.
+#[derive(Clone, Copy, Debug)]
+pub struct OutputGrads<'a> {
+    /// ∂L/∂colour per ray.
+    pub d_rgb: &'a [[f32; 3]],
+    /// ∂L/∂opacity per ray.
+    pub d_opacity: &'a [f32],
+    /// ∂L/∂distance per ray.
+    pub d_distance: &'a [f32],
+    /// ∂L/∂w_i where the loss depends on the weights directly, else `None`.
+    pub d_weights: Option<&'a [f32]>,
+}
 
 /// Options of [`composite_forward_with`].
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -231,35 +243,15 @@ fn split_blocks<'a, T>(mut data: &'a mut [T], offsets: &[u32]) -> Vec<&'a mut [T
 /// Composites every ray exactly ([`CompositeOptions::EXACT`]); see the module doc for the
 /// formula and a worked example.
 ///
-/// # Shapes
-/// - `offsets`: `[n_rays + 1]`
-/// - `sigma`, `t_start`, `t_end`: `[n_samples]`; `rgb`: `[n_samples]`
-/// - `background`: `[n_rays]`
-///
 /// # Panics
 /// If the shapes disagree or `offsets` is not a valid ragged layout.
-pub fn composite_forward(
-    offsets: &[u32],
-    sigma: &[f32],
-    rgb: &[[f32; 3]],
-    t_start: &[f32],
-    t_end: &[f32],
-    background: &[[f32; 3]],
-) -> CompositeOutput {
-    composite_forward_with(offsets, sigma, rgb, t_start, t_end, background, CompositeOptions::EXACT)
+pub fn composite_forward(inputs: &CompositeInputs) -> CompositeOutput {
+    composite_forward_with(inputs, CompositeOptions::EXACT)
 }
 
 /// [`composite_forward`] with options (early termination for inference).
-#[allow(clippy::too_many_arguments)]
-pub fn composite_forward_with(
-    offsets: &[u32],
-    sigma: &[f32],
-    rgb: &[[f32; 3]],
-    t_start: &[f32],
-    t_end: &[f32],
-    background: &[[f32; 3]],
-    options: CompositeOptions,
-) -> CompositeOutput {
+pub fn composite_forward_with(inputs: &CompositeInputs, options: CompositeOptions) -> CompositeOutput {
+    let CompositeInputs { offsets, sigma, rgb, t_start, t_end, background } = *inputs;
     let n = sigma.len();
     assert!(rgb.len() == n && t_start.len() == n && t_end.len() == n, "per-sample lengths differ");
     let n_rays = check_layout(offsets, n, background.len());
@@ -321,7 +313,7 @@ pub fn composite_forward_with(
 
 /// Exact gradients of a scalar loss `L` through [`composite_forward`].
 ///
-/// With `g_i = dL/dw_i = d_rgb·(c_i − background) + d_opacity + d_distance · s_i`
+/// With `g_i = dL/dw_i = d_rgb·(c_i − background) + d_opacity + d_distance · s_i + d_weights_i`
 /// (`s_i = t_start_i + delta_i f(x_i)`, `f(x) = 1/x − 1/(eˣ − 1)`, see the module doc):
 ///
 /// ```text
@@ -339,41 +331,11 @@ pub fn composite_forward_with(
 /// Worked example (the module's two-sample ray, `d_opacity = 1`, others 0): `g = [1, 1]`,
 /// `dL/dsigma = [0.5 (0.606531 − 0.383400), 0.5 · 0.223130] = [0.111565, 0.111565]`.
 ///
-/// # Shapes
-/// As [`composite_forward`]; `d_rgb`, `d_opacity`, `d_distance`: `[n_rays]`.
-#[allow(clippy::too_many_arguments)]
-pub fn composite_backward(
-    offsets: &[u32],
-    sigma: &[f32],
-    rgb: &[[f32; 3]],
-    t_start: &[f32],
-    t_end: &[f32],
-    background: &[[f32; 3]],
-    out: &CompositeOutput,
-    d_rgb: &[[f32; 3]],
-    d_opacity: &[f32],
-    d_distance: &[f32],
-) -> CompositeGrads {
-    composite_backward_with_weights(offsets, sigma, rgb, t_start, t_end, background, out, d_rgb, d_opacity, d_distance, None)
-}
-
-/// [`composite_backward`] for a loss that also depends on the weights directly (e.g.
-/// [`distortion`]): `d_weights[i] = ∂L/∂w_i` (`[n_samples]`) is added to the `g_i` of the
-/// formula above (every term of `g` is `∂L/∂w_i`).
-#[allow(clippy::too_many_arguments)]
-pub fn composite_backward_with_weights(
-    offsets: &[u32],
-    sigma: &[f32],
-    rgb: &[[f32; 3]],
-    t_start: &[f32],
-    t_end: &[f32],
-    background: &[[f32; 3]],
-    out: &CompositeOutput,
-    d_rgb: &[[f32; 3]],
-    d_opacity: &[f32],
-    d_distance: &[f32],
-    d_weights: Option<&[f32]>,
-) -> CompositeGrads {
+/// `d_weights` ([`OutputGrads`]) is for a loss that also depends on the weights directly (e.g.
+/// [`distortion`]): every term of `g` is `∂L/∂w_i`.
+pub fn composite_backward(inputs: &CompositeInputs, out: &CompositeOutput, d: &OutputGrads) -> CompositeGrads {
+    let CompositeInputs { offsets, sigma, rgb, t_start, t_end, background } = *inputs;
+    let OutputGrads { d_rgb, d_opacity, d_distance, d_weights } = *d;
     let n = sigma.len();
     if let Some(dw) = d_weights {
         assert_eq!(dw.len(), n, "d_weights length differs");
@@ -456,7 +418,7 @@ pub fn composite_backward_with_weights(
 /// gives them; the intervals may have gaps); both sums take O(n) per ray with prefix sums in
 /// `f64`. `d_loss[r]` scales ray `r`'s gradient (e.g. `λ / n_rays` for a mean); returns the
 /// per-ray losses and `∂(Σ_r d_loss[r] L_r)/∂w` (`[n_samples]`), for
-/// [`composite_backward_with_weights`]. NaN inputs count as 0.
+/// [`composite_backward`]'s `d_weights`. NaN inputs count as 0.
 ///
 /// Example: one ray, weights `[0.5, 0.5]`, intervals `[0, 1]` and `[2, 3]`, scale 1:
 /// `L = 2 · 0.25 · 2 + (0.25 + 0.25) / 3 = 1.166667`, `∂L/∂w = [2 + 1/3, 2 + 1/3]`.
@@ -561,6 +523,12 @@ mod tests {
         bg: Vec<[f32; 3]>,
     }
 
+    impl Batch {
+        fn inputs(&self) -> CompositeInputs<'_> {
+            CompositeInputs { offsets: &self.offsets, sigma: &self.sigma, rgb: &self.rgb, t_start: &self.t0, t_end: &self.t1, background: &self.bg }
+        }
+    }
+
     fn batch(counts: &[usize], seed: u64, sigma_scale: f64) -> Batch {
         let mut b = Batch { offsets: vec![0], sigma: vec![], rgb: vec![], t0: vec![], t1: vec![], bg: vec![] };
         let mut c = seed * 1_000_000;
@@ -651,12 +619,12 @@ mod tests {
     }
 
     fn forward(b: &Batch) -> CompositeOutput {
-        composite_forward(&b.offsets, &b.sigma, &b.rgb, &b.t0, &b.t1, &b.bg)
+        composite_forward(&b.inputs())
     }
 
     #[test]
     fn worked_example() {
-        let out = composite_forward(&[0, 2], &[1.0, 2.0], &[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], &[1.0, 1.5], &[1.5, 2.0], &[[0.0; 3]]);
+        let out = composite_forward(&CompositeInputs { offsets: &[0, 2], sigma: &[1.0, 2.0], rgb: &[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], t_start: &[1.0, 1.5], t_end: &[1.5, 2.0], background: &[[0.0; 3]] });
         let close = |a: f32, b: f32| assert!((a - b).abs() < 1e-6, "{a} vs {b}");
         close(out.weights[0], 0.393469);
         close(out.weights[1], 0.383400);
@@ -666,7 +634,7 @@ mod tests {
         close(out.distance[0], 1.138909);
         close(normalized_distance(out.distance[0], out.opacity[0], 1e-6), 1.466_023);
         close(termination_distance(2.0, 1.5, 2.0), 1.709012);
-        let g = composite_backward(&[0, 2], &[1.0, 2.0], &[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], &[1.0, 1.5], &[1.5, 2.0], &[[0.0; 3]], &out, &[[0.0; 3]], &[1.0], &[0.0]);
+        let g = composite_backward(&CompositeInputs { offsets: &[0, 2], sigma: &[1.0, 2.0], rgb: &[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], t_start: &[1.0, 1.5], t_end: &[1.5, 2.0], background: &[[0.0; 3]] }, &out, &OutputGrads { d_rgb: &[[0.0; 3]], d_opacity: &[1.0], d_distance: &[0.0], d_weights: None });
         close(g.d_sigma[0], 0.111565);
         close(g.d_sigma[1], 0.111565);
     }
@@ -746,7 +714,7 @@ mod tests {
             }
             let lc = loss_coeffs(counts.len());
             let out = forward(&b);
-            let g = composite_backward(&b.offsets, &b.sigma, &b.rgb, &b.t0, &b.t1, &b.bg, &out, &lc.0, &lc.1, &lc.2);
+            let g = composite_backward(&b.inputs(), &out, &OutputGrads { d_rgb: &lc.0, d_opacity: &lc.1, d_distance: &lc.2, d_weights: None });
             let (sigma, rgb, bg) = to64(&b);
             let h = 1e-6;
             for i in 0..sigma.len() {
@@ -822,7 +790,7 @@ mod tests {
     #[test]
     fn distortion_gradient_reaches_densities_exactly() {
         // L = Σ_r c_r L_dist(w(σ)) + the colour/opacity/distance terms: d/dσ through
-        // `composite_backward_with_weights` against finite differences of the f64 references.
+        // `composite_backward` with `d_weights` against finite differences of the f64 references.
         let counts = [0usize, 1, 3, 9, 30];
         for (seed, scale) in [(11u64, 1.0f64), (12, 15.0)] {
             let b = batch(&counts, seed, scale);
@@ -831,7 +799,7 @@ mod tests {
             let ds = 0.8f32;
             let out = forward(&b);
             let (_, dw) = distortion(&b.offsets, &out.weights, &b.t0, &b.t1, ds, &c);
-            let g = composite_backward_with_weights(&b.offsets, &b.sigma, &b.rgb, &b.t0, &b.t1, &b.bg, &out, &lc.0, &lc.1, &lc.2, Some(&dw));
+            let g = composite_backward(&b.inputs(), &out, &OutputGrads { d_rgb: &lc.0, d_opacity: &lc.1, d_distance: &lc.2, d_weights: Some(&dw) });
             let (sigma, rgb, bg) = to64(&b);
             let total = |s: &[f64]| {
                 let w = reference(&b, s, &rgb, &bg).weights;
@@ -873,9 +841,9 @@ mod tests {
         let n_rays = offsets.len() - 1;
         let rgb = vec![[0.3, 0.6, 0.9]; sigma.len()];
         let bg = vec![[1.0; 3]; n_rays];
-        let out = composite_forward(&offsets, &sigma, &rgb, &t0, &t1, &bg);
+        let out = composite_forward(&CompositeInputs { offsets: &offsets, sigma: &sigma, rgb: &rgb, t_start: &t0, t_end: &t1, background: &bg });
         let ones = vec![1.0f32; n_rays];
-        let g = composite_backward(&offsets, &sigma, &rgb, &t0, &t1, &bg, &out, &vec![[1.0; 3]; n_rays], &ones, &ones);
+        let g = composite_backward(&CompositeInputs { offsets: &offsets, sigma: &sigma, rgb: &rgb, t_start: &t0, t_end: &t1, background: &bg }, &out, &OutputGrads { d_rgb: &vec![[1.0; 3]; n_rays], d_opacity: &ones, d_distance: &ones, d_weights: None });
         assert!(out.rgb.iter().flatten().all(|v| v.is_finite()));
         assert!(out.opacity.iter().all(|v| v.is_finite() && (0.0..=1.0 + 1e-5).contains(v)));
         assert!(out.distance.iter().all(|v| v.is_finite()));
@@ -895,14 +863,14 @@ mod tests {
         let t0 = [0.0, 1.0, 2.0];
         let t1 = [1.0, 2.0, 3.0];
         let bg = [[0.0; 3], [nan, 0.0, 0.0]];
-        let out = composite_forward(&offsets, &sigma, &rgb, &t0, &t1, &bg);
+        let out = composite_forward(&CompositeInputs { offsets: &offsets, sigma: &sigma, rgb: &rgb, t_start: &t0, t_end: &t1, background: &bg });
         assert_eq!(out.n_nan, 3);
         // the NaN density behaves as density 0
-        let clean = composite_forward(&offsets, &[1.0, 0.0, 2.0], &[[0.5, 0.0, 0.5], [1.0; 3], [0.2; 3]], &t0, &t1, &[[0.0; 3]; 2]);
+        let clean = composite_forward(&CompositeInputs { offsets: &offsets, sigma: &[1.0, 0.0, 2.0], rgb: &[[0.5, 0.0, 0.5], [1.0; 3], [0.2; 3]], t_start: &t0, t_end: &t1, background: &[[0.0; 3]; 2] });
         assert_eq!(out.rgb, clean.rgb);
         assert_eq!(out.weights, clean.weights);
         let ones = [1.0f32; 2];
-        let g = composite_backward(&offsets, &sigma, &rgb, &t0, &t1, &bg, &out, &[[1.0; 3]; 2], &ones, &ones);
+        let g = composite_backward(&CompositeInputs { offsets: &offsets, sigma: &sigma, rgb: &rgb, t_start: &t0, t_end: &t1, background: &bg }, &out, &OutputGrads { d_rgb: &[[1.0; 3]; 2], d_opacity: &ones, d_distance: &ones, d_weights: None });
         assert_eq!(g.d_sigma[1], 0.0);
         assert!(g.d_sigma.iter().chain(g.d_rgb.iter().flatten()).all(|v| v.is_finite()));
     }
@@ -912,7 +880,7 @@ mod tests {
         let counts = vec![300usize; 64];
         let b = batch(&counts, 9, 40.0);
         let exact = forward(&b);
-        let fast = composite_forward_with(&b.offsets, &b.sigma, &b.rgb, &b.t0, &b.t1, &b.bg, CompositeOptions::INFERENCE);
+        let fast = composite_forward_with(&b.inputs(), CompositeOptions::INFERENCE);
         let mut stopped = 0;
         for r in 0..counts.len() {
             for ch in 0..3 {
@@ -932,7 +900,7 @@ mod tests {
             let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
             pool.install(|| {
                 let o = forward(&b);
-                let g = composite_backward(&b.offsets, &b.sigma, &b.rgb, &b.t0, &b.t1, &b.bg, &o, &lc.0, &lc.1, &lc.2);
+                let g = composite_backward(&b.inputs(), &o, &OutputGrads { d_rgb: &lc.0, d_opacity: &lc.1, d_distance: &lc.2, d_weights: None });
                 (o, g)
             })
         };
@@ -978,7 +946,7 @@ mod tests {
             let t0 = std::time::Instant::now();
             let o = forward(&b);
             let t1 = std::time::Instant::now();
-            let g = composite_backward(&b.offsets, &b.sigma, &b.rgb, &b.t0, &b.t1, &b.bg, &o, &lc.0, &lc.1, &lc.2);
+            let g = composite_backward(&b.inputs(), &o, &OutputGrads { d_rgb: &lc.0, d_opacity: &lc.1, d_distance: &lc.2, d_weights: None });
             let t2 = std::time::Instant::now();
             assert!(g.d_sigma.iter().all(|v| v.is_finite()));
             best.0 = best.0.min((t1 - t0).as_secs_f64());

@@ -4,7 +4,8 @@
 
 use burn::module::Module;
 use burn::tensor::Tensor;
-use nerf::field::{NerfField, NerfFieldConfig, param_vectors, seeded_init, tensor2, to_vec};
+use nerf::field::{NerfField, NerfFieldConfig};
+use nerf::kernels::{param_vectors, seeded_init, tensor2, to_vec};
 use nerf::encoding::frequency_encode;
 use nerf::models::ops::{self, DensityActivation};
 use nerf::sampling::{RaySamples, SampleMode, stratified};
@@ -30,7 +31,7 @@ fn loss_of(s: &Setup, raw: &[f32], rgb: &[f32]) -> (f64, Vec<f32>, Vec<f32>) {
     let sigma: Vec<f32> = raw.iter().map(|x| ACT.forward(*x)).collect();
     let rgb3 = ops::rgb3(rgb);
     let sm = &s.samples;
-    let comp = volrend::composite_forward(&sm.offsets, &sigma, &rgb3, &sm.t_start, &sm.t_end, &s.bg);
+    let comp = volrend::composite_forward(&volrend::CompositeInputs { offsets: &sm.offsets, sigma: &sigma, rgb: &rgb3, t_start: &sm.t_start, t_end: &sm.t_end, background: &s.bg });
     let n = (comp.rgb.len() * 3) as f64;
     let mut loss = 0.0;
     let mut g = Vec::new();
@@ -44,7 +45,7 @@ fn loss_of(s: &Setup, raw: &[f32], rgb: &[f32]) -> (f64, Vec<f32>, Vec<f32>) {
         g.push(gg);
     }
     let zeros = vec![0.0; g.len()];
-    let gr = volrend::composite_backward(&sm.offsets, &sigma, &rgb3, &sm.t_start, &sm.t_end, &s.bg, &comp, &g, &zeros, &zeros);
+    let gr = volrend::composite_backward(&volrend::CompositeInputs { offsets: &sm.offsets, sigma: &sigma, rgb: &rgb3, t_start: &sm.t_start, t_end: &sm.t_end, background: &s.bg }, &comp, &volrend::OutputGrads { d_rgb: &g, d_opacity: &zeros, d_distance: &zeros, d_weights: None });
     let draw = gr.d_sigma.iter().zip(raw).map(|(d, x)| ACT.backward(*x, *d)).collect();
     (loss, draw, gr.d_rgb.into_iter().flatten().collect())
 }
@@ -88,7 +89,7 @@ fn surrogate_gradient_matches_finite_differences() {
     ];
 
     let full_loss = |values: &[Vec<f32>]| {
-        let m = nerf::field::load_param_vectors(cfg.init(&plain), values).unwrap();
+        let m = nerf::kernels::load_param_vectors(cfg.init(&plain), values).unwrap();
         let (r, c) = outputs(&s, &m.valid(), &plain);
         loss_of(&s, &to_vec(r), &to_vec(c)).0
     };

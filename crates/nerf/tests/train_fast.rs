@@ -68,7 +68,7 @@ fn fast_training_is_bit_identical_across_thread_counts() {
 #[test]
 fn distortion_loss_skips_mixed_pixels() {
     use nerf::data::{Background, SceneBounds, TrainData};
-    use nerf::models::fast::FastModel;
+    use nerf::models::{NerfModel, fast::FastModel};
     let (_tmp, data) = synthetic_dataset(32, [6, 1, 1]);
     let ds = nerf::data::load_dataset(&data).unwrap();
     let train = TrainData::load(&ds.train, 1, Background::White, false).unwrap();

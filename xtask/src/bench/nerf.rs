@@ -17,7 +17,7 @@
 
 use anyhow::Context;
 use dataset::{Camera, Intrinsics};
-use nerf::models::Model;
+use nerf::models::{Model, NerfModel};
 use nerf::train::{TrainConfig, Trainer};
 use std::path::PathBuf;
 use std::time::Instant;
@@ -284,8 +284,8 @@ pub fn run(args: NerfBenchArgs) -> anyhow::Result<()> {
             100.0 * flops / tm.mlp / 1e9 / peak,
             t.model.parameters(),
         );
-        match &t.model {
-            nerf::models::Model::Fast(m) => {
+        match t.model.downcast_ref::<nerf::models::fast::FastModel>() {
+            Some(m) => {
                 let n = steps as f64;
                 let avg = nerf::roofline::StepCounts { marched: counts.marched / n, encoded: counts.encoded / n, trained: counts.trained / n, touched: counts.touched / n };
                 let work = nerf::roofline::StepWork::of(&m.config, m.parameters() - m.grid.params.len(), avg);
@@ -307,7 +307,7 @@ pub fn run(args: NerfBenchArgs) -> anyhow::Result<()> {
                 json.trained_per_ray = counts.trained / rays;
                 json.ms_per_step = per(wall);
             }
-            nerf::models::Model::Paper(_) => {
+            None => {
                 json.paper = Some(ModelLine { rays_per_s: rays / wall, samples_per_s: samples as f64 / wall, ms_per_step: per(wall), mlp_gflops: flops / tm.mlp / 1e9 });
             }
         }

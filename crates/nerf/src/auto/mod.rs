@@ -18,7 +18,7 @@
 
 use crate::data::{ALPHA_EDGE, SceneBounds, TrainData};
 use crate::models::fast::FastConfig;
-use crate::models::ops::{stream, uniform};
+use crate::kernels::{stream, uniform};
 use burn::config::Config;
 use dataset::{Camera, Dataset, SceneFacts};
 use glam::DVec3;

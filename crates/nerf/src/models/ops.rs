@@ -1,45 +1,11 @@
-//! Model glue over the shared kernels: the random streams the trainer and models key their
-//! counter-based numbers with, and the density activation a model config chooses.
+//! Model glue over the shared kernels: the density activation a model config chooses and
+//! per-sample views of per-ray inputs.
 //!
 //! The kernels themselves live in one place each: volume rendering in [`crate::volrend`],
 //! encodings in [`crate::encoding`], samplers and the RNG in [`crate::sampling`], the occupancy
-//! grid in [`crate::occupancy`].
+//! grid in [`crate::occupancy`], the random streams and parameter plumbing in [`crate::kernels`].
 
-use crate::sampling::rng;
 use crate::volrend;
-
-/// A uniform number in [0, 1) that depends only on `(seed, stream, a, b)`
-/// ([`rng::key`] of the four counters).
-#[inline]
-pub fn uniform(seed: u64, stream: u64, a: u64, b: u64) -> f32 {
-    rng::uniform_f32(rng::key(&[seed, stream, a, b]))
-}
-
-/// Random streams (the `stream` key of [`uniform`]); the seeds handed to the shared samplers
-/// are `rng::key(&[seed, stream])` so that no two uses share numbers.
-pub mod stream {
-    /// Which training pixel a ray of the batch uses.
-    pub const PIXEL: u64 = 1;
-    /// Stratified jitter along rays.
-    pub const STRATIFIED: u64 = 2;
-    /// Importance-sampling jitter.
-    pub const PDF: u64 = 3;
-    /// Random background colours.
-    pub const BACKGROUND: u64 = 4;
-    /// Occupancy-grid update points.
-    pub const OCCUPANCY: u64 = 5;
-    /// Parameter initialisation.
-    pub const INIT: u64 = 6;
-    /// Validation pixel subset.
-    pub const VAL: u64 = 7;
-    /// Marching start offset.
-    pub const MARCH: u64 = 8;
-}
-
-/// The seed of a shared sampler for one random stream.
-pub fn stream_seed(seed: u64, stream: u64) -> u64 {
-    rng::key(&[seed, stream])
-}
 
 /// Density activation, applied in Rust to the network's raw density output (the functions are
 /// [`volrend`]'s).

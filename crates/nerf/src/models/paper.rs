@@ -8,15 +8,17 @@
 //! Blender scenes already lie in about [−1.5, 1.5]³; ours are in metres at any scale).
 //! Near/far come from [`SceneBounds`] (scene facts, or the cameras plus an assumed radius).
 
-use super::ops::{self, DensityActivation, stream, stream_seed};
+use super::base::{Model, ModelKind, NerfModel, RayOutputs, StepStats, StepTimings, TrainPreset};
+use super::base::{all_finite, check_adam, expected_distance, load_adam, load_params, mse_and_grad, save_adam, save_params};
+use super::ops::{self, DensityActivation};
 use crate::encoding::frequency_encode;
 use crate::sampling::{self, RaySamples, SampleMode};
 use crate::volrend;
-use super::{RayOutputs, StepStats, StepTimings, all_finite, check_adam, expected_distance, mse_and_grad};
 use crate::backend;
 use crate::checkpoint::StateDict;
-use crate::data::{RayBatch, SceneBounds};
-use crate::field::{AdamSettings, MlpAdam, NerfField, NerfFieldConfig, seeded_init, tensor2, to_vec};
+use crate::data::{Background, RayBatch, SceneBounds};
+use crate::field::{AdamSettings, MlpAdam, NerfField, NerfFieldConfig};
+use crate::kernels::{seeded_init, stream, stream_seed, tensor2, to_vec};
 use burn::config::Config;
 use burn::module::Module;
 use burn::optim::GradientsParams;
@@ -79,6 +81,28 @@ impl PaperConfig {
     }
 }
 
+impl ModelKind for PaperConfig {
+    fn name(&self) -> &'static str {
+        "paper"
+    }
+
+    fn check(&self) -> Result<(), String> {
+        PaperConfig::check(self)
+    }
+
+    /// The model's constructor cannot fail, so the settings and bounds are checked here.
+    fn init(&self, bounds: &SceneBounds, seed: u64) -> Result<Model, String> {
+        self.check()?;
+        bounds.check()?;
+        Ok(Box::new(PaperModel::new(self.clone(), bounds.clone(), seed)))
+    }
+
+    /// 1024 rays per step (4096 in the paper), Adam 5e-4 → 5e-5 over 200k steps.
+    fn preset(&self) -> TrainPreset {
+        TrainPreset { batch_rays: 1024, batch_samples: None, lr_init: 5e-4, lr_final: 5e-5, lr_decay_steps: 200_000, background: Background::White }
+    }
+}
+
 /// Coarse and fine networks.
 #[derive(Module, Debug)]
 pub struct PaperNets {
@@ -108,6 +132,9 @@ struct Encoded {
     pos: Vec<f32>,
     dir: Vec<f32>,
 }
+
+/// Rays rendered at a time ([`NerfModel::render_rays`]).
+const RENDER_CHUNK: usize = 1024;
 
 impl PaperModel {
     /// A new model with parameters keyed by `seed`.
@@ -155,27 +182,45 @@ impl PaperModel {
         let act = self.config.density_activation;
         let sigma: Vec<f32> = raw.iter().map(|x| act.forward(*x)).collect();
         let rgb3 = ops::rgb3(rgb);
-        let comp = volrend::composite_forward(&s.offsets, &sigma, &rgb3, &s.t_start, &s.t_end, &batch.background);
+        let inputs = volrend::CompositeInputs { offsets: &s.offsets, sigma: &sigma, rgb: &rgb3, t_start: &s.t_start, t_end: &s.t_end, background: &batch.background };
+        let comp = volrend::composite_forward(&inputs);
         let (mse, d_out) = mse_and_grad(&comp.rgb, &batch.target);
         let zeros = vec![0.0; d_out.len()];
-        let g = volrend::composite_backward(
-            &s.offsets,
-            &sigma,
-            &rgb3,
-            &s.t_start,
-            &s.t_end,
-            &batch.background,
-            &comp,
-            &d_out,
-            &zeros,
-            &zeros,
-        );
+        let g = volrend::composite_backward(&inputs, &comp, &volrend::OutputGrads { d_rgb: &d_out, d_opacity: &zeros, d_distance: &zeros, d_weights: None });
         let d_raw = g.d_sigma.iter().zip(raw).map(|(g, x)| act.backward(*x, *g)).collect();
         (comp, mse, d_raw, g.d_rgb.into_iter().flatten().collect())
     }
 
+
+    /// Renders rays: coarse samples at bin centres, importance samples at fixed quantiles, the
+    /// fine network's result.
+    fn render_chunk(&self, origins: &[[f32; 3]], dirs: &[[f32; 3]], background: [f32; 3]) -> RayOutputs {
+        let act = self.config.density_activation;
+        let nets = self.nets.valid();
+        let dev = backend::inference_device();
+        let rays = origins.len();
+        let (near, far) = self.near_far(rays);
+        let bg = vec![background; rays];
+        let coarse = sampling::stratified(&near, &far, self.config.coarse_samples, SampleMode::Deterministic);
+        let (raw, _) = self.forward(&nets.coarse, self.encode(&coarse, origins, dirs), coarse.len(), &dev);
+        let sig: Vec<f32> = to_vec(raw).iter().map(|x| act.forward(*x)).collect();
+        let zeros = vec![[0.0; 3]; coarse.len()];
+        let comp_c = volrend::composite_forward(&volrend::CompositeInputs { offsets: &coarse.offsets, sigma: &sig, rgb: &zeros, t_start: &coarse.t_start, t_end: &coarse.t_end, background: &bg });
+        let fine = sampling::sample_pdf(&coarse, &comp_c.weights, self.config.fine_samples, SampleMode::Deterministic);
+        let (raw, rgb) = self.forward(&nets.fine, self.encode(&fine, origins, dirs), fine.len(), &dev);
+        let sig: Vec<f32> = to_vec(raw).iter().map(|x| act.forward(*x)).collect();
+        let rgb = ops::rgb3(&to_vec(rgb));
+        let comp = volrend::composite_forward(&volrend::CompositeInputs { offsets: &fine.offsets, sigma: &sig, rgb: &rgb, t_start: &fine.t_start, t_end: &fine.t_end, background: &bg });
+        let distance = comp.distance.iter().zip(&comp.opacity).map(|(d, o)| expected_distance(*d, *o)).collect();
+        let t = sig.iter().zip(fine.t_start.iter().zip(&fine.t_end)).map(|(s, (a, b))| volrend::termination_distance(*s, *a, *b)).collect();
+        RayOutputs { rgb: comp.rgb, opacity: comp.opacity, distance, t, offsets: fine.offsets, w: comp.weights }
+    }
+}
+
+
+impl NerfModel for PaperModel {
     /// One training step.
-    pub fn train_step(&mut self, batch: &RayBatch, step: u64, seed: u64) -> StepStats {
+    fn train_step(&mut self, batch: &RayBatch, step: u64, seed: u64) -> StepStats {
         let mut tm = StepTimings::default();
         let rays = batch.origins.len();
         let (near, far) = self.near_far(rays);
@@ -235,28 +280,25 @@ impl PaperModel {
         stats(false, tm)
     }
 
-    /// Renders rays: coarse samples at bin centres, importance samples at fixed quantiles, the
-    /// fine network's result.
-    pub fn render_rays(&self, origins: &[[f32; 3]], dirs: &[[f32; 3]], background: [f32; 3]) -> RayOutputs {
-        let act = self.config.density_activation;
-        let nets = self.nets.valid();
-        let dev = backend::inference_device();
-        let rays = origins.len();
-        let (near, far) = self.near_far(rays);
-        let bg = vec![background; rays];
-        let coarse = sampling::stratified(&near, &far, self.config.coarse_samples, SampleMode::Deterministic);
-        let (raw, _) = self.forward(&nets.coarse, self.encode(&coarse, origins, dirs), coarse.len(), &dev);
-        let sig: Vec<f32> = to_vec(raw).iter().map(|x| act.forward(*x)).collect();
-        let zeros = vec![[0.0; 3]; coarse.len()];
-        let comp_c = volrend::composite_forward(&coarse.offsets, &sig, &zeros, &coarse.t_start, &coarse.t_end, &bg);
-        let fine = sampling::sample_pdf(&coarse, &comp_c.weights, self.config.fine_samples, SampleMode::Deterministic);
-        let (raw, rgb) = self.forward(&nets.fine, self.encode(&fine, origins, dirs), fine.len(), &dev);
-        let sig: Vec<f32> = to_vec(raw).iter().map(|x| act.forward(*x)).collect();
-        let rgb = ops::rgb3(&to_vec(rgb));
-        let comp = volrend::composite_forward(&fine.offsets, &sig, &rgb, &fine.t_start, &fine.t_end, &bg);
-        let distance = comp.distance.iter().zip(&comp.opacity).map(|(d, o)| expected_distance(*d, *o)).collect();
-        let t = sig.iter().zip(fine.t_start.iter().zip(&fine.t_end)).map(|(s, (a, b))| volrend::termination_distance(*s, *a, *b)).collect();
-        RayOutputs { rgb: comp.rgb, opacity: comp.opacity, distance, t, offsets: fine.offsets, w: comp.weights }
+    fn set_lr(&mut self, lr: f64) {
+        self.lr = lr;
+    }
+
+    /// Renders chunks of [`RENDER_CHUNK`] rays one after another.
+    fn render_rays(&self, origins: &[[f32; 3]], dirs: &[[f32; 3]], background: [f32; 3]) -> RayOutputs {
+        let mut out = RayOutputs::default();
+        for (o, d) in origins.chunks(RENDER_CHUNK).zip(dirs.chunks(RENDER_CHUNK)) {
+            out.append(self.render_chunk(o, d, background));
+        }
+        if out.offsets.is_empty() {
+            out.offsets.push(0);
+        }
+        out
+    }
+
+    /// The fine network's density.
+    fn density(&self, points: &[[f32; 3]]) -> Vec<f32> {
+        self.query(points, &vec![[0.0, 0.0, -1.0]; points.len()]).0
     }
 
     /// Density and display colour of the fine network at world points, each seen along its
@@ -264,7 +306,7 @@ impl PaperModel {
     ///
     /// # Shapes
     /// `points`, `dirs`: n; returns n densities and n colours.
-    pub fn query(&self, points: &[[f32; 3]], dirs: &[[f32; 3]]) -> (Vec<f32>, Vec<[f32; 3]>) {
+    fn query(&self, points: &[[f32; 3]], dirs: &[[f32; 3]]) -> (Vec<f32>, Vec<[f32; 3]>) {
         let act = self.config.density_activation;
         let nets = self.nets.valid();
         let dev = backend::inference_device();
@@ -284,32 +326,36 @@ impl PaperModel {
         (sigma, rgb)
     }
 
+    fn bounds(&self) -> &SceneBounds {
+        &self.bounds
+    }
+
     /// Trainable parameters (coarse + fine).
-    pub fn parameters(&self) -> usize {
+    fn parameters(&self) -> usize {
         self.nets.num_params()
     }
 
-    /// Forward multiply-adds per sample of one network.
-    pub fn macs_per_sample(&self) -> f64 {
-        let f = &self.config.field;
-        let (w, pd, dd) = (f.width as f64, f.pos_dims() as f64, f.dir_dims() as f64);
-        let trunk = pd * w + (f.depth as f64 - 1.0) * w * w + if f.skip > 0 && f.skip < f.depth { pd * w } else { 0.0 };
-        trunk + w + w * w + (w + dd) * f.color_width as f64 + f.color_width as f64 * 3.0
-    }
-
     /// The full state for a checkpoint.
-    pub fn state(&self) -> StateDict {
+    fn state(&self) -> StateDict {
         let mut s = StateDict::default();
-        super::save_params(&mut s, "nets", &self.nets);
-        super::save_adam(&mut s, "nets_adam", &self.adam);
+        save_params(&mut s, "nets", &self.nets);
+        save_adam(&mut s, "nets_adam", &self.adam);
         s
     }
 
     /// Restores [`Self::state`].
-    pub fn load_state(&mut self, s: &StateDict) -> Result<(), String> {
-        self.nets = super::load_params(s, "nets", self.nets.clone())?;
-        let n = crate::field::param_vectors(&self.nets).len();
-        super::load_adam(s, "nets_adam", &mut self.adam, n);
+    fn load_state(&mut self, s: &StateDict) -> Result<(), String> {
+        self.nets = load_params(s, "nets", self.nets.clone())?;
+        let n = crate::kernels::param_vectors(&self.nets).len();
+        load_adam(s, "nets_adam", &mut self.adam, n);
         Ok(())
+    }
+
+    /// Forward multiply-adds per sample of one network.
+    fn macs_per_sample(&self) -> f64 {
+        let f = &self.config.field;
+        let (w, pd, dd) = (f.width as f64, f.pos_dims() as f64, f.dir_dims() as f64);
+        let trunk = pd * w + (f.depth as f64 - 1.0) * w * w + if f.skip > 0 && f.skip < f.depth { pd * w } else { 0.0 };
+        trunk + w + w * w + (w + dd) * f.color_width as f64 + f.color_width as f64 * 3.0
     }
 }

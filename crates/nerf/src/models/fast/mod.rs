@@ -15,226 +15,28 @@
 //! Training rays are compacted as in instant-ngp: a density-only pass finds where each ray
 //! becomes opaque, and only the samples before it are trained on.
 
-use super::ops::{DensityActivation, stream, stream_seed};
-use super::{RayOutputs, StepStats, StepTimings, all_finite, check_adam, expected_distance, mse_and_grad, squared_error_and_grad};
+use super::ops::DensityActivation;
+use super::base::{Model, ModelKind, NerfModel, RayOutputs, StepStats, StepTimings, TrainPreset, all_finite, expected_distance, load_adam, load_params, mse_and_grad, save_adam, save_params, squared_error_and_grad};
 use crate::backend;
 use crate::checkpoint::StateDict;
-use crate::data::{RayBatch, SceneBounds};
-use crate::encoding::hashgrid::{Adam, AdamConfig, BackwardScratch, HashGrid, HashGridConfig};
-use crate::encoding::sh::{sh_encode, sh_output_dim};
-use crate::field::{AdamSettings, HashField, HashFieldConfig, MlpAdam, seeded_init};
+use crate::data::{Background, RayBatch, SceneBounds};
+use crate::encoding::hashgrid::{Adam, AdamConfig, BackwardScratch, HashGrid};
+use crate::encoding::sh::sh_encode;
+use crate::field::{AdamSettings, HashField, MlpAdam};
+use crate::kernels::{seeded_init, stream, stream_seed};
 use crate::mlp::{GroupGrads, HashMlp};
 use crate::occupancy::{MarchOptions, OccupancyBlocks, OccupancyGrid, OccupancyGridConfig};
 use crate::sampling::{Aabb, RaySamples, SampleMode};
 use crate::volrend;
-use burn::config::Config;
 use burn::module::Module;
 use rayon::prelude::*;
 use std::time::Instant;
 
-/// Settings of the fast model.
-#[derive(Config, Debug)]
-pub struct FastConfig {
-    /// Hash levels L.
-    #[config(default = 16)]
-    pub levels: usize,
-    /// Features per level F.
-    #[config(default = 2)]
-    pub features_per_level: usize,
-    /// log2 of the entries per level T.
-    #[config(default = 17)]
-    pub log2_table_size: u32,
-    /// Coarsest grid resolution over the bounding cube.
-    #[config(default = 16)]
-    pub base_resolution: u32,
-    /// Finest grid resolution over the bounding cube (instant-ngp: 2048 × the scene's extent in
-    /// units of its unit cube; 512 suits the 64–400 pixel images used on the CPU: finer levels
-    /// only memorise the few training views).
-    #[config(default = 512)]
-    pub finest_resolution: u32,
-    /// Spherical-harmonics degree of the direction encoding (4 → 16 coefficients).
-    #[config(default = 4)]
-    pub sh_degree: usize,
-    /// Whether the colour network sees the view direction (SH of it); without, colour is a
-    /// function of position only (Lambertian scenes; `--model auto` decides). `None` (and
-    /// configs written before this option) means yes: burn's config files need every
-    /// non-`Option` field, so an `Option` keeps older `config.json` files readable.
-    #[config(default = "None")]
-    pub view_dependent: Option<bool>,
-    /// Hidden width of the density network.
-    #[config(default = 64)]
-    pub density_width: usize,
-    /// Geometry features passed on to the colour network.
-    #[config(default = 16)]
-    pub geo_features: usize,
-    /// Hidden width of the colour network.
-    #[config(default = 64)]
-    pub color_width: usize,
-    /// Hidden layers of the colour network.
-    #[config(default = 2)]
-    pub color_depth: usize,
-    /// Occupancy-grid cells per axis.
-    #[config(default = 64)]
-    pub grid_resolution: usize,
-    /// Marching steps along the bounding cube's diagonal (the step size is diagonal / this;
-    /// instant-ngp: 1024 for 800-pixel images; 512 suits the ≤ 400-pixel images of CPU runs).
-    #[config(default = 512)]
-    pub steps_per_diagonal: usize,
-    /// Most samples per ray.
-    #[config(default = 1024)]
-    pub max_samples_per_ray: usize,
-    /// Cone marching: the step at distance `t` from the camera is `t · cone_angle` (the pixel
-    /// footprint there), at least the constant step above and at most one occupancy cell.
-    /// `None` or 0 (and configs written before this option): the constant step everywhere.
-    #[config(default = "None")]
-    pub cone_angle: Option<f32>,
-    /// Steps between occupancy-grid updates (instant-ngp: 16); the first update is at this step
-    /// (before it every cell is occupied).
-    #[config(default = 16)]
-    pub grid_update_interval: u64,
-    /// Updates before this step refresh every cell, later ones a random quarter of the cells
-    /// plus a quarter of the occupied ones (nerfacc: 256 steps; 64 here: a full refresh of
-    /// 64³ cells costs several CPU steps, and CPU runs are short).
-    #[config(default = 64)]
-    pub grid_warmup_steps: u64,
-    /// A cell is occupied when σ·step_size exceeds this, or the mean of σ·step_size when that
-    /// is lower (nerfacc's `occ_thre`).
-    #[config(default = 0.01)]
-    pub grid_threshold: f32,
-    /// Decay of a cell's running density per update (instant-ngp: 0.95).
-    #[config(default = 0.95)]
-    pub grid_decay: f32,
-    /// Training rays stop once their transmittance, from a density-only pass over the marched
-    /// samples, drops below this (instant-ngp: 1e-4); 0 trains on every marched sample.
-    #[config(default = 1e-4)]
-    pub train_min_transmittance: f32,
-    /// Weight λ of mip-NeRF 360's distortion loss ([`volrend::distortion`], distances
-    /// normalised by `far − near` as there), added to the colour MSE: it pulls each ray's weight
-    /// into one short stretch, against fog and floaters. `None` or 0 (instant-ngp's recipe, and
-    /// configs written before this option): off. mip-NeRF 360 uses 0.01; `--model auto` can turn
-    /// it on for scenes whose surfaces are all opaque (off by default there, see
-    /// [`crate::auto::AutoConfig::distortion_weight`]).
-    #[config(default = "None")]
-    pub distortion_weight: Option<f32>,
-    /// Rays through mixed pixels get no distortion loss ([`crate::data::mixed_pixels`]: partial
-    /// alpha, or surfaces hit in the pixel's 3 × 3 neighbourhood more than this many pixel
-    /// footprints apart in depth). Such a pixel's colour blends surfaces at different depths
-    /// (a wire and what lies behind it), which the one ray through its centre reproduces only
-    /// with its weight split between them; the loss would pull that weight together and the
-    /// blend apart. `None` (and configs written before this option): every ray gets the loss.
-    #[config(default = "None")]
-    pub distortion_mixed_footprints: Option<f32>,
-    /// Precision of the networks' products in training: `None` or `"fp32"` (and configs
-    /// written before this option): fp32 throughout; `"bf16"`: each product's inputs rounded
-    /// to bf16 and summed in fp32, weights and everything else fp32 ([`HashMlp::with_bf16`];
-    /// about twice the networks' rate, on CPUs with AVX512-BF16 only). Rendering and
-    /// evaluation stay fp32.
-    #[config(default = "None")]
-    pub mlp_precision: Option<String>,
-    /// Adam β₁ (instant-ngp 0.9).
-    #[config(default = 0.9)]
-    pub beta1: f32,
-    /// Adam β₂ (instant-ngp 0.99).
-    #[config(default = 0.99)]
-    pub beta2: f32,
-    /// Adam ε (instant-ngp 1e-15).
-    #[config(default = 1e-15)]
-    pub eps: f32,
-}
+mod config;
+#[cfg(test)]
+mod tests;
 
-impl FastConfig {
-    /// Refuses values no model can be built or trained with (each message names the field):
-    /// the hash grid's ranges ([`HashGridConfig::validate`]), SH degree 1..=4, network widths
-    /// 1..=4096 and colour depth 1..=16, the occupancy grid 1..=1024 cells per axis, positive
-    /// marching steps and sample caps, a positive update interval, a threshold ≥ 0, a decay in
-    /// [0, 1], a stopping transmittance in [0, 1), a cone angle ≥ 0, and Adam's β in [0, 1) and
-    /// ε > 0 (all finite).
-    pub fn check(&self) -> Result<(), String> {
-        let bad = |field: &str, rule: &str, value: &dyn std::fmt::Display| Err(format!("model.{field} must be {rule}, not {value}"));
-        self.hash_config().validate().map_err(|e| format!("model: {e}"))?;
-        if !(1..=4).contains(&self.sh_degree) {
-            return bad("sh_degree", "1..=4 (spherical-harmonic bands of the view direction)", &self.sh_degree);
-        }
-        for (field, v) in [("density_width", self.density_width), ("color_width", self.color_width)] {
-            if !(1..=4096).contains(&v) {
-                return bad(field, "1..=4096", &v);
-            }
-        }
-        if !(1..=16).contains(&self.color_depth) {
-            return bad("color_depth", "1..=16", &self.color_depth);
-        }
-        if !(1..=1024).contains(&self.geo_features) {
-            return bad("geo_features", "1..=1024", &self.geo_features);
-        }
-        if !(1..=1024).contains(&self.grid_resolution) {
-            return bad("grid_resolution", "1..=1024", &self.grid_resolution);
-        }
-        if !(1..=1 << 20).contains(&self.steps_per_diagonal) {
-            return bad("steps_per_diagonal", "1..=2^20", &self.steps_per_diagonal);
-        }
-        if !(1..=1 << 16).contains(&self.max_samples_per_ray) {
-            return bad("max_samples_per_ray", "1..=65536", &self.max_samples_per_ray);
-        }
-        if self.grid_update_interval == 0 {
-            return bad("grid_update_interval", "a positive number of steps", &0);
-        }
-        if !(self.grid_threshold.is_finite() && self.grid_threshold >= 0.0) {
-            return bad("grid_threshold", "a finite number ≥ 0", &self.grid_threshold);
-        }
-        if !(0.0..=1.0).contains(&self.grid_decay) {
-            return bad("grid_decay", "in [0, 1]", &self.grid_decay);
-        }
-        if !(0.0..1.0).contains(&self.train_min_transmittance) {
-            return bad("train_min_transmittance", "in [0, 1)", &self.train_min_transmittance);
-        }
-        if let Some(a) = self.cone_angle
-            && !(a.is_finite() && a >= 0.0)
-        {
-            return bad("cone_angle", "a finite angle ≥ 0", &a);
-        }
-        self.bf16_networks()?;
-        check_adam("model", self.beta1, self.beta2, self.eps)
-    }
-
-    /// Whether the networks train in bf16 ([`Self::mlp_precision`]); an unknown precision is
-    /// an error naming the field. (Whether the CPU can is checked when the model is built.)
-    pub fn bf16_networks(&self) -> Result<bool, String> {
-        match self.mlp_precision.as_deref() {
-            None | Some("fp32") => Ok(false),
-            Some("bf16") => Ok(true),
-            Some(other) => Err(format!("model.mlp_precision must be \"fp32\" or \"bf16\", not \"{other}\"")),
-        }
-    }
-
-    fn hash_config(&self) -> HashGridConfig {
-        HashGridConfig {
-            levels: self.levels,
-            features_per_level: self.features_per_level,
-            log2_table_size: self.log2_table_size,
-            base_resolution: self.base_resolution,
-            finest_resolution: self.finest_resolution,
-        }
-    }
-    /// Width of the colour network's direction input: the SH coefficients, or 0 without view
-    /// dependence.
-    pub fn dir_dims(&self) -> usize {
-        if self.is_view_dependent() { sh_output_dim(self.sh_degree) } else { 0 }
-    }
-    /// Whether the colour network sees the view direction ([`Self::view_dependent`]).
-    pub fn is_view_dependent(&self) -> bool {
-        self.view_dependent.unwrap_or(true)
-    }
-    fn field_config(&self) -> HashFieldConfig {
-        HashFieldConfig {
-            encoding_dims: self.levels * self.features_per_level,
-            dir_dims: self.dir_dims(),
-            density_width: self.density_width,
-            geo_features: self.geo_features,
-            color_width: self.color_width,
-            color_depth: self.color_depth,
-        }
-    }
-}
+pub use config::FastConfig;
 
 /// The fast model's state.
 #[derive(Debug)]
@@ -266,14 +68,12 @@ const ACT: DensityActivation = DensityActivation::TruncExp;
 
 /// Samples evaluated per live ray and round at inference, between early-termination checks.
 /// One: a trained surface stops most rays within a sample or two, so longer rounds evaluate
-/// samples behind it (a trained 800x800 tabletop view: 5.3 -> 4.8 samples per ray, 11 % less
-/// time than rounds of 4, same pixels since the composite stops at the same transmittance).
+/// samples behind it (figures in `docs/fast-model.md`).
 const INFERENCE_ROUND: usize = 1;
 /// Samples per ray in the first two rounds of training's marching and compaction
 /// ([`Parts::march_until_opaque`]); later rounds double. Late in training most rays turn
-/// opaque within 4 to 8 samples, so a second round of 8 (doubling at once) marched and encoded
-/// samples behind the surface: on a 5-minute tabletop-std fast run's checkpoint (7,536 rays per
-/// step) 46,848 samples marched per step that way, 42,546 with a second round of 4.
+/// opaque within 4 to 8 samples, so doubling at once marches samples behind the surface
+/// (figures in `docs/fast-model.md`).
 const COMPACTION_FIRST_ROUND: usize = 4;
 
 /// Groups of rays per thread in training's marching and compaction (more than one, so that a
@@ -323,6 +123,34 @@ const COLOR_MIN_WEIGHT: f32 = 1e-5;
 
 /// Rays per rayon task when rendering ([`FastModel::render_rays`]).
 const RENDER_CHUNK: usize = 1024;
+
+impl ModelKind for FastConfig {
+    fn name(&self) -> &'static str {
+        "fast"
+    }
+
+    fn check(&self) -> Result<(), String> {
+        FastConfig::check(self)
+    }
+
+    /// [`FastModel::new`] checks the settings and bounds itself.
+    fn init(&self, bounds: &SceneBounds, seed: u64) -> Result<Model, String> {
+        Ok(Box::new(FastModel::new(self.clone(), bounds.clone(), seed)?))
+    }
+
+    /// Batched by samples, 2^15 per step (instant-ngp: 2^18 on a GPU; on 2 CPU cores more,
+    /// smaller steps learn faster in minutes; the first step 256 rays), Adam 1e-2 → 1e-3 over
+    /// 5k steps (CPU runs are short), and a random background behind transparent pixels
+    /// (instant-ngp; without it the few-view CPU runs learn translucent objects).
+    fn preset(&self) -> TrainPreset {
+        TrainPreset { batch_rays: 256, batch_samples: Some(1 << 15), lr_init: 1e-2, lr_final: 1e-3, lr_decay_steps: 5_000, background: Background::Random }
+    }
+
+    /// The distortion loss, when on, leaves out mixed pixels of this many footprints.
+    fn mixed_pixel_footprints(&self) -> Option<f64> {
+        self.distortion_weight.filter(|w| *w > 0.0).and(self.distortion_mixed_footprints).map(|k| k as f64)
+    }
+}
 
 impl FastModel {
     /// A new model with parameters keyed by `seed`.
@@ -411,34 +239,54 @@ impl FastModel {
         self.occupancy.update(step, dt, thr, &mut |pts| density_at(grid, mlp, bounds, pts));
     }
 
-    /// Density at world points (inference).
-    pub fn density(&self, points: &[[f32; 3]]) -> Vec<f32> {
-        let mlp = self.mlp();
-        points.chunks(65536).flat_map(|c| density_at(&self.grid, &mlp, &self.bounds, c)).collect()
-    }
-
-    /// Density and display colour at world points, each seen along its unit direction
-    /// (inference; what a sample at that point of a ray with that direction evaluates to).
-    ///
-    /// # Shapes
-    /// `points`, `dirs`: n; returns n densities and n colours.
-    pub fn query(&self, points: &[[f32; 3]], dirs: &[[f32; 3]]) -> (Vec<f32>, Vec<[f32; 3]>) {
-        let mlp = self.mlp();
-        let shd = self.config.dir_dims();
-        let (mut sigma, mut rgb) = (Vec::with_capacity(points.len()), Vec::with_capacity(points.len()));
-        for (p, d) in points.chunks(65536).zip(dirs.chunks(65536)) {
-            let unit: Vec<[f32; 3]> = p.iter().map(|p| self.bounds.to_unit(*p)).collect();
-            let enc = self.hash_encode(&unit);
-            let sh: Vec<f32> = if shd == 0 { Vec::new() } else { d.iter().flat_map(|d| sh_encode(*d)[..shd].to_vec()).collect() };
-            let (raw, c) = mlp.forward(&enc, &sh);
-            sigma.extend(raw.into_iter().map(|x| ACT.forward(x)));
-            rgb.extend(c);
+    /// The same model without view dependence, for a run whose test found the scene's colour
+    /// constant across views ([`crate::auto`]): the colour network's direction inputs are
+    /// dropped and what it learned otherwise is kept. Its first layer sees `[geometry, SH]`;
+    /// the SH band-0 input is the constant Y₀₀ for every direction, so its weights times Y₀₀
+    /// fold into the bias, and bands ≥ 1 (which integrate to zero over the sphere) go, so the
+    /// first layer computes its mean over all directions. Hash tables, density network, the
+    /// rest of the colour network, the occupancy grid and all optimiser moments carry over
+    /// (the first layer's moments for the rows it keeps). Already without view dependence:
+    /// an unchanged copy.
+    pub fn without_view_dependence(&self) -> Result<Self, String> {
+        let c = &self.config;
+        let mut cfg = c.clone();
+        cfg.view_dependent = Some(false);
+        let mut out = Self::new(cfg, self.bounds.clone(), 0)?;
+        let mut s = self.state();
+        if c.is_view_dependent() {
+            // Parameter tensors in visiting order: the density network's, then the colour
+            // network's first layer (weight [geo + dir, width] row-major, then bias).
+            let wi = crate::kernels::param_vectors(&self.field.density).len();
+            let (geo, width) = (c.geo_features, c.color_width);
+            let y00 = crate::encoding::sh::sh_encode([0.0, 0.0, 1.0])[0];
+            let key = |k: usize| format!("field.{k}");
+            let w = s.arrays.get(&key(wi)).cloned().ok_or("the colour network has no first layer")?;
+            let b = s.arrays.get(&key(wi + 1)).cloned().ok_or("the colour network's first layer has no bias")?;
+            if w.len() != (geo + c.dir_dims()) * width || b.len() != width {
+                return Err(format!("the colour network's first layer has {} weights, not ({geo} + {}) × {width}", w.len(), c.dir_dims()));
+            }
+            let band0 = &w[geo * width..(geo + 1) * width];
+            let bias: Vec<f32> = b.iter().zip(band0).map(|(b, w0)| b + y00 * w0).collect();
+            s.arrays.insert(key(wi), w[..geo * width].to_vec());
+            s.arrays.insert(key(wi + 1), bias);
+            for m in ["m1", "m2"] {
+                if let Some(v) = s.arrays.get_mut(&format!("field_adam.{wi}.{m}")) {
+                    v.truncate(geo * width);
+                }
+            }
         }
-        (sigma, rgb)
+        out.load_state(&s)?;
+        out.lr = self.lr;
+        Ok(out)
     }
 
+}
+
+
+impl NerfModel for FastModel {
     /// One training step.
-    pub fn train_step(&mut self, batch: &RayBatch, step: u64, seed: u64) -> StepStats {
+    fn train_step(&mut self, batch: &RayBatch, step: u64, seed: u64) -> StepStats {
         let mut tm = StepTimings::default();
         let t0 = Instant::now();
         // The networks' weights, read once for the step (they change only in its Adam step);
@@ -505,7 +353,8 @@ impl FastModel {
             let (ts, te) = (&samples.t_start[smp.clone()], &samples.t_end[smp]);
             let (bg, target) = (&batch.background[rays.clone()], &batch.target[rays.clone()]);
             let sigma: Vec<f32> = raw.iter().map(|x| ACT.forward(*x)).collect();
-            let comp = volrend::composite_forward(&o, &sigma, rgb, ts, te, bg);
+            let inputs = volrend::CompositeInputs { offsets: &o, sigma: &sigma, rgb, t_start: ts, t_end: te, background: bg };
+            let comp = volrend::composite_forward(&inputs);
             // Squared error summed over the group; the gradient of the batch's mean.
             let (sq, d_out) = squared_error_and_grad(&comp.rgb, target, norm);
             let (dist, d_weights) = match lambda {
@@ -518,7 +367,7 @@ impl FastModel {
                 None => (0.0, None),
             };
             let zeros = vec![0.0; rays.len()];
-            let g = volrend::composite_backward_with_weights(&o, &sigma, rgb, ts, te, bg, &comp, &d_out, &zeros, &zeros, d_weights.as_deref());
+            let g = volrend::composite_backward(&inputs, &comp, &volrend::OutputGrads { d_rgb: &d_out, d_opacity: &zeros, d_distance: &zeros, d_weights: d_weights.as_deref() });
             let d_raw = g.d_sigma.iter().zip(raw).map(|(g, x)| ACT.backward(*x, *g)).collect();
             composite_ns.fetch_add(tc.elapsed().as_nanos() as u64, std::sync::atomic::Ordering::Relaxed);
             GroupGrads { d_raw, d_rgb: g.d_rgb, value: (sq, dist) }
@@ -553,6 +402,10 @@ impl FastModel {
         stats(false, tm, touched)
     }
 
+    fn set_lr(&mut self, lr: f64) {
+        self.lr = lr;
+    }
+
     /// Renders rays: marches the occupancy grid (no jitter), evaluates the density network in
     /// rounds of `INFERENCE_ROUND` samples per ray that is still live (transmittance ≥ 1e-4
     /// and samples left) and the colour network only for samples whose weight reaches
@@ -564,74 +417,56 @@ impl FastModel {
     /// pool), which keeps every buffer small and both cores busy (before, 8192-ray chunks in
     /// turn, each marched in full and evaluated in rounds of 16: 5.9 s for an 800×800 view,
     /// mostly one core, much of it zeroing freshly allocated pages).
-    pub fn render_rays(&self, origins: &[[f32; 3]], dirs: &[[f32; 3]], background: [f32; 3]) -> RayOutputs {
+    fn render_rays(&self, origins: &[[f32; 3]], dirs: &[[f32; 3]], background: [f32; 3]) -> RayOutputs {
         self.parts().render_rays(&self.mlp(), origins, dirs, background)
     }
 
+    /// Density at world points (inference).
+    fn density(&self, points: &[[f32; 3]]) -> Vec<f32> {
+        let mlp = self.mlp();
+        points.chunks(65536).flat_map(|c| density_at(&self.grid, &mlp, &self.bounds, c)).collect()
+    }
+
+    /// Density and display colour at world points, each seen along its unit direction
+    /// (inference; what a sample at that point of a ray with that direction evaluates to).
+    ///
+    /// # Shapes
+    /// `points`, `dirs`: n; returns n densities and n colours.
+    fn query(&self, points: &[[f32; 3]], dirs: &[[f32; 3]]) -> (Vec<f32>, Vec<[f32; 3]>) {
+        let mlp = self.mlp();
+        let shd = self.config.dir_dims();
+        let (mut sigma, mut rgb) = (Vec::with_capacity(points.len()), Vec::with_capacity(points.len()));
+        for (p, d) in points.chunks(65536).zip(dirs.chunks(65536)) {
+            let unit: Vec<[f32; 3]> = p.iter().map(|p| self.bounds.to_unit(*p)).collect();
+            let enc = self.hash_encode(&unit);
+            let sh: Vec<f32> = if shd == 0 { Vec::new() } else { d.iter().flat_map(|d| sh_encode(*d)[..shd].to_vec()).collect() };
+            let (raw, c) = mlp.forward(&enc, &sh);
+            sigma.extend(raw.into_iter().map(|x| ACT.forward(x)));
+            rgb.extend(c);
+        }
+        (sigma, rgb)
+    }
+
+    fn bounds(&self) -> &SceneBounds {
+        &self.bounds
+    }
+
+    /// A cell is empty when its running density (the decayed maximum of the densities sampled
+    /// in it) times the marching step is at most the grid threshold.
+    fn occupancy(&self) -> Option<(&OccupancyGrid, f32)> {
+        Some((&self.occupancy, self.config.grid_threshold / self.step_size()))
+    }
+
     /// Trainable parameters: hash tables plus networks.
-    pub fn parameters(&self) -> usize {
+    fn parameters(&self) -> usize {
         self.grid.params.len() + self.field.num_params()
     }
 
-    /// Forward multiply-adds per sample in the networks.
-    pub fn macs_per_sample(&self) -> f64 {
-        let c = &self.config;
-        let enc = (c.levels * c.features_per_level) as f64;
-        let dens = enc * c.density_width as f64 + c.density_width as f64 * c.geo_features as f64;
-        let cin = (c.geo_features + c.dir_dims()) as f64;
-        let col = cin * c.color_width as f64
-            + (c.color_depth.saturating_sub(1)) as f64 * (c.color_width * c.color_width) as f64
-            + c.color_width as f64 * 3.0;
-        dens + col
-    }
-
-    /// The same model without view dependence, for a run whose test found the scene's colour
-    /// constant across views ([`crate::auto`]): the colour network's direction inputs are
-    /// dropped and what it learned otherwise is kept. Its first layer sees `[geometry, SH]`;
-    /// the SH band-0 input is the constant Y₀₀ for every direction, so its weights times Y₀₀
-    /// fold into the bias, and bands ≥ 1 (which integrate to zero over the sphere) go, so the
-    /// first layer computes its mean over all directions. Hash tables, density network, the
-    /// rest of the colour network, the occupancy grid and all optimiser moments carry over
-    /// (the first layer's moments for the rows it keeps). Already without view dependence:
-    /// an unchanged copy.
-    pub fn without_view_dependence(&self) -> Result<Self, String> {
-        let c = &self.config;
-        let mut cfg = c.clone();
-        cfg.view_dependent = Some(false);
-        let mut out = Self::new(cfg, self.bounds.clone(), 0)?;
-        let mut s = self.state();
-        if c.is_view_dependent() {
-            // Parameter tensors in visiting order: the density network's, then the colour
-            // network's first layer (weight [geo + dir, width] row-major, then bias).
-            let wi = crate::field::param_vectors(&self.field.density).len();
-            let (geo, width) = (c.geo_features, c.color_width);
-            let y00 = crate::encoding::sh::sh_encode([0.0, 0.0, 1.0])[0];
-            let key = |k: usize| format!("field.{k}");
-            let w = s.arrays.get(&key(wi)).cloned().ok_or("the colour network has no first layer")?;
-            let b = s.arrays.get(&key(wi + 1)).cloned().ok_or("the colour network's first layer has no bias")?;
-            if w.len() != (geo + c.dir_dims()) * width || b.len() != width {
-                return Err(format!("the colour network's first layer has {} weights, not ({geo} + {}) × {width}", w.len(), c.dir_dims()));
-            }
-            let band0 = &w[geo * width..(geo + 1) * width];
-            let bias: Vec<f32> = b.iter().zip(band0).map(|(b, w0)| b + y00 * w0).collect();
-            s.arrays.insert(key(wi), w[..geo * width].to_vec());
-            s.arrays.insert(key(wi + 1), bias);
-            for m in ["m1", "m2"] {
-                if let Some(v) = s.arrays.get_mut(&format!("field_adam.{wi}.{m}")) {
-                    v.truncate(geo * width);
-                }
-            }
-        }
-        out.load_state(&s)?;
-        out.lr = self.lr;
-        Ok(out)
-    }
-
     /// The full state for a checkpoint.
-    pub fn state(&self) -> StateDict {
+    fn state(&self) -> StateDict {
         let mut s = StateDict::default();
-        super::save_params(&mut s, "field", &self.field);
-        super::save_adam(&mut s, "field_adam", &self.adam);
+        save_params(&mut s, "field", &self.field);
+        save_adam(&mut s, "field_adam", &self.adam);
         s.arrays.insert("grid.params".into(), self.grid.params.clone());
         s.arrays.insert("grid_adam.m".into(), self.grid_adam.m.clone());
         s.arrays.insert("grid_adam.v".into(), self.grid_adam.v.clone());
@@ -643,10 +478,10 @@ impl FastModel {
     }
 
     /// Restores [`Self::state`].
-    pub fn load_state(&mut self, s: &StateDict) -> Result<(), String> {
-        self.field = super::load_params(s, "field", self.field.clone())?;
-        let n = crate::field::param_vectors(&self.field).len();
-        super::load_adam(s, "field_adam", &mut self.adam, n);
+    fn load_state(&mut self, s: &StateDict) -> Result<(), String> {
+        self.field = load_params(s, "field", self.field.clone())?;
+        let n = crate::kernels::param_vectors(&self.field).len();
+        load_adam(s, "field_adam", &mut self.adam, n);
         let get = |k: &str, len: usize| -> Result<Vec<f32>, String> {
             let v = s.arrays.get(k).ok_or_else(|| format!("checkpoint lacks {k}"))?;
             if v.len() != len {
@@ -671,6 +506,18 @@ impl FastModel {
         self.refresh_empty_space();
         Ok(())
     }
+
+    /// Forward multiply-adds per sample in the networks.
+    fn macs_per_sample(&self) -> f64 {
+        let c = &self.config;
+        let enc = (c.levels * c.features_per_level) as f64;
+        let dens = enc * c.density_width as f64 + c.density_width as f64 * c.geo_features as f64;
+        let cin = (c.geo_features + c.dir_dims()) as f64;
+        let col = cin * c.color_width as f64
+            + (c.color_depth.saturating_sub(1)) as f64 * (c.color_width * c.color_width) as f64
+            + c.color_width as f64 * 3.0;
+        dens + col
+    }
 }
 
 /// Points per rayon task of [`density_at`]: their encodings (128 KiB at 16 levels × 2
@@ -680,8 +527,7 @@ const DENSITY_CHUNK: usize = 1024;
 /// σ at world points: hash encoding, the density network's first output, [`ACT`]. Chunks of
 /// [`DENSITY_CHUNK`] points go through both on one thread each ([`HashGrid::encode_serial`],
 /// [`HashMlp::raw_density_serial`]: the values of the parallel kernels, which do not depend
-/// on how points are split). Before, one pass encoded every point (an occupancy update's
-/// 65,536 at a time: 8 MiB of encodings) and a second read them back from memory.
+/// on how points are split), so no pass writes every point's encoding out of cache.
 fn density_at(grid: &HashGrid, mlp: &HashMlp, bounds: &SceneBounds, points: &[[f32; 3]]) -> Vec<f32> {
     let dims = grid.output_dim();
     let mut sigma = vec![0.0; points.len()];
@@ -1089,7 +935,7 @@ impl Parts<'_> {
             (t_start[s], t_end[s], sigma[s], rgb[s]) = (e_t0[k], e_t1[k], e_sigma[k], e_rgb[k]);
         }
         let bg = vec![background; rays];
-        let comp = volrend::composite_forward_with(&offsets, &sigma, &rgb, &t_start, &t_end, &bg, volrend::CompositeOptions::INFERENCE);
+        let comp = volrend::composite_forward_with(&volrend::CompositeInputs { offsets: &offsets, sigma: &sigma, rgb: &rgb, t_start: &t_start, t_end: &t_end, background: &bg }, volrend::CompositeOptions::INFERENCE);
         let out_t = (0..n).map(|s| volrend::termination_distance(sigma[s], t_start[s], t_end[s])).collect();
         RayOutputs {
             distance: comp.distance.iter().zip(&comp.opacity).map(|(d, o)| expected_distance(*d, *o)).collect(),
@@ -1099,257 +945,5 @@ impl Parts<'_> {
             w: comp.weights,
             offsets,
         }
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// `mlp_precision` takes fp32 or bf16 and nothing else; a bf16 model learns a constant
-    /// colour as the fp32 one does (its loss falls as far within a few per cent), or is refused
-    /// with a message naming AVX512-BF16 on a CPU without it.
-    #[test]
-    fn bf16_networks_train_like_fp32_or_are_refused() {
-        let bad = FastConfig::new().with_mlp_precision(Some("fp16".into()));
-        let e = bad.check().unwrap_err();
-        assert!(e.contains("model.mlp_precision") && e.contains("fp16"), "{e}");
-        let bounds = SceneBounds { aabb_min: [-1.0; 3], aabb_max: [1.0; 3], near: 0.5, far: 6.0, source: "test".into() };
-        let cfg = |p: &str| {
-            FastConfig::new()
-                .with_levels(4)
-                .with_log2_table_size(12)
-                .with_finest_resolution(64)
-                .with_grid_resolution(16)
-                .with_steps_per_diagonal(64)
-                .with_mlp_precision(Some(p.into()))
-        };
-        assert!(cfg("fp32").check().is_ok() && cfg("bf16").check().is_ok());
-        let n = 256;
-        let batch = RayBatch {
-            origins: vec![[0.0, 0.0, 3.0]; n],
-            dirs: (0..n)
-                .map(|i| {
-                    let (a, b) = ((i % 16) as f32 * 0.02 - 0.15, (i / 16) as f32 * 0.02 - 0.15);
-                    let l = (a * a + b * b + 1.0f32).sqrt();
-                    [a / l, b / l, -1.0 / l]
-                })
-                .collect(),
-            target: vec![[0.7, 0.3, 0.2]; n],
-            background: vec![[0.0; 3]; n],
-            ids: (0..n as u64).collect(),
-            mixed: Vec::new(),
-        };
-        let losses = |p: &str| -> Result<Vec<f32>, String> {
-            let mut m = FastModel::new(cfg(p), bounds.clone(), 3)?;
-            Ok((0..40).map(|step| m.train_step(&batch, step, 0).loss).collect())
-        };
-        let fp32 = losses("fp32").unwrap();
-        match losses("bf16") {
-            Err(e) => {
-                assert!(!crate::mlp::bf16::available() && e.contains("AVX512-BF16"), "{e}");
-                eprintln!("skipped the training comparison: {e}");
-            }
-            Ok(bf16) => {
-                assert!(crate::mlp::bf16::available());
-                assert!(bf16.iter().all(|l| l.is_finite()));
-                assert_ne!(fp32, bf16, "the bf16 run gave fp32's losses: its kernels did not run");
-                let (f0, f1, b1) = (fp32[0], fp32[39], bf16[39]);
-                assert!(f1 < 0.2 * f0, "fp32 learned too little: {f0} → {f1}");
-                assert!((b1 - f1).abs() <= 0.05 * f0, "bf16 ended at {b1}, fp32 at {f1} (from {f0})");
-            }
-        }
-    }
-
-    /// Dropping the direction input keeps the hash tables, the density network and the
-    /// occupancy grid exactly, and the new colour network computes the old one fed the SH
-    /// vector of the direction average (Y₀₀, 0, …, 0); training goes on from there.
-    #[test]
-    fn dropping_view_dependence_keeps_the_direction_averaged_colour() {
-        let bounds = SceneBounds { aabb_min: [-1.0; 3], aabb_max: [1.0; 3], near: 0.5, far: 6.0, source: "test".into() };
-        let cfg = FastConfig::new()
-            .with_levels(4)
-            .with_log2_table_size(12)
-            .with_finest_resolution(64)
-            .with_grid_resolution(16)
-            .with_steps_per_diagonal(64)
-            .with_grid_warmup_steps(2);
-        let mut m = FastModel::new(cfg, bounds, 3).unwrap();
-        let n = 64;
-        let batch = RayBatch {
-            origins: vec![[0.0, 0.0, 3.0]; n],
-            dirs: (0..n)
-                .map(|i| {
-                    let a = i as f32 * 0.01 - 0.3;
-                    let l = (a * a + 0.04 + 1.0f32).sqrt();
-                    [a / l, 0.2 / l, -1.0 / l]
-                })
-                .collect(),
-            target: vec![[0.7, 0.3, 0.2]; n],
-            background: vec![[0.0; 3]; n],
-            ids: (0..n as u64).collect(),
-            mixed: Vec::new(),
-        };
-        for step in 0..4 {
-            m.lr = 1e-2;
-            assert!(m.train_step(&batch, step, 0).loss.is_finite());
-        }
-        let mut d = m.without_view_dependence().unwrap();
-        assert!(m.config.is_view_dependent() && !d.config.is_view_dependent());
-        assert_eq!(d.config.dir_dims(), 0);
-        assert_eq!(d.grid.params, m.grid.params);
-        assert_eq!((&d.grid_adam.m, &d.grid_adam.v), (&m.grid_adam.m, &m.grid_adam.v));
-        assert_eq!(d.occupancy.density, m.occupancy.density);
-        assert_eq!(d.occupancy.bits, m.occupancy.bits);
-        let (old, new) = (m.mlp(), d.mlp());
-        let (k, ed, sd) = (50, old.enc_dims(), m.config.dir_dims());
-        let enc: Vec<f32> = (0..k * ed).map(|i| ((i * 7919 % 1000) as f32 / 1000.0 - 0.5) * 0.4).collect();
-        let mut sh = vec![0.0f32; k * sd];
-        let y00 = sh_encode([0.0, 0.0, 1.0])[0];
-        (0..k).for_each(|r| sh[r * sd] = y00);
-        let (raw_o, rgb_o) = old.forward(&enc, &sh);
-        let (raw_n, rgb_n) = new.forward(&enc, &[]);
-        assert_eq!(raw_o, raw_n, "the density network is unchanged");
-        let diff = |a: &[[f32; 3]], b: &[[f32; 3]]| a.iter().zip(b).flat_map(|(x, y)| (0..3).map(move |c| (x[c] - y[c]).abs())).fold(0.0f32, f32::max);
-        assert!(diff(&rgb_o, &rgb_n) < 1e-5, "{}", diff(&rgb_o, &rgb_n));
-        // Not vacuous: along an actual direction the old network's colour is another.
-        let one = sh_encode([0.6, 0.0, 0.8]);
-        let sh_dir: Vec<f32> = (0..k).flat_map(|_| one[..sd].to_vec()).collect();
-        assert!(diff(&old.forward(&enc, &sh_dir).1, &rgb_n) > 1e-4);
-        d.lr = 1e-2;
-        assert!(d.train_step(&batch, 4, 0).loss.is_finite());
-        assert!(m.without_view_dependence().unwrap().without_view_dependence().is_ok(), "already off: a copy");
-    }
-
-    /// Inference rendering (chunks, rounds, colour only where the weight shows) against the
-    /// plain composite of every marched sample through the full network: equal within the
-    /// skipped weights; and bit-identical for any thread count and any split of the rays.
-    #[test]
-    fn rendering_matches_the_full_composite_for_any_split_and_pool() {
-        let bounds = SceneBounds { aabb_min: [-1.0; 3], aabb_max: [1.0; 3], near: 0.5, far: 6.0, source: "test".into() };
-        let cfg = FastConfig::new().with_levels(4).with_log2_table_size(12).with_finest_resolution(64).with_grid_resolution(16).with_steps_per_diagonal(64);
-        let mut m = FastModel::new(cfg, bounds, 5).unwrap();
-        // Dense enough that rays saturate: raise the density network's output bias.
-        let mut s = m.state();
-        let n_density = crate::field::param_vectors(&m.field.density).len();
-        if let Some(b) = s.arrays.get_mut(&format!("field.{}", n_density - 1)) {
-            b[0] = 2.0;
-        }
-        m.load_state(&s).unwrap();
-        let n = 2 * RENDER_CHUNK + 300;
-        let origins = vec![[0.0, 0.2, 3.0]; n];
-        let dirs: Vec<[f32; 3]> = (0..n)
-            .map(|i| {
-                let (a, b) = ((i % 50) as f32 * 0.012 - 0.3, (i / 50) as f32 * 0.012 - 0.3);
-                let l = (a * a + b * b + 1.0f32).sqrt();
-                [a / l, b / l, -1.0 / l]
-            })
-            .collect();
-        let bg = [0.2, 0.4, 0.6];
-        let out = m.render_rays(&origins, &dirs, bg);
-        // The full composite.
-        let samples = m.march(&origins, &dirs, SampleMode::Deterministic);
-        let unit = m.unit_points(&samples, None, &origins, &dirs);
-        let enc = m.hash_encode(&unit);
-        let sh = m.parts().sh_for(&samples.ray_index, &dirs);
-        let (raw, rgb) = m.mlp().forward(&enc, &sh);
-        let sigma: Vec<f32> = raw.iter().map(|x| ACT.forward(*x)).collect();
-        let full = volrend::composite_forward_with(&samples.offsets, &sigma, &rgb, &samples.t_start, &samples.t_end, &vec![bg; n], volrend::CompositeOptions::INFERENCE);
-        let opaque = out.opacity.iter().filter(|o| **o > 0.99).count();
-        assert!(opaque > n / 10, "the test needs rays that hit: {opaque} of {n} opaque");
-        for r in 0..n {
-            assert!((out.opacity[r] - full.opacity[r]).abs() < 1e-3, "ray {r}: opacity {} vs {}", out.opacity[r], full.opacity[r]);
-            for c in 0..3 {
-                assert!((out.rgb[r][c] - full.rgb[r][c]).abs() < 2e-3, "ray {r}: rgb {:?} vs {:?}", out.rgb[r], full.rgb[r]);
-            }
-        }
-        // Any pool, any split.
-        let (mlp, parts) = (m.mlp(), m.parts());
-        let one = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap().install(|| parts.render_rays(&mlp, &origins, &dirs, bg));
-        assert_eq!((&one.rgb, &one.opacity, &one.distance, &one.w), (&out.rgb, &out.opacity, &out.distance, &out.w));
-        let k = 777;
-        let mut split = m.render_rays(&origins[..k], &dirs[..k], bg);
-        split.append(m.render_rays(&origins[k..], &dirs[k..], bg));
-        assert_eq!((&split.rgb, &split.opacity, &split.distance), (&out.rgb, &out.opacity, &out.distance));
-    }
-
-    /// Marching and compaction by rounds keep exactly what one density pass over every sample
-    /// of the full march keeps (the same intervals, points and encodings, bit for bit), for
-    /// rays that miss the box, cross empty cells and stop in every round, jittered or not, on
-    /// any thread count, while marching fewer samples.
-    #[test]
-    fn compaction_by_rounds_equals_one_pass_over_the_full_march() {
-        let bounds = SceneBounds { aabb_min: [-1.0; 3], aabb_max: [1.0; 3], near: 0.5, far: 6.0, source: "test".into() };
-        let cfg = FastConfig::new().with_levels(4).with_log2_table_size(12).with_finest_resolution(64).with_grid_resolution(16).with_steps_per_diagonal(160);
-        let mut m = FastModel::new(cfg, bounds, 3).unwrap();
-        // Large random table values: densities from near 0 to huge, so rays stop anywhere.
-        let mut x = 0x9e37_79b9_u32;
-        let mut next = || {
-            x = x.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
-            (x >> 8) as f32 / (1u32 << 24) as f32
-        };
-        for p in m.grid.params.iter_mut() {
-            *p = next() * 8.0 - 4.0;
-        }
-        // A third of the occupancy cells empty (the march skips them, through the blocks).
-        for (i, w) in m.occupancy.bits.iter_mut().enumerate() {
-            *w &= [0x9249_2492_4924_9249u64, u64::MAX, 0xdb6d_b6db_6db6_db6d][i % 3];
-        }
-        m.refresh_empty_space();
-        let n_rays = 300;
-        // From z = 3 towards the box, some passing beside it.
-        let origins: Vec<[f32; 3]> = (0..n_rays).map(|_| [next() * 2.4 - 1.2, next() * 2.4 - 1.2, 3.0]).collect();
-        let dirs: Vec<[f32; 3]> = (0..n_rays)
-            .map(|_| {
-                let (a, b) = (next() * 0.6 - 0.3, next() * 0.6 - 0.3);
-                let l = (a * a + b * b + 1.0f32).sqrt();
-                [a / l, b / l, -1.0 / l]
-            })
-            .collect();
-        let mlp = m.mlp();
-        let parts = m.parts();
-        let dims = m.grid.output_dim();
-        // Where rays stopped (samples kept, for the rays that kept fewer than they marched).
-        let mut stops = Vec::new();
-        for jitter in [SampleMode::Deterministic, SampleMode::Random { seed: 9, step: 4 }] {
-            let all = parts.march(&origins, &dirs, jitter);
-            assert!(all.offsets.windows(2).any(|w| w[0] == w[1]) && all.len() > 20 * n_rays, "{} samples", all.len());
-            let unit_all = parts.unit_points(&all, None, &origins, &dirs);
-            let enc_all = parts.hash_encode(&unit_all);
-            let sigma: Vec<f32> = mlp.raw_density(&enc_all).into_iter().map(|x| ACT.forward(x)).collect();
-            for tau_stop in [0.05f32, 0.2, 0.5, 2.0] {
-                let (want, idx) = keep_until_opaque(&all, &sigma, tau_stop);
-                let want_unit: Vec<[f32; 3]> = idx.iter().map(|&i| unit_all[i]).collect();
-                let want_enc: Vec<u32> = idx.iter().flat_map(|&i| enc_all[i * dims..(i + 1) * dims].iter().map(|v| v.to_bits())).collect();
-                stops.extend((0..n_rays).map(|r| (want.offsets[r + 1] - want.offsets[r], all.offsets[r + 1] - all.offsets[r])).filter(|(k, n)| k < n).map(|(k, _)| k));
-                for threads in [1, 3] {
-                    let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
-                    let mut tm = StepTimings::default();
-                    let (got, unit, enc, marched) = pool.install(|| parts.march_until_opaque(&mlp, &origins, &dirs, jitter, tau_stop, &mut tm));
-                    assert_eq!((&got.offsets, &got.t_start, &got.t_end, &got.ray_index), (&want.offsets, &want.t_start, &want.t_end, &want.ray_index));
-                    assert_eq!(unit, want_unit);
-                    assert_eq!(enc.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), want_enc);
-                    assert!(marched >= idx.len() && marched <= all.len(), "{marched} marched, {} kept of {}", idx.len(), all.len());
-                    // Where rays stop, fewer are marched than the full march gives.
-                    assert!(idx.len() == all.len() || marched < all.len(), "{marched} marched, {} kept of {}", idx.len(), all.len());
-                }
-            }
-        }
-        // Rays stop in each round: after 1-4, 5-12, 13-28 and 29-60 samples.
-        assert!([1..5, 5..13, 13..29, 29..61].iter().all(|round| stops.iter().any(|k| round.contains(k))), "{stops:?}");
-    }
-
-    #[test]
-    fn ray_groups_hold_whole_rays_of_about_the_target() {
-        // Rays of 3, 0, 5, 2, 9, 1 samples; target 4.
-        let offsets = [0u32, 3, 3, 8, 10, 19, 20];
-        let g = ray_groups(&offsets, 4);
-        assert_eq!(g, vec![(0..3, 0..8), (3..5, 8..19), (5..6, 19..20)]);
-        // A target of 1 makes every non-empty ray close a group; empty rays join the next.
-        let g = ray_groups(&offsets, 1);
-        assert_eq!(g, vec![(0..1, 0..3), (1..3, 3..8), (3..4, 8..10), (4..5, 10..19), (5..6, 19..20)]);
-        assert!(ray_groups(&[0], 4).is_empty());
-        // A batch of rays without samples is one empty group.
-        assert_eq!(ray_groups(&[0, 0, 0], 4), vec![(0..2, 0..0)]);
     }
 }
