@@ -55,14 +55,9 @@ pub struct AutoConfig {
     #[config(default = 4.0)]
     pub base_cells_per_min_side: f64,
     /// Growth factor between levels. instant-ngp's 16 levels from 16 to 2048 grow by 1.38; on a
-    /// CPU every level costs about the same share of a training step (standard `thin`, auto's
-    /// config, 16 → 302: 84.7 ms per step with 11 levels, 69.2 ms with 8, session 13), so
-    /// auto grows by 1.5 (nerfacto's proposal grids: 1.68 and 2). With this and 8 footprint
-    /// cells per occupancy cell (`bench auto`, standard, 2 min, means of 3 seeds, session 13
-    /// against session 12): 1560–1840 steps instead of 1340–1560, 0.60–0.66 M parameters
-    /// instead of 0.73–0.86 M; test PSNR tabletop 33.01 (32.99) dB, thin 31.58 (31.72),
-    /// materials 32.09 (32.11), deep 31.55 (30.87); depth error and off-surface mass moved
-    /// within the seeds' spread (tabletop 0.0114 m and 0.065 against 0.0118 m and 0.069).
+    /// CPU every level costs about the same share of a training step, so auto grows by 1.5
+    /// (nerfacto's proposal grids: 1.68 and 2): more steps in the budget at the same quality
+    /// (figures in `docs/auto.md`, "Resolutions, levels and table size").
     #[config(default = 1.5)]
     pub growth: f64,
     /// Most levels (the encoding's and the density network's cost per sample grow with them).
@@ -73,19 +68,8 @@ pub struct AutoConfig {
     pub features_per_level: usize,
     /// Most log2 entries per level: while training, a level's entries are read and written with
     /// their gradient and two Adam moments, 2^15 entries × 2 features × 16 bytes = 1 MiB, one
-    /// core's L2 cache on current x86 CPUs (AMD Zen 4, Intel Sapphire Rapids: 1–2 MiB).
-    /// (2^17, the table alone in that cache, was the first default. The scenes disagree, in
-    /// single 3-minute runs on the standard datasets: 2^15 trained faster and better on
-    /// `materials` (in 40 s: 411 steps to 29.4 dB against 337 steps to 25.1 dB) and on `deep`
-    /// (34.23 against 33.14 dB), worse on `tabletop` and `thin` with a one-footprint step
-    /// (32.12 and 31.07 against 33.90 and 32.19 dB).) Session 7 tried 2^17 with the table
-    /// sized to the visible surface at 1 cell per entry (same finest levels): on `deep`, back
-    /// to back, 32.48 dB and 0.217 m depth error against 31.55 dB and 0.298 m. Over all five
-    /// standard scenes (`bench auto`, 2 minutes, one run each) auto's margins over the best
-    /// fixed size moved by no more than the bench's own run-to-run spread (the same fixed
-    /// configuration and seed in sessions 6 and 7: up to 0.8 dB, 26 % in depth error, 10 % in
-    /// off-surface mass), except deep's depth error (1.43 → 1.23 × fast-medium's); with
-    /// nothing else shown, 2^15 (a quarter of the parameters) stayed.
+    /// core's L2 cache on current x86 CPUs (AMD Zen 4, Intel Sapphire Rapids: 1–2 MiB). 2^17
+    /// was measured against it and not kept (`docs/experiments.md`).
     #[config(default = 15)]
     pub max_log2_table_size: u32,
     /// Least log2 entries per level.
@@ -112,10 +96,8 @@ pub struct AutoConfig {
     #[config(default = "Some(4.0)")]
     pub surface_cells_per_entry: Option<f64>,
     /// Footprint-sized cells (finest cells / `cells_per_footprint`) per occupancy-grid cell.
-    /// instant-ngp: 16 finest cells per cell (2048 over a 128³ grid). 4 was the first default;
-    /// a finer grid costs more per step on a CPU (refresh, marching and cache pressure:
-    /// standard `thin`, auto's config with 8 levels, 59.2 ms per step with 32³ against 69.2 ms
-    /// with 64³, session 13), so 8.
+    /// instant-ngp: 16 finest cells per cell (2048 over a 128³ grid). A finer grid costs more
+    /// per step on a CPU (refresh, marching and cache pressure; `docs/auto.md`), so 8.
     #[config(default = 8)]
     pub hash_cells_per_grid_cell: u32,
     /// Marching step in finest hash cells (`None`, as in configs written before this option:
@@ -156,7 +138,7 @@ pub struct AutoConfig {
     pub plateau_window_fraction: f64,
     /// The stopping rule stops only when the val PSNR's fitted gain per window, this many
     /// standard errors above its estimate, is below `plateau_min_gain_db`
-    /// ([`PlateauStop::trend_sigmas`]). `None` (configs written before session 15): the
+    /// ([`PlateauStop::trend_sigmas`]). `None` (configs written before this option): the
     /// best-against-best rule those runs were trained under.
     #[config(default = "Some(1.0)")]
     pub plateau_trend_sigmas: Option<f64>,
@@ -171,7 +153,7 @@ pub struct AutoConfig {
     pub cone_marching: Option<bool>,
     /// Weight of mip-NeRF 360's distortion loss ([`crate::volrend::distortion`]) when the train
     /// views show only opaque surfaces and triangulate them well ([`distortion_rule`]);
-    /// mip-NeRF 360 uses 0.01. `None` (and configs written before session 9, which wrote
+    /// mip-NeRF 360 uses 0.01. `None` (and configs written before this option, which wrote
     /// `null`): never. Measured on the standard datasets (2 min, seed 0) with 0.01: on the
     /// orbits `tabletop` it cut the depth error from 0.0124 to 0.0116 m and the off-surface
     /// mass from 0.083 to 0.066; on the forward-facing `cornell` and `deep` it gathered the
@@ -205,7 +187,7 @@ pub struct AutoConfig {
     /// limit. 0.2 lies between the standard `tabletop` (9 % mixed; with the loss, exempting
     /// mixed pixels: depth error 0.0118 m and off-surface mass 0.070, against 0.0125 and
     /// 0.083 without it) and `thin` (33 %; 31.43 dB test PSNR with it, 31.72 dB without; means
-    /// of 3 seeds, 2-minute runs, session 12).
+    /// of 3 seeds, 2-minute runs).
     #[config(default = "Some(0.2)")]
     pub max_mixed_share: Option<f64>,
 }
@@ -572,7 +554,7 @@ mod tests {
         let y1 = 1.5 * (-105.0_f64 / 20.0).exp();
         let (want_gain, want_se) = (10.0 * y1 * (1.0 + 85.0 / 2400.0), 10.0 * 0.5 * y1 / 20.0 * (8750.0_f64 / 3.0 / 250.0).sqrt());
         assert!((gain - want_gain).abs() < 1e-3 * want_gain && (se - want_se).abs() < 0.05 * want_se, "{gain} ± {se} vs {want_gain} ± {want_se}");
-        // The best-against-best rule (configs before session 15) on the same curve:
+        // The best-against-best rule (configs written before the trend rule) on the same curve:
         // 30 e^(−t/20) (e^½ − 1) < 0.1 ⇔ t > 20 ln(300 (e^½ − 1)) ≈ 105.4 s.
         let best = PlateauStop { trend_sigmas: None, ..trend.clone() };
         assert_eq!(first_stop(&best, &curve), Some(110.0));

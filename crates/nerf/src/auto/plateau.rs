@@ -14,7 +14,7 @@ pub struct PlateauStop {
     pub min_gain_db: f64,
     /// How the gain is measured. `Some(k)`: the least-squares trend of the val PSNR over the
     /// last [`PLATEAU_FIT_WINDOWS`] windows, plus `k` standard errors of that trend
-    /// ([`plateau_trend`]). `None` (and configs written before session 15): the best val PSNR
+    /// ([`plateau_trend`]). `None` (and configs written before the trend rule): the best val PSNR
     /// now against the best at or before `now − window_s`, which one lucky validation before
     /// the window or one dip inside it could end while the run still gained about 1 dB per
     /// window (measured: tabletop, stopped at 66 s at 31.5 dB where the same config reaches

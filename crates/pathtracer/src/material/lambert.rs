@@ -3,7 +3,7 @@
 //! is exactly `ρ`. Parameter: albedo `ρ` (linear RGB, the base colour). Its lane forms are the
 //! same operations on one lane of [`SampleLane`] (see the [`super`] module docs).
 
-use super::lanes::SampleLane;
+use super::SampleLane;
 use glam::{Vec2, Vec3};
 use std::f32::consts::FRAC_1_PI;
 

@@ -7,7 +7,7 @@
 // Negated comparisons (`!(x > 0.0)`) are deliberate: they also reject NaN.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
-use super::{BsdfAt, BsdfSample, lambert, metallic_roughness};
+use super::{BsdfAt, BsdfSample, SampleLane, lambert, metallic_roughness};
 use crate::sampler::sample_cosine_hemisphere;
 use glam::{Vec2, Vec3};
 
@@ -19,34 +19,6 @@ use glam::{Vec2, Vec3};
 fn wo_terms(x: &SampleLane) -> (f32, f32) {
     let mr = metallic_roughness::wo_terms_lane(x);
     if x.diffuse { lambert::WO_TERMS } else { mr }
-}
-
-/// One BSDF's inputs as plain numbers (a lane of [`sample_many`]): the union of the models'
-/// parameters, each model's file filling its own ([`lambert::lane`],
-/// [`metallic_roughness::lane`]).
-#[derive(Clone, Copy, Debug)]
-pub(crate) struct SampleLane {
-    /// [`super::Bsdf::Diffuse`] (albedo `rho`), else [`super::Bsdf::MetallicRoughness`]
-    /// ([`BsdfLanes::is_lambertian`] per lane).
-    pub(super) diffuse: bool,
-    pub(super) rho: Vec3,
-    pub(super) metallic: f32,
-    pub(super) alpha: f32,
-    pub(super) f0: Vec3,
-    pub(super) f90: f32,
-    pub(super) wo: Vec3,
-    pub(super) ps: f32,
-    pub(super) sd_wo: f32,
-    pub(super) u: Vec2,
-}
-
-impl SampleLane {
-    /// This BSDF seen from `wo` instead, before what depends on `wo` is computed
-    /// ([`BsdfLanes::set_wo_terms`]).
-    #[inline(always)]
-    pub(crate) fn with_wo(self, wo: Vec3) -> Self {
-        Self { wo, ..self }
-    }
 }
 
 /// [`BsdfAt::evaluate_pdf`] of one lane: `(f · cos θᵢ, pdf)`. Both models are computed and

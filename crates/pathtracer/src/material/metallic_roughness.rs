@@ -9,7 +9,7 @@
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 use super::gltf::{max_dielectric_f0, min_roughness_texel};
-use super::lanes::SampleLane;
+use super::SampleLane;
 use crate::light::luminance;
 use crate::sampler::sin_cos;
 use crate::scene::{Material, Texture};

@@ -46,7 +46,7 @@ pub use gltf::{
     is_view_dependent_textured, max_dielectric_f0, metallic_roughness, min_roughness_texel, resolve, scene_is_view_dependent,
     uniform_surface,
 };
-pub(crate) use lanes::{BsdfLanes, SampleLane, SampledLanes, evaluate_lanes, sample_lanes};
+pub(crate) use lanes::{BsdfLanes, SampledLanes, evaluate_lanes, sample_lanes};
 pub use lanes::{evaluate_many, sample_many};
 pub use metallic_roughness::{DIELECTRIC_F0, DielectricFresnel, MIN_ALPHA, MetallicRoughness, SpecularLobe, f0_from_ior};
 pub use shading::{MIN_SHADING_COS, facing_normals, normal_mapped, shading_frame, triangle_tangent};
@@ -186,5 +186,33 @@ impl Bsdf {
             Bsdf::Diffuse { .. } => false,
             Bsdf::MetallicRoughness(_) => true,
         }
+    }
+}
+
+/// One BSDF's inputs as plain numbers (a lane of [`sample_many`]): the union of the models'
+/// parameters, each model's file filling its own ([`lambert::lane`],
+/// [`metallic_roughness::lane`]).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct SampleLane {
+    /// [`Bsdf::Diffuse`] (albedo `rho`), else [`Bsdf::MetallicRoughness`]
+    /// ([`BsdfLanes::is_lambertian`] per lane).
+    diffuse: bool,
+    rho: Vec3,
+    metallic: f32,
+    alpha: f32,
+    f0: Vec3,
+    f90: f32,
+    wo: Vec3,
+    ps: f32,
+    sd_wo: f32,
+    u: Vec2,
+}
+
+impl SampleLane {
+    /// This BSDF seen from `wo` instead, before what depends on `wo` is computed
+    /// ([`BsdfLanes::set_wo_terms`]).
+    #[inline(always)]
+    pub(crate) fn with_wo(self, wo: Vec3) -> Self {
+        Self { wo, ..self }
     }
 }
