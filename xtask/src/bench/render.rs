@@ -174,14 +174,7 @@ pub(super) fn bench_render(args: &RenderBenchArgs) -> anyhow::Result<()> {
             (Spread::of(&rates), hash)
         };
         let path_rate = |settings: &RenderSettings, camera: &dataset::Camera| path_rate_of(&renderer, settings, camera);
-        let quick_settings = RenderSettings {
-            spp: quick.spp,
-            max_bounces: quick.max_bounces,
-            seed: 0,
-            environment: quick.environment,
-            transparent_background: true,
-            environment_map: None,
-        };
+        let quick_settings = quick_render_settings(&quick);
         let standard = DatasetRenderConfig::preset(Preset::Standard);
         let std_settings = RenderSettings { spp: standard.spp, max_bounces: standard.max_bounces, ..quick_settings.clone() };
         let (quick_rate, quick_hash) = path_rate(&quick_settings, &cam);
@@ -374,4 +367,19 @@ fn bench_render_rays(scenes: &[(String, pathtracer::render::Renderer)], export_r
         }));
     }
     Ok(rows)
+}
+
+/// The path-tracing settings of a quick-preset view as the benches time it: the preset's spp,
+/// bounces and constant environment, seed 0, a transparent background, no environment map.
+pub(super) fn quick_render_settings(
+    quick: &pathtracer::dataset_render::DatasetRenderConfig,
+) -> pathtracer::render::RenderSettings {
+    pathtracer::render::RenderSettings {
+        spp: quick.spp,
+        max_bounces: quick.max_bounces,
+        seed: 0,
+        environment: quick.environment,
+        transparent_background: true,
+        environment_map: None,
+    }
 }

@@ -50,7 +50,7 @@ const SCALING_WIDTH: u32 = 128;
 pub(super) fn bench_scaling(args: &ScalingBenchArgs) -> anyhow::Result<()> {
     use pathtracer::accel::{Accel, AccelParams};
     use pathtracer::dataset_render::{DatasetRenderConfig, Preset};
-    use pathtracer::render::{RenderSettings, Renderer};
+    use pathtracer::render::Renderer;
 
     let counts: Vec<u32> = args
         .triangles
@@ -76,14 +76,7 @@ pub(super) fn bench_scaling(args: &ScalingBenchArgs) -> anyhow::Result<()> {
         "triangles", "BVH ms", "B/tri", "primary Mray/s", "packet Mray/s", "shadow Mray/s", "Msample/s", "us/sample"
     ));
     let quick = DatasetRenderConfig::preset(Preset::Quick);
-    let settings = RenderSettings {
-        spp: quick.spp,
-        max_bounces: quick.max_bounces,
-        seed: 0,
-        environment: quick.environment,
-        transparent_background: true,
-        environment_map: None,
-    };
+    let settings = super::render::quick_render_settings(&quick);
     let mut rows: Vec<ScalingFigures> = Vec::new();
     for &n in &counts {
         let path = stress_dir.join(format!("stress_{n}.glb"));
