@@ -4,9 +4,19 @@
 //!
 //! File layout (`<run>/checkpoints/step-<08 step>.ckpt`, written atomically): the 8 bytes
 //! `NERFCKPT`, a little-endian u64 header length, a JSON header (scalars and the name and
-//! length of each array, in order), then the arrays as little-endian f32. A small format of our
+//! length of each array, in order), the arrays as little-endian f32, then a 16-byte trailer:
+//! the 8 bytes `NERFSUM1` and the little-endian u64 FNV-1a-64 hash of every byte before the
+//! trailer (offset basis 0xcbf29ce484222325, prime 0x100000001b3). A small format of our
 //! own rather than burn's records, because part of the state (hash table, occupancy grid) lives
 //! outside burn and optimiser states must be keyed by parameter order, not burn's random ids.
+//!
+//! Loading verifies, before anything is used: the checksum, before the header is parsed (a
+//! file not ending in the trailer is one written before it existed and loads without it), each array's length
+//! (`len * 4` with checked arithmetic against the bytes present, so no huge allocation), and
+//! that every value is finite (a NaN or infinity is refused naming its array). Counts in the
+//! header (steps) are read through [`StateDict::count`]: non-negative integers up to 2^53.
+//! A damaged newest checkpoint is reported naming the newest one that loads;
+//! [`load_latest_good`] falls back to it on request.
 
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -47,6 +57,12 @@ struct Header {
 }
 
 const MAGIC: &[u8; 8] = b"NERFCKPT";
+const SUM_TAG: &[u8; 8] = b"NERFSUM1";
+
+/// 64-bit FNV-1a of `bytes`.
+fn fnv1a64(bytes: &[u8]) -> u64 {
+    bytes.iter().fold(0xcbf2_9ce4_8422_2325, |h, b| (h ^ u64::from(*b)).wrapping_mul(0x0000_0100_0000_01b3))
+}
 
 impl StateDict {
     /// Serialises to bytes.
@@ -66,6 +82,9 @@ impl StateDict {
                 out.extend_from_slice(&x.to_le_bytes());
             }
         }
+        let sum = fnv1a64(&out);
+        out.extend_from_slice(SUM_TAG);
+        out.extend_from_slice(&sum.to_le_bytes());
         out
     }
 
@@ -75,19 +94,46 @@ impl StateDict {
         if bytes.len() < 16 || &bytes[..8] != MAGIC {
             return Err(bad("not a checkpoint (bad magic)"));
         }
+        // A file ending in the trailer is checked before anything in it is parsed.
+        let n = bytes.len();
+        let data_end = if n >= 32 && &bytes[n - 16..n - 8] == SUM_TAG {
+            let stored = u64::from_le_bytes(bytes[n - 8..].try_into().map_err(|_| bad("short checksum"))?);
+            let actual = fnv1a64(&bytes[..n - 16]);
+            if stored != actual {
+                return Err(bad(&format!("checksum mismatch (stored {stored:016x}, computed {actual:016x}): the file is damaged")));
+            }
+            n - 16
+        } else {
+            n // written before the checksum trailer existed
+        };
+        let bytes = &bytes[..data_end];
         let hlen = u64::from_le_bytes(bytes[8..16].try_into().map_err(|_| bad("short header"))?) as usize;
         let hend = 16usize.checked_add(hlen).filter(|e| *e <= bytes.len()).ok_or_else(|| bad("truncated header"))?;
         let header: Header = serde_json::from_slice(&bytes[16..hend]).map_err(|e| bad(&format!("header: {e}")))?;
         let mut pos = hend;
-        let mut arrays = BTreeMap::new();
-        for (name, len) in header.arrays {
-            let end = pos.checked_add(len * 4).filter(|e| *e <= bytes.len()).ok_or_else(|| bad("truncated data"))?;
-            let v = bytes[pos..end].chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
-            arrays.insert(name, v);
+        let mut spans = Vec::with_capacity(header.arrays.len());
+        for (name, len) in &header.arrays {
+            let end = len
+                .checked_mul(4)
+                .and_then(|n| pos.checked_add(n))
+                .filter(|e| *e <= bytes.len())
+                .ok_or_else(|| bad(&format!("array '{name}' of {len} values runs past the end of the file ({} bytes)", bytes.len())))?;
+            spans.push((name, pos..end));
             pos = end;
         }
         if pos != bytes.len() {
-            return Err(bad("trailing bytes"));
+            return Err(bad("trailing bytes after the arrays"));
+        }
+        if let Some((name, v)) = header.scalars.iter().find(|(_, v)| !v.is_finite()) {
+            return Err(bad(&format!("scalar '{name}' is {v}")));
+        }
+        let mut arrays = BTreeMap::new();
+        for (name, span) in spans {
+            let v: Vec<f32> = bytes[span].chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
+            if let Some(i) = v.iter().position(|x| !x.is_finite()) {
+                return Err(bad(&format!("array '{name}' holds a non-finite value ({} at index {i})", v[i])));
+            }
+            arrays.insert(name.clone(), v);
         }
         Ok(Self { scalars: header.scalars, arrays })
     }
@@ -95,6 +141,17 @@ impl StateDict {
     /// A scalar or an error naming it.
     pub fn scalar(&self, name: &str) -> Result<f64, String> {
         self.scalars.get(name).copied().ok_or_else(|| format!("checkpoint lacks '{name}'"))
+    }
+
+    /// A scalar that counts (steps, samples): a non-negative integer up to 2^53 (beyond, f64
+    /// no longer holds every integer), or an error naming it.
+    pub fn count(&self, name: &str) -> Result<u64, String> {
+        let v = self.scalar(name)?;
+        if v.is_finite() && v >= 0.0 && v.fract() == 0.0 && v <= 9_007_199_254_740_992.0 {
+            Ok(v as u64)
+        } else {
+            Err(format!("checkpoint scalar '{name}' is {v}, not a count (a non-negative integer up to 2^53)"))
+        }
     }
 }
 
@@ -177,11 +234,41 @@ pub fn load(path: &Path) -> Result<StateDict, CheckpointError> {
     StateDict::from_bytes(path, &bytes)
 }
 
-/// Loads the newest checkpoint of a run, with its path (for messages that name it).
+/// Loads the newest checkpoint of a run, with its path (for messages that name it). When it is
+/// damaged, the error names the newest older checkpoint that loads, so the user can fall back.
 pub fn load_latest(run_dir: &Path) -> Result<(PathBuf, StateDict), CheckpointError> {
     let p = latest(run_dir).ok_or_else(|| CheckpointError::Missing(run_dir.into()))?;
-    let s = load(&p)?;
-    Ok((p, s))
+    match load(&p) {
+        Ok(s) => Ok((p, s)),
+        Err(CheckpointError::Corrupt { path, message }) => {
+            let hint = match load_latest_good(run_dir) {
+                Ok((good, _, _)) => format!(
+                    "; the previous checkpoint {} loads: move the damaged file out of {} to continue from it",
+                    good.display(),
+                    checkpoint_dir(run_dir).display()
+                ),
+                Err(_) => "; no older checkpoint of this run loads".into(),
+            };
+            Err(CheckpointError::Corrupt { path, message: message + &hint })
+        }
+        Err(e) => Err(e),
+    }
+}
+
+/// The newest checkpoint of a run that loads, with the newer ones that did not and why (the
+/// fallback when the latest is damaged); the newest one's error when none loads.
+#[allow(clippy::type_complexity)]
+pub fn load_latest_good(run_dir: &Path) -> Result<(PathBuf, StateDict, Vec<(PathBuf, CheckpointError)>), CheckpointError> {
+    let mut all = list(run_dir);
+    all.sort_by(|a, b| b.0.cmp(&a.0));
+    let mut skipped = Vec::new();
+    for (_, p) in all {
+        match load(&p) {
+            Ok(s) => return Ok((p, s, skipped)),
+            Err(e) => skipped.push((p, e)),
+        }
+    }
+    Err(skipped.into_iter().next().map_or_else(|| CheckpointError::Missing(run_dir.into()), |(_, e)| e))
 }
 
 #[cfg(test)]

@@ -74,7 +74,11 @@ impl RunModel {
         model.load_state(&state).map_err(|e| {
             TrainError::Invalid(format!("{}: {e} (the checkpoint does not hold the model {} describes)", path.display(), CONFIG_FILE))
         })?;
-        let steps = state.scalars.get("trainer.step").copied().unwrap_or(0.0) as u64;
+        let steps = if state.scalars.contains_key("trainer.step") {
+            state.count("trainer.step").map_err(|e| TrainError::Invalid(format!("{}: {e}", path.display())))?
+        } else {
+            0
+        };
         let wall_s = state.scalars.get("trainer.wall_s").copied().unwrap_or(0.0);
         Ok(Self { config, model, checkpoint: path, steps, wall_s })
     }

@@ -723,22 +723,24 @@ impl Trainer {
     fn load_state(&mut self, s: &StateDict) -> Result<(), TrainError> {
         self.model.load_state(s).map_err(TrainError::Invalid)?;
         let g = |k: &str| s.scalar(k).map_err(TrainError::Invalid);
-        self.step = g("trainer.step")? as u64;
+        let n = |k: &str| s.count(k).map_err(TrainError::Invalid);
+        self.step = n("trainer.step")?;
         self.wall_s = g("trainer.wall_s")?;
-        self.skipped_nonfinite = g("trainer.skipped_nonfinite")? as u64;
+        self.skipped_nonfinite = n("trainer.skipped_nonfinite")?;
         self.next_val_at = g("trainer.next_val_at")?;
         self.samples_per_ray = g("trainer.samples_per_ray")?;
         self.window = Window {
             loss: g("trainer.window.loss")?,
             mse: g("trainer.window.mse")?,
-            steps: g("trainer.window.steps")? as u64,
+            steps: n("trainer.window.steps")?,
             time: g("trainer.window.time")?,
-            rays: g("trainer.window.rays")? as u64,
-            samples: g("trainer.window.samples")? as u64,
+            rays: n("trainer.window.rays")?,
+            samples: n("trainer.window.samples")?,
             marched: 0,
         };
         // Checkpoints written before the count was kept hold only the evaluated samples.
-        self.window.marched = s.scalars.get("trainer.window.marched").map_or(self.window.samples, |v| *v as u64);
+        self.window.marched =
+            if s.scalars.contains_key("trainer.window.marched") { n("trainer.window.marched")? } else { self.window.samples };
         Ok(())
     }
 

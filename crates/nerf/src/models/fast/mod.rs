@@ -493,7 +493,7 @@ impl NerfModel for FastModel {
         self.grid.params = get("grid.params", n)?;
         self.grid_adam.m = get("grid_adam.m", n)?;
         self.grid_adam.v = get("grid_adam.v", n)?;
-        self.grid_adam.step = s.scalar("grid_adam.step")? as u64;
+        self.grid_adam.step = s.count("grid_adam.step")?;
         let cells = self.occupancy.n_cells();
         self.occupancy.density = get("occupancy.density", cells)?;
         let occupied = get("occupancy.occupied", cells)?;
