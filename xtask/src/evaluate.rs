@@ -213,6 +213,9 @@ fn other_demo_dataset(dir: &std::path::Path, want: &pathtracer::dataset_render::
 pub fn run_demo(args: DemoArgs) -> anyhow::Result<()> {
     let dataset_dir = args.out.join("dataset");
     let run_dir = args.out.join(format!("run-{}", args.model));
+    // Every option is checked before anything is rendered or removed.
+    nerf::train::TrainConfig::preset(&args.model, run_dir.clone()).map_err(|e| anyhow::anyhow!("--model {}: {e}", args.model))?;
+    crate::train::parse_duration(&args.time)?;
     let render_args = demo_render_args(&args, &dataset_dir);
     let cfg = crate::render::build_config(&render_args)?;
     // A dataset of an older renderer (e.g. another sampler) or of other settings is the demo's

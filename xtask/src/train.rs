@@ -201,19 +201,32 @@ const RUN_OUTPUTS: [&str; 11] = [
     "speed_vs_error.png",
 ];
 
-/// `--force`: removes the run in `dir` ([`RUN_OUTPUTS`], the per-view `grid_*.png` pictures
-/// and stale temporaries), after checking that its `config.json`, if any, is a training run's
-/// config: a folder that is not a run is never emptied.
-fn remove_run(dir: &std::path::Path) -> anyhow::Result<()> {
+/// `--force`, before anything is removed: the `config.json` in `dir`, if any, is a training
+/// run's config (a folder that is not a run is never emptied).
+fn check_replaceable(dir: &std::path::Path) -> anyhow::Result<()> {
     let config = dir.join(nerf::train::CONFIG_FILE);
     if config.exists() {
         TrainConfig::read(&config).map_err(|e| {
             anyhow::anyhow!("--force: {} is not a training run's config ({e}); --force replaces a run, not other files", config.display())
         })?;
     }
+    Ok(())
+}
+
+/// `--force`, once the new run is set up: removes the old run in `dir` ([`RUN_OUTPUTS`] less
+/// `keep`, the files the new run already wrote; the per-view `grid_*.png` pictures; stale
+/// temporaries). Its checkpoints go first, so that they never stand beside the new config long.
+fn remove_run(dir: &std::path::Path, keep: &[&str]) -> anyhow::Result<()> {
+    let checkpoints = dir.join("checkpoints");
+    if checkpoints.is_dir() {
+        std::fs::remove_dir_all(&checkpoints).with_context(|| format!("removing {} (--force)", checkpoints.display()))?;
+    }
     let entries = std::fs::read_dir(dir).with_context(|| format!("reading {}", dir.display()))?;
     for e in entries.flatten() {
         let name = e.file_name().to_string_lossy().into_owned();
+        if keep.contains(&name.as_str()) {
+            continue;
+        }
         let ours = RUN_OUTPUTS.contains(&name.as_str())
             || (name.starts_with("grid_") && name.ends_with(".png"))
             || (name.starts_with('.') && name.ends_with(".tmp"));
@@ -280,15 +293,22 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         resume_trainer(&args)?
     } else {
         let cfg = build_config(&args)?;
-        if holds_run(&args.out) {
+        let replacing = holds_run(&args.out);
+        if replacing {
             anyhow::ensure!(
                 args.force,
                 "{} already holds a training run (config.json or checkpoints): continue it with --resume, replace it with --force, or train into a new --out",
                 args.out.display()
             );
-            remove_run(&args.out)?;
+            check_replaceable(&args.out)?;
         }
-        Trainer::new(cfg, &args.out, false)?
+        // The trainer validates the dataset and the config before it writes anything (then the
+        // new config.json and an empty metrics.jsonl): the old run is removed only after that.
+        let trainer = Trainer::new(cfg, &args.out, false)?;
+        if replacing {
+            remove_run(&args.out, &[nerf::train::CONFIG_FILE, "metrics.jsonl"])?;
+        }
+        trainer
     };
     for reason in trainer.config.auto_reasons.iter().flatten() {
         eprintln!("auto: {reason}");
