@@ -105,6 +105,17 @@ pub fn stop_flag() -> Arc<AtomicBool> {
     .clone()
 }
 
+/// Refuses an output-folder option naming something that is not a folder (a regular file, a
+/// symlink loop): one sentence naming the option and the path. A missing path is fine (created).
+pub fn check_out_folder(option: &str, path: &std::path::Path) -> anyhow::Result<()> {
+    match std::fs::metadata(path) {
+        Ok(m) if m.is_dir() => Ok(()),
+        Ok(_) => anyhow::bail!("{option} {}: a file is there, not a folder; give a folder (it is created if missing)", path.display()),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(()),
+        Err(e) => anyhow::bail!("{option} {}: cannot be used as a folder ({e})", path.display()),
+    }
+}
+
 fn main() -> std::process::ExitCode {
     tune_allocator();
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()

@@ -104,18 +104,16 @@ impl TrainArgs {
     }
 }
 
-/// Parses a duration such as `90s`, `5m` or `1h` into seconds.
-pub fn parse_duration(s: &str) -> anyhow::Result<f64> {
-    let (num, unit) = s.split_at(s.find(|c: char| c.is_alphabetic()).unwrap_or(s.len()));
-    let v: f64 = num.trim().parse().with_context(|| format!("bad duration '{s}' (e.g. 90s, 5m, 1h)"))?;
-    let scale = match unit {
-        "" | "s" => 1.0,
-        "m" | "min" => 60.0,
-        "h" => 3600.0,
-        _ => anyhow::bail!("bad duration unit in '{s}' (s, m or h)"),
-    };
-    anyhow::ensure!(v.is_finite() && v > 0.0, "bad duration '{s}': a time budget must be positive");
-    Ok(v * scale)
+/// Parses the duration given to `option`, such as `90s`, `5m`, `1.5min` or `1h` (no unit:
+/// seconds), into seconds; refused unless a positive finite number of seconds.
+pub fn parse_duration(option: &str, s: &str) -> anyhow::Result<f64> {
+    let t = s.trim();
+    let (num, scale) =
+        [("min", 60.0), ("s", 1.0), ("m", 60.0), ("h", 3600.0)].into_iter().find_map(|(u, k)| t.strip_suffix(u).map(|n| (n, k))).unwrap_or((t, 1.0));
+    let v: f64 = num.trim().parse().map_err(|_| anyhow::anyhow!("{option} '{s}': not a duration (a number and a unit s, m or h: 90s, 5m, 1h)"))?;
+    let secs = v * scale;
+    anyhow::ensure!(secs.is_finite() && secs > 0.0, "{option} '{s}': a time budget must be a positive, finite number of seconds");
+    Ok(secs)
 }
 
 fn build_config(args: &TrainArgs) -> anyhow::Result<TrainConfig> {
@@ -175,7 +173,7 @@ fn apply_budget(args: &TrainArgs, cfg: &mut TrainConfig) -> anyhow::Result<()> {
         cfg.steps = Some(s);
     }
     if let Some(t) = &args.time {
-        cfg.time_budget_s = Some(parse_duration(t)?);
+        cfg.time_budget_s = Some(parse_duration("--time", t)?);
     }
     Ok(())
 }
@@ -288,6 +286,7 @@ fn resume_trainer(args: &TrainArgs) -> anyhow::Result<Trainer> {
 
 /// Trains a model.
 pub fn run(args: TrainArgs) -> anyhow::Result<()> {
+    crate::check_out_folder("--out", &args.out)?;
     let stop = crate::stop_flag();
     let mut trainer = if args.resume {
         resume_trainer(&args)?
@@ -412,6 +411,7 @@ pub fn run_render(args: RenderNerfArgs) -> anyhow::Result<()> {
     };
     anyhow::ensure!(!cameras.is_empty(), "dataset {} has no {label} views", model.dataset_dir().display());
     let out = args.out.clone().unwrap_or_else(|| args.run.join("renders").join(&label));
+    crate::check_out_folder("--out", &out)?;
     let bg = model.eval_background();
     let bar = indicatif::ProgressBar::new(cameras.len() as u64);
     for (name, cam) in &cameras {
