@@ -104,6 +104,9 @@ impl TrainArgs {
     }
 }
 
+/// The longest time budget accepted: longer is a typo (e.g. `1e300h`), not a plan.
+const MOST_BUDGET_S: f64 = 1e9;
+
 /// Parses the duration given to `option`, such as `90s`, `5m`, `1.5min` or `1h` (no unit:
 /// seconds), into seconds; refused unless a positive finite number of seconds.
 pub fn parse_duration(option: &str, s: &str) -> anyhow::Result<f64> {
@@ -113,6 +116,7 @@ pub fn parse_duration(option: &str, s: &str) -> anyhow::Result<f64> {
     let v: f64 = num.trim().parse().map_err(|_| anyhow::anyhow!("{option} '{s}': not a duration (a number and a unit s, m or h: 90s, 5m, 1h)"))?;
     let secs = v * scale;
     anyhow::ensure!(secs.is_finite() && secs > 0.0, "{option} '{s}': a time budget must be a positive, finite number of seconds");
+    anyhow::ensure!(secs <= MOST_BUDGET_S, "{option} '{s}': at most {MOST_BUDGET_S:e} s (about 31 years)");
     Ok(secs)
 }
 
