@@ -84,7 +84,7 @@ fn demo_run_resumable(run_dir: &std::path::Path, args: &DemoArgs) -> anyhow::Res
     if !run_dir.exists() {
         return Ok(false);
     }
-    let budget = crate::train::parse_duration(&args.time)?;
+    let budget = crate::train::parse_duration("--time", &args.time)?;
     let same = match nerf::render::RunModel::load(run_dir) {
         Ok(m) => m.config.model_label() == args.model && m.config.time_budget_s == Some(budget),
         Err(_) => false,
@@ -213,6 +213,10 @@ fn other_demo_dataset(dir: &std::path::Path, want: &pathtracer::dataset_render::
 pub fn run_demo(args: DemoArgs) -> anyhow::Result<()> {
     let dataset_dir = args.out.join("dataset");
     let run_dir = args.out.join(format!("run-{}", args.model));
+    // Every option is checked before anything is rendered or removed.
+    crate::check_out_folder("--out", &args.out)?;
+    nerf::train::TrainConfig::preset(&args.model, run_dir.clone()).map_err(|e| anyhow::anyhow!("--model {}: {e}", args.model))?;
+    crate::train::parse_duration("--time", &args.time)?;
     let render_args = demo_render_args(&args, &dataset_dir);
     let cfg = crate::render::build_config(&render_args)?;
     // A dataset of an older renderer (e.g. another sampler) or of other settings is the demo's

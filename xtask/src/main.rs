@@ -76,9 +76,11 @@ enum Command {
     Crosscheck(crosscheck::CrosscheckArgs),
 }
 
-/// The process-wide stop flag, set by Ctrl-C (the handler is installed on first use, once, so
-/// `demo` can render and then train under the same handler). Long commands check it between
-/// units of work (views, steps), save what they have, and stop so that a re-run resumes.
+/// The process-wide stop flag, set by Ctrl-C (SIGINT) and by SIGTERM and SIGHUP (how schedulers
+/// such as Ray Tune stop a trial; ctrlc's `termination` feature). The handler is installed on
+/// first use, once, so `demo` can render and then train under the same handler. Long commands
+/// check it between units of work (views, steps), save what they have, and stop so that a
+/// re-run resumes.
 pub fn stop_flag() -> Arc<AtomicBool> {
     static FLAG: OnceLock<Arc<AtomicBool>> = OnceLock::new();
     FLAG.get_or_init(|| {
@@ -89,18 +91,29 @@ pub fn stop_flag() -> Arc<AtomicBool> {
             eprintln!("\ninterrupt: finishing the current unit of work, then stopping (re-run to resume)");
         }) {
             match e {
-                // SIGINT already has a disposition other than the default: the usual cause is a
-                // shell that started this process in the background (`cmd &` in a script sets
-                // SIGINT to ignored), where no Ctrl-C reaches it anyway.
+                // SIGINT, SIGTERM or SIGHUP already has a disposition other than the default: the
+                // usual causes are a shell that started this process in the background (`cmd &`
+                // in a script ignores SIGINT) and `nohup` (ignores SIGHUP); that choice is kept.
                 ctrlc::Error::MultipleHandlers => {
-                    tracing::debug!("SIGINT is already ignored or handled; no Ctrl-C handler installed")
+                    tracing::debug!("SIGINT, SIGTERM or SIGHUP is already ignored or handled; no stop handler installed")
                 }
-                e => tracing::warn!("cannot install the Ctrl-C handler ({e}); Ctrl-C will stop without saving"),
+                e => tracing::warn!("cannot install the Ctrl-C/SIGTERM handler ({e}); a signal will stop without saving"),
             }
         }
         flag
     })
     .clone()
+}
+
+/// Refuses an output-folder option naming something that is not a folder (a regular file, a
+/// symlink loop): one sentence naming the option and the path. A missing path is fine (created).
+pub fn check_out_folder(option: &str, path: &std::path::Path) -> anyhow::Result<()> {
+    match std::fs::metadata(path) {
+        Ok(m) if m.is_dir() => Ok(()),
+        Ok(_) => anyhow::bail!("{option} {}: a file is there, not a folder; give a folder (it is created if missing)", path.display()),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(()),
+        Err(e) => anyhow::bail!("{option} {}: cannot be used as a folder ({e})", path.display()),
+    }
 }
 
 fn main() -> std::process::ExitCode {

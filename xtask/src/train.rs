@@ -104,18 +104,24 @@ impl TrainArgs {
     }
 }
 
-/// Parses a duration such as `90s`, `5m` or `1h` into seconds.
-pub fn parse_duration(s: &str) -> anyhow::Result<f64> {
-    let (num, unit) = s.split_at(s.find(|c: char| c.is_alphabetic()).unwrap_or(s.len()));
-    let v: f64 = num.trim().parse().with_context(|| format!("bad duration '{s}' (e.g. 90s, 5m, 1h)"))?;
-    let scale = match unit {
-        "" | "s" => 1.0,
-        "m" | "min" => 60.0,
-        "h" => 3600.0,
-        _ => anyhow::bail!("bad duration unit in '{s}' (s, m or h)"),
-    };
-    anyhow::ensure!(v.is_finite() && v > 0.0, "bad duration '{s}': a time budget must be positive");
-    Ok(v * scale)
+/// The longest time budget accepted: longer is a typo (e.g. `1e300h`), not a plan.
+const MOST_BUDGET_S: f64 = 1e9;
+
+/// Parses the duration given to `option`, such as `90s`, `5m`, `1.5min` or `1h` (no unit:
+/// seconds), into seconds; refused unless a positive finite number of seconds.
+pub fn parse_duration(option: &str, s: &str) -> anyhow::Result<f64> {
+    let t = s.trim();
+    let (num, scale) =
+        [("min", 60.0), ("s", 1.0), ("m", 60.0), ("h", 3600.0)].into_iter().find_map(|(u, k)| t.strip_suffix(u).map(|n| (n, k))).unwrap_or((t, 1.0));
+    let v: f64 = num.trim().parse().map_err(|_| {
+        let why = if num.contains(char::is_alphabetic) { "bad duration unit" } else { "not a duration" };
+        anyhow::anyhow!("{option} '{s}': {why} (a number and a unit s, m or h: 90s, 5m, 1h)")
+    })?;
+    let secs = v * scale;
+    anyhow::ensure!(!secs.is_nan(), "{option} '{s}': not a number of seconds");
+    anyhow::ensure!(secs > 0.0, "{option} '{s}': a time budget must be positive");
+    anyhow::ensure!(secs <= MOST_BUDGET_S, "{option} '{s}': at most {MOST_BUDGET_S:e} s (about 31 years)");
+    Ok(secs)
 }
 
 fn build_config(args: &TrainArgs) -> anyhow::Result<TrainConfig> {
@@ -175,7 +181,7 @@ fn apply_budget(args: &TrainArgs, cfg: &mut TrainConfig) -> anyhow::Result<()> {
         cfg.steps = Some(s);
     }
     if let Some(t) = &args.time {
-        cfg.time_budget_s = Some(parse_duration(t)?);
+        cfg.time_budget_s = Some(parse_duration("--time", t)?);
     }
     Ok(())
 }
@@ -201,19 +207,32 @@ const RUN_OUTPUTS: [&str; 11] = [
     "speed_vs_error.png",
 ];
 
-/// `--force`: removes the run in `dir` ([`RUN_OUTPUTS`], the per-view `grid_*.png` pictures
-/// and stale temporaries), after checking that its `config.json`, if any, is a training run's
-/// config: a folder that is not a run is never emptied.
-fn remove_run(dir: &std::path::Path) -> anyhow::Result<()> {
+/// `--force`, before anything is removed: the `config.json` in `dir`, if any, is a training
+/// run's config (a folder that is not a run is never emptied).
+fn check_replaceable(dir: &std::path::Path) -> anyhow::Result<()> {
     let config = dir.join(nerf::train::CONFIG_FILE);
     if config.exists() {
         TrainConfig::read(&config).map_err(|e| {
             anyhow::anyhow!("--force: {} is not a training run's config ({e}); --force replaces a run, not other files", config.display())
         })?;
     }
+    Ok(())
+}
+
+/// `--force`, once the new run is set up: removes the old run in `dir` ([`RUN_OUTPUTS`] less
+/// `keep`, the files the new run already wrote; the per-view `grid_*.png` pictures; stale
+/// temporaries). Its checkpoints go first, so that they never stand beside the new config long.
+fn remove_run(dir: &std::path::Path, keep: &[&str]) -> anyhow::Result<()> {
+    let checkpoints = dir.join("checkpoints");
+    if checkpoints.is_dir() {
+        std::fs::remove_dir_all(&checkpoints).with_context(|| format!("removing {} (--force)", checkpoints.display()))?;
+    }
     let entries = std::fs::read_dir(dir).with_context(|| format!("reading {}", dir.display()))?;
     for e in entries.flatten() {
         let name = e.file_name().to_string_lossy().into_owned();
+        if keep.contains(&name.as_str()) {
+            continue;
+        }
         let ours = RUN_OUTPUTS.contains(&name.as_str())
             || (name.starts_with("grid_") && name.ends_with(".png"))
             || (name.starts_with('.') && name.ends_with(".tmp"));
@@ -275,20 +294,28 @@ fn resume_trainer(args: &TrainArgs) -> anyhow::Result<Trainer> {
 
 /// Trains a model.
 pub fn run(args: TrainArgs) -> anyhow::Result<()> {
+    crate::check_out_folder("--out", &args.out)?;
     let stop = crate::stop_flag();
     let mut trainer = if args.resume {
         resume_trainer(&args)?
     } else {
         let cfg = build_config(&args)?;
-        if holds_run(&args.out) {
+        let replacing = holds_run(&args.out);
+        if replacing {
             anyhow::ensure!(
                 args.force,
                 "{} already holds a training run (config.json or checkpoints): continue it with --resume, replace it with --force, or train into a new --out",
                 args.out.display()
             );
-            remove_run(&args.out)?;
+            check_replaceable(&args.out)?;
         }
-        Trainer::new(cfg, &args.out, false)?
+        // The trainer validates the dataset and the config before it writes anything (then the
+        // new config.json and an empty metrics.jsonl): the old run is removed only after that.
+        let trainer = Trainer::new(cfg, &args.out, false)?;
+        if replacing {
+            remove_run(&args.out, &[nerf::train::CONFIG_FILE, "metrics.jsonl"])?;
+        }
+        trainer
     };
     for reason in trainer.config.auto_reasons.iter().flatten() {
         eprintln!("auto: {reason}");
@@ -392,6 +419,7 @@ pub fn run_render(args: RenderNerfArgs) -> anyhow::Result<()> {
     };
     anyhow::ensure!(!cameras.is_empty(), "dataset {} has no {label} views", model.dataset_dir().display());
     let out = args.out.clone().unwrap_or_else(|| args.run.join("renders").join(&label));
+    crate::check_out_folder("--out", &out)?;
     let bg = model.eval_background();
     let bar = indicatif::ProgressBar::new(cameras.len() as u64);
     for (name, cam) in &cameras {

@@ -382,7 +382,7 @@ fn host_lines(dir: &Path, runs: &[eval::RunSummary]) -> String {
 
 /// Runs the benchmark.
 pub fn run(args: AutoBenchArgs) -> anyhow::Result<()> {
-    let budget_s = crate::train::parse_duration(&args.budget)?;
+    let budget_s = crate::train::parse_duration("--budget", &args.budget)?;
     let configs = comma_list(&args.configs);
     let seeds = parse_seeds(&args.seeds)?;
     for c in &configs {

@@ -1,0 +1,172 @@
+//! Hostile and careless input to the command line: signals from a scheduler, inputs that do not
+//! exist or do not parse, outputs that name the wrong kind of thing. Each case checks that
+//! nothing the user had is lost and that the refusal is one sentence naming what is wrong.
+
+use nerf::models::ModelConfig;
+use nerf::models::fast::FastConfig;
+use nerf::train::TrainConfig;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+fn xtask() -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_xtask"));
+    c.stdin(Stdio::null()).stdout(Stdio::null()).stderr(Stdio::null());
+    c
+}
+
+/// Runs `xtask ARGS` to completion and returns its output.
+fn run(args: &[&std::ffi::OsStr]) -> Output {
+    let mut c = xtask();
+    c.stdout(Stdio::piped()).stderr(Stdio::piped()).args(args);
+    c.output().unwrap()
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+/// A small fast model on the analytic dataset in `dir/data`, stopped by a step count far beyond
+/// what a test waits for, checkpointed only when it stops.
+fn write_config(dir: &Path) -> PathBuf {
+    let data = dir.join("data");
+    nerf::data::synthetic::write(&data, 16, [4, 1, 1], false).unwrap();
+    let fast = FastConfig::new()
+        .with_levels(4)
+        .with_log2_table_size(12)
+        .with_finest_resolution(64)
+        .with_grid_resolution(16)
+        .with_steps_per_diagonal(64)
+        .with_grid_warmup_steps(8)
+        .with_grid_update_interval(4);
+    let cfg = TrainConfig::new(data, ModelConfig::Fast(fast), 128, 1e-2, 1e-3, 400)
+        .with_seed(7)
+        .with_steps(Some(1_000_000))
+        .with_log_interval_steps(10)
+        .with_checkpoint_interval_steps(1_000_000)
+        .with_val_interval_s(Some(1e9))
+        .with_val_max_pixels(256);
+    let path = dir.join("train.json");
+    std::fs::write(&path, serde_json::to_string_pretty(&cfg).unwrap()).unwrap();
+    path
+}
+
+fn checkpoints(run: &Path) -> Vec<PathBuf> {
+    let Ok(entries) = std::fs::read_dir(run.join("checkpoints")) else { return Vec::new() };
+    let mut v: Vec<PathBuf> = entries.flatten().map(|e| e.path()).filter(|p| p.extension().is_some_and(|e| e == "ckpt")).collect();
+    v.sort();
+    v
+}
+
+/// SIGTERM (how Ray Tune and cluster drivers stop a trial) stops `train` as Ctrl-C does: the
+/// current step finishes, a checkpoint is written, the process exits 0, and `--resume` continues.
+#[test]
+fn train_stopped_by_sigterm_writes_a_checkpoint_and_exits_cleanly() {
+    let tmp = tempfile::tempdir().unwrap();
+    let config = write_config(tmp.path());
+    let run_dir = tmp.path().join("run");
+    let mut c = xtask();
+    c.stderr(Stdio::piped()).arg("train").arg("--config").arg(&config).arg("--out").arg(&run_dir);
+    let child = c.spawn().unwrap();
+    let deadline = Instant::now() + Duration::from_secs(120);
+    while std::fs::read_to_string(run_dir.join("metrics.jsonl")).map_or(0, |t| t.lines().count()) < 2 {
+        assert!(Instant::now() < deadline, "train wrote no metric lines in two minutes");
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    assert!(checkpoints(&run_dir).is_empty(), "a checkpoint before the signal: the test would prove nothing");
+    let killed = Command::new("kill").arg("-TERM").arg(child.id().to_string()).status().unwrap();
+    assert!(killed.success());
+    let out = child.wait_with_output().unwrap();
+    let err = stderr(&out);
+    assert!(out.status.success(), "train stopped by SIGTERM exited with {}: {err}", out.status);
+    assert!(err.contains("interrupted"), "{err}");
+    let ckpts = checkpoints(&run_dir);
+    assert_eq!(ckpts.len(), 1, "{ckpts:?}");
+    nerf::checkpoint::load(&ckpts[0]).unwrap();
+    let step: u64 = ckpts[0].file_stem().unwrap().to_str().unwrap().strip_prefix("step-").unwrap().parse().unwrap();
+    let more = (step + 5).to_string();
+    let resumed = run(&["train".as_ref(), "--out".as_ref(), run_dir.as_os_str(), "--resume".as_ref(), "--steps".as_ref(), more.as_ref()]);
+    assert!(resumed.status.success(), "{}", stderr(&resumed));
+}
+
+/// A run folder with a finished-looking run and a file of the user's: config.json (a training
+/// run's), metrics.jsonl and `notes.txt`.
+fn run_folder(dir: &Path) -> PathBuf {
+    let run_dir = dir.join("run");
+    std::fs::create_dir_all(&run_dir).unwrap();
+    let cfg = TrainConfig::preset("fast", dir.join("data")).unwrap().with_steps(Some(10));
+    std::fs::write(run_dir.join("config.json"), serde_json::to_string_pretty(&cfg).unwrap()).unwrap();
+    std::fs::write(run_dir.join("metrics.jsonl"), "{\"step\":10}\n").unwrap();
+    std::fs::write(run_dir.join("notes.txt"), "mine").unwrap();
+    run_dir
+}
+
+fn folder_bytes(dir: &Path) -> Vec<(String, Vec<u8>)> {
+    test_support::files(dir)
+}
+
+/// `train MISSING --out RUN --force` is refused on the dataset before the run in RUN is touched.
+#[test]
+fn train_force_with_a_missing_dataset_keeps_the_run() {
+    let tmp = tempfile::tempdir().unwrap();
+    let run_dir = run_folder(tmp.path());
+    let before = folder_bytes(&run_dir);
+    let missing = tmp.path().join("no-such-dataset");
+    let o = run(&["train".as_ref(), missing.as_os_str(), "--out".as_ref(), run_dir.as_os_str(), "--force".as_ref(), "--steps".as_ref(), "5".as_ref()]);
+    assert!(!o.status.success(), "train on a missing dataset succeeded");
+    assert!(stderr(&o).contains("no-such-dataset"), "{}", stderr(&o));
+    assert_eq!(folder_bytes(&run_dir), before, "the run folder changed although the new run was refused");
+}
+
+/// `demo --model nonsense` is refused before anything is rendered or removed.
+#[test]
+fn demo_with_an_unknown_model_touches_nothing() {
+    let tmp = tempfile::tempdir().unwrap();
+    let old = tmp.path().join("run-nonsense");
+    std::fs::create_dir_all(&old).unwrap();
+    std::fs::write(old.join("notes.txt"), "mine").unwrap();
+    let o = run(&["demo".as_ref(), "--model".as_ref(), "nonsense".as_ref(), "--out".as_ref(), tmp.path().as_os_str()]);
+    assert!(!o.status.success(), "demo with an unknown model succeeded");
+    assert!(stderr(&o).contains("nonsense"), "{}", stderr(&o));
+    assert_eq!(std::fs::read_to_string(old.join("notes.txt")).unwrap(), "mine");
+    assert!(!tmp.path().join("dataset").exists(), "demo rendered before validating its options");
+}
+
+/// `--time` values that parse as floats but are no duration: one message naming `--time`.
+#[test]
+fn train_time_that_is_not_a_duration_is_refused_naming_the_option() {
+    let tmp = tempfile::tempdir().unwrap();
+    let config = write_config(tmp.path());
+    for bad in ["1e300h", "nan", "inf", "-inf", "infinity", "1e400", "0s", "-5m", "5 parsecs", ""] {
+        let run_dir = tmp.path().join("run");
+        let o = run(&["train".as_ref(), "--config".as_ref(), config.as_os_str(), "--out".as_ref(), run_dir.as_os_str(), "--time".as_ref(), bad.as_ref()]);
+        let err = stderr(&o);
+        assert!(!o.status.success(), "--time {bad:?} accepted");
+        assert!(err.contains("--time"), "--time {bad:?}: {err}");
+        assert!(!err.contains("cannot parse"), "--time {bad:?}: {err}");
+        assert!(!run_dir.exists(), "--time {bad:?}: the run folder was created");
+    }
+}
+
+/// `--out` naming an existing regular file: a sentence naming the option and the path, and the
+/// file is left as it was.
+#[test]
+fn out_naming_a_file_is_refused_naming_the_option_and_path() {
+    let tmp = tempfile::tempdir().unwrap();
+    let config = write_config(tmp.path());
+    let file = tmp.path().join("a-file.txt");
+    std::fs::write(&file, "mine").unwrap();
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/cornell.gltf");
+    let cases: Vec<Vec<&std::ffi::OsStr>> = vec![
+        vec!["train".as_ref(), "--config".as_ref(), config.as_os_str(), "--out".as_ref(), file.as_os_str()],
+        vec!["render".as_ref(), scene.as_os_str(), "--out".as_ref(), file.as_os_str(), "--res".as_ref(), "8".as_ref()],
+    ];
+    for args in cases {
+        let o = run(&args);
+        let err = stderr(&o);
+        assert!(!o.status.success(), "{args:?} succeeded");
+        assert!(err.contains("--out") && err.contains(&*file.to_string_lossy()), "{args:?}: {err}");
+        assert!(!err.contains("os error 17"), "{args:?}: {err}");
+        assert_eq!(std::fs::read_to_string(&file).unwrap(), "mine");
+    }
+}
