@@ -3,7 +3,6 @@
 //! nothing the user had is lost and that the refusal is one sentence naming what is wrong.
 
 use nerf::models::ModelConfig;
-use nerf::models::fast::FastConfig;
 use nerf::train::TrainConfig;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
@@ -31,14 +30,7 @@ fn stderr(o: &Output) -> String {
 fn write_config(dir: &Path) -> PathBuf {
     let data = dir.join("data");
     nerf::data::synthetic::write(&data, 16, [4, 1, 1], false).unwrap();
-    let fast = FastConfig::new()
-        .with_levels(4)
-        .with_log2_table_size(12)
-        .with_finest_resolution(64)
-        .with_grid_resolution(16)
-        .with_steps_per_diagonal(64)
-        .with_grid_warmup_steps(8)
-        .with_grid_update_interval(4);
+    let fast = test_support::training::tiny_fast(8, 4);
     let cfg = TrainConfig::new(data, ModelConfig::Fast(fast), 128, 1e-2, 1e-3, 400)
         .with_seed(7)
         .with_steps(Some(1_000_000))
