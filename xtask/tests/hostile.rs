@@ -2,7 +2,6 @@
 //! exist or do not parse, outputs that name the wrong kind of thing. Each case checks that
 //! nothing the user had is lost and that the refusal is one sentence naming what is wrong.
 
-use nerf::models::ModelConfig;
 use nerf::train::TrainConfig;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
@@ -28,19 +27,7 @@ fn stderr(o: &Output) -> String {
 /// A small fast model on the analytic dataset in `dir/data`, stopped by a step count far beyond
 /// what a test waits for, checkpointed only when it stops.
 fn write_config(dir: &Path) -> PathBuf {
-    let data = dir.join("data");
-    nerf::data::synthetic::write(&data, 16, [4, 1, 1], false).unwrap();
-    let fast = test_support::training::tiny_fast(8, 4);
-    let cfg = TrainConfig::new(data, ModelConfig::Fast(fast), 128, 1e-2, 1e-3, 400)
-        .with_seed(7)
-        .with_steps(Some(1_000_000))
-        .with_log_interval_steps(10)
-        .with_checkpoint_interval_steps(1_000_000)
-        .with_val_interval_s(Some(1e9))
-        .with_val_max_pixels(256);
-    let path = dir.join("train.json");
-    std::fs::write(&path, serde_json::to_string_pretty(&cfg).unwrap()).unwrap();
-    path
+    test_support::training::write_cli_config(dir, 1_000_000, 1_000_000)
 }
 
 fn checkpoints(run: &Path) -> Vec<PathBuf> {

@@ -6,7 +6,6 @@
 //! is complete (config.json and every checkpoint load, every metrics line parses), and no
 //! temporary file is left once the run completes.
 
-use nerf::models::ModelConfig;
 use nerf::train::TrainConfig;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -24,19 +23,7 @@ fn xtask() -> Command {
 /// A small fast model on the analytic dataset, stopped by a step count, validated only at the
 /// end (validation during training is on the wall clock, so it would differ between runs).
 fn write_config(dir: &Path) -> PathBuf {
-    let data = dir.join("data");
-    nerf::data::synthetic::write(&data, 16, [4, 1, 1], false).unwrap();
-    let fast = test_support::training::tiny_fast(8, 4);
-    let cfg = TrainConfig::new(data, ModelConfig::Fast(fast), 128, 1e-2, 1e-3, 400)
-        .with_seed(7)
-        .with_steps(Some(STEPS))
-        .with_log_interval_steps(10)
-        .with_checkpoint_interval_steps(CHECKPOINT_EVERY)
-        .with_val_interval_s(Some(1e9))
-        .with_val_max_pixels(256);
-    let path = dir.join("train.json");
-    std::fs::write(&path, serde_json::to_string_pretty(&cfg).unwrap()).unwrap();
-    path
+    test_support::training::write_cli_config(dir, STEPS, CHECKPOINT_EVERY)
 }
 
 fn fresh(config: &Path, run: &Path) -> Command {

@@ -3,7 +3,7 @@
 
 use nerf::models::fast::FastConfig;
 use nerf::train::{Summary, Trainer};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 
 /// A temporary folder holding the analytic dataset at `<tmp>/data` (our layout, with depth and
@@ -46,4 +46,24 @@ pub fn small_fast(grid_warmup_steps: u64, grid_update_interval: u64) -> FastConf
 /// Runs `trainer` to the end of its budget, never interrupted, without a progress callback.
 pub fn run_to_end(trainer: &mut Trainer) -> Summary {
     trainer.run(&AtomicBool::new(false), &mut |_| {}).unwrap()
+}
+
+/// Writes the analytic dataset to `dir/data` and a training config for [`tiny_fast`] on it to
+/// `dir/train.json` (seed 7, 128 rays per step, a log line every 10 steps, validation only at
+/// the end: validation during training is on the wall clock), stopping after `steps` and
+/// checkpointing every `checkpoint_every` steps; returns the config's path, for `xtask train
+/// --config`.
+pub fn write_cli_config(dir: &Path, steps: u64, checkpoint_every: u64) -> PathBuf {
+    let data = dir.join("data");
+    nerf::data::synthetic::write(&data, 16, [4, 1, 1], false).unwrap();
+    let cfg = nerf::train::TrainConfig::new(data, nerf::models::ModelConfig::Fast(tiny_fast(8, 4)), 128, 1e-2, 1e-3, 400)
+        .with_seed(7)
+        .with_steps(Some(steps))
+        .with_log_interval_steps(10)
+        .with_checkpoint_interval_steps(checkpoint_every)
+        .with_val_interval_s(Some(1e9))
+        .with_val_max_pixels(256);
+    let path = dir.join("train.json");
+    std::fs::write(&path, serde_json::to_string_pretty(&cfg).unwrap()).unwrap();
+    path
 }
