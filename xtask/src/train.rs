@@ -313,7 +313,7 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         // new config.json and an empty metrics.jsonl): the old run is removed only after that.
         let trainer = Trainer::new(cfg, &args.out, false)?;
         if replacing {
-            remove_run(&args.out, &[nerf::train::CONFIG_FILE, "metrics.jsonl"])?;
+            remove_run(&args.out, &[nerf::train::CONFIG_FILE, nerf::train::METRICS_FILE])?;
         }
         trainer
     };
