@@ -61,7 +61,8 @@ pub struct DemoArgs {
     /// Scene name in `scenes/` or a glTF path.
     #[arg(long, default_value = "tabletop")]
     pub scene: String,
-    /// Output folder: `<out>/dataset` and `<out>/run-<model>`.
+    /// Output folder: `<out>/dataset` and `<out>/run-<model>-<time>` (with `--preset P`:
+    /// `<out>/dataset-P` and `<out>/run-<model>-<time>-P`).
     #[arg(long, default_value = "out/demo")]
     pub out: PathBuf,
     /// Training time budget (e.g. 90s, 3m).
@@ -76,13 +77,25 @@ pub struct DemoArgs {
     pub model: String,
 }
 
-/// Whether the demo's run folder holds a run to continue: its checkpoint loads and it was
-/// started with the same model and time budget. A stale run folder (another model or budget, or
-/// written by an older version whose checkpoint no longer loads) belongs to the demo and is
-/// removed so the demo starts afresh instead of failing.
-fn demo_run_resumable(run_dir: &std::path::Path, args: &DemoArgs) -> anyhow::Result<bool> {
-    if !run_dir.exists() {
-        return Ok(false);
+/// How the demo trains into its run folder: continue the run there, start it, or replace it
+/// (`train --force`: only the files a run writes are removed). A run folder is named by its model,
+/// time budget and dataset, so another `--model`, `--time` or `--preset` trains into a folder of
+/// its own and never touches an earlier run; a run there is replaced only when its dataset was
+/// rendered again or its checkpoint no longer loads (an older version's).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum DemoRun {
+    Resume,
+    Fresh,
+    Replace,
+}
+
+fn demo_run_state(run_dir: &std::path::Path, args: &DemoArgs, dataset_rendered_again: bool) -> anyhow::Result<DemoRun> {
+    if !run_dir.join(nerf::train::CONFIG_FILE).exists() && nerf::checkpoint::latest(run_dir).is_none() {
+        return Ok(DemoRun::Fresh);
+    }
+    if dataset_rendered_again {
+        eprintln!("{} was trained on the dataset before it was rendered again; training it afresh", run_dir.display());
+        return Ok(DemoRun::Replace);
     }
     let budget = crate::train::parse_duration("--time", &args.time)?;
     let same = match nerf::render::RunModel::load(run_dir) {
@@ -90,10 +103,19 @@ fn demo_run_resumable(run_dir: &std::path::Path, args: &DemoArgs) -> anyhow::Res
         Err(_) => false,
     };
     if !same {
-        eprintln!("{} holds a different or unreadable run; starting afresh", run_dir.display());
-        std::fs::remove_dir_all(run_dir).with_context(|| format!("removing {}", run_dir.display()))?;
+        eprintln!("{} holds a different or unreadable run; training it afresh", run_dir.display());
+        return Ok(DemoRun::Replace);
     }
-    Ok(same)
+    Ok(DemoRun::Resume)
+}
+
+/// The demo's dataset and run folders under `--out`: `dataset` (the demo's own settings) or
+/// `dataset-<preset>`, and `run-<model>-<time>` with the same suffix, the time as given with
+/// anything but letters, digits and dots dropped (`3m`, `90s`, `1.5min`).
+fn demo_folders(args: &DemoArgs) -> (std::path::PathBuf, std::path::PathBuf) {
+    let suffix = args.preset.map_or(String::new(), |p| format!("-{}", serde_json::to_value(p).ok().and_then(|v| v.as_str().map(str::to_owned)).unwrap_or_default()));
+    let time: String = args.time.chars().filter(|c| c.is_ascii_alphanumeric() || *c == '.').collect();
+    (args.out.join(format!("dataset{suffix}")), args.out.join(format!("run-{}-{time}{suffix}", args.model)))
 }
 
 fn parse_split(s: &str) -> anyhow::Result<SplitKind> {
@@ -211,34 +233,32 @@ fn other_demo_dataset(dir: &std::path::Path, want: &pathtracer::dataset_render::
 
 /// Renders the default scene, trains, evaluates, prints the summary and says where to look.
 pub fn run_demo(args: DemoArgs) -> anyhow::Result<()> {
-    let dataset_dir = args.out.join("dataset");
-    let run_dir = args.out.join(format!("run-{}", args.model));
+    let (dataset_dir, run_dir) = demo_folders(&args);
     // Every option is checked before anything is rendered or removed.
     crate::check_out_folder("--out", &args.out)?;
     nerf::train::TrainConfig::preset(&args.model, run_dir.clone()).map_err(|e| anyhow::anyhow!("--model {}: {e}", args.model))?;
     crate::train::parse_duration("--time", &args.time)?;
-    let render_args = demo_render_args(&args, &dataset_dir);
+    let mut render_args = demo_render_args(&args, &dataset_dir);
     let cfg = crate::render::build_config(&render_args)?;
     // A dataset of an older renderer (e.g. another sampler) or of other settings is the demo's
-    // own: render it again and drop the run trained on it, instead of refusing to resume.
+    // own: it is rendered again (`render --force`: only the files a render writes are replaced)
+    // instead of refusing to resume, and the run trained on it starts afresh.
     let stale = match crate::render::older_renderer(&dataset_dir) {
         Some(old) => Some(format!("was rendered by {old}")),
         None => other_demo_dataset(&dataset_dir, &cfg).then(|| "holds a dataset with other settings".to_string()),
     };
-    if let Some(why) = stale {
+    if let Some(why) = &stale {
         eprintln!("{} {why}; rendering it again", dataset_dir.display());
-        for d in [&dataset_dir, &run_dir] {
-            if d.exists() {
-                std::fs::remove_dir_all(d).with_context(|| format!("removing {}", d.display()))?;
-            }
-        }
+        render_args.force = true;
     }
     let what = format!("{} train views at {}x{}, {} spp", cfg.train, cfg.width, cfg.height, cfg.spp);
     eprintln!("== 1/3 render {} ({what}) into {}", args.scene, dataset_dir.display());
     crate::render::run(render_args)?;
     eprintln!("== 2/3 train {} for {} into {}", args.model, args.time, run_dir.display());
-    let resume = demo_run_resumable(&run_dir, &args)?;
-    crate::train::run(crate::train::TrainArgs::for_demo(&dataset_dir, &run_dir, &args.model, &args.time, resume))?;
+    let state = demo_run_state(&run_dir, &args, stale.is_some())?;
+    let mut train_args = crate::train::TrainArgs::for_demo(&dataset_dir, &run_dir, &args.model, &args.time, state == DemoRun::Resume);
+    train_args.force = state == DemoRun::Replace;
+    crate::train::run(train_args)?;
     eprintln!("== 3/3 evaluate on the test views");
     run(EvalArgs::at_training_resolution(run_dir.clone(), "test", 3, None))?;
     println!(
@@ -275,6 +295,30 @@ mod tests {
             let cfg = crate::render::build_config(&demo_render_args(&demo(Some(preset)), dir)).unwrap();
             assert_eq!(cfg, DatasetRenderConfig::preset(preset));
         }
+    }
+
+    #[test]
+    fn another_time_model_or_preset_trains_into_a_folder_of_its_own() {
+        let with = |time: &str, model: &str, preset| DemoArgs { time: time.into(), model: model.into(), ..demo(preset) };
+        let (d, r) = demo_folders(&with("3m", "auto", None));
+        assert_eq!((d.as_path(), r.as_path()), (std::path::Path::new("out/demo/dataset"), std::path::Path::new("out/demo/run-auto-3m")));
+        let (dq, rq) = demo_folders(&with("1.5min", "fast", Some(Preset::Quick)));
+        assert_eq!((dq.as_path(), rq.as_path()), (std::path::Path::new("out/demo/dataset-quick"), std::path::Path::new("out/demo/run-fast-1.5min-quick")));
+        // Path separators and the like never reach the folder name.
+        assert_eq!(demo_folders(&with("../3 m", "auto", None)).1, std::path::Path::new("out/demo/run-auto-..3m"));
+        let names: std::collections::HashSet<_> =
+            [("3m", "auto"), ("90s", "auto"), ("3m", "fast")].iter().map(|(t, m)| demo_folders(&with(t, m, None)).1).collect();
+        assert_eq!(names.len(), 3);
+    }
+
+    #[test]
+    fn an_empty_run_folder_is_fresh_and_a_rendered_again_dataset_replaces_its_run() {
+        let tmp = tempfile::tempdir().unwrap();
+        let args = demo(None);
+        assert_eq!(demo_run_state(tmp.path(), &args, true).unwrap(), DemoRun::Fresh);
+        std::fs::write(tmp.path().join(nerf::train::CONFIG_FILE), b"{}").unwrap();
+        assert_eq!(demo_run_state(tmp.path(), &args, true).unwrap(), DemoRun::Replace);
+        assert_eq!(demo_run_state(tmp.path(), &args, false).unwrap(), DemoRun::Replace, "an unreadable run is trained afresh");
     }
 
     #[test]

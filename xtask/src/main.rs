@@ -3,7 +3,7 @@
 
 use clap::{Parser, Subcommand};
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::{Arc, OnceLock};
+use std::sync::OnceLock;
 
 mod bench;
 mod crosscheck;
@@ -76,33 +76,69 @@ enum Command {
     Crosscheck(crosscheck::CrosscheckArgs),
 }
 
-/// The process-wide stop flag, set by Ctrl-C (SIGINT) and by SIGTERM and SIGHUP (how schedulers
-/// such as Ray Tune stop a trial; ctrlc's `termination` feature). The handler is installed on
-/// first use, once, so `demo` can render and then train under the same handler. Long commands
-/// check it between units of work (views, steps), save what they have, and stop so that a
-/// re-run resumes.
-pub fn stop_flag() -> Arc<AtomicBool> {
-    static FLAG: OnceLock<Arc<AtomicBool>> = OnceLock::new();
-    FLAG.get_or_init(|| {
-        let flag = Arc::new(AtomicBool::new(false));
-        let f = flag.clone();
-        if let Err(e) = ctrlc::try_set_handler(move || {
-            f.store(true, Ordering::SeqCst);
-            eprintln!("\ninterrupt: finishing the current unit of work, then stopping (re-run to resume)");
-        }) {
-            match e {
-                // SIGINT, SIGTERM or SIGHUP already has a disposition other than the default: the
-                // usual causes are a shell that started this process in the background (`cmd &`
-                // in a script ignores SIGINT) and `nohup` (ignores SIGHUP); that choice is kept.
-                ctrlc::Error::MultipleHandlers => {
-                    tracing::debug!("SIGINT, SIGTERM or SIGHUP is already ignored or handled; no stop handler installed")
-                }
-                e => tracing::warn!("cannot install the Ctrl-C/SIGTERM handler ({e}); a signal will stop without saving"),
+/// The process-wide stop flag, set by Ctrl-C (SIGINT), SIGTERM (how schedulers such as Slurm
+/// and Ray Tune stop a job) and SIGHUP (a closed terminal). The handlers are installed on
+/// first use, once, so `demo` can render and then train under them. Long commands check the
+/// flag between units of work (views, steps), save what they have, and stop so that a re-run
+/// resumes. A second signal ends the process at once. A signal the process was started with
+/// ignored stays ignored: `nohup` (SIGHUP) and a script's `cmd &` (SIGINT) keep their meaning,
+/// and the other two signals are still handled.
+pub fn stop_flag() -> &'static AtomicBool {
+    static INSTALLED: OnceLock<()> = OnceLock::new();
+    INSTALLED.get_or_init(install_stop_handlers);
+    &STOP
+}
+
+static STOP: AtomicBool = AtomicBool::new(false);
+
+const STOP_MESSAGE: &[u8] = b"\ninterrupt: finishing the current unit of work, then stopping (re-run to resume; a second signal stops at once)\n";
+
+/// The signal handler: only async-signal-safe calls (an atomic swap, `write`, `signal`,
+/// `raise`). The first signal sets [`STOP`]; a second restores the default action and raises
+/// the signal again, ending the process as if no handler were installed.
+extern "C" fn on_stop_signal(sig: libc::c_int) {
+    if STOP.swap(true, Ordering::SeqCst) {
+        #[allow(unsafe_code)]
+        // SAFETY: `signal` and `raise` are async-signal-safe.
+        unsafe {
+            libc::signal(sig, libc::SIG_DFL);
+            libc::raise(sig);
+        }
+        return;
+    }
+    #[allow(unsafe_code)]
+    // SAFETY: `write` is async-signal-safe; the buffer is a static byte string.
+    unsafe {
+        libc::write(libc::STDERR_FILENO, STOP_MESSAGE.as_ptr().cast(), STOP_MESSAGE.len());
+    }
+}
+
+/// Installs [`on_stop_signal`] for SIGINT, SIGTERM and SIGHUP, each unless it is ignored.
+#[allow(unsafe_code)]
+fn install_stop_handlers() {
+    for sig in [libc::SIGINT, libc::SIGTERM, libc::SIGHUP] {
+        // SAFETY: `sigaction` with a null new action only reads the current one into `old`, a
+        // zeroed plain C struct; with a new action it installs a handler that only makes
+        // async-signal-safe calls.
+        unsafe {
+            let mut old: libc::sigaction = std::mem::zeroed();
+            if libc::sigaction(sig, std::ptr::null(), &mut old) != 0 {
+                tracing::warn!("cannot read the disposition of signal {sig}; it will stop without saving");
+                continue;
+            }
+            if old.sa_sigaction == libc::SIG_IGN {
+                tracing::debug!("signal {sig} is ignored by the parent process; left ignored");
+                continue;
+            }
+            let mut new: libc::sigaction = std::mem::zeroed();
+            new.sa_sigaction = on_stop_signal as *const () as libc::sighandler_t;
+            new.sa_flags = libc::SA_RESTART;
+            libc::sigemptyset(&mut new.sa_mask);
+            if libc::sigaction(sig, &new, std::ptr::null_mut()) != 0 {
+                tracing::warn!("cannot install the handler of signal {sig}; it will stop without saving");
             }
         }
-        flag
-    })
-    .clone()
+    }
 }
 
 /// Refuses an output-folder option naming something that is not a folder (a regular file, a

@@ -232,8 +232,8 @@ pub fn build_config(args: &RenderArgs) -> anyhow::Result<DatasetRenderConfig> {
     Ok(cfg)
 }
 
-/// The process-wide Ctrl-C flag: installed once, set when the user presses Ctrl-C.
-pub fn cancel_flag() -> Arc<AtomicBool> {
+/// The process-wide stop flag (Ctrl-C, SIGTERM, SIGHUP): see [`crate::stop_flag`].
+pub fn cancel_flag() -> &'static AtomicBool {
     crate::stop_flag()
 }
 
@@ -278,8 +278,8 @@ pub fn run(args: RenderArgs) -> anyhow::Result<PathBuf> {
         }
     };
     let result = match args.shard {
-        Some(shard) => pathtracer::shard::render_shard(&scene, &args.out, &cfg, &opts, shard, &mut progress, &cancel),
-        None => render_dataset(&scene, &args.out, &cfg, &opts, &mut progress, &cancel),
+        Some(shard) => pathtracer::shard::render_shard(&scene, &args.out, &cfg, &opts, shard, &mut progress, cancel),
+        None => render_dataset(&scene, &args.out, &cfg, &opts, &mut progress, cancel),
     };
     bar.finish_and_clear();
     match result {

@@ -4,7 +4,7 @@
 use anyhow::Context;
 use nerf::data::Background;
 use nerf::render::RunModel;
-use nerf::train::{TrainConfig, Trainer};
+use nerf::train::{Start, TrainConfig, Trainer};
 use std::path::PathBuf;
 
 /// Arguments of `train`.
@@ -30,6 +30,10 @@ pub struct TrainArgs {
     /// refused).
     #[arg(long)]
     pub resume: bool,
+    /// With --resume: when the latest checkpoint is damaged, continue from the newest one that
+    /// loads; the damaged ones are renamed `<name>.damaged` (kept, never deleted).
+    #[arg(long, requires = "resume")]
+    pub fallback: bool,
     /// Replace a run already in --out (its config, metrics, checkpoints and the outputs of
     /// eval, mesh and render-nerf are removed first; other files stay); without it such a run is
     /// refused, so that a new run never mixes with an old one's checkpoints and outputs.
@@ -92,6 +96,7 @@ impl TrainArgs {
             steps: None,
             time: Some(time.to_string()),
             resume,
+            fallback: false,
             force: false,
             seed: None,
             config: None,
@@ -193,11 +198,9 @@ fn holds_run(dir: &std::path::Path) -> bool {
 
 /// What a run and the commands that read it (`eval`, `mesh`, `render-nerf`) write into its
 /// folder: what `--force` removes. Other files in the folder are left alone.
-const RUN_OUTPUTS: [&str; 11] = [
+const RUN_OUTPUTS: [&str; 9] = [
     nerf::train::CONFIG_FILE,
-    "metrics.jsonl",
-    "checkpoints",
-    "renders",
+    nerf::train::METRICS_FILE,
     "eval.json",
     "report.json",
     "report.md",
@@ -206,6 +209,22 @@ const RUN_OUTPUTS: [&str; 11] = [
     "mesh_error.png",
     "speed_vs_error.png",
 ];
+
+/// Whether `name` in a run folder is a file a run, `eval` or `mesh` writes ([`RUN_OUTPUTS`],
+/// the per-view `grid_*.png` pictures, temporaries `.<name>.<pid>.tmp`).
+fn run_output(name: &str) -> bool {
+    RUN_OUTPUTS.contains(&name) || (name.starts_with("grid_") && name.ends_with(".png")) || (name.starts_with('.') && name.ends_with(".tmp"))
+}
+
+/// Whether `name` in `checkpoints/` is a checkpoint or a checkpoint's temporary.
+fn checkpoint_file(name: &str) -> bool {
+    (name.starts_with("step-") && name.ends_with(".ckpt")) || (name.starts_with(".step-") && name.ends_with(".tmp"))
+}
+
+/// Whether `name` in `renders/<split or orbit>/` is a file `render-nerf` writes.
+fn render_nerf_file(name: &str) -> bool {
+    name.ends_with(".png") || name.ends_with("_opacity.npy") || name.ends_with("_depth.npy")
+}
 
 /// `--force`, before anything is removed: the `config.json` in `dir`, if any, is a training
 /// run's config (a folder that is not a run is never emptied).
@@ -219,29 +238,42 @@ fn check_replaceable(dir: &std::path::Path) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// `--force`, once the new run is set up: removes the old run in `dir` ([`RUN_OUTPUTS`] less
-/// `keep`, the files the new run already wrote; the per-view `grid_*.png` pictures; stale
-/// temporaries). Its checkpoints go first, so that they never stand beside the new config long.
-fn remove_run(dir: &std::path::Path, keep: &[&str]) -> anyhow::Result<()> {
-    let checkpoints = dir.join("checkpoints");
-    if checkpoints.is_dir() {
-        std::fs::remove_dir_all(&checkpoints).with_context(|| format!("removing {} (--force)", checkpoints.display()))?;
+/// Removes the files in `dir` that `ours` names (never a folder, a link is removed as a link),
+/// then `dir` itself if that left it empty.
+fn remove_ours(dir: &std::path::Path, ours: fn(&str) -> bool) -> anyhow::Result<()> {
+    let Ok(entries) = std::fs::read_dir(dir) else { return Ok(()) };
+    for e in entries.flatten() {
+        let name = e.file_name().to_string_lossy().into_owned();
+        if ours(&name) && e.file_type().is_ok_and(|t| !t.is_dir()) {
+            let path = e.path();
+            std::fs::remove_file(&path).with_context(|| format!("removing {} (--force)", path.display()))?;
+        }
+    }
+    let _ = std::fs::remove_dir(dir); // only succeeds when empty
+    Ok(())
+}
+
+/// `--force`, once the new run is validated and before it writes: removes the old run in `dir`,
+/// file by file and only files a run or the commands reading it write (checkpoints first, so
+/// that they never stand beside a new config); folders left empty go too, other content stays.
+fn remove_run(dir: &std::path::Path) -> anyhow::Result<()> {
+    remove_ours(&dir.join("checkpoints"), checkpoint_file)?;
+    let renders = dir.join("renders");
+    if let Ok(entries) = std::fs::read_dir(&renders) {
+        for e in entries.flatten() {
+            if e.file_type().is_ok_and(|t| t.is_dir()) {
+                remove_ours(&e.path(), render_nerf_file)?;
+            }
+        }
+        let _ = std::fs::remove_dir(&renders);
     }
     let entries = std::fs::read_dir(dir).with_context(|| format!("reading {}", dir.display()))?;
     for e in entries.flatten() {
         let name = e.file_name().to_string_lossy().into_owned();
-        if keep.contains(&name.as_str()) {
-            continue;
+        if run_output(&name) && e.file_type().is_ok_and(|t| !t.is_dir()) {
+            let path = e.path();
+            std::fs::remove_file(&path).with_context(|| format!("removing {} (--force)", path.display()))?;
         }
-        let ours = RUN_OUTPUTS.contains(&name.as_str())
-            || (name.starts_with("grid_") && name.ends_with(".png"))
-            || (name.starts_with('.') && name.ends_with(".tmp"));
-        if !ours {
-            continue;
-        }
-        let path = e.path();
-        let removed = if path.is_dir() { std::fs::remove_dir_all(&path) } else { std::fs::remove_file(&path) };
-        removed.with_context(|| format!("removing {} (--force)", path.display()))?;
     }
     Ok(())
 }
@@ -289,7 +321,13 @@ fn resume_trainer(args: &TrainArgs) -> anyhow::Result<Trainer> {
     );
     apply_budget(args, &mut cfg)?;
     cfg.check().map_err(|e| anyhow::anyhow!("{}: {e}", config_path.display()))?;
-    Trainer::new(cfg, out, true).with_context(|| format!("resuming {}", out.display()))
+    let start = if args.fallback { Start::ResumeFallback } else { Start::Resume };
+    let mut trainer = Trainer::prepare(cfg, out, start).with_context(|| format!("resuming {}", out.display()))?;
+    for (path, why) in &trainer.skipped_checkpoints {
+        eprintln!("--fallback: {} does not load ({why}); renamed {}.damaged", path.display(), path.display());
+    }
+    trainer.start()?;
+    Ok(trainer)
 }
 
 /// Trains a model.
@@ -309,12 +347,13 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
             );
             check_replaceable(&args.out)?;
         }
-        // The trainer validates the dataset and the config before it writes anything (then the
-        // new config.json and an empty metrics.jsonl): the old run is removed only after that.
-        let trainer = Trainer::new(cfg, &args.out, false)?;
+        // Every input is validated (the dataset, the config) before the old run is removed, and
+        // the new run writes its config only after that.
+        let mut trainer = Trainer::prepare(cfg, &args.out, Start::Fresh)?;
         if replacing {
-            remove_run(&args.out, &[nerf::train::CONFIG_FILE, nerf::train::METRICS_FILE])?;
+            remove_run(&args.out)?;
         }
+        trainer.start()?;
         trainer
     };
     for reason in trainer.config.auto_reasons.iter().flatten() {
@@ -334,7 +373,7 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         indicatif::ProgressStyle::with_template("{bar:30} {percent:>3}% {msg}")
             .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
     );
-    let summary = trainer.run(&stop, &mut |p| {
+    let summary = trainer.run(stop, &mut |p| {
         bar.set_position((p.fraction * 1000.0) as u64);
         let left = if p.fraction > 0.0 { p.wall_s * (1.0 - p.fraction) / p.fraction } else { 0.0 };
         let val = p.val_psnr.map_or(String::new(), |v| format!(" val {v:.2} dB"));

@@ -243,7 +243,7 @@ pub fn load_latest(run_dir: &Path) -> Result<(PathBuf, StateDict), CheckpointErr
         Err(CheckpointError::Corrupt { path, message }) => {
             let hint = match load_latest_good(run_dir) {
                 Ok((good, _, _)) => format!(
-                    "; the previous checkpoint {} loads: move the damaged file out of {} to continue from it",
+                    "; the previous checkpoint {} loads: `train --resume --fallback` continues from it (or move the damaged file out of {})",
                     good.display(),
                     checkpoint_dir(run_dir).display()
                 ),

@@ -410,6 +410,35 @@ pub struct Trainer {
     val_history: Vec<(f64, f64)>,
     /// Accumulated time split over all steps of this process.
     pub timings: StepTimings,
+    /// What [`Trainer::start`] has to write: a fresh run's config, or a resumed run's
+    /// checkpoints to set aside (`--fallback`) and history to cut back to its checkpoint.
+    pending: Pending,
+    /// The damaged checkpoints a fallback resume skipped, each with why it did not load.
+    pub skipped_checkpoints: Vec<(PathBuf, String)>,
+}
+
+/// How [`Trainer::prepare`] starts: a new run, or continuing the run in the folder.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Start {
+    /// A new run: `config.json` and an empty `metrics.jsonl` are written.
+    Fresh,
+    /// Continue from the newest checkpoint; refused when it does not load.
+    Resume,
+    /// Continue from the newest checkpoint that loads; newer damaged ones are renamed
+    /// `<name>.damaged` (never deleted) so that the run goes on from the good one.
+    ResumeFallback,
+}
+
+/// The writes [`Trainer::start`] makes, decided by [`Trainer::prepare`].
+#[derive(Debug, Default)]
+struct Pending {
+    /// Write `config.json` and an empty `metrics.jsonl` (a fresh run).
+    fresh: bool,
+    /// Damaged checkpoints to rename `<name>.damaged`.
+    set_aside: Vec<PathBuf>,
+    /// The metrics history up to the resumed checkpoint, written with the first new line (so a
+    /// resume that fails or stops at once leaves the history as it was).
+    history: Option<String>,
 }
 
 /// The file name of the config inside a run folder.
@@ -451,8 +480,21 @@ fn apply_auto(config: &mut TrainConfig, ds: &dataset::Dataset, data: &mut TrainD
 
 impl Trainer {
     /// Prepares a run: loads the data, resolves the bounds and writes `config.json` (fresh
-    /// runs), or reads the latest checkpoint (`resume`).
-    pub fn new(mut config: TrainConfig, run_dir: &Path, resume: bool) -> Result<Self, TrainError> {
+    /// runs), or reads the latest checkpoint (`resume`). [`Trainer::prepare`] then
+    /// [`Trainer::start`].
+    pub fn new(config: TrainConfig, run_dir: &Path, resume: bool) -> Result<Self, TrainError> {
+        let mut t = Self::prepare(config, run_dir, if resume { Start::Resume } else { Start::Fresh })?;
+        t.start()?;
+        Ok(t)
+    }
+
+    /// Everything [`Trainer::new`] does before it writes: validates the config and the dataset,
+    /// loads the data and, resuming, the checkpoint and the metrics history (refused when a
+    /// line of it, but a torn last one, is damaged). Nothing in `run_dir` is written or
+    /// removed but stale temporaries of a run, so a caller can validate every input before it
+    /// replaces an old run (`train --force`), then call [`Trainer::start`].
+    pub fn prepare(mut config: TrainConfig, run_dir: &Path, start: Start) -> Result<Self, TrainError> {
+        let resume = start != Start::Fresh;
         config.check().map_err(TrainError::Invalid)?;
         let ds = crate::data::load_dataset(&config.dataset)?;
         config.check_image_sizes(&ds).map_err(TrainError::Invalid)?;
@@ -495,6 +537,8 @@ impl Trainer {
             last_val: None,
             val_history: Vec::new(),
             timings: StepTimings::default(),
+            pending: Pending::default(),
+            skipped_checkpoints: Vec::new(),
         };
         let have_ckpt = checkpoint::latest(run_dir).is_some();
         let hash = dataset_hash(&ds, val_frames)?;
@@ -507,19 +551,42 @@ impl Trainer {
                     t.config.dataset.display()
                 )));
             }
-            let (path, s) = checkpoint::load_latest(run_dir)?;
+            let (path, s) = if start == Start::ResumeFallback {
+                let (path, s, skipped) = checkpoint::load_latest_good(run_dir)?;
+                t.pending.set_aside = skipped.iter().map(|(p, _)| p.clone()).collect();
+                t.skipped_checkpoints = skipped.into_iter().map(|(p, e)| (p, e.to_string())).collect();
+                (path, s)
+            } else {
+                checkpoint::load_latest(run_dir)?
+            };
             t.load_state(&s).map_err(|e| match e {
                 TrainError::Invalid(m) => TrainError::Invalid(format!("{}: {m}", path.display())),
                 e => e,
             })?;
-            t.truncate_metrics()?;
-            t.reload_val_history();
+            let history = metrics_history(&run_dir.join(METRICS_FILE), t.step)?;
+            t.reload_val_history(&history);
+            t.pending.history = Some(history);
         } else {
             t.config.dataset_hash = Some(hash);
-            dataset::io::atomic_write_json(&run_dir.join(CONFIG_FILE), &t.config)?;
-            dataset::io::atomic_write(&run_dir.join(METRICS_FILE), b"")?;
+            t.pending.fresh = true;
         }
         Ok(t)
+    }
+
+    /// The writes that start the run [`Trainer::prepare`] validated: a fresh run's
+    /// `config.json` and empty `metrics.jsonl`; a fallback resume's damaged checkpoints renamed
+    /// `<name>.damaged`. (A resumed run's history is cut back with its first new metrics line.)
+    pub fn start(&mut self) -> Result<(), TrainError> {
+        for p in std::mem::take(&mut self.pending.set_aside) {
+            let mut aside = p.clone().into_os_string();
+            aside.push(".damaged");
+            std::fs::rename(&p, &aside).map_err(|e| TrainError::File { path: p.clone(), source: e })?;
+        }
+        if std::mem::take(&mut self.pending.fresh) {
+            dataset::io::atomic_write_json(&self.run_dir.join(CONFIG_FILE), &self.config)?;
+            dataset::io::atomic_write(&self.run_dir.join(METRICS_FILE), b"")?;
+        }
+        Ok(())
     }
 
     /// Continues the run in `run_dir` from its latest checkpoint with the config it recorded
@@ -543,11 +610,10 @@ impl Trainer {
         self.config.plateau_stop.as_ref().is_some_and(|p| crate::auto::plateau_reached(&self.val_history, p))
     }
 
-    /// Rebuilds the validation history (and the latest val PSNR) from `metrics.jsonl`, for a
-    /// resumed run's plateau rule.
-    fn reload_val_history(&mut self) {
-        let text = std::fs::read_to_string(self.run_dir.join(METRICS_FILE)).unwrap_or_default();
-        self.val_history = text
+    /// Rebuilds the validation history (and the latest val PSNR) from the metrics history, for
+    /// a resumed run's plateau rule.
+    fn reload_val_history(&mut self, history: &str) {
+        self.val_history = history
             .lines()
             .filter_map(|l| {
                 let v = serde_json::from_str::<serde_json::Value>(l).ok()?;
@@ -619,8 +685,22 @@ impl Trainer {
         self.append_metrics(&line)
     }
 
-    fn append_metrics(&self, line: &serde_json::Value) -> Result<(), TrainError> {
+    /// A resumed run's history cut back to its checkpoint, once a newer checkpoint exists
+    /// (the lines it drops belong to steps that checkpoint replaces).
+    fn write_pending_history(&mut self) -> Result<(), TrainError> {
+        match self.pending.history.take() {
+            Some(history) => Ok(dataset::io::atomic_write(&self.run_dir.join(METRICS_FILE), history.as_bytes())?),
+            None => Ok(()),
+        }
+    }
+
+    fn append_metrics(&mut self, line: &serde_json::Value) -> Result<(), TrainError> {
         let path = self.run_dir.join(METRICS_FILE);
+        // A resumed run's first line: the history up to its checkpoint and the line, at once.
+        if let Some(mut history) = self.pending.history.take() {
+            history.push_str(&format!("{line}\n"));
+            return Ok(dataset::io::atomic_write(&path, history.as_bytes())?);
+        }
         let mut f = std::fs::OpenOptions::new()
             .create(true)
             .append(true)
@@ -628,25 +708,6 @@ impl Trainer {
             .map_err(|e| TrainError::File { path: path.clone(), source: e })?;
         // One write call per line: a process killed mid-line would otherwise leave a torn line.
         f.write_all(format!("{line}\n").as_bytes()).map_err(|e| TrainError::File { path: path.clone(), source: e })?;
-        Ok(())
-    }
-
-    /// Drops metric lines written after the checkpoint by a killed run: training lines past its
-    /// step, and validation lines at or past it (a step's validation follows its checkpoint, and
-    /// the resumed run validates again).
-    fn truncate_metrics(&self) -> Result<(), TrainError> {
-        let path = self.run_dir.join(METRICS_FILE);
-        let text = std::fs::read_to_string(&path).unwrap_or_default();
-        let kept: String = text
-            .lines()
-            .filter(|l| {
-                let Ok(v) = serde_json::from_str::<serde_json::Value>(l) else { return false };
-                let is_val = v.get("val_psnr").is_some();
-                v.get("step").and_then(|s| s.as_u64()).is_some_and(|s| s < self.step || (s == self.step && !is_val))
-            })
-            .map(|l| format!("{l}\n"))
-            .collect();
-        dataset::io::atomic_write(&path, kept.as_bytes())?;
         Ok(())
     }
 
@@ -751,6 +812,7 @@ impl Trainer {
         while !self.finished() {
             if stop.load(Ordering::SeqCst) {
                 self.save_checkpoint()?;
+                self.write_pending_history()?;
                 return Ok(self.summary(true, val));
             }
             let stats = self.step_once();
@@ -762,6 +824,7 @@ impl Trainer {
             }
             if self.step.is_multiple_of(self.config.checkpoint_interval_steps.max(1)) {
                 self.save_checkpoint()?;
+                self.write_pending_history()?;
             }
             if self.wall_s >= self.next_val_at && !self.finished() {
                 val = self.log_val()?;
@@ -840,6 +903,52 @@ impl Trainer {
             plateaued: self.plateaued() && !self.budget_used(),
         }
     }
+}
+
+/// The lines of a run's `metrics.jsonl` (missing: none) that a run resumed at `step` keeps:
+/// training lines before the step and at it, validation lines before it (a step's validation
+/// follows its checkpoint, and the resumed run validates again). Lines past the checkpoint are
+/// a killed run's and are dropped; a torn last line (no newline, not a JSON object) is dropped
+/// too. Any other line that is not a JSON object with a `step` is refused, naming the file and
+/// the line: a damaged history is never silently shortened.
+pub fn metrics_history(path: &Path, step: u64) -> Result<String, TrainError> {
+    let bytes = match std::fs::read(path) {
+        Ok(b) => b,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(String::new()),
+        Err(e) => return Err(TrainError::File { path: path.into(), source: e }),
+    };
+    let parse = |line: &[u8]| -> Result<(u64, bool), String> {
+        let text = std::str::from_utf8(line).map_err(|e| format!("not UTF-8 ({e})"))?;
+        let v: serde_json::Value = serde_json::from_str(text).map_err(|e| format!("not JSON ({e})"))?;
+        let s = v.get("step").and_then(|s| s.as_u64()).ok_or("no whole-number \"step\"")?;
+        Ok((s, v.get("val_psnr").is_some()))
+    };
+    let lines: Vec<&[u8]> = bytes.split(|&b| b == b'\n').collect();
+    let mut kept = String::new();
+    for (i, line) in lines.iter().enumerate() {
+        let last = i + 1 == lines.len();
+        if line.iter().all(u8::is_ascii_whitespace) {
+            continue;
+        }
+        match parse(line) {
+            Ok((s, is_val)) => {
+                if s < step || (s == step && !is_val) {
+                    // `parse` checked the line is UTF-8.
+                    kept.push_str(&String::from_utf8_lossy(line));
+                    kept.push('\n');
+                }
+            }
+            Err(why) if last => tracing::warn!("{}: dropping its torn last line ({why})", path.display()),
+            Err(why) => {
+                return Err(TrainError::Invalid(format!(
+                    "{}: line {} is not a metrics record ({why}); the run's history is damaged: repair or remove that line (the checkpoints are intact), or train into a new --out",
+                    path.display(),
+                    i + 1
+                )));
+            }
+        }
+    }
+    Ok(kept)
 }
 
 /// PSNR of a mean squared error with peak 1.
