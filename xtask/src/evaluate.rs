@@ -85,6 +85,7 @@ fn demo_run_resumable(run_dir: &std::path::Path, args: &DemoArgs) -> anyhow::Res
         return Ok(false);
     }
     let budget = crate::train::parse_duration("--time", &args.time)?;
+    let _lock = crate::lock_folder(run_dir)?;
     let same = match nerf::render::RunModel::load(run_dir) {
         Ok(m) => m.config.model_label() == args.model && m.config.time_budget_s == Some(budget),
         Err(_) => false,
@@ -124,6 +125,8 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         eval::mesh_extract::MAX_RESOLUTION,
         args.mesh_resolution
     );
+    // A missing run is reported by the evaluation, which reads it first.
+    let _lock = args.run.is_dir().then(|| crate::lock_folder(&args.run)).transpose()?;
     let bar = indicatif::ProgressBar::new(0);
     bar.set_style(
         indicatif::ProgressStyle::with_template("evaluating {pos}/{len} views {bar:30} {elapsed}")
@@ -220,7 +223,9 @@ pub fn run_demo(args: DemoArgs) -> anyhow::Result<()> {
     let render_args = demo_render_args(&args, &dataset_dir);
     let cfg = crate::render::build_config(&render_args)?;
     // A dataset of an older renderer (e.g. another sampler) or of other settings is the demo's
-    // own: render it again and drop the run trained on it, instead of refusing to resume.
+    // own: render it again and drop the run trained on it, instead of refusing to resume. Both
+    // folders are locked while that is decided and done.
+    let locks = [&dataset_dir, &run_dir].into_iter().filter(|d| d.is_dir()).map(|d| crate::lock_folder(d)).collect::<anyhow::Result<Vec<_>>>()?;
     let stale = match crate::render::older_renderer(&dataset_dir) {
         Some(old) => Some(format!("was rendered by {old}")),
         None => other_demo_dataset(&dataset_dir, &cfg).then(|| "holds a dataset with other settings".to_string()),
@@ -233,6 +238,7 @@ pub fn run_demo(args: DemoArgs) -> anyhow::Result<()> {
             }
         }
     }
+    drop(locks);
     let what = format!("{} train views at {}x{}, {} spp", cfg.train, cfg.width, cfg.height, cfg.spp);
     eprintln!("== 1/3 render {} ({what}) into {}", args.scene, dataset_dir.display());
     crate::render::run(render_args)?;
