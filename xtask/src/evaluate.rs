@@ -146,6 +146,8 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         eval::mesh_extract::MAX_RESOLUTION,
         args.mesh_resolution
     );
+    // A missing run is reported by the evaluation, which reads it first.
+    let _lock = args.run.is_dir().then(|| crate::lock_folder(&args.run)).transpose()?;
     let bar = indicatif::ProgressBar::new(0);
     bar.set_style(
         indicatif::ProgressStyle::with_template("evaluating {pos}/{len} views {bar:30} {elapsed}")

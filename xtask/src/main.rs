@@ -152,6 +152,17 @@ pub fn check_out_folder(option: &str, path: &std::path::Path) -> anyhow::Result<
     }
 }
 
+/// Takes the lock of the folder `dir` that a command writes (`<dir>/.lock`, see
+/// [`dataset::lock`]), creating the folder if missing, for as long as the returned lock lives:
+/// a second command writing into the same folder is refused, naming this one's pid.
+pub fn lock_folder(dir: &std::path::Path) -> anyhow::Result<dataset::lock::FolderLock> {
+    let lock = dataset::lock::FolderLock::acquire(dir)?;
+    if !lock.is_held() {
+        tracing::warn!("{}: this filesystem has no file locks; nothing stops a second command writing into this folder", dir.display());
+    }
+    Ok(lock)
+}
+
 fn main() -> std::process::ExitCode {
     tune_allocator();
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()

@@ -54,6 +54,7 @@ pub fn run(args: MeshArgs) -> anyhow::Result<()> {
     }
     anyhow::ensure!(args.samples > 0, "--samples must be at least 1");
     anyhow::ensure!(sidecar(&args.out) != args.out, "--out {} would be overwritten by its own sidecar; give it the .ply extension", args.out.display());
+    let _lock = crate::lock_folder(args.out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(std::path::Path::new(".")))?;
     let start = Instant::now();
     let model = nerf::render::RunModel::load(&args.run).with_context(|| format!("loading the run {}", args.run.display()))?;
     let dataset = dataset::Dataset::load(model.dataset_dir()).with_context(|| format!("loading the run's dataset {}", model.dataset_dir().display()))?;

@@ -333,6 +333,7 @@ fn resume_trainer(args: &TrainArgs) -> anyhow::Result<Trainer> {
 /// Trains a model.
 pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     crate::check_out_folder("--out", &args.out)?;
+    let _lock = crate::lock_folder(&args.out)?;
     let stop = crate::stop_flag();
     let mut trainer = if args.resume {
         resume_trainer(&args)?
@@ -459,6 +460,7 @@ pub fn run_render(args: RenderNerfArgs) -> anyhow::Result<()> {
     anyhow::ensure!(!cameras.is_empty(), "dataset {} has no {label} views", model.dataset_dir().display());
     let out = args.out.clone().unwrap_or_else(|| args.run.join("renders").join(&label));
     crate::check_out_folder("--out", &out)?;
+    let _lock = crate::lock_folder(&out)?;
     let bg = model.eval_background();
     let bar = indicatif::ProgressBar::new(cameras.len() as u64);
     for (name, cam) in &cameras {

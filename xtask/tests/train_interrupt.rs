@@ -72,12 +72,13 @@ fn metric_lines(run: &Path) -> usize {
 }
 
 /// Every file under a final name is complete: the config parses as a training config, every
-/// checkpoint loads, every metrics line is a JSON object with a step; nothing else is there.
-/// Returns the number of final files.
+/// checkpoint loads, every metrics line is a JSON object with a step; nothing else is there but
+/// the folder lock a killed run leaves (it holds nothing once its process is gone). Returns the
+/// number of final files.
 fn check_final_files(run: &Path, when: &str) -> usize {
     let mut n = 0;
     for p in files(run) {
-        if is_temporary(&p) {
+        if is_temporary(&p) || p == run.join(dataset::lock::LOCK_FILE) {
             continue;
         }
         let rel = p.strip_prefix(run).unwrap().display().to_string();
@@ -247,7 +248,11 @@ fn train_killed_at_seeded_points_resumes_to_the_uninterrupted_result() {
     check_final_files(&b, "after completion");
     let temps: Vec<_> = files(&b).into_iter().filter(|p| is_temporary(p)).collect();
     assert!(temps.is_empty(), "temporary files left after completion: {temps:?}");
-    let names = |d: &Path| files(d).iter().map(|p| p.strip_prefix(d).unwrap().to_path_buf()).collect::<Vec<_>>();
+    // The lock file of a run killed last (when it had finished all but exiting) is left; an
+    // uninterrupted run leaves none.
+    let lock = Path::new(dataset::lock::LOCK_FILE);
+    let names = |d: &Path| files(d).iter().map(|p| p.strip_prefix(d).unwrap().to_path_buf()).filter(|p| p != lock).collect::<Vec<_>>();
+    assert!(!a.join(lock).exists(), "the uninterrupted run left its lock file");
     assert_eq!(names(&a), names(&b), "run folders hold different files");
     assert_eq!(std::fs::read(a.join("config.json")).unwrap(), std::fs::read(b.join("config.json")).unwrap());
     let (ma, mb) = (metrics(&a), metrics(&b));

@@ -36,6 +36,14 @@ pub enum DatasetError {
         /// What the codec said.
         message: String,
     },
+    /// Another process holds the folder's lock ([`crate::lock::FolderLock`]).
+    #[error("{path}: another xtask process{} is writing this folder; wait for it to finish or stop it", pid.map_or(String::new(), |p| format!(" (pid {p})")))]
+    Locked {
+        /// The folder.
+        path: PathBuf,
+        /// The holder's process id, as it wrote it into the lock file.
+        pid: Option<u32>,
+    },
 }
 
 impl DatasetError {

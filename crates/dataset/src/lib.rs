@@ -27,6 +27,7 @@ pub mod folder;
 mod images;
 mod transforms;
 pub mod io;
+pub mod lock;
 
 pub use camera::{Camera, Intrinsics, Ray};
 pub use downscale::check_downscale;

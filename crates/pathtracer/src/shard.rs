@@ -14,7 +14,8 @@
 //!   (atomically, file by file), and writes `render_config.json` and the transforms files
 //!   through the same code as an unsharded render, so the result is the same bytes. It needs
 //!   the scene file (the path recorded in `render_config.json`, or one given) to place the
-//!   cameras and state the scene facts; its content must match the recorded hash.
+//!   cameras and state the scene facts; its content must match the recorded hash. A folder
+//!   lock in `out` (`.lock`, see `dataset::lock`) is no content, and moves into the result.
 //!
 //! ```
 //! use pathtracer::shard::Shard;
@@ -31,6 +32,7 @@ use crate::dataset_folder::{
 };
 use crate::dataset_render::{render_dataset_part, render_dataset_sharded};
 use crate::rig::build_rig;
+use dataset::lock::LOCK_FILE;
 use dataset::{Camera, SplitKind};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
@@ -83,7 +85,9 @@ pub fn merge_shards(shards: &[PathBuf], out: &Path, scene: Option<&Path>) -> Res
     if shards.is_empty() {
         return Err(err("merge: no shard folders given".into()));
     }
-    if out.exists() && std::fs::read_dir(out).map(|mut d| d.next().is_some()).unwrap_or(true) {
+    // The folder lock of the command writing `out` is no content.
+    let content = |d: &Path| std::fs::read_dir(d).map(|mut d| d.any(|e| e.map_or(true, |e| e.file_name() != LOCK_FILE))).unwrap_or(true);
+    if out.exists() && content(out) {
         return Err(err(format!("--out {}: exists and is not an empty folder; merge writes a new dataset folder", out.display())));
     }
     // Every shard: finished, same record, distinct index, same count.
@@ -204,6 +208,12 @@ pub fn merge_shards(shards: &[PathBuf], out: &Path, scene: Option<&Path>) -> Res
     let opts = RunOptions { threads: Some(1), force: false };
     let summary = render_dataset_part(renderer.scene(), &record.scene, &adapter, out, &record.config, &opts, None, &mut |_| {}, &AtomicBool::new(false))?;
     dataset::io::atomic_write(&out.join(RENDER_CONFIG_FILE), config_bytes)?;
+    // The lock file of the process writing `out` moves with the folder: its holder keeps the
+    // lock (on the file, wherever it is named) and finds it at `out/.lock` again after the rename.
+    let lock = final_out.join(LOCK_FILE);
+    if lock.is_file() {
+        std::fs::rename(&lock, out.join(LOCK_FILE)).map_err(|e| io(&lock, e))?;
+    }
     if final_out.exists() {
         std::fs::remove_dir(final_out).map_err(|e| io(final_out, e))?;
     }
