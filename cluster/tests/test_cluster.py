@@ -171,6 +171,12 @@ class RunningXtask(unittest.TestCase):
         with self.assertRaises(xt.XtaskFailed):
             xt.run(["/bin/sh", "-c", "exit 101"], "panic")
         with self.assertRaises(xt.XtaskFailed) as c:
+            xt.run(["/bin/sh", "-c", "exit 74"], "disk full")
+        self.assertIn("exited with status 74 (an I/O error on this node", str(c.exception))
+        with self.assertRaises(xt.XtaskFailed) as c:
+            xt.run(["/bin/sh", "-c", "exit 130"], "stopped")
+        self.assertIn("exited with status 130 (stopped by a signal; its work is saved)", str(c.exception))
+        with self.assertRaises(xt.XtaskFailed) as c:
             xt.run(["/no/such/xtask", "render"], "missing")
         self.assertEqual(c.exception.returncode, 127)
 
