@@ -65,6 +65,11 @@ def parser() -> argparse.ArgumentParser:
     s.add_argument("--grace", help="ASHA: training time every trial gets before it can be stopped (default a fifth of --time)")
     s.add_argument("--eval-max-views", type=int, help="evaluate only the first N test views")
     s.add_argument("--max-failures", type=int, default=1, help="times Ray Tune retries a failed trial (default 1)")
+    s.add_argument(
+        "--force",
+        action="store_true",
+        help="replace the runs in OUT/runs that this sweep cannot continue (trained with other settings, not written by it, or refused on --resume) instead of refusing",
+    )
     add_ray_options(s, "trial")
     return top
 

@@ -141,6 +141,8 @@ def check_out(out: Path) -> None:
 
 
 def submit(ray, job: RenderJob):
+    # Retried: a dead worker or node, and xtask's `XtaskFailed` (an I/O error on its node, 74; a
+    # stop by a signal, 130; a crash). Never its refusals (`XtaskRefused`, 1): they would repeat.
     task = ray.remote(render_shard).options(
         num_cpus=job.num_cpus,
         max_retries=job.max_retries,

@@ -20,16 +20,28 @@ REPO_ROOT = Path(__file__).resolve().parent.parent
 #: Where the workspace builds put the binary, in order of preference.
 DEFAULT_BINARIES = ("target/release/xtask", "target/debug/xtask")
 
-#: Exit statuses with which `xtask` refuses its input: 1, its own error message (a missing
-#: scene, a bad option value, a dataset folder of other settings); 2, a command-line usage error
-#: (clap). Both come out the same on every node, so they are not retried. Anything else (killed
-#: by a signal, a panic's 101, a missing binary) may be the node's fault and is.
-REFUSED_EXITS = (1, 2)
+#: `xtask`'s exit statuses (docs/design.md, "Exit codes"): 1, it refused its input (a missing
+#: scene, a bad option value, a dataset folder of other settings) with its own message;
+#: 74, an I/O error of this node's storage (disk full, a quota, an unwritable or read-only
+#: output folder, a disk error); 130, stopped by a signal with its work saved (a re-run resumes).
+EXIT_REFUSED, EXIT_NODE_IO, EXIT_STOPPED = 1, 74, 130
+
+#: Exit statuses that come out the same on every node, so they are not retried: xtask's refusal,
+#: and 2, a usage error as clap reports it. Anything else is worth a retry, on another node:
+#: 74 and 130 (a resumed run continues), a kill by a signal, a panic's 101, a missing binary.
+REFUSED_EXITS = (EXIT_REFUSED, 2)
+
+#: What the statuses that are no crash mean, for messages.
+EXIT_MEANINGS = {
+    EXIT_NODE_IO: "an I/O error on this node: disk full, quota, permission or a disk error",
+    EXIT_STOPPED: "stopped by a signal; its work is saved",
+}
 
 
 class XtaskFailed(Exception):
-    """`xtask` crashed or was killed: worth a retry on a cluster (a node's memory, a killed
-    process, a node without the binary)."""
+    """`xtask` failed in a way another attempt may not: an I/O error on the node (74), stopped
+    by a signal (130), crashed or killed (a node's memory, a killed process, a node without the
+    binary). Worth a retry on a cluster, which resumes what was saved."""
 
     def __init__(self, what: str, returncode: int, tail: Sequence[str]):
         self.what, self.returncode, self.tail = what, returncode, list(tail)
@@ -40,8 +52,8 @@ class XtaskFailed(Exception):
 
 
 class XtaskRefused(Exception):
-    """`xtask` refused its input with an error message (exit status 1 or 2): the same on every
-    node, not retried."""
+    """`xtask` refused its input with an error message (exit status 1, or 2 for a usage error):
+    the same on every node, never retried."""
 
     def __init__(self, what: str, returncode: int, tail: Sequence[str]):
         self.what, self.returncode, self.tail = what, returncode, list(tail)
@@ -59,6 +71,8 @@ def failure(what: str, returncode: int, tail: Sequence[str]) -> Exception:
 
 def describe_exit(what: str, returncode: int, tail: Sequence[str]) -> str:
     how = f"was killed by signal {-returncode}" if returncode < 0 else f"exited with status {returncode}"
+    if returncode in (EXIT_NODE_IO, EXIT_STOPPED):
+        how += f" ({EXIT_MEANINGS[returncode]})"
     lines = "".join(f"\n    {line}" for line in tail)
     return f"{what} {how}" + (f"; its last output:{lines}" if lines else "")
 
@@ -118,7 +132,8 @@ def run(
     tail_lines: int = 20,
 ) -> list[str]:
     """Runs `cmd`, handing each line of its merged stdout/stderr to `on_line`; returns the lines.
-    Raises `XtaskRefused` on exit status 1 or 2, `XtaskFailed` on any other failure. The child
+    Raises `XtaskRefused` on exit status 1 or 2, `XtaskFailed` on any other failure (74, 130,
+    a signal, a crash). The child
     is killed if this process dies or this call is interrupted."""
     if not Path(cmd[0]).is_file():
         raise XtaskFailed(what, 127, [f"no such binary on {os.uname().nodename}: {cmd[0]}"])
@@ -147,6 +162,8 @@ def run(
         rc = proc.wait()
     finally:
         stop(proc)
+        if proc.stdout is not None:
+            proc.stdout.close()
     if rc != 0:
         raise failure(what, rc, tail)
     return lines

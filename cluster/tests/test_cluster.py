@@ -8,15 +8,18 @@ import io
 import json
 import os
 import pickle
+import shutil
 import socket
 import subprocess
 import sys
 import tempfile
 import textwrap
 import time
+import types
 import unittest
 from contextlib import redirect_stderr
 from pathlib import Path
+from unittest import mock
 
 from cluster import ClusterError
 from cluster import __main__ as cli
@@ -137,6 +140,22 @@ class Tail(unittest.TestCase):
         self.assertEqual(tail.read(), [{"step": 2, "val_psnr": 20.5}, {"step": 3}])
         self.assertEqual(tail.read(), [])
 
+    def test_replaced_by_a_longer_file_reads_from_the_start(self):
+        tail = sweep.JsonlTail(self.path)
+        self.append('{"step": 1}\n')
+        self.assertEqual(len(tail.read()), 1)
+        other = self.path.with_name("other")
+        other.write_text('{"step": 7}\n{"step": 8}\n')
+        os.replace(other, self.path)
+        self.assertEqual(tail.read(), [{"step": 7}, {"step": 8}])
+
+    def test_skip_existing(self):
+        self.append('{"step": 1}\n')
+        tail = sweep.JsonlTail(self.path, skip_existing=True)
+        self.assertEqual(tail.read(), [])
+        self.append('{"step": 2}\n')
+        self.assertEqual(tail.read(), [{"step": 2}])
+
     def test_replaced_by_a_shorter_file_reads_from_the_start(self):
         tail = sweep.JsonlTail(self.path)
         self.append('{"step": 1}\n{"step": 2}\n')
@@ -170,6 +189,12 @@ class RunningXtask(unittest.TestCase):
         self.assertIn("was killed by signal 9", str(c.exception))
         with self.assertRaises(xt.XtaskFailed):
             xt.run(["/bin/sh", "-c", "exit 101"], "panic")
+        with self.assertRaises(xt.XtaskFailed) as c:
+            xt.run(["/bin/sh", "-c", "exit 74"], "disk full")
+        self.assertIn("exited with status 74 (an I/O error on this node", str(c.exception))
+        with self.assertRaises(xt.XtaskFailed) as c:
+            xt.run(["/bin/sh", "-c", "exit 130"], "stopped")
+        self.assertIn("exited with status 130 (stopped by a signal; its work is saved)", str(c.exception))
         with self.assertRaises(xt.XtaskFailed) as c:
             xt.run(["/no/such/xtask", "render"], "missing")
         self.assertEqual(c.exception.returncode, 127)
@@ -283,6 +308,226 @@ class Shards(unittest.TestCase):
         crashed = RayTaskError(xt.XtaskFailed("shard 1/3", -9, []))
         self.assertEqual(render.shard_failure(self.job(), 1, crashed), "shard 1/3 failed after up to 3 retries: shard 1/3 was killed by signal 9")
         self.assertIn("WorkerCrashedError", render.shard_failure(self.job(), 2, type("WorkerCrashedError", (Exception,), {})("lost")))
+
+
+class SweepPlans(unittest.TestCase):
+    """What a re-run of a sweep does with each trial's run folder and record."""
+
+    def setUp(self):
+        self.dir = tempfile.TemporaryDirectory()
+        self.root = Path(self.dir.name)
+        self.spec = sweep.SweepSpec(dataset=self.root / "ds", models=["fast"], seeds=[0], out=self.root / "out", xtask="/no/xtask", steps=30)
+        self.run = self.spec.run_dir("fast", 0)
+        self.train = sweep.train_settings(self.spec, "fast", 0)
+        self.eval = sweep.eval_settings(self.spec)
+
+    def tearDown(self):
+        self.dir.cleanup()
+
+    def make_run(self, checkpoint=True, report=False):
+        (self.run / "checkpoints").mkdir(parents=True, exist_ok=True)
+        (self.run / "config.json").write_text("{}")
+        if checkpoint:
+            (self.run / "checkpoints" / "step-30.ckpt").write_bytes(b"x")
+        if report:
+            (self.run / "report.json").write_text("{}")
+
+    def record(self, stage, train=None, evaluation=None, **kw):
+        sweep.write_record(sweep.record_path(self.run), train or self.train, evaluation, stage, **kw)
+
+    def plan(self, force=False, asha=False):
+        return sweep.plan_trial(self.run, sweep.read_record(sweep.record_path(self.run)), self.train, self.eval, force, asha)
+
+    def test_a_new_trial_trains(self):
+        self.assertEqual(self.plan(), sweep.Plan("train"))
+        self.run.mkdir(parents=True)
+        self.assertEqual(self.plan(), sweep.Plan("train"), "an empty folder holds no run")
+
+    def test_an_evaluated_trial_is_kept_and_evaluated_again_only_for_other_eval_settings(self):
+        self.make_run(report=True)
+        self.record("evaluated", evaluation=self.eval)
+        self.assertEqual(self.plan().action, "done")
+        self.assertEqual(self.plan(force=True).action, "done", "--force replaces only what cannot be continued")
+        self.record("evaluated", evaluation={"eval_max_views": 3})
+        self.assertEqual(self.plan().action, "evaluate")
+        self.record("trained")
+        self.assertEqual(self.plan().action, "evaluate")
+
+    def test_an_unfinished_trial_resumes(self):
+        self.make_run()
+        self.record("training")
+        self.assertEqual(self.plan(), sweep.Plan("resume"))
+        self.record("training", refused="error: something")
+        self.assertEqual(self.plan(), sweep.Plan("resume"), "a refusal is tried again on a re-run")
+
+    def test_a_trial_killed_before_its_first_checkpoint_trains_again(self):
+        self.make_run(checkpoint=False)
+        self.record("training")
+        plan = self.plan()
+        self.assertEqual((plan.action, plan.force, plan.other), ("train", True, False))
+
+    def test_asha_decisions_stand_while_asha_is_on(self):
+        self.make_run()
+        self.record("stopped")
+        self.assertEqual(self.plan(asha=True).action, "stopped")
+        self.assertEqual(self.plan(asha=False).action, "resume")
+
+    def test_a_run_the_sweep_did_not_write_is_refused_unless_forced(self):
+        self.make_run()
+        plan = self.plan()
+        self.assertEqual(plan.action, "refuse")
+        self.assertIn(str(self.run), plan.why)
+        self.assertIn("--force", plan.why)
+        plan = self.plan(force=True)
+        self.assertEqual((plan.action, plan.force, plan.other), ("train", True, True))
+        # A replacement that did not happen yet leaves the folder someone else's.
+        self.record("training", replacing=True)
+        self.assertEqual(self.plan().action, "refuse")
+
+    def test_a_run_of_other_settings_is_refused_naming_them_unless_forced(self):
+        self.make_run(report=True)
+        self.record("evaluated", train={**self.train, "steps": 10}, evaluation=self.eval)
+        plan = self.plan()
+        self.assertEqual(plan.action, "refuse")
+        self.assertIn("steps 10 (now 30)", plan.why)
+        plan = self.plan(force=True)
+        self.assertEqual((plan.action, plan.force, plan.other), ("train", True, True))
+        shutil.rmtree(self.run)
+        self.assertEqual(self.plan(), sweep.Plan("train"), "nothing there to lose")
+
+    def test_check_plans_names_every_refusal_and_touches_nothing(self):
+        spec = sweep.SweepSpec(dataset=self.root / "ds", models=["fast", "auto"], seeds=[0, 1], out=self.root / "out", xtask="/no/xtask", steps=30)
+        for model in spec.models:
+            (spec.run_dir(model, 1) / "checkpoints").mkdir(parents=True)
+            (spec.run_dir(model, 1) / "config.json").write_text("{}")
+        before = sorted(p.relative_to(self.root) for p in self.root.rglob("*"))
+        with self.assertRaises(ClusterError) as c:
+            sweep.check_plans(spec)
+        self.assertIn("fast-seed1", str(c.exception))
+        self.assertIn("auto-seed1", str(c.exception))
+        self.assertEqual(sorted(p.relative_to(self.root) for p in self.root.rglob("*")), before)
+        spec.force = True
+        self.assertEqual([p.action for p in sweep.check_plans(spec).values()], ["train"] * 4)
+
+    def test_trial_status(self):
+        self.assertEqual(sweep.trial_status({"evaluated": True}, None, None), "evaluated")
+        self.assertEqual(sweep.trial_status({}, RuntimeError("x"), None), "failed")
+        self.assertEqual(sweep.trial_status({}, None, {"refused": "error: no"}), "refused")
+        self.assertEqual(sweep.trial_status({"val_psnr": 20}, None, {"refused": None}), "stopped early")
+
+
+#: A stand-in for the xtask binary: logs its arguments, exits with FAKE_XTASK_EXIT if set, and
+#: otherwise writes what `train` (a config, a checkpoint, one validation line per call) and
+#: `eval` (report.json) write.
+FAKE_XTASK = """#!{python}
+import json, os, sys
+from pathlib import Path
+args = sys.argv[1:]
+with open(os.environ["FAKE_XTASK_LOG"], "a") as f:
+    f.write(" ".join(args) + "\\n")
+code = int(os.environ.get("FAKE_XTASK_EXIT", "0"))
+if code:
+    print("error: fake refusal")
+    sys.exit(code)
+if args[0] == "train":
+    run = Path(args[args.index("--out") + 1])
+    (run / "checkpoints").mkdir(parents=True, exist_ok=True)
+    if "--resume" not in args:
+        (run / "config.json").write_text("{{}}")
+        (run / "metrics.jsonl").write_text("")
+    n = len((run / "metrics.jsonl").read_text().splitlines())
+    with open(run / "metrics.jsonl", "a") as f:
+        f.write(json.dumps({{"step": 10 * (n + 1), "wall_s": n + 1.0, "val_psnr": 20.0 + n}}) + "\\n")
+    (run / "checkpoints" / f"step-{{10 * (n + 1)}}.ckpt").write_bytes(b"x")
+elif args[0] == "eval":
+    Path(args[1], "report.json").write_text(json.dumps({{"final_psnr": 21.5, "train_steps": 10}}))
+"""
+
+
+class SweepTrials(unittest.TestCase):
+    """`sweep.trial` itself, with a stand-in for Ray Tune's `report` and for xtask."""
+
+    def setUp(self):
+        self.dir = tempfile.TemporaryDirectory()
+        self.root = Path(self.dir.name)
+        self.xtask = self.root / "xtask"
+        self.xtask.write_text(FAKE_XTASK.format(python=sys.executable))
+        self.xtask.chmod(0o755)
+        self.calls = self.root / "calls.txt"
+        self.spec = sweep.SweepSpec(dataset=self.root / "ds", models=["fast"], seeds=[0], out=self.root / "out", xtask=str(self.xtask), steps=10)
+        self.run = self.spec.run_dir("fast", 0)
+
+    def tearDown(self):
+        self.dir.cleanup()
+
+    def trial(self, exit_code=0):
+        """Runs the trial; returns (what it reported to Tune, the xtask calls it made)."""
+        reports = []
+        fake_ray = types.ModuleType("ray")
+        fake_ray.tune = types.SimpleNamespace(report=reports.append)
+        self.calls.write_text("")
+        env = {"FAKE_XTASK_LOG": str(self.calls), "FAKE_XTASK_EXIT": str(exit_code)}
+        with mock.patch.dict(sys.modules, {"ray": fake_ray}), mock.patch.dict(os.environ, env):
+            sweep.trial({"model": "fast", "seed": 0}, self.spec)
+        self.full_calls = self.calls.read_text().splitlines()
+        return reports, [c.split()[0:2] for c in self.full_calls]
+
+    def record(self):
+        return sweep.read_record(sweep.record_path(self.run))
+
+    def test_a_rerun_keeps_finished_trials_and_resumes_unfinished_ones(self):
+        reports, calls = self.trial()
+        self.assertEqual(calls, [["train", str(self.spec.dataset)], ["eval", str(self.run)]])
+        self.assertEqual(reports[-1]["test_psnr"], 21.5)
+        self.assertEqual(self.record()["stage"], "evaluated")
+
+        # Finished: nothing runs, the results are reported again, nothing is removed.
+        before = (self.run / "metrics.jsonl").read_text()
+        reports, calls = self.trial()
+        self.assertEqual(calls, [])
+        self.assertEqual((reports[-1]["evaluated"], reports[-1]["val_psnr"]), (True, 20.0))
+        self.assertEqual((self.run / "metrics.jsonl").read_text(), before)
+
+        # Killed while training (a node fault, Tune's retry, a Ctrl-C of the driver): resumed.
+        (self.run / "report.json").unlink()
+        sweep.write_record(sweep.record_path(self.run), self.record()["train"], None, "training")
+        reports, calls = self.trial()
+        self.assertEqual(calls, [["train", "--out"], ["eval", str(self.run)]])
+        self.assertEqual([r["val_psnr"] for r in reports if not r.get("evaluated")], [20.0, 21.0], "the earlier validation first, once")
+        self.assertEqual(len((self.run / "metrics.jsonl").read_text().splitlines()), 2, "the history is kept")
+
+    def test_a_refusal_ends_the_trial_without_an_error_and_is_recorded(self):
+        reports, calls = self.trial(exit_code=1)
+        self.assertEqual((reports, calls), ([], [["train", str(self.spec.dataset)]]))
+        rec = self.record()
+        self.assertIn("error: fake refusal", rec["refused"])
+        self.assertEqual(sweep.trial_status({}, None, rec), "refused")
+
+    def test_force_replaces_a_run_it_did_not_write_only_once_xtask_did(self):
+        (self.run / "checkpoints").mkdir(parents=True)
+        (self.run / "config.json").write_text("{}")
+        (self.run / "checkpoints" / "step-5.ckpt").write_bytes(b"x")
+        (self.run / "notes.txt").write_text("mine")
+        (self.run / "metrics.jsonl").write_text('{"step": 500, "wall_s": 99.0, "val_psnr": 30.0}\n')
+        self.spec.force = True
+        reports, calls = self.trial(exit_code=1)
+        self.assertEqual(calls, [["train", str(self.spec.dataset)]])
+        self.assertTrue(self.full_calls[0].endswith(" --force"), self.full_calls)
+        self.spec.force = False
+        self.assertEqual(sweep.plans(self.spec)[("fast", 0)].action, "refuse", "xtask refused: the folder is still someone else's")
+        self.spec.force = True
+        reports, calls = self.trial()
+        self.assertEqual(calls, [["train", str(self.spec.dataset)], ["eval", str(self.run)]])
+        self.assertEqual(reports[-1]["val_psnr"], 20.0, "the old run's lines are not reported")
+        self.assertEqual((self.run / "notes.txt").read_text(), "mine", "the sweep removes nothing itself")
+        self.spec.force = False
+        self.assertEqual(sweep.plans(self.spec)[("fast", 0)].action, "done")
+
+    def test_node_faults_raise_for_tunes_retry(self):
+        for code in (74, 130, 101):
+            with self.assertRaises(xt.XtaskFailed, msg=code):
+                self.trial(exit_code=code)
+            self.assertIsNone(self.record()["refused"])
 
 
 class CommandLine(unittest.TestCase):

@@ -8,6 +8,7 @@ use std::sync::OnceLock;
 mod bench;
 mod crosscheck;
 mod evaluate;
+mod exit;
 mod gen_scenes;
 mod mesh;
 mod render;
@@ -169,7 +170,8 @@ fn main() -> std::process::ExitCode {
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
     tracing_subscriber::fmt().with_env_filter(filter).with_target(false).with_writer(std::io::stderr).init();
     // A malformed command line is bad input like any other: one message naming the option,
-    // exit code 1 (clap's own is 2); help and version still print and exit 0.
+    // exit code 1 (clap's own is 2); help and version still print and exit 0. The codes are
+    // listed in `exit`.
     let cli = match Cli::try_parse() {
         Ok(cli) => cli,
         Err(e) => {
@@ -178,7 +180,7 @@ fn main() -> std::process::ExitCode {
                 e.exit();
             }
             let _ = e.print();
-            return std::process::ExitCode::from(1);
+            return std::process::ExitCode::from(exit::REFUSED);
         }
     };
     let result = match cli.command {
@@ -195,10 +197,14 @@ fn main() -> std::process::ExitCode {
         Command::Crosscheck(a) => crosscheck::run(a),
     };
     match result {
-        Ok(()) => std::process::ExitCode::SUCCESS,
+        Ok(()) => std::process::ExitCode::from(exit::SUCCESS),
         Err(e) => {
-            eprintln!("error: {}", error_message(&e));
-            std::process::ExitCode::from(1)
+            let code = exit::code_of(&e);
+            match code {
+                exit::STOPPED => eprintln!("stopped: {}", error_message(&e)),
+                _ => eprintln!("error: {}", error_message(&e)),
+            }
+            std::process::ExitCode::from(code)
         }
     }
 }

@@ -316,10 +316,11 @@ pub fn run(args: RenderArgs) -> anyhow::Result<PathBuf> {
             );
             Ok(sum.out)
         }
-        Err(pathtracer::PathTracerError::Interrupted) => bail!(
+        Err(pathtracer::PathTracerError::Interrupted) => Err(crate::exit::Stopped(format!(
             "interrupted after {done_here} new views; finished views are kept in {} — re-run the same command to resume",
             args.out.display()
-        ),
+        ))
+        .into()),
         Err(e) => Err(e).with_context(|| format!("rendering {} into {}", scene.display(), args.out.display())),
     }
 }

@@ -419,6 +419,10 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         );
     }
     eprintln!("outputs in {}", args.out.display());
+    if summary.interrupted {
+        let how = format!("training {} interrupted at step {}; its checkpoint is written and --resume continues it", args.out.display(), summary.steps);
+        return Err(crate::exit::Stopped(how).into());
+    }
     Ok(())
 }
 

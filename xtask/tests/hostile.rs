@@ -38,7 +38,8 @@ fn checkpoints(run: &Path) -> Vec<PathBuf> {
 }
 
 /// SIGTERM (how Ray Tune and cluster drivers stop a trial) stops `train` as Ctrl-C does: the
-/// current step finishes, a checkpoint is written, the process exits 0, and `--resume` continues.
+/// current step finishes, a checkpoint is written, the process exits 130 (stopped, work saved:
+/// not a finished run), and `--resume` continues.
 #[test]
 fn train_stopped_by_sigterm_writes_a_checkpoint_and_exits_cleanly() {
     let tmp = tempfile::tempdir().unwrap();
@@ -57,7 +58,7 @@ fn train_stopped_by_sigterm_writes_a_checkpoint_and_exits_cleanly() {
     assert!(killed.success());
     let out = child.wait_with_output().unwrap();
     let err = stderr(&out);
-    assert!(out.status.success(), "train stopped by SIGTERM exited with {}: {err}", out.status);
+    assert_eq!(out.status.code(), Some(130), "train stopped by SIGTERM exited with {}: {err}", out.status);
     assert!(err.contains("interrupted"), "{err}");
     let ckpts = checkpoints(&run_dir);
     assert_eq!(ckpts.len(), 1, "{ckpts:?}");

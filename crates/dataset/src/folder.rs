@@ -107,7 +107,7 @@ pub fn remove_stale_temporaries(out: &Path) -> Result<(), DatasetError> {
         for e in entries.flatten() {
             if is_stale_temporary(&e.file_name().to_string_lossy()) {
                 let p = e.path();
-                std::fs::remove_file(&p).map_err(|e| DatasetError::io(&p, e))?;
+                std::fs::remove_file(&p).map_err(|e| DatasetError::write(&p, e))?;
             }
         }
     }
@@ -116,7 +116,7 @@ pub fn remove_stale_temporaries(out: &Path) -> Result<(), DatasetError> {
 
 /// Removes only the files a dataset render writes (never the folder or other files).
 pub fn remove_dataset_files(out: &Path) -> Result<(), DatasetError> {
-    let rm = |p: &Path| std::fs::remove_file(p).map_err(|e| DatasetError::io(p, e));
+    let rm = |p: &Path| std::fs::remove_file(p).map_err(|e| DatasetError::write(p, e));
     for f in top_files().into_iter().chain([RENDER_CONFIG_FILE.to_string()]) {
         let p = out.join(f);
         if p.is_file() {

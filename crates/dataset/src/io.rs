@@ -16,7 +16,7 @@ pub fn temp_path_for(path: &Path) -> PathBuf {
 /// Writes `bytes` to `path` atomically, creating parent folders as needed.
 pub fn atomic_write(path: &Path, bytes: &[u8]) -> Result<(), DatasetError> {
     if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
-        std::fs::create_dir_all(parent).map_err(|e| DatasetError::io(parent, e))?;
+        std::fs::create_dir_all(parent).map_err(|e| DatasetError::write(parent, e))?;
     }
     let tmp = temp_path_for(path);
     let result = (|| {
@@ -27,7 +27,7 @@ pub fn atomic_write(path: &Path, bytes: &[u8]) -> Result<(), DatasetError> {
     })();
     if let Err(e) = result {
         let _ = std::fs::remove_file(&tmp);
-        return Err(DatasetError::io(path, e));
+        return Err(DatasetError::write(path, e));
     }
     Ok(())
 }
@@ -58,6 +58,23 @@ mod tests {
         assert!(!temp_path_for(&path).exists());
         let names: Vec<_> = std::fs::read_dir(path.parent().unwrap()).unwrap().collect();
         assert_eq!(names.len(), 1);
+        std::fs::remove_dir_all(dir).unwrap();
+    }
+
+    /// A failed write is told apart from a failed read: a [`crate::WriteError`] that stays in
+    /// the `source()` chain, so a caller can classify the OS error under it.
+    #[test]
+    fn a_failed_write_is_a_write_error_in_the_chain() {
+        let dir = std::env::temp_dir().join(format!("dataset-io-fail-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("a-file");
+        std::fs::write(&file, b"x").unwrap();
+        let e = atomic_write(&file.join("under-a-file.json"), b"{}").unwrap_err();
+        assert!(matches!(e, DatasetError::Write(_)), "{e:?}");
+        let source = std::error::Error::source(&e).unwrap();
+        assert!(source.downcast_ref::<crate::WriteError>().is_some(), "{source:?}");
+        assert!(std::error::Error::source(source).unwrap().downcast_ref::<std::io::Error>().is_some());
+        assert!(matches!(read(&dir.join("missing")), Err(DatasetError::Io { .. })));
         std::fs::remove_dir_all(dir).unwrap();
     }
 }

@@ -31,7 +31,7 @@ pub mod lock;
 
 pub use camera::{Camera, Intrinsics, Ray};
 pub use downscale::check_downscale;
-pub use error::DatasetError;
+pub use error::{DatasetError, WriteError};
 pub use images::{
     GroundTruth, RgbaImage, check_npy_f32, linear_to_srgb, read_exr_rgba, read_ground_truth, read_png_rgba,
     srgb_to_linear, write_exr_rgba, write_ground_truth, write_npy_f32, write_png_mask, write_png_rgba,

@@ -202,7 +202,7 @@ pub fn remove_stale_temporaries(run_dir: &Path, run_files: &[&str]) -> Result<()
             let name = e.file_name().to_string_lossy().into_owned();
             if temporary_of(&name).is_some_and(|f| if ours { is_ckpt(f) } else { run_files.contains(&f) }) {
                 let p = e.path();
-                std::fs::remove_file(&p).map_err(|e| dataset::DatasetError::Io { path: p.clone(), source: e })?;
+                std::fs::remove_file(&p).map_err(|e| dataset::DatasetError::write(&p, e))?;
             }
         }
     }
@@ -212,7 +212,7 @@ pub fn remove_stale_temporaries(run_dir: &Path, run_files: &[&str]) -> Result<()
 /// Removes every checkpoint of a run (when the model they hold no longer matches its config).
 pub fn remove_all(run_dir: &Path) -> Result<(), CheckpointError> {
     for (_, p) in list(run_dir) {
-        std::fs::remove_file(&p).map_err(|e| dataset::DatasetError::Io { path: p.clone(), source: e })?;
+        std::fs::remove_file(&p).map_err(|e| dataset::DatasetError::write(&p, e))?;
     }
     Ok(())
 }

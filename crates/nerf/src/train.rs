@@ -520,7 +520,7 @@ impl Trainer {
         let val_frames = if ds.val.is_empty() { &ds.test } else { &ds.val };
         let val = ValSet::load(val_frames, &config)?;
         let model = config.model.init(&bounds, config.seed).map_err(TrainError::Invalid)?;
-        std::fs::create_dir_all(run_dir).map_err(|e| TrainError::File { path: run_dir.into(), source: e })?;
+        std::fs::create_dir_all(run_dir).map_err(|e| dataset::DatasetError::write(run_dir, e))?;
         checkpoint::remove_stale_temporaries(run_dir, &[CONFIG_FILE, METRICS_FILE])?;
         let mut t = Self {
             next_val_at: config.val_interval(),
@@ -705,9 +705,9 @@ impl Trainer {
             .create(true)
             .append(true)
             .open(&path)
-            .map_err(|e| TrainError::File { path: path.clone(), source: e })?;
+            .map_err(|e| dataset::DatasetError::write(&path, e))?;
         // One write call per line: a process killed mid-line would otherwise leave a torn line.
-        f.write_all(format!("{line}\n").as_bytes()).map_err(|e| TrainError::File { path: path.clone(), source: e })?;
+        f.write_all(format!("{line}\n").as_bytes()).map_err(|e| dataset::DatasetError::write(&path, e))?;
         Ok(())
     }
 

@@ -208,7 +208,7 @@ pub(crate) fn render_dataset_part(
             let manifest = out.join(dataset::folder::SHARD_MANIFEST_FILE);
             if manifest.is_file() {
                 // A former shard folder now holds the whole dataset.
-                std::fs::remove_file(&manifest).map_err(|e| dataset::DatasetError::Io { path: manifest.clone(), source: e })?;
+                std::fs::remove_file(&manifest).map_err(|e| dataset::DatasetError::write(&manifest, e))?;
             }
         }
     }

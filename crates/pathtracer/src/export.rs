@@ -399,7 +399,7 @@ pub fn manifest(scene: &Scene, cameras: &[Camera], settings: &RenderSettings) ->
 /// with [`crate::render::validate_scene`] first.
 pub fn export_scene(scene: &Scene, cameras: &[Camera], settings: &RenderSettings, dir: &Path) -> Result<ExportManifest, PathTracerError> {
     crate::render::validate_scene(scene)?;
-    std::fs::create_dir_all(dir).map_err(|e| PathTracerError::Config(format!("cannot create {}: {e}", dir.display())))?;
+    std::fs::create_dir_all(dir).map_err(|e| dataset::DatasetError::write(dir, e))?;
     let m = &scene.mesh;
     let nv = m.positions.len();
     let o = scene.origin;
@@ -523,7 +523,7 @@ pub fn render_reference(renderer: &Renderer, camera: &Camera, view_index: u32, s
 /// (`<f4 (H, W, 4)`), and `<prefix>_depth.npy`, `<prefix>_distance.npy`, `<prefix>_alpha.npy`
 /// (`<f4 (H, W)`), `<prefix>_normal.npy` (`<f4 (H, W, 3)`).
 pub fn write_reference(dir: &Path, prefix: &str, v: &ReferenceView) -> Result<(), PathTracerError> {
-    std::fs::create_dir_all(dir).map_err(|e| PathTracerError::Config(format!("cannot create {}: {e}", dir.display())))?;
+    std::fs::create_dir_all(dir).map_err(|e| dataset::DatasetError::write(dir, e))?;
     let (w, h) = (v.width as usize, v.height as usize);
     write_npy_f32(&dir.join(format!("{prefix}_mean.npy")), &[h, w, 4], &v.mean)?;
     write_npy_f32(&dir.join(format!("{prefix}_var.npy")), &[h, w, 4], &v.variance)?;

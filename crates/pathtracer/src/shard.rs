@@ -186,7 +186,7 @@ pub fn merge_shards(shards: &[PathBuf], out: &Path, scene: Option<&Path>) -> Res
     let final_out = out;
     let name = final_out.file_name().map_or("dataset".into(), |n| n.to_string_lossy().into_owned());
     let tmp = final_out.with_file_name(format!(".{name}.merge.{}.tmp", std::process::id()));
-    let io = |path: &Path, e: std::io::Error| PathTracerError::from(dataset::DatasetError::Io { path: path.to_path_buf(), source: e });
+    let io = |path: &Path, e: std::io::Error| PathTracerError::from(dataset::DatasetError::write(path, e));
     if tmp.exists() {
         std::fs::remove_dir_all(&tmp).map_err(|e| io(&tmp, e))?;
     }

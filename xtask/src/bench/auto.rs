@@ -230,7 +230,7 @@ fn train_and_eval(name: &str, seed: u64, dataset: &Path, run: &Path, budget: &st
         dataset::io::atomic_write_json(&host_record(run), &rec)?;
     }
     if crate::stop_flag().load(std::sync::atomic::Ordering::SeqCst) {
-        anyhow::bail!("interrupted; re-run the same command to resume");
+        return Err(crate::exit::Stopped("interrupted; re-run the same command to resume".into()).into());
     }
     crate::evaluate::run(crate::evaluate::EvalArgs::at_training_resolution(run.to_path_buf(), "test", 1, max_views))
 }
