@@ -110,6 +110,7 @@ fn fmt_opt(v: Option<f64>, digits: usize) -> String {
 /// Evaluates a run and prints its summary table.
 pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     anyhow::ensure!(args.max_views != Some(0), "--max-views 0 evaluates nothing (give at least 1, or leave it out for every view)");
+    crate::guard::check_output_folder("the run folder", &args.run, false)?;
     let opts = eval::EvalRunOptions {
         split: parse_split(&args.split)?,
         grid_views: args.grids,
@@ -172,6 +173,8 @@ fn print_summary(out: &eval::EvalRunOutput) {
 
 /// Compares evaluated runs.
 pub fn run_compare(args: CompareArgs) -> anyhow::Result<()> {
+    crate::check_out_folder("--out", &args.out)?;
+    crate::guard::check_output_folder("--out", &args.out, false)?;
     let runs = args.runs.iter().map(|r| eval::summarise_run(r)).collect::<Result<Vec<_>, _>>()?;
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     let table = eval::compare_runs(&runs, &args.out)?;
@@ -215,6 +218,7 @@ pub fn run_demo(args: DemoArgs) -> anyhow::Result<()> {
     let run_dir = args.out.join(format!("run-{}", args.model));
     // Every option is checked before anything is rendered or removed.
     crate::check_out_folder("--out", &args.out)?;
+    crate::guard::check_output_folder("--out", &args.out, false)?;
     nerf::train::TrainConfig::preset(&args.model, run_dir.clone()).map_err(|e| anyhow::anyhow!("--model {}: {e}", args.model))?;
     crate::train::parse_duration("--time", &args.time)?;
     let render_args = demo_render_args(&args, &dataset_dir);

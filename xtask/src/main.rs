@@ -9,6 +9,7 @@ mod bench;
 mod crosscheck;
 mod evaluate;
 mod gen_scenes;
+mod guard;
 mod mesh;
 mod render;
 mod train;

@@ -54,6 +54,8 @@ pub fn run(args: MeshArgs) -> anyhow::Result<()> {
     }
     anyhow::ensure!(args.samples > 0, "--samples must be at least 1");
     anyhow::ensure!(sidecar(&args.out) != args.out, "--out {} would be overwritten by its own sidecar; give it the .ply extension", args.out.display());
+    let scene = crate::render::resolve_scene_option(args.scene.as_deref())?;
+    crate::guard::check_output_files("--out", &args.out, &[args.out.clone(), sidecar(&args.out)], scene.as_slice())?;
     let start = Instant::now();
     let model = nerf::render::RunModel::load(&args.run).with_context(|| format!("loading the run {}", args.run.display()))?;
     let dataset = dataset::Dataset::load(model.dataset_dir()).with_context(|| format!("loading the run's dataset {}", model.dataset_dir().display()))?;
@@ -82,7 +84,7 @@ pub fn run(args: MeshArgs) -> anyhow::Result<()> {
     let metrics = if args.no_metrics {
         None
     } else {
-        match scene_reference(&dataset, crate::render::resolve_scene_option(args.scene.as_deref())?.as_deref())? {
+        match scene_reference(&dataset, scene.as_deref())? {
             Ok(reference) => {
                 let (m, fraction) = compare_with_reference(&extracted.mesh, &reference, args.samples)?;
                 Some(MeshBlock {

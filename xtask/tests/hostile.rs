@@ -149,3 +149,86 @@ fn out_naming_a_file_is_refused_naming_the_option_and_path() {
         assert_eq!(std::fs::read_to_string(&file).unwrap(), "mine");
     }
 }
+
+/// Runs `xtask ARGS`, expects a refusal whose message holds every string of `want`.
+fn assert_refused(args: &[&std::ffi::OsStr], want: &[&str]) {
+    let o = run(args);
+    let err = stderr(&o);
+    assert!(!o.status.success(), "{args:?} succeeded: {err}");
+    for w in want {
+        assert!(err.contains(w), "{args:?}: the message does not say {w:?}: {err}");
+    }
+    assert_eq!(err.trim().lines().count(), 1, "{args:?}: not one line: {err}");
+}
+
+/// A trained run at `dir/run` on the analytic dataset at `dir/data` (four steps, one checkpoint).
+fn trained_run(dir: &Path) -> (PathBuf, PathBuf) {
+    let config = test_support::training::write_cli_config(dir, 4, 4);
+    let run_dir = dir.join("run");
+    let o = run(&["train".as_ref(), "--config".as_ref(), config.as_os_str(), "--out".as_ref(), run_dir.as_os_str()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    (run_dir, dir.join("data"))
+}
+
+/// No command writes an output over a file of a run (its config through `mesh`'s sidecar, the
+/// `<name>.json` beside `--out <name>.ply`) or into a dataset folder (`render-nerf --out
+/// DATASET/test` replaced the ground-truth views, which `eval` then scored at 60 dB); each is
+/// refused in one sentence naming `--out`, and the run and the dataset keep every byte.
+#[test]
+fn outputs_over_a_run_or_inside_a_dataset_are_refused() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (run_dir, data) = trained_run(tmp.path());
+    let (run_before, data_before) = (folder_bytes(&run_dir), folder_bytes(&data));
+    let p = |p: PathBuf| p.into_os_string();
+    let (r, d) = (run_dir.as_os_str(), data.as_os_str());
+    for name in ["config", "eval", "report"] {
+        let out = p(run_dir.join(format!("{name}.ply")));
+        let json = format!("{name}.json");
+        assert_refused(&["mesh".as_ref(), r, "--out".as_ref(), &out, "--resolution".as_ref(), "8".as_ref()], &["--out", &json, "would replace"]);
+    }
+    let inside = ["inside the dataset folder", "--out"];
+    assert_refused(&["mesh".as_ref(), r, "--out".as_ref(), &p(data.join("transforms.ply"))], &inside);
+    assert_refused(&["render-nerf".as_ref(), r, "--out".as_ref(), &p(data.join("test"))], &inside);
+    assert_refused(&["render-nerf".as_ref(), r, "--out".as_ref(), d], &["is a dataset folder", "--out"]);
+    assert_refused(&["train".as_ref(), d, "--out".as_ref(), &p(data.join("run")), "--steps".as_ref(), "2".as_ref()], &inside);
+    assert_refused(&["compare".as_ref(), r, "--out".as_ref(), &p(data.join("cmp"))], &inside);
+    assert_refused(&["demo".as_ref(), "--out".as_ref(), d], &["is a dataset folder", "--out"]);
+    assert_refused(&["crosscheck".as_ref(), "cornell".as_ref(), "--out".as_ref(), &p(data.join("x"))], &inside);
+    assert_refused(&["bench".as_ref(), "nerf".as_ref(), "--out".as_ref(), &p(data.join("bench"))], &inside);
+    assert_refused(&["bench".as_ref(), "auto-diff".as_ref(), "--before".as_ref(), r, "--after".as_ref(), r, "--out".as_ref(), &p(run_dir.join("report.json"))], &["--out", "report.json", "would replace"]);
+    assert_refused(&["merge".as_ref(), d, "--out".as_ref(), &p(data.join("merged"))], &inside);
+    let render = |out: &std::ffi::OsStr| run(&["render".as_ref(), "cornell".as_ref(), "--out".as_ref(), out, "--res".as_ref(), "8".as_ref(), "--train".as_ref(), "1".as_ref(), "--val".as_ref(), "1".as_ref(), "--test".as_ref(), "1".as_ref(), "--spp".as_ref(), "1".as_ref()]);
+    let o = render(&p(data.join("test/sub")));
+    assert!(!o.status.success() && stderr(&o).contains("inside the dataset folder"), "{}", stderr(&o));
+    // A run folder kept inside a dataset folder is not written into by eval.
+    let nested = data.join("run");
+    std::fs::create_dir_all(nested.join("checkpoints")).unwrap();
+    for f in test_support::files(&run_dir) {
+        std::fs::write(nested.join(&f.0), &f.1).unwrap();
+    }
+    let nested_before = folder_bytes(&nested);
+    assert_refused(&["eval".as_ref(), nested.as_os_str(), "--no-mesh".as_ref()], &["the run folder", "inside the dataset folder"]);
+    assert_eq!(folder_bytes(&nested), nested_before);
+    std::fs::remove_dir_all(&nested).unwrap();
+    assert_eq!(folder_bytes(&run_dir), run_before, "the run changed");
+    assert_eq!(folder_bytes(&data), data_before, "the dataset changed");
+    // Through `..` and a symlinked folder, the same files are seen.
+    let sneaky = run_dir.join("checkpoints/../config.ply");
+    assert_refused(&["mesh".as_ref(), r, "--out".as_ref(), sneaky.as_os_str()], &["config.json", "would replace"]);
+    #[cfg(unix)]
+    {
+        let link = tmp.path().join("link");
+        std::os::unix::fs::symlink(&data, &link).unwrap();
+        assert_refused(&["render-nerf".as_ref(), r, "--out".as_ref(), &p(link.join("test"))], &inside);
+    }
+    // Where nothing is replaced, the same commands write: render-nerf beside the run, a
+    // render's dataset resumed in place.
+    let renders = tmp.path().join("renders");
+    let o = run(&["render-nerf".as_ref(), r, "--out".as_ref(), renders.as_os_str()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let ds = tmp.path().join("ds");
+    for _ in 0..2 {
+        let o = render(ds.as_os_str());
+        assert!(o.status.success(), "{}", stderr(&o));
+    }
+}
