@@ -28,7 +28,7 @@ mod images;
 mod transforms;
 pub mod io;
 
-pub use camera::{Camera, Intrinsics, Ray};
+pub use camera::{Camera, Intrinsics, MAX_TRANSLATION, MIN_FIELD_OF_VIEW, Ray};
 pub use downscale::check_downscale;
 pub use error::DatasetError;
 pub use images::{
