@@ -175,12 +175,28 @@ fn print_summary(out: &eval::EvalRunOutput) {
 pub fn run_compare(args: CompareArgs) -> anyhow::Result<()> {
     crate::check_out_folder("--out", &args.out)?;
     crate::guard::check_output_folder("--out", &args.out, false)?;
-    let runs = args.runs.iter().map(|r| eval::summarise_run(r)).collect::<Result<Vec<_>, _>>()?;
+    let mut runs = args.runs.iter().map(|r| eval::summarise_run(r)).collect::<Result<Vec<_>, _>>()?;
+    for (dir, summary) in args.runs.iter().zip(&mut runs) {
+        if let Some(why) = stale_report(dir, summary) {
+            eprintln!("warning: {}: {why}; its row is marked \"stale\": run `cargo xtask eval {}` again", dir.display(), dir.display());
+            summary.name.push_str(" (stale)");
+        }
+    }
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     let table = eval::compare_runs(&runs, &args.out)?;
     println!("{table}");
     println!("comparison: {}", args.out.join("compare.md").display());
     Ok(())
+}
+
+/// Why the report of the run in `dir` is not its latest model's, if it is not: the run trained
+/// on (`train --resume`) after it was evaluated, so its latest checkpoint is of another step
+/// than the report.
+fn stale_report(dir: &std::path::Path, summary: &eval::RunSummary) -> Option<String> {
+    let (step, checkpoint) = nerf::checkpoint::latest_with_step(dir)?;
+    (step != summary.train_steps).then(|| {
+        format!("report.json is of step {}, but the latest checkpoint is of step {step} ({})", summary.train_steps, checkpoint.display())
+    })
 }
 
 /// The demo's own dataset (no `--preset`): the quick preset's rig, bounces and 4 val and 4

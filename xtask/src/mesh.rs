@@ -59,6 +59,7 @@ pub fn run(args: MeshArgs) -> anyhow::Result<()> {
     let start = Instant::now();
     let model = nerf::render::RunModel::load(&args.run).with_context(|| format!("loading the run {}", args.run.display()))?;
     let dataset = dataset::Dataset::load(model.dataset_dir()).with_context(|| format!("loading the run's dataset {}", model.dataset_dir().display()))?;
+    remove_stale_temporaries(&args.out)?;
     let opts = ExtractOptions { level: args.level, colors: !args.no_colors, ..ExtractOptions::at_resolution(args.resolution) };
     let cameras = spread_cameras(&dataset.train, opts.level_views);
     let bar = indicatif::ProgressBar::new(0);
@@ -113,6 +114,14 @@ pub fn run(args: MeshArgs) -> anyhow::Result<()> {
     text.push('\n');
     dataset::io::atomic_write(&path, text.as_bytes()).with_context(|| format!("writing {}", path.display()))?;
     println!("wrote {} and {}", args.out.display(), path.display());
+    Ok(())
+}
+
+/// Removes the temporaries of `out` and its sidecar that a killed `mesh` left beside them.
+fn remove_stale_temporaries(out: &std::path::Path) -> anyhow::Result<()> {
+    let names: Vec<String> = [out.to_path_buf(), sidecar(out)].iter().filter_map(|p| Some(p.file_name()?.to_string_lossy().into_owned())).collect();
+    let dir = out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(std::path::Path::new("."));
+    dataset::io::remove_stale_temporaries(dir, |f| names.iter().any(|n| n == f))?;
     Ok(())
 }
 

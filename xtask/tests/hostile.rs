@@ -232,3 +232,100 @@ fn outputs_over_a_run_or_inside_a_dataset_are_refused() {
         assert!(o.status.success(), "{}", stderr(&o));
     }
 }
+
+/// A run's `config.json` with an impossible setting (`downscale: 0`, which `eval` read as 1) is
+/// refused by every reader, naming the file and the setting, and nothing is written.
+#[test]
+fn a_run_config_with_an_impossible_setting_is_refused_by_its_readers() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (run_dir, _) = trained_run(tmp.path());
+    let config = run_dir.join("config.json");
+    let mut cfg: serde_json::Value = serde_json::from_slice(&std::fs::read(&config).unwrap()).unwrap();
+    cfg["downscale"] = serde_json::json!(0);
+    std::fs::write(&config, serde_json::to_string_pretty(&cfg).unwrap()).unwrap();
+    let before = folder_bytes(&run_dir);
+    let (renders, mesh) = (tmp.path().join("renders"), tmp.path().join("m.ply"));
+    let r = run_dir.as_os_str();
+    for args in [
+        vec!["eval".as_ref(), r, "--split".as_ref(), "train".as_ref(), "--no-mesh".as_ref()],
+        vec!["render-nerf".as_ref(), r, "--out".as_ref(), renders.as_os_str()],
+        vec!["mesh".as_ref(), r, "--out".as_ref(), mesh.as_os_str(), "--resolution".as_ref(), "8".as_ref()],
+    ] {
+        assert_refused(&args, &[&*config.to_string_lossy(), "downscale"]);
+    }
+    assert_eq!(folder_bytes(&run_dir), before);
+    assert!(!renders.exists() && !mesh.exists());
+}
+
+/// An evaluation leaves only its own report's outputs: the grids of views an earlier one
+/// pictured and this one does not, the mesh's picture without a mesh, and temporaries of a
+/// killed evaluation go; a mesh this evaluation did not make is kept and the report says so.
+#[test]
+fn eval_removes_what_an_earlier_evaluation_left() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (run_dir, _) = trained_run(tmp.path());
+    let eval = |grids: &str| {
+        let o = run(&["eval".as_ref(), run_dir.as_os_str(), "--split".as_ref(), "train".as_ref(), "--no-mesh".as_ref(), "--grids".as_ref(), grids.as_ref()]);
+        assert!(o.status.success(), "{}", stderr(&o));
+    };
+    eval("3");
+    let grids = |d: &Path| {
+        let mut g: Vec<String> = std::fs::read_dir(d).unwrap().flatten().map(|e| e.file_name().to_string_lossy().into_owned()).filter(|n| n.starts_with("grid_")).collect();
+        g.sort();
+        g
+    };
+    assert_eq!(grids(&run_dir), ["grid_r_0.png", "grid_r_1.png", "grid_r_2.png"]);
+    let dead = if Path::new("/proc/self").exists() { 0 } else { 1 };
+    let temp = run_dir.join(format!(".eval.json.{dead}.tmp"));
+    for f in [run_dir.join("mesh.ply"), run_dir.join("mesh_error.png"), temp.clone(), run_dir.join("notes.txt")] {
+        std::fs::write(f, b"earlier").unwrap();
+    }
+    eval("1");
+    assert_eq!(grids(&run_dir), ["grid_r_0.png"]);
+    assert!(!run_dir.join("mesh_error.png").exists() && !temp.exists());
+    assert!(run_dir.join("mesh.ply").exists() && run_dir.join("notes.txt").exists());
+    let report = std::fs::read_to_string(run_dir.join("report.md")).unwrap();
+    assert!(report.contains("mesh.ply in the run folder is not this evaluation's"), "{report}");
+}
+
+/// `compare` flags a run whose report is older than its latest checkpoint (trained on after
+/// its evaluation): a warning naming the run, and its row marked stale.
+#[test]
+fn compare_flags_a_report_older_than_the_latest_checkpoint() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (run_dir, _) = trained_run(tmp.path());
+    let r = run_dir.as_os_str();
+    let o = run(&["eval".as_ref(), r, "--split".as_ref(), "train".as_ref(), "--no-mesh".as_ref(), "--grids".as_ref(), "0".as_ref()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let cmp = tmp.path().join("cmp");
+    let compare = || {
+        let o = run(&["compare".as_ref(), r, "--out".as_ref(), cmp.as_os_str()]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        (stderr(&o), std::fs::read_to_string(cmp.join("compare.md")).unwrap())
+    };
+    let (err, md) = compare();
+    assert!(!err.contains("warning") && !md.contains("stale"), "{err}\n{md}");
+    let o = run(&["train".as_ref(), "--out".as_ref(), r, "--resume".as_ref(), "--steps".as_ref(), "8".as_ref()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let (err, md) = compare();
+    assert!(err.contains("warning") && err.contains(&*run_dir.to_string_lossy()) && err.contains("step 4") && err.contains("step 8"), "{err}");
+    assert!(md.contains("run (stale)"), "{md}");
+}
+
+/// `mesh` removes the temporaries a killed `mesh` left beside its PLY and sidecar (whatever
+/// becomes of this run), and no other file.
+#[test]
+fn mesh_removes_the_temporaries_of_a_killed_mesh() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (run_dir, _) = trained_run(tmp.path());
+    let out = tmp.path().join("m.ply");
+    let dead = if Path::new("/proc/self").exists() { 0 } else { 1 };
+    let stale = [tmp.path().join(format!(".m.ply.{dead}.tmp")), tmp.path().join(format!(".m.json.{dead}.tmp"))];
+    let other = tmp.path().join(format!(".n.ply.{dead}.tmp"));
+    for f in stale.iter().chain([&other]) {
+        std::fs::write(f, b"half").unwrap();
+    }
+    run(&["mesh".as_ref(), run_dir.as_os_str(), "--out".as_ref(), out.as_os_str(), "--resolution".as_ref(), "8".as_ref(), "--no-metrics".as_ref()]);
+    assert!(stale.iter().all(|f| !f.exists()), "the temporaries were kept");
+    assert!(other.exists(), "another file's temporary was removed");
+}
