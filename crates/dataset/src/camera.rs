@@ -94,7 +94,7 @@ impl Intrinsics {
             }
         }
         for (name, v, fov) in [("fl_x", self.fl_x, self.camera_angle_x()), ("fl_y", self.fl_y, self.camera_angle_y())] {
-            if !(fov > MIN_FIELD_OF_VIEW) {
+            if fov.is_nan() || fov <= MIN_FIELD_OF_VIEW {
                 return Err(format!("focal length {name} = {v} gives a field of view of {fov:e} rad, narrower than {MIN_FIELD_OF_VIEW:e} rad"));
             }
         }
