@@ -75,6 +75,10 @@ pub fn run(args: CrosscheckArgs) -> anyhow::Result<()> {
     if !VARIANTS.contains(&args.variant.as_str()) {
         bail!("--variant {}: the cross-check needs one of Mitsuba's RGB variants: {}", args.variant, VARIANTS.join(", "));
     }
+    if let Some(out) = &args.out {
+        crate::check_out_folder("--out", out)?;
+        crate::guard::check_output_folder("--out", out, false)?;
+    }
     let root = repo_root();
     let python = root.join(".venv/bin/python");
     if !python.is_file() {
@@ -95,6 +99,7 @@ pub fn run(args: CrosscheckArgs) -> anyhow::Result<()> {
     let scene_path = resolve_scene(&args.scene)?;
     let name = scene_path.file_stem().and_then(|s| s.to_str()).unwrap_or("scene").to_string();
     let out = args.out.clone().unwrap_or_else(|| root.join("out/crosscheck").join(&name));
+    crate::guard::check_output_folder("--out", &out, false)?;
 
     let mut cfg = DatasetRenderConfig::preset(Preset::Quick);
     (cfg.width, cfg.height) = parse_resolution(&args.res)?;

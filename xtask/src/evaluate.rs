@@ -132,6 +132,7 @@ fn fmt_opt(v: Option<f64>, digits: usize) -> String {
 /// Evaluates a run and prints its summary table.
 pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     anyhow::ensure!(args.max_views != Some(0), "--max-views 0 evaluates nothing (give at least 1, or leave it out for every view)");
+    crate::guard::check_output_folder("the run folder", &args.run, false)?;
     let opts = eval::EvalRunOptions {
         split: parse_split(&args.split)?,
         grid_views: args.grids,
@@ -196,12 +197,30 @@ fn print_summary(out: &eval::EvalRunOutput) {
 
 /// Compares evaluated runs.
 pub fn run_compare(args: CompareArgs) -> anyhow::Result<()> {
-    let runs = args.runs.iter().map(|r| eval::summarise_run(r)).collect::<Result<Vec<_>, _>>()?;
+    crate::check_out_folder("--out", &args.out)?;
+    crate::guard::check_output_folder("--out", &args.out, false)?;
+    let mut runs = args.runs.iter().map(|r| eval::summarise_run(r)).collect::<Result<Vec<_>, _>>()?;
+    for (dir, summary) in args.runs.iter().zip(&mut runs) {
+        if let Some(why) = stale_report(dir, summary) {
+            eprintln!("warning: {}: {why}; its row is marked \"stale\": run `cargo xtask eval {}` again", dir.display(), dir.display());
+            summary.name.push_str(" (stale)");
+        }
+    }
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     let table = eval::compare_runs(&runs, &args.out)?;
     println!("{table}");
     println!("comparison: {}", args.out.join("compare.md").display());
     Ok(())
+}
+
+/// Why the report of the run in `dir` is not its latest model's, if it is not: the run trained
+/// on (`train --resume`) after it was evaluated, so its latest checkpoint is of another step
+/// than the report.
+fn stale_report(dir: &std::path::Path, summary: &eval::RunSummary) -> Option<String> {
+    let (step, checkpoint) = nerf::checkpoint::latest_with_step(dir)?;
+    (step != summary.train_steps).then(|| {
+        format!("report.json is of step {}, but the latest checkpoint is of step {step} ({})", summary.train_steps, checkpoint.display())
+    })
 }
 
 /// The demo's own dataset (no `--preset`): the quick preset's rig, bounces and 4 val and 4
@@ -238,6 +257,7 @@ pub fn run_demo(args: DemoArgs) -> anyhow::Result<()> {
     let (dataset_dir, run_dir) = demo_folders(&args);
     // Every option is checked before anything is rendered or removed.
     crate::check_out_folder("--out", &args.out)?;
+    crate::guard::check_output_folder("--out", &args.out, false)?;
     nerf::train::TrainConfig::preset(&args.model, run_dir.clone()).map_err(|e| anyhow::anyhow!("--model {}: {e}", args.model))?;
     crate::train::parse_duration("--time", &args.time)?;
     let mut render_args = demo_render_args(&args, &dataset_dir);

@@ -10,6 +10,7 @@ mod crosscheck;
 mod evaluate;
 mod exit;
 mod gen_scenes;
+mod guard;
 mod mesh;
 mod render;
 mod train;

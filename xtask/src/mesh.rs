@@ -54,10 +54,13 @@ pub fn run(args: MeshArgs) -> anyhow::Result<()> {
     }
     anyhow::ensure!(args.samples > 0, "--samples must be at least 1");
     anyhow::ensure!(sidecar(&args.out) != args.out, "--out {} would be overwritten by its own sidecar; give it the .ply extension", args.out.display());
+    let scene = crate::render::resolve_scene_option(args.scene.as_deref())?;
+    crate::guard::check_output_files("--out", &args.out, &[args.out.clone(), sidecar(&args.out)], scene.as_slice())?;
     let _lock = crate::lock_folder(args.out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(std::path::Path::new(".")))?;
     let start = Instant::now();
     let model = nerf::render::RunModel::load(&args.run).with_context(|| format!("loading the run {}", args.run.display()))?;
     let dataset = dataset::Dataset::load(model.dataset_dir()).with_context(|| format!("loading the run's dataset {}", model.dataset_dir().display()))?;
+    remove_stale_temporaries(&args.out)?;
     let opts = ExtractOptions { level: args.level, colors: !args.no_colors, ..ExtractOptions::at_resolution(args.resolution) };
     let cameras = spread_cameras(&dataset.train, opts.level_views);
     let bar = indicatif::ProgressBar::new(0);
@@ -83,7 +86,7 @@ pub fn run(args: MeshArgs) -> anyhow::Result<()> {
     let metrics = if args.no_metrics {
         None
     } else {
-        match scene_reference(&dataset, crate::render::resolve_scene_option(args.scene.as_deref())?.as_deref())? {
+        match scene_reference(&dataset, scene.as_deref())? {
             Ok(reference) => {
                 let (m, fraction) = compare_with_reference(&extracted.mesh, &reference, args.samples)?;
                 Some(MeshBlock {
@@ -112,6 +115,14 @@ pub fn run(args: MeshArgs) -> anyhow::Result<()> {
     text.push('\n');
     dataset::io::atomic_write(&path, text.as_bytes()).with_context(|| format!("writing {}", path.display()))?;
     println!("wrote {} and {}", args.out.display(), path.display());
+    Ok(())
+}
+
+/// Removes the temporaries of `out` and its sidecar that a killed `mesh` left beside them.
+fn remove_stale_temporaries(out: &std::path::Path) -> anyhow::Result<()> {
+    let names: Vec<String> = [out.to_path_buf(), sidecar(out)].iter().filter_map(|p| Some(p.file_name()?.to_string_lossy().into_owned())).collect();
+    let dir = out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(std::path::Path::new("."));
+    dataset::io::remove_stale_temporaries(dir, |f| names.iter().any(|n| n == f))?;
     Ok(())
 }
 

@@ -93,6 +93,7 @@ pub struct MergeArgs {
 /// Merges shard folders into one dataset folder.
 pub fn run_merge(args: MergeArgs) -> anyhow::Result<()> {
     crate::check_out_folder("--out", &args.out)?;
+    crate::guard::check_output_folder("--out", &args.out, false)?;
     let _lock = crate::lock_folder(&args.out)?;
     let scene = resolve_scene_option(args.scene.as_deref())?;
     let sum = pathtracer::shard::merge_shards(&args.shards, &args.out, scene.as_deref())
@@ -249,6 +250,7 @@ pub fn older_renderer(dir: &Path) -> Option<String> {
 /// Renders a dataset; returns its folder.
 pub fn run(args: RenderArgs) -> anyhow::Result<PathBuf> {
     crate::check_out_folder("--out", &args.out)?;
+    crate::guard::check_output_folder("--out", &args.out, true)?;
     let _lock = crate::lock_folder(&args.out)?;
     let cfg = build_config(&args)?;
     let scene = resolve_scene(&args.scene)?;

@@ -333,6 +333,7 @@ fn resume_trainer(args: &TrainArgs) -> anyhow::Result<Trainer> {
 /// Trains a model.
 pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     crate::check_out_folder("--out", &args.out)?;
+    crate::guard::check_output_folder("--out", &args.out, false)?;
     let _lock = crate::lock_folder(&args.out)?;
     let stop = crate::stop_flag();
     let mut trainer = if args.resume {
@@ -431,6 +432,10 @@ pub fn run_render(args: RenderNerfArgs) -> anyhow::Result<()> {
     anyhow::ensure!(args.orbit != Some(0), "--orbit 0: at least one view is needed");
     const MOST_ORBIT_VIEWS: usize = 100_000;
     anyhow::ensure!(args.orbit.is_none_or(|n| n <= MOST_ORBIT_VIEWS), "--orbit {}: at most {MOST_ORBIT_VIEWS} views", args.orbit.unwrap_or(0));
+    if let Some(out) = &args.out {
+        crate::check_out_folder("--out", out)?;
+        crate::guard::check_output_folder("--out", out, false)?;
+    }
     let model = RunModel::load(&args.run).with_context(|| format!("loading {}", args.run.display()))?;
     let downscale = args.downscale.unwrap_or(model.config.downscale.max(1));
     {
@@ -463,7 +468,10 @@ pub fn run_render(args: RenderNerfArgs) -> anyhow::Result<()> {
     };
     anyhow::ensure!(!cameras.is_empty(), "dataset {} has no {label} views", model.dataset_dir().display());
     let out = args.out.clone().unwrap_or_else(|| args.run.join("renders").join(&label));
-    crate::check_out_folder("--out", &out)?;
+    if args.out.is_none() {
+        crate::check_out_folder("the output folder", &out)?;
+        crate::guard::check_output_folder("the output folder", &out, false)?;
+    }
     let _lock = crate::lock_folder(&out)?;
     let bg = model.eval_background();
     let bar = indicatif::ProgressBar::new(cameras.len() as u64);

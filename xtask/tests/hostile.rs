@@ -150,3 +150,183 @@ fn out_naming_a_file_is_refused_naming_the_option_and_path() {
         assert_eq!(std::fs::read_to_string(&file).unwrap(), "mine");
     }
 }
+
+/// Runs `xtask ARGS`, expects a refusal whose message holds every string of `want`.
+fn assert_refused(args: &[&std::ffi::OsStr], want: &[&str]) {
+    let o = run(args);
+    let err = stderr(&o);
+    assert!(!o.status.success(), "{args:?} succeeded: {err}");
+    for w in want {
+        assert!(err.contains(w), "{args:?}: the message does not say {w:?}: {err}");
+    }
+    assert_eq!(err.trim().lines().count(), 1, "{args:?}: not one line: {err}");
+}
+
+/// A trained run at `dir/run` on the analytic dataset at `dir/data` (four steps, one checkpoint).
+fn trained_run(dir: &Path) -> (PathBuf, PathBuf) {
+    let config = test_support::training::write_cli_config(dir, 4, 4);
+    let run_dir = dir.join("run");
+    let o = run(&["train".as_ref(), "--config".as_ref(), config.as_os_str(), "--out".as_ref(), run_dir.as_os_str()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    (run_dir, dir.join("data"))
+}
+
+/// No command writes an output over a file of a run (its config through `mesh`'s sidecar, the
+/// `<name>.json` beside `--out <name>.ply`) or into a dataset folder (`render-nerf --out
+/// DATASET/test` replaced the ground-truth views, which `eval` then scored at 60 dB); each is
+/// refused in one sentence naming `--out`, and the run and the dataset keep every byte.
+#[test]
+fn outputs_over_a_run_or_inside_a_dataset_are_refused() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (run_dir, data) = trained_run(tmp.path());
+    let (run_before, data_before) = (folder_bytes(&run_dir), folder_bytes(&data));
+    let p = |p: PathBuf| p.into_os_string();
+    let (r, d) = (run_dir.as_os_str(), data.as_os_str());
+    for name in ["config", "eval", "report"] {
+        let out = p(run_dir.join(format!("{name}.ply")));
+        let json = format!("{name}.json");
+        assert_refused(&["mesh".as_ref(), r, "--out".as_ref(), &out, "--resolution".as_ref(), "8".as_ref()], &["--out", &json, "would replace"]);
+    }
+    let inside = ["inside the dataset folder", "--out"];
+    assert_refused(&["mesh".as_ref(), r, "--out".as_ref(), &p(data.join("transforms.ply"))], &inside);
+    assert_refused(&["render-nerf".as_ref(), r, "--out".as_ref(), &p(data.join("test"))], &inside);
+    assert_refused(&["render-nerf".as_ref(), r, "--out".as_ref(), d], &["is a dataset folder", "--out"]);
+    assert_refused(&["train".as_ref(), d, "--out".as_ref(), &p(data.join("run")), "--steps".as_ref(), "2".as_ref()], &inside);
+    assert_refused(&["compare".as_ref(), r, "--out".as_ref(), &p(data.join("cmp"))], &inside);
+    assert_refused(&["demo".as_ref(), "--out".as_ref(), d], &["is a dataset folder", "--out"]);
+    assert_refused(&["crosscheck".as_ref(), "cornell".as_ref(), "--out".as_ref(), &p(data.join("x"))], &inside);
+    assert_refused(&["bench".as_ref(), "nerf".as_ref(), "--out".as_ref(), &p(data.join("bench"))], &inside);
+    assert_refused(&["bench".as_ref(), "auto-diff".as_ref(), "--before".as_ref(), r, "--after".as_ref(), r, "--out".as_ref(), &p(run_dir.join("report.json"))], &["--out", "report.json", "would replace"]);
+    assert_refused(&["merge".as_ref(), d, "--out".as_ref(), &p(data.join("merged"))], &inside);
+    let render = |out: &std::ffi::OsStr| run(&["render".as_ref(), "cornell".as_ref(), "--out".as_ref(), out, "--res".as_ref(), "8".as_ref(), "--train".as_ref(), "1".as_ref(), "--val".as_ref(), "1".as_ref(), "--test".as_ref(), "1".as_ref(), "--spp".as_ref(), "1".as_ref()]);
+    let o = render(&p(data.join("test/sub")));
+    assert!(!o.status.success() && stderr(&o).contains("inside the dataset folder"), "{}", stderr(&o));
+    // A run folder kept inside a dataset folder is not written into by eval.
+    let nested = data.join("run");
+    std::fs::create_dir_all(nested.join("checkpoints")).unwrap();
+    for f in test_support::files(&run_dir) {
+        std::fs::write(nested.join(&f.0), &f.1).unwrap();
+    }
+    let nested_before = folder_bytes(&nested);
+    assert_refused(&["eval".as_ref(), nested.as_os_str(), "--no-mesh".as_ref()], &["the run folder", "inside the dataset folder"]);
+    assert_eq!(folder_bytes(&nested), nested_before);
+    std::fs::remove_dir_all(&nested).unwrap();
+    assert_eq!(folder_bytes(&run_dir), run_before, "the run changed");
+    assert_eq!(folder_bytes(&data), data_before, "the dataset changed");
+    // Through `..` and a symlinked folder, the same files are seen.
+    let sneaky = run_dir.join("checkpoints/../config.ply");
+    assert_refused(&["mesh".as_ref(), r, "--out".as_ref(), sneaky.as_os_str()], &["config.json", "would replace"]);
+    #[cfg(unix)]
+    {
+        let link = tmp.path().join("link");
+        std::os::unix::fs::symlink(&data, &link).unwrap();
+        assert_refused(&["render-nerf".as_ref(), r, "--out".as_ref(), &p(link.join("test"))], &inside);
+    }
+    // Where nothing is replaced, the same commands write: render-nerf beside the run, a
+    // render's dataset resumed in place.
+    let renders = tmp.path().join("renders");
+    let o = run(&["render-nerf".as_ref(), r, "--out".as_ref(), renders.as_os_str()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let ds = tmp.path().join("ds");
+    for _ in 0..2 {
+        let o = render(ds.as_os_str());
+        assert!(o.status.success(), "{}", stderr(&o));
+    }
+}
+
+/// A run's `config.json` with an impossible setting (`downscale: 0`, which `eval` read as 1) is
+/// refused by every reader, naming the file and the setting, and nothing is written.
+#[test]
+fn a_run_config_with_an_impossible_setting_is_refused_by_its_readers() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (run_dir, _) = trained_run(tmp.path());
+    let config = run_dir.join("config.json");
+    let mut cfg: serde_json::Value = serde_json::from_slice(&std::fs::read(&config).unwrap()).unwrap();
+    cfg["downscale"] = serde_json::json!(0);
+    std::fs::write(&config, serde_json::to_string_pretty(&cfg).unwrap()).unwrap();
+    let before = folder_bytes(&run_dir);
+    let (renders, mesh) = (tmp.path().join("renders"), tmp.path().join("m.ply"));
+    let r = run_dir.as_os_str();
+    for args in [
+        vec!["eval".as_ref(), r, "--split".as_ref(), "train".as_ref(), "--no-mesh".as_ref()],
+        vec!["render-nerf".as_ref(), r, "--out".as_ref(), renders.as_os_str()],
+        vec!["mesh".as_ref(), r, "--out".as_ref(), mesh.as_os_str(), "--resolution".as_ref(), "8".as_ref()],
+    ] {
+        assert_refused(&args, &[&*config.to_string_lossy(), "downscale"]);
+    }
+    assert_eq!(folder_bytes(&run_dir), before);
+    assert!(!renders.exists() && !mesh.exists());
+}
+
+/// An evaluation leaves only its own report's outputs: the grids of views an earlier one
+/// pictured and this one does not, the mesh's picture without a mesh, and temporaries of a
+/// killed evaluation go; a mesh this evaluation did not make is kept and the report says so.
+#[test]
+fn eval_removes_what_an_earlier_evaluation_left() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (run_dir, _) = trained_run(tmp.path());
+    let eval = |grids: &str| {
+        let o = run(&["eval".as_ref(), run_dir.as_os_str(), "--split".as_ref(), "train".as_ref(), "--no-mesh".as_ref(), "--grids".as_ref(), grids.as_ref()]);
+        assert!(o.status.success(), "{}", stderr(&o));
+    };
+    eval("3");
+    let grids = |d: &Path| {
+        let mut g: Vec<String> = std::fs::read_dir(d).unwrap().flatten().map(|e| e.file_name().to_string_lossy().into_owned()).filter(|n| n.starts_with("grid_")).collect();
+        g.sort();
+        g
+    };
+    assert_eq!(grids(&run_dir), ["grid_r_0.png", "grid_r_1.png", "grid_r_2.png"]);
+    let dead = if Path::new("/proc/self").exists() { 0 } else { 1 };
+    let temp = run_dir.join(format!(".eval.json.{dead}.tmp"));
+    for f in [run_dir.join("mesh.ply"), run_dir.join("mesh_error.png"), temp.clone(), run_dir.join("notes.txt")] {
+        std::fs::write(f, b"earlier").unwrap();
+    }
+    eval("1");
+    assert_eq!(grids(&run_dir), ["grid_r_0.png"]);
+    assert!(!run_dir.join("mesh_error.png").exists() && !temp.exists());
+    assert!(run_dir.join("mesh.ply").exists() && run_dir.join("notes.txt").exists());
+    let report = std::fs::read_to_string(run_dir.join("report.md")).unwrap();
+    assert!(report.contains("mesh.ply in the run folder is not this evaluation's"), "{report}");
+}
+
+/// `compare` flags a run whose report is older than its latest checkpoint (trained on after
+/// its evaluation): a warning naming the run, and its row marked stale.
+#[test]
+fn compare_flags_a_report_older_than_the_latest_checkpoint() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (run_dir, _) = trained_run(tmp.path());
+    let r = run_dir.as_os_str();
+    let o = run(&["eval".as_ref(), r, "--split".as_ref(), "train".as_ref(), "--no-mesh".as_ref(), "--grids".as_ref(), "0".as_ref()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let cmp = tmp.path().join("cmp");
+    let compare = || {
+        let o = run(&["compare".as_ref(), r, "--out".as_ref(), cmp.as_os_str()]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        (stderr(&o), std::fs::read_to_string(cmp.join("compare.md")).unwrap())
+    };
+    let (err, md) = compare();
+    assert!(!err.contains("warning") && !md.contains("stale"), "{err}\n{md}");
+    let o = run(&["train".as_ref(), "--out".as_ref(), r, "--resume".as_ref(), "--steps".as_ref(), "8".as_ref()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let (err, md) = compare();
+    assert!(err.contains("warning") && err.contains(&*run_dir.to_string_lossy()) && err.contains("step 4") && err.contains("step 8"), "{err}");
+    assert!(md.contains("run (stale)"), "{md}");
+}
+
+/// `mesh` removes the temporaries a killed `mesh` left beside its PLY and sidecar (whatever
+/// becomes of this run), and no other file.
+#[test]
+fn mesh_removes_the_temporaries_of_a_killed_mesh() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (run_dir, _) = trained_run(tmp.path());
+    let out = tmp.path().join("m.ply");
+    let dead = if Path::new("/proc/self").exists() { 0 } else { 1 };
+    let stale = [tmp.path().join(format!(".m.ply.{dead}.tmp")), tmp.path().join(format!(".m.json.{dead}.tmp"))];
+    let other = tmp.path().join(format!(".n.ply.{dead}.tmp"));
+    for f in stale.iter().chain([&other]) {
+        std::fs::write(f, b"half").unwrap();
+    }
+    run(&["mesh".as_ref(), run_dir.as_os_str(), "--out".as_ref(), out.as_os_str(), "--resolution".as_ref(), "8".as_ref(), "--no-metrics".as_ref()]);
+    assert!(stale.iter().all(|f| !f.exists()), "the temporaries were kept");
+    assert!(other.exists(), "another file's temporary was removed");
+}

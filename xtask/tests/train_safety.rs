@@ -160,7 +160,7 @@ fn train_under_nohup_ignores_sighup_and_stops_cleanly_on_sigterm() {
     signal("TERM");
     let out = child.wait_with_output().unwrap();
     let err = stderr(&out);
-    assert!(out.status.success(), "train under nohup stopped by SIGTERM exited with {}: {err}", out.status);
+    assert_eq!(out.status.code(), Some(130), "train under nohup stopped by SIGTERM: {err}");
     assert!(err.contains("interrupted"), "{err}");
     assert_eq!(checkpoints(&run_dir).len(), 1);
 }

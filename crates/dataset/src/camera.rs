@@ -1,6 +1,14 @@
 use glam::{DMat4, DVec3, DVec4};
 use serde::{Deserialize, Serialize};
 
+/// The narrowest field of view accepted, radians (about 0.006°, a 360 m lens on a 36 mm film):
+/// narrower is a unit error or corrupt data, and its rays are parallel to within rounding.
+pub const MIN_FIELD_OF_VIEW: f64 = 1e-4;
+
+/// The farthest a camera may stand from the world origin, metres (beyond the Earth's orbit):
+/// farther is a unit error or corrupt data, and an `f32` scene frame cannot hold it.
+pub const MAX_TRANSLATION: f64 = 1e12;
+
 /// Pinhole intrinsics in pixels (instant-ngp / nerfstudio keys `w h fl_x fl_y cx cy`).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Intrinsics {
@@ -83,6 +91,11 @@ impl Intrinsics {
         for (name, v) in [("cx", self.cx), ("cy", self.cy)] {
             if !v.is_finite() {
                 return Err(format!("principal point {name} = {v} is not finite"));
+            }
+        }
+        for (name, v, fov) in [("fl_x", self.fl_x, self.camera_angle_x()), ("fl_y", self.fl_y, self.camera_angle_y())] {
+            if fov.is_nan() || fov <= MIN_FIELD_OF_VIEW {
+                return Err(format!("focal length {name} = {v} gives a field of view of {fov:e} rad, narrower than {MIN_FIELD_OF_VIEW:e} rad"));
             }
         }
         Ok(())
@@ -202,6 +215,10 @@ fn validate_pose(m: &DMat4) -> Result<(), String> {
     if !m.is_finite() {
         return Err("pose contains a non-finite value".into());
     }
+    let t = m.w_axis.truncate();
+    if t.length() > MAX_TRANSLATION {
+        return Err(format!("pose's translation {:?} lies {:e} m from the origin, farther than {MAX_TRANSLATION:e} m", t.to_array(), t.length()));
+    }
     let last = m.row(3);
     if (last - DVec4::new(0.0, 0.0, 0.0, 1.0)).abs().max_element() > 1e-6 {
         return Err(format!("pose's last row is {last:?}, expected [0, 0, 0, 1]"));
@@ -303,5 +320,18 @@ mod tests {
         assert!(Camera::new(k, nan).is_err());
         assert!(Camera::new(Intrinsics::from_fov_x(0, 4, 0.5), DMat4::IDENTITY).is_err());
         assert!(Camera::new(Intrinsics::from_fov_x(4, 4, 0.0), DMat4::IDENTITY).is_err());
+    }
+
+    #[test]
+    fn absurd_fields_of_view_and_translations_are_rejected() {
+        let e = Camera::new(Intrinsics::from_fov_x(64, 64, 1e-30), DMat4::IDENTITY).unwrap_err();
+        assert!(e.contains("fl_x") && e.contains("field of view"), "{e}");
+        let e = Camera::new(Intrinsics::from_fov_y(64, 64, 1e-6), DMat4::IDENTITY).unwrap_err();
+        assert!(e.contains("field of view"), "{e}");
+        let far = DMat4::from_translation(DVec3::new(0.0, 0.0, 1e300));
+        let e = Camera::new(Intrinsics::from_fov_x(4, 4, 0.5), far).unwrap_err();
+        assert!(e.contains("translation") && e.contains("1e300"), "{e}");
+        // A long lens and a camera a thousand kilometres out are real cameras.
+        Camera::new(Intrinsics::from_fov_x(800, 800, 1e-3), DMat4::from_translation(DVec3::new(1e6, 0.0, 0.0))).unwrap();
     }
 }

@@ -32,6 +32,52 @@ pub fn atomic_write(path: &Path, bytes: &[u8]) -> Result<(), DatasetError> {
     Ok(())
 }
 
+/// The file a temporary name stands for and the writer's pid, when `name` is one
+/// (`.<file>.<pid>.tmp`, [`temp_path_for`]).
+pub fn temporary_of(name: &str) -> Option<(&str, u32)> {
+    let (file, pid) = name.strip_prefix('.')?.strip_suffix(".tmp")?.rsplit_once('.')?;
+    if file.is_empty() || pid.is_empty() || !pid.chars().all(|c| c.is_ascii_digit()) {
+        return None;
+    }
+    Some((file, pid.parse().ok()?))
+}
+
+/// Whether process `pid` runs on this machine: the writer of a temporary that may still be
+/// at work. Read from `/proc`; where there is none, only this process counts.
+pub fn process_running(pid: u32) -> bool {
+    if pid == std::process::id() {
+        return true;
+    }
+    let proc = Path::new("/proc");
+    proc.join("self").exists() && proc.join(pid.to_string()).exists()
+}
+
+/// Removes the temporaries in `dir` (files, or folders a whole output was assembled in) of the
+/// files `owns` accepts, left by a writer that no longer runs (killed, or stopped by a power
+/// cut); returns what was removed. A missing `dir` holds none.
+pub fn remove_stale_temporaries(dir: &Path, owns: impl Fn(&str) -> bool) -> Result<Vec<PathBuf>, DatasetError> {
+    let mut removed = Vec::new();
+    let Ok(entries) = std::fs::read_dir(dir) else { return Ok(removed) };
+    for e in entries.flatten() {
+        let name = e.file_name().to_string_lossy().into_owned();
+        let Some((file, pid)) = temporary_of(&name) else { continue };
+        if !owns(file) || process_running(pid) {
+            continue;
+        }
+        let p = e.path();
+        let gone = match std::fs::symlink_metadata(&p) {
+            Ok(m) if m.is_dir() => std::fs::remove_dir_all(&p),
+            _ => std::fs::remove_file(&p),
+        };
+        match gone {
+            Ok(()) => removed.push(p),
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+            Err(e) => return Err(DatasetError::io(&p, e)),
+        }
+    }
+    Ok(removed)
+}
+
 /// Serialises `value` as pretty JSON and writes it atomically.
 pub fn atomic_write_json<T: serde::Serialize>(path: &Path, value: &T) -> Result<(), DatasetError> {
     let mut text = serde_json::to_string_pretty(value)
@@ -76,5 +122,30 @@ mod tests {
         assert!(std::error::Error::source(source).unwrap().downcast_ref::<std::io::Error>().is_some());
         assert!(matches!(read(&dir.join("missing")), Err(DatasetError::Io { .. })));
         std::fs::remove_dir_all(dir).unwrap();
+    }
+
+    #[test]
+    fn stale_temporaries_of_the_named_files_are_removed_and_nothing_else() {
+        let dir = std::env::temp_dir().join(format!("dataset-io-stale-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let d = dir.as_path();
+        // No process has pid 0 in /proc; this process's own temporaries are at work.
+        let dead = if Path::new("/proc/self").exists() { 0 } else { 1 };
+        let mine = std::process::id();
+        let gone = [format!(".eval.json.{dead}.tmp"), format!(".out.merge.{dead}.tmp")];
+        let kept = [format!(".eval.json.{mine}.tmp"), format!(".notes.txt.{dead}.tmp"), ".eval.json.tmp".into(), "eval.json".into()];
+        std::fs::create_dir_all(d.join(&gone[1]).join("train")).unwrap();
+        std::fs::write(d.join(&gone[1]).join("train/r_0.png"), b"x").unwrap();
+        for f in [&gone[0]].into_iter().chain(&kept) {
+            std::fs::write(d.join(f), b"x").unwrap();
+        }
+        let removed = remove_stale_temporaries(d, |f| f == "eval.json" || f == "out.merge").unwrap();
+        assert_eq!(removed.len(), 2, "{removed:?}");
+        assert!(gone.iter().all(|f| !d.join(f).exists()) && kept.iter().all(|f| d.join(f).exists()));
+        assert_eq!(temporary_of(".a.b.12.tmp"), Some(("a.b", 12)));
+        assert_eq!(temporary_of(".a.tmp"), None);
+        assert!(remove_stale_temporaries(&d.join("missing"), |_| true).unwrap().is_empty());
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -29,7 +29,7 @@ mod transforms;
 pub mod io;
 pub mod lock;
 
-pub use camera::{Camera, Intrinsics, Ray};
+pub use camera::{Camera, Intrinsics, MAX_TRANSLATION, MIN_FIELD_OF_VIEW, Ray};
 pub use downscale::check_downscale;
 pub use error::{DatasetError, WriteError};
 pub use images::{

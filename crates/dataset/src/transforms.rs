@@ -167,10 +167,14 @@ impl TransformsFile {
     /// The intrinsics, taking `w h fl_x fl_y cx cy` where present and `camera_angle_x` with
     /// the image size `image_size` otherwise; checks the two agree.
     pub fn intrinsics(&self, path: &Path, image_size: (u32, u32)) -> Result<Intrinsics, DatasetError> {
-        if !(self.camera_angle_x.is_finite() && self.camera_angle_x > 0.0 && self.camera_angle_x < std::f64::consts::PI) {
+        if !(self.camera_angle_x.is_finite() && self.camera_angle_x > crate::camera::MIN_FIELD_OF_VIEW && self.camera_angle_x < std::f64::consts::PI) {
             return Err(DatasetError::invalid(
                 path,
-                format!("camera_angle_x = {} is not a field of view in (0, pi)", self.camera_angle_x),
+                format!(
+                    "camera_angle_x = {} is not a field of view in ({:e}, pi) radians",
+                    self.camera_angle_x,
+                    crate::camera::MIN_FIELD_OF_VIEW
+                ),
             ));
         }
         let (w, h) = (self.w.unwrap_or(image_size.0), self.h.unwrap_or(image_size.1));
@@ -342,7 +346,7 @@ fn load_frames(
         }
         let c2w = Camera::c2w_from_rows(&rec.transform_matrix);
         let camera = Camera::new(frame_intr, c2w)
-            .map_err(|m| DatasetError::invalid(path, format!("frame {k} ({}): {m}", rec.file_path)))?;
+            .map_err(|m| DatasetError::invalid(path, format!("frame {k} ({}): {m} (its transform_matrix)", rec.file_path)))?;
         let optional = |p: &Option<String>| -> Result<Option<PathBuf>, DatasetError> {
             match p {
                 None => Ok(None),
@@ -536,6 +540,12 @@ mod tests {
         std::fs::write(dir.join("transforms_train.json"), json.replace("[1,0,0,0]", "[0,0,0,0]")).unwrap();
         let e = Dataset::load(&dir).unwrap_err().to_string();
         assert!(e.contains("invertible") || e.contains("rotation"), "{e}");
+        std::fs::write(dir.join("transforms_train.json"), json.replace("0.6911112070083618", "1e-30")).unwrap();
+        let e = Dataset::load(&dir).unwrap_err().to_string();
+        assert!(e.contains("transforms_train.json") && e.contains("camera_angle_x") && e.contains("not a field of view"), "{e}");
+        std::fs::write(dir.join("transforms_train.json"), json.replace("[0,0,1,4]", "[0,0,1,1e300]")).unwrap();
+        let e = Dataset::load(&dir).unwrap_err().to_string();
+        assert!(e.contains("transforms_train.json") && e.contains("frame 0") && e.contains("transform_matrix") && e.contains("translation"), "{e}");
         std::fs::write(dir.join("transforms_train.json"), "{\"frames\": []}").unwrap();
         let e = Dataset::load(&dir).unwrap_err().to_string();
         assert!(e.contains("camera_angle_x"), "{e}");

@@ -328,6 +328,7 @@ pub fn evaluate_run(
     // metrics file leaves the run as it was.
     let metrics_path = run_dir.join("metrics.jsonl");
     let curve = if metrics_path.exists() { read_metrics_jsonl(&metrics_path)? } else { Vec::new() };
+    dataset::io::remove_stale_temporaries(run_dir, is_eval_output)?;
     if let Some(mesh_opts) = &opts.mesh {
         match crate::mesh_eval::scene_reference(&dataset, opts.scene.as_deref())? {
             Ok(reference) => {
@@ -342,11 +343,45 @@ pub fn evaluate_run(
             Err(why) => report.notes.push(format!("no mesh metrics: {why}")),
         }
     }
+    if report.mesh.is_none() && run_dir.join(MESH_FILE).is_file() {
+        report.notes.push(format!(
+            "{MESH_FILE} in the run folder is not this evaluation's (it measured no mesh): an earlier evaluation or `cargo xtask mesh` wrote it"
+        ));
+    }
     let name = run_name(run_dir);
     let grids: Vec<ViewInput<'_>> = kept.iter().map(view_input).collect();
     let report_md = write_report(run_dir, &name, &report, &curve, &grids)?;
+    let written: Vec<String> = kept.iter().map(|v| crate::grid::grid_file_name(&v.name)).collect();
+    remove_stale_outputs(run_dir, &written, report.mesh.is_some())?;
     let summary = RunSummary::from_report(&name, &report, &curve);
     Ok(EvalRunOutput { report, summary, report_md })
+}
+
+/// The mesh an evaluation writes into the run folder, and its error picture.
+const MESH_FILE: &str = "mesh.ply";
+const MESH_PICTURE: &str = "mesh_error.png";
+
+/// Whether `name` is a file [`evaluate_run`] writes into the run folder.
+fn is_eval_output(name: &str) -> bool {
+    ["eval.json", "report.json", "report.md", "speed_vs_error.png", MESH_FILE, MESH_PICTURE].contains(&name)
+        || (name.starts_with("grid_") && name.ends_with(".png"))
+}
+
+/// Removes what an earlier evaluation wrote and this one did not, so that the folder shows only
+/// this report's pictures: grids (`grid_<view>.png`) other than `grids`, and without a mesh the
+/// mesh's error picture. The mesh itself may be `cargo xtask mesh`'s and is kept (the report
+/// says it is not this evaluation's).
+fn remove_stale_outputs(run_dir: &Path, grids: &[String], mesh: bool) -> Result<(), EvalError> {
+    let entries = std::fs::read_dir(run_dir).map_err(|source| EvalError::Io { path: run_dir.to_path_buf(), source })?;
+    for e in entries.flatten() {
+        let name = e.file_name().to_string_lossy().into_owned();
+        let stale = (name.starts_with("grid_") && name.ends_with(".png") && !grids.contains(&name)) || (!mesh && name == MESH_PICTURE);
+        if stale && e.file_type().is_ok_and(|t| t.is_file()) {
+            let p = e.path();
+            std::fs::remove_file(&p).map_err(|source| EvalError::Io { path: p.clone(), source })?;
+        }
+    }
+    Ok(())
 }
 
 /// A run's display name: its folder name.

@@ -64,7 +64,10 @@ pub struct RunModel {
 impl RunModel {
     /// Loads a run folder: its config and latest checkpoint.
     pub fn load(run_dir: &Path) -> Result<Self, TrainError> {
-        let config = TrainConfig::read(&run_dir.join(CONFIG_FILE))?;
+        let config_path = run_dir.join(CONFIG_FILE);
+        let config = TrainConfig::read(&config_path)?;
+        // Every setting a reader uses (downscale, bounds, the model's sizes) as training checks it.
+        config.check().map_err(|e| TrainError::Invalid(format!("{}: {e}", config_path.display())))?;
         let bounds: SceneBounds = config
             .bounds
             .clone()

@@ -386,7 +386,7 @@ pub use dataset::folder::{RENDER_CONFIG_FILE, SHARD_MANIFEST_FILE, view_files};
 /// What differs between two records, for the error that refuses to mix their views.
 pub(crate) fn describe_difference(old: &RenderRecord, new: &RenderRecord) -> String {
     if old.scene.hash != new.scene.hash {
-        return format!("scene {} (now {}) differs", old.scene.path, new.scene.path);
+        return scene_difference(&old.scene, &new.scene);
     }
     if old.renderer != new.renderer {
         return format!("renderer {} (now {})", old.renderer, new.renderer);
@@ -410,6 +410,23 @@ pub(crate) fn describe_difference(old: &RenderRecord, new: &RenderRecord) -> Str
         diffs.push(format!("rig was {}, now {}", old.rig_resolved.name(), new.rig_resolved.name()));
     }
     diffs.join(", ")
+}
+
+/// How the scene's content differs: the scene file and every file it references, of which one
+/// changed (the record holds one hash over all of them, so which one cannot be told).
+fn scene_difference(old: &SceneSource, new: &SceneSource) -> String {
+    let path = Path::new(&new.path);
+    let referenced = std::fs::read(path).map(|b| crate::import::external_files(&b, path.parent().unwrap_or(Path::new("")))).unwrap_or_default();
+    let files = match referenced.len() {
+        0 => format!("the scene file {}", new.path),
+        _ => format!(
+            "one of the scene file {} and the files it references ({})",
+            new.path,
+            referenced.iter().map(|(_, p)| p.display().to_string()).collect::<Vec<_>>().join(", ")
+        ),
+    };
+    let recorded = if old.path == new.path { String::new() } else { format!(" from {}", old.path) };
+    format!("the scene's content changed since this folder was rendered{recorded}: {files} is not what it was (content hash {}, recorded {})", new.hash, old.hash)
 }
 
 /// Shard `index` of `count` (zero-based): the views at positions `p` with `p % count == index`

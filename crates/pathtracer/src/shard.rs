@@ -182,20 +182,50 @@ pub fn merge_shards(shards: &[PathBuf], out: &Path, scene: Option<&Path>) -> Res
     }
 
     // Copy the views into a temporary sibling folder, finish it as a render whose views are all
-    // done, then rename it to `out`: an interrupted merge leaves no half-written dataset.
+    // done, then rename it to `out`: an interrupted merge leaves no half-written dataset, a
+    // failed one removes its folder, and the next merge removes those of killed ones.
     let final_out = out;
     let name = final_out.file_name().map_or("dataset".into(), |n| n.to_string_lossy().into_owned());
-    let tmp = final_out.with_file_name(format!(".{name}.merge.{}.tmp", std::process::id()));
-    let io = |path: &Path, e: std::io::Error| PathTracerError::from(dataset::DatasetError::write(path, e));
+    let tmp_name = format!("{name}.merge");
+    let tmp = dataset::io::temp_path_for(&final_out.with_file_name(&tmp_name));
+    let parent = tmp.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    dataset::io::remove_stale_temporaries(parent, |f| f == tmp_name)?;
     if tmp.exists() {
         std::fs::remove_dir_all(&tmp).map_err(|e| io(&tmp, e))?;
     }
-    let out = tmp.as_path();
+    let assembled = assemble(&records, &tmp, &renderer, record, config_bytes).and_then(|summary| {
+        publish(&tmp, final_out)?;
+        Ok(summary)
+    });
+    match assembled {
+        Ok(summary) => Ok(DatasetSummary { out: final_out.to_path_buf(), ..summary }),
+        Err(e) => {
+            let _ = std::fs::remove_dir_all(&tmp);
+            Err(e)
+        }
+    }
+}
+
+/// A failed write (or removal) of the merge's own folders.
+fn io(path: &Path, e: std::io::Error) -> PathTracerError {
+    PathTracerError::from(dataset::DatasetError::write(path, e))
+}
+
+/// Writes the merged dataset into the new folder `out`: the shards' views, then the record and
+/// the transforms files as a render whose views are all done writes them.
+fn assemble(
+    records: &[(PathBuf, RenderRecord, Vec<u8>, ShardManifest)],
+    out: &Path,
+    renderer: &crate::render::Renderer,
+    record: &RenderRecord,
+    config_bytes: &[u8],
+) -> Result<DatasetSummary, PathTracerError> {
+    let err = |m: String| PathTracerError::Config(m);
     std::fs::create_dir_all(out).map_err(|e| io(out, e))?;
     // The record exactly as the shards wrote it (the scene's path as given to them), first, as
     // a render writes it before its views.
     dataset::io::atomic_write(&out.join(RENDER_CONFIG_FILE), config_bytes)?;
-    for (dir, _, _, manifest) in &records {
+    for (dir, _, _, manifest) in records {
         for v in &manifest.views {
             let (split, k) = parse_view(v).ok_or_else(|| err(format!("bad view name {v}")))?;
             for f in view_files(split, k) {
@@ -208,17 +238,32 @@ pub fn merge_shards(shards: &[PathBuf], out: &Path, scene: Option<&Path>) -> Res
     let opts = RunOptions { threads: Some(1), force: false };
     let summary = render_dataset_part(renderer.scene(), &record.scene, &adapter, out, &record.config, &opts, None, &mut |_| {}, &AtomicBool::new(false))?;
     dataset::io::atomic_write(&out.join(RENDER_CONFIG_FILE), config_bytes)?;
+    Ok(summary)
+}
+
+/// Renames the finished folder `tmp` to `out`, which must still be missing or empty: a folder
+/// another merge (or any writer) filled meanwhile is left as it is, in one sentence.
+fn publish(tmp: &Path, out: &Path) -> Result<(), PathTracerError> {
+    let filled = |e: &std::io::Error| {
+        matches!(e.kind(), std::io::ErrorKind::DirectoryNotEmpty | std::io::ErrorKind::AlreadyExists)
+            || std::fs::read_dir(out).is_ok_and(|mut d| d.any(|e| e.map_or(true, |e| e.file_name() != LOCK_FILE)))
+    };
+    let taken = || {
+        PathTracerError::Config(format!(
+            "--out {}: another merge or program wrote into it while this merge ran, so this merge's result was discarded and the folder left as it is; merge into a new folder",
+            out.display()
+        ))
+    };
     // The lock file of the process writing `out` moves with the folder: its holder keeps the
     // lock (on the file, wherever it is named) and finds it at `out/.lock` again after the rename.
-    let lock = final_out.join(LOCK_FILE);
+    let lock = out.join(LOCK_FILE);
     if lock.is_file() {
-        std::fs::rename(&lock, out.join(LOCK_FILE)).map_err(|e| io(&lock, e))?;
+        std::fs::rename(&lock, tmp.join(LOCK_FILE)).map_err(|e| io(&lock, e))?;
     }
-    if final_out.exists() {
-        std::fs::remove_dir(final_out).map_err(|e| io(final_out, e))?;
+    if out.exists() {
+        std::fs::remove_dir(out).map_err(|e| if filled(&e) { taken() } else { io(out, e) })?;
     }
-    std::fs::rename(out, final_out).map_err(|e| io(final_out, e))?;
-    Ok(DatasetSummary { out: final_out.to_path_buf(), ..summary })
+    std::fs::rename(tmp, out).map_err(|e| if filled(&e) { taken() } else { io(out, e) })
 }
 
 /// `train/r_12` → (train, 12).
@@ -258,4 +303,29 @@ fn find_scene(dir: &Path, record: &RenderRecord, given: Option<&Path>) -> Result
         "the scene the shards were rendered from ({}, content hash {}) is not found or has changed; give it with --scene",
         record.scene.path, record.scene.hash
     )))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Two merges into one folder: the second to finish finds the folder filled and says so in
+    /// one sentence (it said "Directory not empty"), leaving the first's dataset as it is.
+    #[test]
+    fn publishing_into_a_folder_filled_meanwhile_is_one_sentence() {
+        let dir = tempfile::tempdir().unwrap();
+        let (tmp, out) = (dir.path().join(".out.merge.1.tmp"), dir.path().join("out"));
+        std::fs::create_dir_all(&tmp).unwrap();
+        std::fs::write(tmp.join("transforms_train.json"), b"mine").unwrap();
+        std::fs::create_dir_all(&out).unwrap();
+        std::fs::write(out.join("transforms_train.json"), b"theirs").unwrap();
+        let e = publish(&tmp, &out).unwrap_err().to_string();
+        assert!(e.contains("--out") && e.contains("another merge") && !e.contains("os error"), "{e}");
+        assert_eq!(std::fs::read(out.join("transforms_train.json")).unwrap(), b"theirs");
+        // Still empty: published.
+        std::fs::remove_file(out.join("transforms_train.json")).unwrap();
+        publish(&tmp, &out).unwrap();
+        assert_eq!(std::fs::read(out.join("transforms_train.json")).unwrap(), b"mine");
+        assert!(!tmp.exists());
+    }
 }

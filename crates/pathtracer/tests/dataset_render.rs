@@ -254,7 +254,9 @@ fn editing_a_scene_buffer_refuses_a_resume() {
     let after = SceneSource::from_scene(&scene).unwrap();
     assert_ne!(before.hash, after.hash);
     let e = render(&scene, &out, &cfg, 2).unwrap_err().to_string();
-    assert!(e.contains("differs") && e.contains("--force"), "{e}");
+    // The refusal names the scene and the files it references, one of which changed.
+    let bin = bins[0].file_name().unwrap().to_string_lossy().into_owned();
+    assert!(e.contains("content changed") && e.contains(&*scene.to_string_lossy()) && e.contains(&bin) && e.contains("--force"), "{e}");
     let opts = RunOptions { threads: Some(2), force: true };
     let sum = render_dataset(&scene, &out, &cfg, &opts, &mut |_| {}, &AtomicBool::new(false)).unwrap();
     assert_eq!(sum.views_rendered, 3);

@@ -37,8 +37,17 @@ fn three_shards_merge_into_the_unsharded_bytes() {
         assert!(!f.contains_key("transforms_train.json") && f.contains_key("shard.json"));
     }
     let merged = tmp.path().join("merged");
+    // The full-size copy a killed merge left (its pid no longer runs) is removed; the rest of
+    // the folder is not touched.
+    let dead = if Path::new("/proc/self").exists() { 0 } else { 1 };
+    let stale = tmp.path().join(format!(".merged.merge.{dead}.tmp"));
+    std::fs::create_dir_all(stale.join("train")).unwrap();
+    std::fs::write(stale.join("train/r_0.png"), b"half").unwrap();
+    let other = tmp.path().join(format!(".other.merge.{dead}.tmp"));
+    std::fs::create_dir_all(&other).unwrap();
     // Given out of order: the order of the folders does not matter.
     let sum = merge_shards(&[dirs[2].clone(), dirs[0].clone(), dirs[1].clone()], &merged, None).unwrap();
+    assert!(!stale.exists() && other.exists(), "the stale merge folder was kept, or another one removed");
     assert_eq!(sum.views_total, 9);
     let (a, b) = (files(&whole), files(&merged));
     assert_eq!(a.keys().collect::<Vec<_>>(), b.keys().collect::<Vec<_>>());
@@ -93,6 +102,17 @@ fn bad_shard_sets_are_refused_and_nothing_is_written() {
     let e = merge_shards(&dirs, &out, None).unwrap_err().to_string();
     assert!(e.contains("not an empty folder"), "{e}");
     assert_eq!(std::fs::read_dir(&out).unwrap().count(), 1);
+    // A merge that fails once its copy is made (here its last step: `--out` is a dangling link,
+    // which the finished folder cannot replace) removes the copy.
+    #[cfg(unix)]
+    {
+        let link = tmp.path().join("link");
+        std::os::unix::fs::symlink(tmp.path().join("nowhere"), &link).unwrap();
+        merge_shards(&dirs, &link, None).unwrap_err();
+        let left: Vec<String> =
+            std::fs::read_dir(tmp.path()).unwrap().flatten().map(|e| e.file_name().to_string_lossy().into_owned()).filter(|n| n.ends_with(".tmp")).collect();
+        assert!(left.is_empty(), "a failed merge left {left:?}");
+    }
 }
 
 #[test]

@@ -355,11 +355,16 @@ pub fn run(args: AutoDiffArgs) -> anyhow::Result<()> {
             md.push_str(&format!("- {l}\n"));
         }
     }
-    let path = args.out.clone().unwrap_or_else(|| args.after.join("bench-auto-diff.md"));
+    let path = report_path(&args);
     dataset::io::atomic_write(&path, md.as_bytes()).with_context(|| format!("writing {}", path.display()))?;
     println!("{md}");
     println!("report: {}", path.display());
     Ok(())
+}
+
+/// Where the report goes: `--out`, or `bench-auto-diff.md` in the after folder.
+pub(super) fn report_path(args: &AutoDiffArgs) -> PathBuf {
+    args.out.clone().unwrap_or_else(|| args.after.join("bench-auto-diff.md"))
 }
 
 #[cfg(test)]

@@ -40,6 +40,7 @@ pub enum BenchWhat {
 
 /// Runs a benchmark.
 pub fn run(args: BenchArgs) -> anyhow::Result<()> {
+    check_outputs(&args.what)?;
     match args.what {
         BenchWhat::Render(a) => {
             if a.no_release || !rerun_in_release()? {
@@ -61,6 +62,22 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         }
         BenchWhat::Auto(a) => auto::run(a),
         BenchWhat::AutoDiff(a) => auto_diff::run(a),
+    }
+}
+
+/// Refuses an output of a benchmark inside a dataset folder or over a run's records
+/// ([`crate::guard`]), before anything is measured.
+fn check_outputs(what: &BenchWhat) -> anyhow::Result<()> {
+    let folder = |out: &std::path::Path| crate::guard::check_output_folder("--out", out, false);
+    match what {
+        BenchWhat::Render(a) => folder(&figures::out_dir(&a.out)),
+        BenchWhat::Scaling(a) => folder(&figures::out_dir(&a.out)),
+        BenchWhat::Nerf(a) => folder(&a.out),
+        BenchWhat::Auto(a) => folder(&a.out),
+        BenchWhat::AutoDiff(a) => {
+            let path = auto_diff::report_path(a);
+            crate::guard::check_output_files("--out", &path, std::slice::from_ref(&path), &[])
+        }
     }
 }
 
