@@ -10,7 +10,6 @@ use pathtracer::dataset_render::{
 };
 use pathtracer::rig::RigKind;
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
 
 /// Arguments of `render`. Explicit options override the preset's values.
