@@ -56,12 +56,13 @@ impl FolderLock {
         let path = dir.join(LOCK_FILE);
         let mut lock = Self { file: None, path, dir: dir.to_path_buf(), created };
         for _ in 0..ATTEMPTS {
-            std::fs::create_dir_all(dir).map_err(|e| DatasetError::io(dir, e))?;
+            // Creating the folder and the lock file are writes: a refusal there is this node's storage.
+            std::fs::create_dir_all(dir).map_err(|e| DatasetError::write(dir, e))?;
             let file = match open(&lock.path) {
                 Ok(f) => f,
                 // The folder was removed under us (an earlier holder letting go): create it again.
                 Err(e) if e.kind() == std::io::ErrorKind::NotFound => continue,
-                Err(e) => return Err(DatasetError::io(&lock.path, e)),
+                Err(e) => return Err(DatasetError::write(&lock.path, e)),
             };
             match file.try_lock() {
                 Ok(()) => {}
