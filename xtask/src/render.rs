@@ -73,6 +73,10 @@ pub struct RenderArgs {
     /// every split's numbering stays the unsharded render's.
     #[arg(long, value_name = "K/N")]
     pub shard: Option<pathtracer::shard::Shard>,
+    /// Read glTF buffers and images that lie outside the scene file's folder (an absolute URI,
+    /// `../`, a symbolic link leading out); refused by default.
+    #[arg(long)]
+    pub allow_outside: bool,
 }
 
 /// Arguments of `merge`.
@@ -88,13 +92,18 @@ pub struct MergeArgs {
     /// (default: the path they recorded).
     #[arg(long)]
     pub scene: Option<PathBuf>,
+    /// Read glTF buffers and images that lie outside the scene file's folder (an absolute URI,
+    /// `../`, a symbolic link leading out); refused by default.
+    #[arg(long)]
+    pub allow_outside: bool,
 }
 
 /// Merges shard folders into one dataset folder.
 pub fn run_merge(args: MergeArgs) -> anyhow::Result<()> {
     crate::check_out_folder("--out", &args.out)?;
     let scene = resolve_scene_option(args.scene.as_deref())?;
-    let sum = pathtracer::shard::merge_shards(&args.shards, &args.out, scene.as_deref())
+    let import = pathtracer::import::ImportOptions { allow_outside: args.allow_outside, ..Default::default() };
+    let sum = pathtracer::shard::merge_shards_with(&args.shards, &args.out, scene.as_deref(), &import)
         .with_context(|| format!("merging {} shards into {}", args.shards.len(), args.out.display()))?;
     println!("dataset: {}", sum.out.display());
     println!("{} views merged from {} shards; near {:.3}, far {:.3}", sum.views_total, args.shards.len(), sum.facts.near, sum.facts.far);
@@ -124,6 +133,7 @@ impl RenderArgs {
             threads: None,
             force: false,
             shard: None,
+            allow_outside: false,
         }
     }
 }
@@ -250,7 +260,7 @@ pub fn run(args: RenderArgs) -> anyhow::Result<PathBuf> {
     crate::check_out_folder("--out", &args.out)?;
     let cfg = build_config(&args)?;
     let scene = resolve_scene(&args.scene)?;
-    let opts = RunOptions { threads: args.threads, force: args.force };
+    let opts = RunOptions { threads: args.threads, force: args.force, allow_outside: args.allow_outside };
     let cancel = cancel_flag();
 
     let bar = ProgressBar::with_draw_target(None, ProgressDrawTarget::stderr());
