@@ -14,6 +14,7 @@ fuzz_target!(|bytes: &[u8]| {
         max_vertices: 8192,
         max_texture_texels: 1 << 16,
         max_buffer_bytes: 1 << 20,
+        allow_outside: false,
     };
     if let Ok(scene) = load_gltf_from_slice(bytes, None, "fuzz", &options) {
         pathtracer::render::validate_scene(&scene).expect("the importer produced an inconsistent scene");

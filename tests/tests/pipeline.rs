@@ -146,7 +146,7 @@ fn eval_measures_at_the_training_resolution() {
 
     // The ray caster behind even factors reproduces the dataset's ground truth exactly.
     let ds = dataset::Dataset::load(&data).unwrap();
-    let pathtracer::ground_truth::SceneLookup::Found { renderer, .. } = pathtracer::ground_truth::scene_of_dataset(&data, None).unwrap() else {
+    let pathtracer::ground_truth::SceneLookup::Found { renderer, .. } = pathtracer::ground_truth::scene_of_dataset(&data, None, &Default::default()).unwrap() else {
         panic!("the scene of a dataset rendered here is found")
     };
     let frame = &ds.val[1];

@@ -61,6 +61,10 @@ pub struct CrosscheckArgs {
     /// Mitsuba variant (scalar_rgb needs nothing else; llvm_ad_rgb needs a working libLLVM).
     #[arg(long, default_value = "scalar_rgb")]
     pub variant: String,
+    /// Read glTF buffers and images that lie outside the scene file's folder (an absolute URI,
+    /// `../`, a symbolic link leading out); refused by default.
+    #[arg(long)]
+    pub allow_outside: bool,
 }
 
 /// Runs the cross-check; fails when the harness reports a failed criterion.
@@ -115,7 +119,7 @@ pub fn run(args: CrosscheckArgs) -> anyhow::Result<()> {
     }
     cfg.validate()?;
 
-    let mut scene = load_gltf(&scene_path, &ImportOptions::default()).with_context(|| format!("loading {}", scene_path.display()))?;
+    let mut scene = load_gltf(&scene_path, &ImportOptions { allow_outside: args.allow_outside, ..ImportOptions::default() }).with_context(|| format!("loading {}", scene_path.display()))?;
     if args.no_punctual_lights {
         scene.lights.clear();
     }

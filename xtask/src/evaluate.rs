@@ -35,12 +35,17 @@ pub struct EvalArgs {
     /// Skip the mesh and its metrics.
     #[arg(long)]
     pub no_mesh: bool,
+    /// Read dataset files (transforms `file_path`, `gt_file_path`, `exr_file_path`) and the
+    /// scene's glTF buffers and images that lie outside their folders (`../`, an absolute path,
+    /// a symbolic link leading out); refused by default.
+    #[arg(long)]
+    pub allow_outside: bool,
 }
 
 impl EvalArgs {
     /// Every view of `split` at the run's training resolution, with `grids` picture grids.
     pub fn at_training_resolution(run: PathBuf, split: &str, grids: usize, max_views: Option<usize>) -> Self {
-        Self { run, split: split.into(), grids, max_views, downscale: None, scene: None, mesh_resolution: 256, no_mesh: false }
+        Self { run, split: split.into(), grids, max_views, downscale: None, scene: None, mesh_resolution: 256, no_mesh: false, allow_outside: false }
     }
 }
 
@@ -140,6 +145,7 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         downscale: args.downscale,
         scene: crate::render::resolve_scene_option(args.scene.as_deref())?,
         mesh: (!args.no_mesh).then_some(eval::mesh_eval::MeshEvalOptions { resolution: args.mesh_resolution, ..eval::mesh_eval::MeshEvalOptions::standard() }),
+        allow_outside: args.allow_outside,
     };
     anyhow::ensure!(
         args.no_mesh || (1..=eval::mesh_extract::MAX_RESOLUTION).contains(&args.mesh_resolution),

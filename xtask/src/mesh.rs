@@ -35,6 +35,11 @@ pub struct MeshArgs {
     /// Points sampled on each mesh for the metrics.
     #[arg(long, default_value_t = 100_000)]
     pub samples: usize,
+    /// Read dataset files (transforms `file_path`, `gt_file_path`, `exr_file_path`) and the
+    /// scene's glTF buffers and images that lie outside their folders (`../`, an absolute path,
+    /// a symbolic link leading out); refused by default.
+    #[arg(long)]
+    pub allow_outside: bool,
 }
 
 /// The sidecar of `out`: `mesh.ply` → `mesh.json`.
@@ -59,7 +64,7 @@ pub fn run(args: MeshArgs) -> anyhow::Result<()> {
     let _lock = crate::lock_folder(args.out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(std::path::Path::new(".")))?;
     let start = Instant::now();
     let model = nerf::render::RunModel::load(&args.run).with_context(|| format!("loading the run {}", args.run.display()))?;
-    let dataset = dataset::Dataset::load(model.dataset_dir()).with_context(|| format!("loading the run's dataset {}", model.dataset_dir().display()))?;
+    let dataset = dataset::Dataset::load_with(model.dataset_dir(), &dataset::LoadOptions { allow_outside: args.allow_outside }).with_context(|| format!("loading the run's dataset {}", model.dataset_dir().display()))?;
     remove_stale_temporaries(&args.out)?;
     let opts = ExtractOptions { level: args.level, colors: !args.no_colors, ..ExtractOptions::at_resolution(args.resolution) };
     let cameras = spread_cameras(&dataset.train, opts.level_views);
@@ -86,7 +91,8 @@ pub fn run(args: MeshArgs) -> anyhow::Result<()> {
     let metrics = if args.no_metrics {
         None
     } else {
-        match scene_reference(&dataset, scene.as_deref())? {
+        let import = pathtracer::import::ImportOptions { allow_outside: args.allow_outside, ..Default::default() };
+        match scene_reference(&dataset, scene.as_deref(), &import)? {
             Ok(reference) => {
                 let (m, fraction) = compare_with_reference(&extracted.mesh, &reference, args.samples)?;
                 Some(MeshBlock {

@@ -72,6 +72,10 @@ pub struct RenderArgs {
     /// every split's numbering stays the unsharded render's.
     #[arg(long, value_name = "K/N")]
     pub shard: Option<pathtracer::shard::Shard>,
+    /// Read glTF buffers and images that lie outside the scene file's folder (an absolute URI,
+    /// `../`, a symbolic link leading out); refused by default.
+    #[arg(long)]
+    pub allow_outside: bool,
 }
 
 /// Arguments of `merge`.
@@ -87,6 +91,10 @@ pub struct MergeArgs {
     /// (default: the path they recorded).
     #[arg(long)]
     pub scene: Option<PathBuf>,
+    /// Read glTF buffers and images that lie outside the scene file's folder (an absolute URI,
+    /// `../`, a symbolic link leading out); refused by default.
+    #[arg(long)]
+    pub allow_outside: bool,
 }
 
 /// Merges shard folders into one dataset folder.
@@ -95,7 +103,8 @@ pub fn run_merge(args: MergeArgs) -> anyhow::Result<()> {
     crate::guard::check_output_folder("--out", &args.out, false)?;
     let _lock = crate::lock_folder(&args.out)?;
     let scene = resolve_scene_option(args.scene.as_deref())?;
-    let sum = pathtracer::shard::merge_shards(&args.shards, &args.out, scene.as_deref())
+    let import = pathtracer::import::ImportOptions { allow_outside: args.allow_outside, ..Default::default() };
+    let sum = pathtracer::shard::merge_shards_with(&args.shards, &args.out, scene.as_deref(), &import)
         .with_context(|| format!("merging {} shards into {}", args.shards.len(), args.out.display()))?;
     println!("dataset: {}", sum.out.display());
     println!("{} views merged from {} shards; near {:.3}, far {:.3}", sum.views_total, args.shards.len(), sum.facts.near, sum.facts.far);
@@ -125,6 +134,7 @@ impl RenderArgs {
             threads: None,
             force: false,
             shard: None,
+            allow_outside: false,
         }
     }
 }
@@ -253,7 +263,7 @@ pub fn run(args: RenderArgs) -> anyhow::Result<PathBuf> {
     let _lock = crate::lock_folder(&args.out)?;
     let cfg = build_config(&args)?;
     let scene = resolve_scene(&args.scene)?;
-    let opts = RunOptions { threads: args.threads, force: args.force };
+    let opts = RunOptions { threads: args.threads, force: args.force, allow_outside: args.allow_outside };
     let cancel = cancel_flag();
 
     let bar = ProgressBar::with_draw_target(None, ProgressDrawTarget::stderr());

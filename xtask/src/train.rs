@@ -62,6 +62,11 @@ pub struct TrainArgs {
     /// about twice the networks' rate, on CPUs with AVX512-BF16 only).
     #[arg(long, value_parser = ["fp32", "bf16"])]
     pub mlp_precision: Option<String>,
+    /// Read dataset files (transforms `file_path`, `gt_file_path`, `exr_file_path`) that lie
+    /// outside the dataset folder (`../`, an absolute path, a symbolic link leading out); refused
+    /// by default.
+    #[arg(long)]
+    pub allow_outside: bool,
 }
 
 /// Arguments of `render-nerf`.
@@ -82,6 +87,11 @@ pub struct RenderNerfArgs {
     /// 1 = the dataset's full resolution). Must divide the image size.
     #[arg(long)]
     pub downscale: Option<u32>,
+    /// Read dataset files (transforms `file_path`, `gt_file_path`, `exr_file_path`) that lie
+    /// outside the dataset folder (`../`, an absolute path, a symbolic link leading out); refused
+    /// by default.
+    #[arg(long)]
+    pub allow_outside: bool,
 }
 
 impl TrainArgs {
@@ -105,6 +115,7 @@ impl TrainArgs {
             batch_rays: None,
             batch_samples: None,
             mlp_precision: None,
+            allow_outside: false,
         }
     }
 }
@@ -322,7 +333,7 @@ fn resume_trainer(args: &TrainArgs) -> anyhow::Result<Trainer> {
     apply_budget(args, &mut cfg)?;
     cfg.check().map_err(|e| anyhow::anyhow!("{}: {e}", config_path.display()))?;
     let start = if args.fallback { Start::ResumeFallback } else { Start::Resume };
-    let mut trainer = Trainer::prepare(cfg, out, start).with_context(|| format!("resuming {}", out.display()))?;
+    let mut trainer = Trainer::prepare(cfg, out, start, &dataset::LoadOptions { allow_outside: args.allow_outside }).with_context(|| format!("resuming {}", out.display()))?;
     for (path, why) in &trainer.skipped_checkpoints {
         eprintln!("--fallback: {} does not load ({why}); renamed {}.damaged", path.display(), path.display());
     }
@@ -351,7 +362,7 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         }
         // Every input is validated (the dataset, the config) before the old run is removed, and
         // the new run writes its config only after that.
-        let mut trainer = Trainer::prepare(cfg, &args.out, Start::Fresh)?;
+        let mut trainer = Trainer::prepare(cfg, &args.out, Start::Fresh, &dataset::LoadOptions { allow_outside: args.allow_outside })?;
         if replacing {
             remove_run(&args.out)?;
         }
@@ -438,14 +449,15 @@ pub fn run_render(args: RenderNerfArgs) -> anyhow::Result<()> {
     }
     let model = RunModel::load(&args.run).with_context(|| format!("loading {}", args.run.display()))?;
     let downscale = args.downscale.unwrap_or(model.config.downscale.max(1));
+    let load = dataset::LoadOptions { allow_outside: args.allow_outside };
     {
-        let ds = dataset::Dataset::load(model.dataset_dir())?;
+        let ds = dataset::Dataset::load_with(model.dataset_dir(), &load)?;
         for f in ds.train.iter().chain(&ds.val).chain(&ds.test) {
             dataset::check_downscale("--downscale", downscale, &f.camera.intrinsics).map_err(|e| anyhow::anyhow!("{e} ({})", f.image_path.display()))?;
         }
     }
     let (label, cameras): (String, Vec<(String, dataset::Camera)>) = if let Some(n) = args.orbit {
-        let ds = dataset::Dataset::load(model.dataset_dir())?;
+        let ds = dataset::Dataset::load_with(model.dataset_dir(), &load)?;
         let first = ds.train.first().context("dataset has no train views")?.camera.downscaled(downscale);
         let b = model.config.bounds.clone().context("run has no bounds")?;
         let cams = nerf::render::orbit_cameras(&first, b.center(), n)
@@ -462,7 +474,7 @@ pub fn run_render(args: RenderNerfArgs) -> anyhow::Result<()> {
             "test" => dataset::SplitKind::Test,
             s => anyhow::bail!("unknown split '{s}' (train, val or test)"),
         };
-        let ds = dataset::Dataset::load(model.dataset_dir())?;
+        let ds = dataset::Dataset::load_with(model.dataset_dir(), &load)?;
         let cams = ds.split(kind).iter().map(|f| (f.name.clone(), f.camera.downscaled(downscale))).collect();
         (split, cams)
     };

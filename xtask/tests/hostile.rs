@@ -329,4 +329,165 @@ fn mesh_removes_the_temporaries_of_a_killed_mesh() {
     run(&["mesh".as_ref(), run_dir.as_os_str(), "--out".as_ref(), out.as_os_str(), "--resolution".as_ref(), "8".as_ref(), "--no-metrics".as_ref()]);
     assert!(stale.iter().all(|f| !f.exists()), "the temporaries were kept");
     assert!(other.exists(), "another file's temporary was removed");
+
+/// Runs `xtask ARGS` and fails the test if it has not exited within `secs` seconds (it is
+/// killed then): a read of a device or a FIFO must not hang a command.
+fn run_within(args: &[&std::ffi::OsStr], secs: u64) -> Output {
+    let mut c = xtask();
+    c.stdout(Stdio::piped()).stderr(Stdio::piped()).args(args);
+    let mut child = c.spawn().unwrap();
+    let deadline = Instant::now() + Duration::from_secs(secs);
+    while child.try_wait().unwrap().is_none() {
+        if Instant::now() > deadline {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!("{args:?} still running after {secs} s");
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    child.wait_with_output().unwrap()
+}
+
+/// Bytes that stand for a file outside the folder a scene or dataset was given in; no error
+/// message may quote them.
+const OUTSIDE: &[u8] = b"root:x:0:0:OUTSIDE-SECRET";
+
+/// A one-triangle glTF at `dir/scene/tri.gltf` whose buffer is the file at `uri`; the buffer's
+/// bytes (followed by [`OUTSIDE`]) are written to `dir/outside.bin`, beside the scene's folder.
+fn scene_with_buffer(dir: &Path, uri: &str) -> PathBuf {
+    let mut bin: Vec<u8> = [0.0f32, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0].iter().flat_map(|v| v.to_le_bytes()).collect();
+    bin.extend([0u16, 1, 2, 0].iter().flat_map(|i| i.to_le_bytes()));
+    let mut outside = bin.clone();
+    outside.extend_from_slice(OUTSIDE);
+    std::fs::write(dir.join("outside.bin"), outside).unwrap();
+    let scene = serde_json::json!({
+        "asset": {"version": "2.0"},
+        "scenes": [{"nodes": [0]}],
+        "nodes": [{"mesh": 0}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}]}],
+        "buffers": [{"byteLength": bin.len(), "uri": uri}],
+        "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": 36}, {"buffer": 0, "byteOffset": 36, "byteLength": 6}],
+        "accessors": [
+            {"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3", "min": [0, 0, 0], "max": [1, 1, 0]},
+            {"bufferView": 1, "componentType": 5123, "count": 3, "type": "SCALAR"}
+        ]
+    });
+    std::fs::create_dir_all(dir.join("scene")).unwrap();
+    let path = dir.join("scene/tri.gltf");
+    std::fs::write(&path, serde_json::to_vec(&scene).unwrap()).unwrap();
+    path
+}
+
+fn render_args<'a>(scene: &'a Path, out: &'a Path, extra: &'a [&'a str]) -> Vec<&'a std::ffi::OsStr> {
+    let mut v: Vec<&std::ffi::OsStr> = vec!["render".as_ref(), scene.as_os_str(), "--out".as_ref(), out.as_os_str()];
+    for a in ["--res", "8", "--train", "1", "--val", "1", "--test", "1", "--spp", "1"].iter().chain(extra) {
+        v.push(a.as_ref());
+    }
+    v
+}
+
+/// `render` of a scene whose buffer URI leads outside its folder (`../`, `%2e%2e`, an absolute
+/// path) is refused naming the scene and the URI, without quoting the outside file and without
+/// writing anything; `--allow-outside` renders it.
+#[test]
+fn render_refuses_a_buffer_outside_the_scene_folder_unless_allowed() {
+    let tmp = tempfile::tempdir().unwrap();
+    let absolute = tmp.path().join("outside.bin").to_string_lossy().into_owned();
+    for uri in ["../outside.bin", "%2e%2e/outside.bin", absolute.as_str()] {
+        let scene = scene_with_buffer(tmp.path(), uri);
+        let out = tmp.path().join("data");
+        let o = run(&render_args(&scene, &out, &[]));
+        let err = stderr(&o);
+        assert!(!o.status.success(), "{uri}: render read a buffer outside the scene's folder");
+        assert!(err.contains("tri.gltf") && err.contains(uri) && err.contains("outside the scene's folder") && err.contains("--allow-outside"), "{uri}: {err}");
+        assert!(!err.contains("root:") && !err.contains("OUTSIDE-SECRET"), "{uri}: the message quotes the outside file: {err}");
+        assert!(!out.exists(), "{uri}: a refused render wrote {}", out.display());
+    }
+    let scene = scene_with_buffer(tmp.path(), "../outside.bin");
+    let out = tmp.path().join("allowed");
+    let o = run(&render_args(&scene, &out, &["--allow-outside"]));
+    assert!(o.status.success(), "--allow-outside: {}", stderr(&o));
+    assert!(out.join("transforms_test.json").is_file());
+}
+
+/// A buffer URI naming `/dev/zero` (even with `--allow-outside`) or a FIFO in the scene's folder
+/// is refused at once as not a regular file, instead of reading forever or hanging.
+#[cfg(unix)]
+#[test]
+fn render_refuses_devices_and_fifos_promptly() {
+    let tmp = tempfile::tempdir().unwrap();
+    std::fs::create_dir_all(tmp.path().join("scene")).unwrap();
+    assert!(Command::new("mkfifo").arg(tmp.path().join("scene/pipe.bin")).status().unwrap().success());
+    for (uri, kind) in [("/dev/zero", "device"), ("pipe.bin", "FIFO")] {
+        let scene = scene_with_buffer(tmp.path(), uri);
+        let out = tmp.path().join("data");
+        let o = run_within(&render_args(&scene, &out, &["--allow-outside"]), 60);
+        let err = stderr(&o);
+        assert!(!o.status.success(), "{uri}: accepted");
+        assert!(err.contains("tri.gltf") && err.contains("not a regular file") && err.contains(kind), "{uri}: {err}");
+    }
+}
+
+/// A split folder of `--out` that is a symbolic link to a folder of the user's is refused, with
+/// and without `--force`, and nothing in the link's target is touched.
+#[cfg(unix)]
+#[test]
+fn render_refuses_a_split_folder_that_is_a_symlink() {
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/cornell.gltf");
+    let out = tmp.path().join("data");
+    let theirs = tmp.path().join("theirs");
+    std::fs::create_dir_all(&theirs).unwrap();
+    std::fs::write(theirs.join("r_0.png"), b"precious").unwrap();
+    std::fs::write(theirs.join("notes.txt"), b"mine").unwrap();
+    let o = run(&render_args(&scene, &out, &[]));
+    assert!(o.status.success(), "{}", stderr(&o));
+    std::fs::rename(out.join("val"), tmp.path().join("old-val")).unwrap();
+    std::os::unix::fs::symlink(&theirs, out.join("val")).unwrap();
+    let before = folder_bytes(&theirs);
+    for extra in [&[][..], &["--force"][..], &["--force", "--seed", "3"][..]] {
+        let o = run(&render_args(&scene, &out, extra));
+        let err = stderr(&o);
+        assert!(!o.status.success(), "{extra:?}: rendered through a symlinked split folder");
+        assert!(err.contains("val") && err.contains("symbolic link"), "{extra:?}: {err}");
+        assert_eq!(folder_bytes(&theirs), before, "{extra:?}: the link's target changed");
+    }
+}
+
+/// A dataset whose `transforms_train.json` names a frame image outside the dataset folder is
+/// refused by `train` and by `eval`, naming the frame's `file_path`; `--allow-outside` admits it.
+#[test]
+fn train_and_eval_refuse_frame_files_outside_the_dataset_unless_allowed() {
+    let tmp = tempfile::tempdir().unwrap();
+    let config = test_support::training::write_cli_config(tmp.path(), 2, 1_000_000);
+    let data = tmp.path().join("data");
+    std::fs::create_dir_all(tmp.path().join("outside")).unwrap();
+    std::fs::rename(data.join("train/r_0.png"), tmp.path().join("outside/r_0.png")).unwrap();
+    let transforms = data.join("transforms_train.json");
+    let mut t: serde_json::Value = serde_json::from_slice(&std::fs::read(&transforms).unwrap()).unwrap();
+    t["frames"][0]["file_path"] = "../outside/r_0".into();
+    std::fs::write(&transforms, serde_json::to_vec(&t).unwrap()).unwrap();
+    let run_dir = tmp.path().join("run");
+    let train = |extra: &[&str]| {
+        let mut args: Vec<&std::ffi::OsStr> = vec!["train".as_ref(), "--config".as_ref(), config.as_os_str(), "--out".as_ref(), run_dir.as_os_str()];
+        args.extend(extra.iter().map(|a| std::ffi::OsStr::new(*a)));
+        run(&args)
+    };
+    let o = train(&[]);
+    let err = stderr(&o);
+    assert!(!o.status.success(), "train read a frame outside the dataset folder");
+    assert!(err.contains("transforms_train.json") && err.contains("file_path '../outside/r_0'") && err.contains("--allow-outside"), "{err}");
+    assert!(!run_dir.exists(), "a refused train created its run folder");
+    let o = train(&["--allow-outside"]);
+    assert!(o.status.success(), "train --allow-outside: {}", stderr(&o));
+    let eval = |extra: &[&str]| {
+        let mut args: Vec<&std::ffi::OsStr> = vec!["eval".as_ref(), run_dir.as_os_str(), "--no-mesh".as_ref(), "--grids".as_ref(), "0".as_ref()];
+        args.extend(extra.iter().map(|a| std::ffi::OsStr::new(*a)));
+        run(&args)
+    };
+    let o = eval(&[]);
+    let err = stderr(&o);
+    assert!(!o.status.success() && err.contains("file_path '../outside/r_0'"), "{err}");
+    let o = eval(&["--allow-outside"]);
+    assert!(o.status.success(), "eval --allow-outside: {}", stderr(&o));
 }

@@ -138,11 +138,13 @@ pub fn remove_dataset_files(out: &Path) -> Result<(), DatasetError> {
 /// Checks that `out` can receive a dataset: missing, empty, or holding a dataset whose identity
 /// record (`render_config.json`, read as `R`) `difference` finds the same (`None`; otherwise it
 /// describes how it differs). With `force`, a different dataset's files are removed first.
-/// Stale temporaries are removed. Nothing else is written.
+/// Stale temporaries are removed. Nothing else is written. A split folder that is a symbolic
+/// link is refused before anything is read or removed ([`check_split_folders`]).
 pub fn prepare<R: DeserializeOwned>(out: &Path, difference: impl Fn(&R) -> Option<String>, force: bool) -> Result<(), DatasetError> {
     if out.exists() && !out.is_dir() {
         return Err(DatasetError::invalid(out, "exists and is not a folder"));
     }
+    check_split_folders(out)?;
     let config_path = out.join(RENDER_CONFIG_FILE);
     let conflict = if config_path.is_file() {
         let bytes = crate::io::read(&config_path)?;
@@ -166,6 +168,26 @@ pub fn prepare<R: DeserializeOwned>(out: &Path, difference: impl Fn(&R) -> Optio
             remove_stale_temporaries(out)
         }
     }
+}
+
+/// Refuses a split folder of `out` (`train`, `val`, `test`) that is a symbolic link or not a
+/// folder: a render would write its views into the link's target, and `--force` remove files
+/// there. `out` itself may be a link (the user named it).
+pub fn check_split_folders(out: &Path) -> Result<(), DatasetError> {
+    for split in SplitKind::ALL {
+        let dir = out.join(split.name());
+        match std::fs::symlink_metadata(&dir) {
+            Ok(m) if m.file_type().is_symlink() => {
+                return Err(DatasetError::invalid(
+                    &dir,
+                    "is a symbolic link; a render writes its views only into real folders inside the dataset folder (remove the link, or render into another --out)",
+                ));
+            }
+            Ok(m) if !m.is_dir() => return Err(DatasetError::invalid(&dir, "is not a folder; a render writes this split's views there")),
+            _ => {}
+        }
+    }
+    Ok(())
 }
 
 /// The linear image as written to the EXR: premultiplied, with a colour background composited
@@ -254,5 +276,32 @@ mod tests {
         let file = dir.join("notes.txt");
         assert!(prepare::<serde_json::Value>(&file, same, false).unwrap_err().to_string().contains("not a folder"));
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// A split folder that is a symbolic link (here to a folder of the user's, holding a file
+    /// named like a view) is refused, with or without `force`, and nothing behind it is
+    /// removed; so is a split that is a file.
+    #[cfg(unix)]
+    #[test]
+    fn prepare_refuses_a_split_folder_that_is_a_link() {
+        let base = std::env::temp_dir().join(format!("dataset-folder-link-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&base);
+        let (out, theirs) = (base.join("out"), base.join("theirs"));
+        std::fs::create_dir_all(&out).unwrap();
+        std::fs::create_dir_all(&theirs).unwrap();
+        std::fs::write(theirs.join("r_0.png"), b"precious").unwrap();
+        std::fs::write(out.join(RENDER_CONFIG_FILE), r#"{"seed": 2}"#).unwrap();
+        std::os::unix::fs::symlink(&theirs, out.join("val")).unwrap();
+        let same = |r: &serde_json::Value| (r["seed"] != 1).then(|| format!("seed was {}", r["seed"]));
+        for force in [false, true] {
+            let e = prepare::<serde_json::Value>(&out, same, force).unwrap_err().to_string();
+            assert!(e.contains("val") && e.contains("symbolic link"), "{e}");
+            assert_eq!(std::fs::read(theirs.join("r_0.png")).unwrap(), b"precious");
+        }
+        std::fs::remove_file(out.join("val")).unwrap();
+        std::fs::write(out.join("test"), b"x").unwrap();
+        let e = prepare::<serde_json::Value>(&out, same, true).unwrap_err().to_string();
+        assert!(e.contains("test") && e.contains("not a folder"), "{e}");
+        std::fs::remove_dir_all(&base).unwrap();
     }
 }

@@ -1,6 +1,7 @@
 //! Atomic file output: every file is written under a temporary name in its final folder,
 //! flushed, then renamed, so a reader (or a resumed run) never sees a half-written file with
-//! its final name.
+//! its final name. Reading: regular files only, at most [`MAX_FILE_BYTES`]
+//! ([`crate::paths::read_capped`]).
 
 use crate::DatasetError;
 use std::io::Write;
@@ -86,9 +87,14 @@ pub fn atomic_write_json<T: serde::Serialize>(path: &Path, value: &T) -> Result<
     atomic_write(path, text.as_bytes())
 }
 
-/// Reads a whole file, naming it in the error.
+/// The most bytes one dataset file may have (8 GiB): above the largest file a render writes
+/// (the ground-truth EXR of a 16384 × 16384 view, six `f32` channels, about 6.4 GB before
+/// compression), far below what a sparse or endless file would make a reader allocate.
+pub const MAX_FILE_BYTES: u64 = 8 << 30;
+
+/// Reads a whole regular file of at most [`MAX_FILE_BYTES`], naming it in the error.
 pub fn read(path: &Path) -> Result<Vec<u8>, DatasetError> {
-    std::fs::read(path).map_err(|e| DatasetError::io(path, e))
+    crate::paths::read_capped(path, MAX_FILE_BYTES).map_err(|e| DatasetError::io(path, e))
 }
 
 #[cfg(test)]

@@ -28,6 +28,7 @@ mod images;
 mod transforms;
 pub mod io;
 pub mod lock;
+pub mod paths;
 
 pub use camera::{Camera, Intrinsics, MAX_TRANSLATION, MIN_FIELD_OF_VIEW, Ray};
 pub use downscale::check_downscale;
@@ -37,7 +38,7 @@ pub use images::{
     srgb_to_linear, write_exr_rgba, write_ground_truth, write_npy_f32, write_png_mask, write_png_rgba,
 };
 pub use transforms::{
-    Dataset, Frame, FrameRecord, SceneFacts, SplitKind, TransformsFile, instant_ngp_fit, nerfstudio_files,
+    Dataset, Frame, FrameRecord, LoadOptions, SceneFacts, SplitKind, TransformsFile, check_transforms, instant_ngp_fit, nerfstudio_files,
     write_nerfstudio_transforms,
     write_split_transforms,
 };

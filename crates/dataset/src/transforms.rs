@@ -155,8 +155,20 @@ impl TransformsFile {
 
     /// Reads and parses a transforms file.
     pub fn read(path: &Path) -> Result<Self, DatasetError> {
-        let bytes = read(path)?;
-        serde_json::from_slice(&bytes).map_err(|e| DatasetError::Json { path: path.into(), message: json_message(&bytes, &e) })
+        Self::from_slice(&read(path)?, path)
+    }
+
+    /// Parses a transforms file's bytes; `path` names it in errors.
+    pub fn from_slice(bytes: &[u8], path: &Path) -> Result<Self, DatasetError> {
+        serde_json::from_slice(bytes).map_err(|e| DatasetError::Json { path: path.into(), message: json_message(bytes, &e) })
+    }
+
+    /// The camera of frame `k` with the intrinsics `intr`: its pose must be a finite rigid
+    /// transform. `path` names the file in errors.
+    pub fn camera(&self, k: usize, intr: Intrinsics, path: &Path) -> Result<Camera, DatasetError> {
+        let rec = self.frames.get(k).ok_or_else(|| DatasetError::invalid(path, format!("frame {k} does not exist")))?;
+        let c2w = Camera::c2w_from_rows(&rec.transform_matrix);
+        Camera::new(intr, c2w).map_err(|m| DatasetError::invalid(path, format!("frame {k} ({}): {m} (its transform_matrix)", rec.file_path)))
     }
 
     /// Writes the file atomically.
@@ -216,6 +228,25 @@ fn json_message(bytes: &[u8], e: &serde_json::Error) -> String {
     }
 }
 
+/// Parses a transforms file's `bytes` and checks what needs no dataset folder: the
+/// intrinsics (with `image_size` where the file gives no `w`, `h`) and every frame's pose.
+/// Returns the cameras; `path` names the file in errors. [`Dataset::load`] checks the same,
+/// and the files; the fuzz target runs this on arbitrary bytes.
+pub fn check_transforms(bytes: &[u8], path: &Path, image_size: (u32, u32)) -> Result<Vec<Camera>, DatasetError> {
+    let file = TransformsFile::from_slice(bytes, path)?;
+    let intr = file.intrinsics(path, image_size)?;
+    (0..file.frames.len()).map(|k| file.camera(k, intr, path)).collect()
+}
+
+/// How [`Dataset::load_with`] treats the paths a transforms file names.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct LoadOptions {
+    /// Read frame files (and transforms files) that lie outside the dataset folder once `..`
+    /// and symbolic links are resolved ([`crate::paths::is_inside`]); `false`, the default,
+    /// refuses them naming the frame (a command's `--allow-outside` sets it).
+    pub allow_outside: bool,
+}
+
 /// One loaded view.
 #[derive(Clone, Debug)]
 pub struct Frame {
@@ -251,8 +282,14 @@ pub struct Dataset {
 impl Dataset {
     /// Loads a dataset folder: `transforms_train.json` is required, val and test are read when
     /// present. Every frame's image must exist and have the size the intrinsics say; poses must
-    /// be finite rigid transforms.
+    /// be finite rigid transforms. Every file must be a regular file inside the folder
+    /// ([`LoadOptions`]'s default).
     pub fn load(root: &Path) -> Result<Self, DatasetError> {
+        Self::load_with(root, &LoadOptions::default())
+    }
+
+    /// [`Dataset::load`] with `options` (files outside the folder admitted or not).
+    pub fn load_with(root: &Path, options: &LoadOptions) -> Result<Self, DatasetError> {
         if root.is_file() {
             return Err(DatasetError::invalid(root, "is a file, not a dataset folder (give the folder that holds transforms_train.json)"));
         }
@@ -269,6 +306,12 @@ impl Dataset {
                 }
                 continue;
             }
+            if !options.allow_outside && !crate::paths::is_inside(root, &path) {
+                return Err(DatasetError::invalid(
+                    &path,
+                    format!("leads outside the dataset folder {} (a symbolic link); only files inside it are read unless --allow-outside is given", root.display()),
+                ));
+            }
             let file = TransformsFile::read(&path)?;
             if split == SplitKind::Train {
                 if file.frames.is_empty() {
@@ -276,7 +319,7 @@ impl Dataset {
                 }
                 facts = file.scene_facts.clone();
             }
-            splits[k] = load_frames(root, &path, split, &file)?;
+            splits[k] = load_frames(root, &path, split, &file, options)?;
         }
         let [train, val, test] = splits;
         Ok(Self { root: root.to_path_buf(), train, val, test, facts })
@@ -302,11 +345,43 @@ fn resolve(root: &Path, rel: &str) -> PathBuf {
     root.join(rel)
 }
 
+/// The file `path` that frame `k` of the transforms file `file` names in its field `field` as
+/// `rel`: inside the dataset folder `root` unless `options` allow outside, and a regular file.
+/// `what` names it in the message of a missing file.
+fn frame_file(root: &Path, file: &Path, k: usize, field: &str, rel: &str, path: PathBuf, what: &str, options: &LoadOptions) -> Result<PathBuf, DatasetError> {
+    if !options.allow_outside && !crate::paths::is_inside(root, &path) {
+        return Err(DatasetError::invalid(
+            file,
+            format!(
+                "frame {k}: {field} '{rel}' leads outside the dataset folder {}; only files inside it are read unless --allow-outside is given",
+                root.display()
+            ),
+        ));
+    }
+    match std::fs::metadata(&path) {
+        Ok(m) if m.is_file() => Ok(path),
+        Ok(_) => Err(DatasetError::invalid(file, format!("frame {k}: {what} {} is not a regular file; only regular files are read", path.display()))),
+        Err(_) => Err(DatasetError::invalid(file, format!("frame {k}: {what} {} does not exist", path.display()))),
+    }
+}
+
+/// The width and height of the image at `path`, from its header, read from a regular file
+/// only (the format from the extension, as `image::image_dimensions`).
+fn image_size(path: &Path) -> Result<(u32, u32), DatasetError> {
+    let file = crate::paths::open_regular(path).map_err(|e| DatasetError::io(path, e))?;
+    let mut reader = image::ImageReader::new(std::io::BufReader::new(file));
+    if let Ok(format) = image::ImageFormat::from_path(path) {
+        reader.set_format(format);
+    }
+    reader.into_dimensions().map_err(|e| DatasetError::image(path, e))
+}
+
 fn load_frames(
     root: &Path,
     path: &Path,
     split: SplitKind,
     file: &TransformsFile,
+    options: &LoadOptions,
 ) -> Result<Vec<Frame>, DatasetError> {
     let mut frames = Vec::with_capacity(file.frames.len());
     let mut intr: Option<Intrinsics> = None;
@@ -315,14 +390,8 @@ fn load_frames(
         if image_path.extension().is_none() {
             image_path.set_extension("png");
         }
-        if !image_path.is_file() {
-            return Err(DatasetError::invalid(
-                path,
-                format!("frame {k}: image {} does not exist", image_path.display()),
-            ));
-        }
-        let size = image::image_dimensions(&image_path)
-            .map_err(|e| DatasetError::image(&image_path, e))?;
+        let image_path = frame_file(root, path, k, "file_path", &rec.file_path, image_path, "image", options)?;
+        let size = image_size(&image_path)?;
         let frame_intr = match intr {
             Some(i) => i,
             None => {
@@ -344,33 +413,18 @@ fn load_frames(
                 ),
             ));
         }
-        let c2w = Camera::c2w_from_rows(&rec.transform_matrix);
-        let camera = Camera::new(frame_intr, c2w)
-            .map_err(|m| DatasetError::invalid(path, format!("frame {k} ({}): {m} (its transform_matrix)", rec.file_path)))?;
-        let optional = |p: &Option<String>| -> Result<Option<PathBuf>, DatasetError> {
-            match p {
-                None => Ok(None),
-                Some(rel) => {
-                    let p = resolve(root, rel);
-                    if p.is_file() {
-                        Ok(Some(p))
-                    } else {
-                        Err(DatasetError::invalid(
-                            path,
-                            format!("frame {k}: file {} does not exist", p.display()),
-                        ))
-                    }
-                }
-            }
+        let camera = file.camera(k, frame_intr, path)?;
+        let optional = |field: &str, p: &Option<String>| -> Result<Option<PathBuf>, DatasetError> {
+            p.as_ref().map(|rel| frame_file(root, path, k, field, rel, resolve(root, rel), "file", options)).transpose()
         };
         let name = image_path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
         frames.push(Frame {
             name,
             split,
             camera,
+            exr_path: optional("exr_file_path", &rec.exr_file_path)?,
+            gt_path: optional("gt_file_path", &rec.gt_file_path)?,
             image_path,
-            exr_path: optional(&rec.exr_file_path)?,
-            gt_path: optional(&rec.gt_file_path)?,
         });
     }
     Ok(frames)
@@ -550,5 +604,111 @@ mod tests {
         let e = Dataset::load(&dir).unwrap_err().to_string();
         assert!(e.contains("camera_angle_x"), "{e}");
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// A dataset whose frame 0 names its files by `file_path`, `gt_file_path` (and, when
+    /// given, `exr_file_path`) as written; its one image is `train/r_0.png`.
+    fn hostile(dir: &Path, file_path: &str, gt: Option<&str>) {
+        let _ = std::fs::remove_dir_all(dir);
+        write_png_rgba(&dir.join("train/r_0.png"), &RgbaImage::new(4, 4)).unwrap();
+        let gt = gt.map_or(String::new(), |g| format!(", \"gt_file_path\": {}", serde_json::to_string(g).unwrap()));
+        let json = format!(
+            r#"{{"camera_angle_x": 0.7, "frames": [{{"file_path": {}{gt}, "transform_matrix": [[1,0,0,0],[0,1,0,0],[0,0,1,4],[0,0,0,1]]}}]}}"#,
+            serde_json::to_string(file_path).unwrap()
+        );
+        std::fs::write(dir.join("transforms_train.json"), json).unwrap();
+    }
+
+    /// Frame paths that lead outside the dataset folder (`..`, absolute, a symbolic link) are
+    /// refused naming the frame, the field and the folder, without a byte of the outside file
+    /// in the message; `allow_outside` admits them. Devices, FIFOs and folders are refused as
+    /// not regular files, promptly.
+    #[test]
+    fn frame_paths_are_confined_to_the_dataset_folder_and_regular_files() {
+        let base = std::env::temp_dir().join(format!("dataset-confined-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&base);
+        let dir = base.join("ds");
+        // An image outside the folder, of the right size, whose bytes must never be quoted.
+        let outside = base.join("outside.png");
+        write_png_rgba(&outside, &RgbaImage::new(4, 4)).unwrap();
+        let secret = std::fs::read(&outside).unwrap();
+        let escapes = ["../outside.png", "./../outside", "train/../../outside.png", outside.to_str().unwrap()];
+        for rel in escapes {
+            hostile(&dir, rel, None);
+            let e = Dataset::load(&dir).unwrap_err().to_string();
+            assert!(e.contains("frame 0: file_path") && e.contains("outside the dataset folder") && e.contains("--allow-outside"), "{rel}: {e}");
+            assert!(e.contains("transforms_train.json") && e.contains(rel), "{rel}: {e}");
+            assert!(!e.as_bytes().windows(8).any(|w| secret.windows(8).any(|s| s == w)), "{rel}: the error quotes the outside file: {e}");
+            let ds = Dataset::load_with(&dir, &LoadOptions { allow_outside: true }).unwrap();
+            assert_eq!(std::fs::canonicalize(&ds.train[0].image_path).unwrap(), std::fs::canonicalize(&outside).unwrap());
+        }
+        // The same for the ground-truth file, and an escape like ../../etc/passwd.
+        hostile(&dir, "./train/r_0", Some("../../../../../../../../etc/passwd"));
+        let e = Dataset::load(&dir).unwrap_err().to_string();
+        assert!(e.contains("gt_file_path") && e.contains("outside the dataset folder") && !e.contains("root:"), "{e}");
+        #[cfg(unix)]
+        {
+            // A symbolic link inside the folder to a file outside, and a linked folder.
+            hostile(&dir, "./train/link", None);
+            std::os::unix::fs::symlink(&outside, dir.join("train/link.png")).unwrap();
+            let e = Dataset::load(&dir).unwrap_err().to_string();
+            assert!(e.contains("outside the dataset folder"), "{e}");
+            assert!(Dataset::load_with(&dir, &LoadOptions { allow_outside: true }).is_ok());
+            hostile(&dir, "./up/outside.png", None);
+            std::os::unix::fs::symlink(&base, dir.join("up")).unwrap();
+            let e = Dataset::load(&dir).unwrap_err().to_string();
+            assert!(e.contains("outside the dataset folder"), "{e}");
+            // A transforms file that is itself a link to a file outside.
+            hostile(&dir, "./train/r_0", None);
+            std::fs::rename(dir.join("transforms_train.json"), base.join("elsewhere.json")).unwrap();
+            std::os::unix::fs::symlink(base.join("elsewhere.json"), dir.join("transforms_train.json")).unwrap();
+            let e = Dataset::load(&dir).unwrap_err().to_string();
+            assert!(e.contains("transforms_train.json") && e.contains("outside the dataset folder"), "{e}");
+            assert!(Dataset::load_with(&dir, &LoadOptions { allow_outside: true }).is_ok());
+            // Devices (with allow_outside: still refused, as not regular files), a FIFO and a
+            // folder inside: refused before anything is opened for reading.
+            let start = std::time::Instant::now();
+            for dev in ["/dev/zero", "/dev/urandom"] {
+                hostile(&dir, "./train/r_0", Some(dev));
+                let e = Dataset::load_with(&dir, &LoadOptions { allow_outside: true }).unwrap_err().to_string();
+                assert!(e.contains("not a regular file"), "{dev}: {e}");
+            }
+            hostile(&dir, "./train/pipe.png", None);
+            assert!(std::process::Command::new("mkfifo").arg(dir.join("train/pipe.png")).status().unwrap().success());
+            let e = Dataset::load(&dir).unwrap_err().to_string();
+            assert!(e.contains("not a regular file"), "{e}");
+            assert!(start.elapsed() < std::time::Duration::from_secs(5), "took {:?}", start.elapsed());
+        }
+        hostile(&dir, "./train/r_0", Some("train"));
+        let e = Dataset::load(&dir).unwrap_err().to_string();
+        assert!(e.contains("not a regular file"), "{e}");
+        // Inside, by a detour: fine.
+        hostile(&dir, "../ds/train/r_0.png", Some("train/./r_0.png"));
+        assert!(Dataset::load(&dir).is_ok());
+        std::fs::remove_dir_all(&base).unwrap();
+    }
+
+    /// The fuzz target's seeds (`fuzz/corpus/transforms/seed_*`; the fuzzer's own finds there
+    /// are not kept) through [`check_transforms`]: `seed_ok_*` pass, `seed_bad_*` are refused
+    /// naming the file, none panics.
+    #[test]
+    fn transforms_fuzz_corpus_parses_or_is_refused_as_named() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../fuzz/corpus/transforms");
+        let mut seen = 0;
+        for e in std::fs::read_dir(&dir).unwrap().flatten() {
+            let name = e.file_name().to_string_lossy().into_owned();
+            let Some(kind) = name.strip_prefix("seed_") else { continue };
+            let bytes = std::fs::read(e.path()).unwrap();
+            let r = check_transforms(&bytes, Path::new(&name), (64, 48));
+            if kind.starts_with("ok_") {
+                assert!(!r.unwrap_or_else(|e| panic!("{name}: {e}")).is_empty(), "{name}: no cameras");
+            } else {
+                assert!(kind.starts_with("bad_"), "{name}: seeds are named seed_ok_* or seed_bad_*");
+                let e = r.err().unwrap_or_else(|| panic!("{name} accepted")).to_string();
+                assert!(e.contains(&name), "{name}: the error does not name the file: {e}");
+            }
+            seen += 1;
+        }
+        assert!(seen >= 6, "only {seen} seeds in {}", dir.display());
     }
 }

@@ -48,9 +48,14 @@ pub struct ReferenceInfo {
 
 /// The reference surface of `dataset` (train and test cameras, full resolution), or why there
 /// is none (`Ok(Err(why))`: not rendered by this path tracer, scene file missing or edited).
-/// `scene` overrides the recorded scene file (it must have the recorded content).
-pub fn scene_reference(dataset: &Dataset, scene: Option<&Path>) -> Result<Result<SceneReference, String>, EvalError> {
-    let (renderer, path) = match scene_of_dataset(&dataset.root, scene).map_err(|e| EvalError::Input(e.to_string()))? {
+/// `scene` overrides the recorded scene file (it must have the recorded content); `import`
+/// says how the scene is read (e.g. external files admitted outside its folder).
+pub fn scene_reference(
+    dataset: &Dataset,
+    scene: Option<&Path>,
+    import: &pathtracer::import::ImportOptions,
+) -> Result<Result<SceneReference, String>, EvalError> {
+    let (renderer, path) = match scene_of_dataset(&dataset.root, scene, import).map_err(|e| EvalError::Input(e.to_string()))? {
         SceneLookup::Found { renderer, path } => (renderer, path),
         SceneLookup::Missing(why) => return Ok(Err(why)),
     };

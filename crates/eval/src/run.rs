@@ -50,13 +50,34 @@ pub struct EvalRunOptions {
     /// Extract the run's mesh and measure it against the scene's visible triangles (when the
     /// scene is found); `None`: no mesh.
     pub mesh: Option<crate::mesh_eval::MeshEvalOptions>,
+    /// Read the dataset's frame files and the scene's external buffers and images also where
+    /// they lie outside their folders (`--allow-outside`); `false`: refused.
+    pub allow_outside: bool,
 }
 
 impl EvalRunOptions {
     /// All views of `split` at the run's training resolution, with grids for the first three,
     /// and the mesh at [`crate::mesh_eval::MeshEvalOptions::standard`].
     pub fn split(split: SplitKind) -> Self {
-        Self { split, grid_views: 3, max_views: None, downscale: None, scene: None, mesh: Some(crate::mesh_eval::MeshEvalOptions::standard()) }
+        Self {
+            split,
+            grid_views: 3,
+            max_views: None,
+            downscale: None,
+            scene: None,
+            mesh: Some(crate::mesh_eval::MeshEvalOptions::standard()),
+            allow_outside: false,
+        }
+    }
+
+    /// How the dataset is loaded ([`EvalRunOptions::allow_outside`]).
+    pub fn load_options(&self) -> dataset::LoadOptions {
+        dataset::LoadOptions { allow_outside: self.allow_outside }
+    }
+
+    /// How the scene is imported ([`EvalRunOptions::allow_outside`]).
+    pub fn import_options(&self) -> pathtracer::import::ImportOptions {
+        pathtracer::import::ImportOptions { allow_outside: self.allow_outside, ..Default::default() }
     }
 }
 
@@ -163,12 +184,18 @@ fn ground_truth_at(run_dir: &Path, frame: &Frame, downscale: u32, source: &Groun
 
 /// How the ground truth at `downscale` is obtained, and the report's note saying so (`None`
 /// when it is read exactly from the files, or there is none).
-fn ground_truth_source(dataset: &Dataset, frames: &[&Frame], downscale: u32, scene: Option<&Path>) -> Result<(GroundTruthSource, Option<String>), EvalError> {
+fn ground_truth_source(
+    dataset: &Dataset,
+    frames: &[&Frame],
+    downscale: u32,
+    scene: Option<&Path>,
+    import: &pathtracer::import::ImportOptions,
+) -> Result<(GroundTruthSource, Option<String>), EvalError> {
     if downscale % 2 == 1 || frames.iter().all(|f| f.gt_path.is_none()) {
         return Ok((GroundTruthSource::File, None));
     }
     let pt = |e: pathtracer::PathTracerError| EvalError::Input(e.to_string());
-    Ok(match scene_of_dataset(&dataset.root, scene).map_err(pt)? {
+    Ok(match scene_of_dataset(&dataset.root, scene, import).map_err(pt)? {
         SceneLookup::Found { renderer, path } => (
             GroundTruthSource::Scene(renderer),
             Some(format!(
@@ -253,7 +280,7 @@ pub fn evaluate_run(
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<EvalRunOutput, EvalError> {
     let model = RunModel::load(run_dir).map_err(|e| run_error(run_dir, e))?;
-    let dataset = Dataset::load(model.dataset_dir())?;
+    let dataset = Dataset::load_with(model.dataset_dir(), &opts.load_options())?;
     let mut frames: Vec<&Frame> = dataset.split(opts.split).iter().collect();
     if frames.is_empty() {
         return Err(run_error(
@@ -270,7 +297,7 @@ pub fn evaluate_run(
         dataset::check_downscale("--downscale", downscale, &f.camera.intrinsics)
             .map_err(|e| run_error(run_dir, format!("{e} ({})", f.image_path.display())))?;
     }
-    let (source, gt_note) = ground_truth_source(&dataset, &frames, downscale, opts.scene.as_deref())?;
+    let (source, gt_note) = ground_truth_source(&dataset, &frames, downscale, opts.scene.as_deref(), &opts.import_options())?;
     // The off-surface tolerance's box, and the note that says where it came from: the scene
     // facts' box, or a first pass over the evaluated views' ground truth.
     let surface = match &dataset.facts {
@@ -330,7 +357,7 @@ pub fn evaluate_run(
     let curve = if metrics_path.exists() { read_metrics_jsonl(&metrics_path)? } else { Vec::new() };
     dataset::io::remove_stale_temporaries(run_dir, is_eval_output)?;
     if let Some(mesh_opts) = &opts.mesh {
-        match crate::mesh_eval::scene_reference(&dataset, opts.scene.as_deref())? {
+        match crate::mesh_eval::scene_reference(&dataset, opts.scene.as_deref(), &opts.import_options())? {
             Ok(reference) => {
                 let camera = frames[0].camera.downscaled(downscale);
                 match crate::mesh_eval::evaluate_run_mesh(run_dir, &model, &dataset, reference, &camera, mesh_opts, &mut |_, _, _| {}) {

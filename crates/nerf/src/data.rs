@@ -471,9 +471,10 @@ impl SceneBounds {
     }
 }
 
-/// Loads a dataset folder (our layout or the Blender-synthetic one).
-pub fn load_dataset(dir: &Path) -> Result<Dataset, DataError> {
-    Ok(Dataset::load(dir)?)
+/// Loads a dataset folder (our layout or the Blender-synthetic one) with `options` (whether
+/// frame files may lie outside the folder).
+pub fn load_dataset(dir: &Path, options: &dataset::LoadOptions) -> Result<Dataset, DataError> {
+    Ok(Dataset::load_with(dir, options)?)
 }
 
 /// A small analytic scene written as a dataset, for tests and benchmarks that need no prior

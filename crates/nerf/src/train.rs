@@ -480,23 +480,31 @@ fn apply_auto(config: &mut TrainConfig, ds: &dataset::Dataset, data: &mut TrainD
 
 impl Trainer {
     /// Prepares a run: loads the data, resolves the bounds and writes `config.json` (fresh
-    /// runs), or reads the latest checkpoint (`resume`). [`Trainer::prepare`] then
-    /// [`Trainer::start`].
+    /// runs), or reads the latest checkpoint (`resume`): [`Trainer::prepare`] then
+    /// [`Trainer::start`]. The dataset's files must lie inside its folder
+    /// ([`dataset::LoadOptions`]' default; [`Trainer::with_load_options`] takes others).
     pub fn new(config: TrainConfig, run_dir: &Path, resume: bool) -> Result<Self, TrainError> {
-        let mut t = Self::prepare(config, run_dir, if resume { Start::Resume } else { Start::Fresh })?;
+        Self::with_load_options(config, run_dir, resume, &dataset::LoadOptions::default())
+    }
+
+    /// [`Trainer::new`], loading the dataset with `load` (e.g. frame files admitted outside
+    /// its folder).
+    pub fn with_load_options(config: TrainConfig, run_dir: &Path, resume: bool, load: &dataset::LoadOptions) -> Result<Self, TrainError> {
+        let mut t = Self::prepare(config, run_dir, if resume { Start::Resume } else { Start::Fresh }, load)?;
         t.start()?;
         Ok(t)
     }
 
-    /// Everything [`Trainer::new`] does before it writes: validates the config and the dataset,
-    /// loads the data and, resuming, the checkpoint and the metrics history (refused when a
-    /// line of it, but a torn last one, is damaged). Nothing in `run_dir` is written or
-    /// removed but stale temporaries of a run, so a caller can validate every input before it
-    /// replaces an old run (`train --force`), then call [`Trainer::start`].
-    pub fn prepare(mut config: TrainConfig, run_dir: &Path, start: Start) -> Result<Self, TrainError> {
+    /// Everything [`Trainer::new`] does before it writes: validates the config and the dataset
+    /// (loaded with `load`), loads the data and, resuming, the checkpoint and the metrics
+    /// history (refused when a line of it, but a torn last one, is damaged). Nothing in
+    /// `run_dir` is written or removed but stale temporaries of a run, so a caller can validate
+    /// every input before it replaces an old run (`train --force`), then call
+    /// [`Trainer::start`].
+    pub fn prepare(mut config: TrainConfig, run_dir: &Path, start: Start, load: &dataset::LoadOptions) -> Result<Self, TrainError> {
         let resume = start != Start::Fresh;
         config.check().map_err(TrainError::Invalid)?;
-        let ds = crate::data::load_dataset(&config.dataset)?;
+        let ds = crate::data::load_dataset(&config.dataset, load)?;
         config.check_image_sizes(&ds).map_err(TrainError::Invalid)?;
         let mut data = TrainData::load(&ds.train, config.downscale, config.background, false)?;
         apply_auto(&mut config, &ds, &mut data).map_err(TrainError::Invalid)?;
@@ -965,7 +973,7 @@ pub fn dataset_hash(ds: &dataset::Dataset, val: &[dataset::Frame]) -> Result<Str
     }
     let mut h = 0xcbf2_9ce4_8422_2325u64;
     let mut add = |path: &Path| -> Result<(), TrainError> {
-        let bytes = std::fs::read(path).map_err(|e| TrainError::File { path: path.into(), source: e })?;
+        let bytes = dataset::paths::read_capped(path, dataset::io::MAX_FILE_BYTES).map_err(|e| TrainError::File { path: path.into(), source: e })?;
         let name = path.strip_prefix(&ds.root).unwrap_or(path).to_string_lossy().into_owned();
         h = fnv(fnv(h, name.as_bytes()), &bytes);
         Ok(())

@@ -70,7 +70,7 @@ fn distortion_loss_skips_mixed_pixels() {
     use nerf::data::{Background, SceneBounds, TrainData};
     use nerf::models::{NerfModel, fast::FastModel};
     let (_tmp, data) = synthetic_dataset(32, [6, 1, 1]);
-    let ds = nerf::data::load_dataset(&data).unwrap();
+    let ds = nerf::data::load_dataset(&data, &Default::default()).unwrap();
     let train = TrainData::load(&ds.train, 1, Background::White, false).unwrap();
     let cams: Vec<_> = ds.train.iter().map(|f| f.camera).collect();
     let bounds = SceneBounds::for_dataset(ds.facts.as_ref(), &cams, 0.05, 1.5);

@@ -15,6 +15,7 @@
 //! ([`dataset::folder`]).
 
 use crate::PathTracerError;
+use crate::import::{ImportOptions, ReadFailure};
 use crate::rig::{DEFAULT_FOV_X, RigConfig, RigKind, split_index};
 use dataset::{Camera, GroundTruth, RgbaImage, SceneFacts, SplitKind};
 use serde::{Deserialize, Serialize};
@@ -239,6 +240,9 @@ pub struct RunOptions {
     pub threads: Option<usize>,
     /// Overwrite a dataset in the output folder rendered with different settings.
     pub force: bool,
+    /// Import external buffers and images outside the scene's folder
+    /// ([`ImportOptions::allow_outside`]).
+    pub allow_outside: bool,
 }
 
 /// Progress reports, in order: one `Started`, then one `ViewRendered` per rendered view.
@@ -322,22 +326,40 @@ pub struct SceneSource {
 }
 
 impl SceneSource {
-    /// Reads a file (e.g. an environment map) to hash its bytes.
+    /// Reads a file (e.g. an environment map) to hash its bytes: a regular file of at most
+    /// [`dataset::io::MAX_FILE_BYTES`].
     pub fn from_file(path: &Path) -> Result<Self, PathTracerError> {
-        let bytes = std::fs::read(path).map_err(|e| PathTracerError::import(path, e.to_string()))?;
+        let bytes = dataset::paths::read_capped(path, dataset::io::MAX_FILE_BYTES).map_err(|e| PathTracerError::import(path, e.to_string()))?;
         Ok(Self { path: path.display().to_string(), hash: format!("{:016x}", fnv1a(FNV_OFFSET, &bytes)) })
+    }
+
+    /// [`SceneSource::from_scene_with`] under the default import options (external files
+    /// confined to the scene's folder).
+    pub fn from_scene(path: &Path) -> Result<Self, PathTracerError> {
+        Self::from_scene_with(path, &ImportOptions::default())
     }
 
     /// Reads a glTF / GLB scene to hash its content: the file's bytes and every external buffer
     /// and image it references (each URI and its file's bytes, in the file's order), so editing
-    /// a `.bin` or a texture changes the hash as editing the glTF does. A referenced file that
-    /// cannot be read is an error naming it.
-    pub fn from_scene(path: &Path) -> Result<Self, PathTracerError> {
-        let bytes = std::fs::read(path).map_err(|e| PathTracerError::import(path, e.to_string()))?;
+    /// a `.bin` or a texture changes the hash as editing the glTF does. The files are read as
+    /// the import reads them (`options`: inside the scene's folder unless allowed outside,
+    /// regular files, within the byte cap); a referenced file that cannot be read is an error
+    /// naming it.
+    pub fn from_scene_with(path: &Path, options: &ImportOptions) -> Result<Self, PathTracerError> {
+        let bytes = crate::import::read_scene_file(path, options)?;
         let mut h = fnv1a(FNV_OFFSET, &bytes);
-        for (uri, file) in crate::import::external_files(&bytes, path.parent().unwrap_or(Path::new(""))) {
-            let data = std::fs::read(&file)
-                .map_err(|e| PathTracerError::import(path, format!("references '{uri}' ({}), which cannot be read: {e}", file.display())))?;
+        let mut left = options.max_buffer_bytes.saturating_sub(bytes.len() as u64);
+        let base = path.parent().unwrap_or(Path::new(""));
+        for (uri, file) in crate::import::external_files(&bytes, base) {
+            crate::import::check_inside(base, &uri, &file, options.allow_outside).map_err(|m| PathTracerError::import(path, m))?;
+            let data = crate::import::read_limited(&file, left).map_err(|e| {
+                let why = match e {
+                    ReadFailure::TooLarge(len) => format!("it has {len} bytes, above the import limit of {} bytes", options.max_buffer_bytes),
+                    ReadFailure::Io(e) => e.to_string(),
+                };
+                PathTracerError::import(path, format!("references '{uri}' ({}), which cannot be read: {why}", file.display()))
+            })?;
+            left -= data.len() as u64;
             h = fnv1a(fnv1a(h, uri.as_bytes()), &data);
         }
         Ok(Self { path: path.display().to_string(), hash: format!("{h:016x}") })

@@ -64,8 +64,9 @@ pub(crate) fn render_dataset_sharded(
     cancel: &AtomicBool,
 ) -> Result<DatasetSummary, PathTracerError> {
     cfg.validate()?;
-    let source = SceneSource::from_scene(scene_path)?;
-    let scene = crate::import::load_gltf(scene_path, &crate::import::ImportOptions::default())?;
+    let import = crate::import::ImportOptions { allow_outside: opts.allow_outside, ..crate::import::ImportOptions::default() };
+    let source = SceneSource::from_scene_with(scene_path, &import)?;
+    let scene = crate::import::load_gltf(scene_path, &import)?;
     // The import logged its warnings (naming the file) as it found them.
     let mut renderer = crate::render::Renderer::new(scene, &crate::accel::AccelParams::medium_build())?;
     let settings = crate::render::RenderSettings {
@@ -448,7 +449,7 @@ mod tests {
         let s = scene();
         let r = SphereRenderer { centre: s.origin };
         let src = SceneSource { path: "box.gltf".into(), hash: "1".into() };
-        let opts = RunOptions { threads: Some(threads), force };
+        let opts = RunOptions { threads: Some(threads), force, allow_outside: false };
         render_dataset_with(&s, &src, &r, out, cfg, &opts, &mut |_| {}, &AtomicBool::new(false))
     }
 
@@ -481,7 +482,7 @@ mod tests {
         let mut events = Vec::new();
         let s = scene();
         let src = SceneSource { path: "elsewhere/box.gltf".into(), hash: "1".into() };
-        let opts = RunOptions { threads: Some(2), force: false };
+        let opts = RunOptions { threads: Some(2), force: false, allow_outside: false };
         let r = SphereRenderer { centre: s.origin };
         let sum = render_dataset_with(&s, &src, &r, &b, &cfg, &opts, &mut |e| events.push(e), &AtomicBool::new(false)).unwrap();
         assert_eq!((sum.views_rendered, sum.views_reused), (5, 2));
@@ -592,7 +593,7 @@ mod tests {
         let s = scene();
         let r = SphereRenderer { centre: s.origin };
         let src = SceneSource { path: "box.gltf".into(), hash: "1".into() };
-        let opts = RunOptions { threads: Some(1), force: false };
+        let opts = RunOptions { threads: Some(1), force: false, allow_outside: false };
         let e = render_dataset_with(&s, &src, &r, &out2, &cfg, &opts, &mut |_| {}, &AtomicBool::new(true));
         assert!(matches!(e, Err(PathTracerError::Interrupted)));
         assert!(!out2.join("train/r_0.png").exists());

@@ -6,7 +6,7 @@
 //!
 //! ```no_run
 //! use pathtracer::ground_truth::{SceneLookup, scene_of_dataset};
-//! match scene_of_dataset(std::path::Path::new("out/tabletop"), None).unwrap() {
+//! match scene_of_dataset(std::path::Path::new("out/tabletop"), None, &Default::default()).unwrap() {
 //!     SceneLookup::Found { renderer, path } => println!("{}: {} triangles", path.display(), renderer.scene().mesh.indices.len()),
 //!     SceneLookup::Missing(why) => println!("no exact ray caster: {why}"),
 //! }
@@ -38,8 +38,9 @@ pub enum SceneLookup {
 /// asked for it). Without it, the recorded path is tried as given (relative to the current
 /// folder), relative to the dataset folder and to each of its ancestors; the first file with
 /// the recorded content hash is loaded. A dataset without `render_config.json` (e.g. Blender
-/// synthetic) or whose scene is nowhere to be found gives [`SceneLookup::Missing`].
-pub fn scene_of_dataset(dataset_dir: &Path, scene: Option<&Path>) -> Result<SceneLookup, PathTracerError> {
+/// synthetic) or whose scene is nowhere to be found gives [`SceneLookup::Missing`]. The scene
+/// is hashed and imported under `import` (e.g. external files admitted outside its folder).
+pub fn scene_of_dataset(dataset_dir: &Path, scene: Option<&Path>, import: &ImportOptions) -> Result<SceneLookup, PathTracerError> {
     let config = dataset_dir.join(RENDER_CONFIG_FILE);
     if !config.exists() {
         return match scene {
@@ -51,10 +52,10 @@ pub fn scene_of_dataset(dataset_dir: &Path, scene: Option<&Path>) -> Result<Scen
             None => Ok(SceneLookup::Missing(format!("the dataset has no {RENDER_CONFIG_FILE} (not rendered by this path tracer)"))),
         };
     }
-    let bytes = std::fs::read(&config).map_err(|e| PathTracerError::import(&config, e.to_string()))?;
+    let bytes = dataset::io::read(&config)?;
     let record: RenderRecord = serde_json::from_slice(&bytes).map_err(|e| PathTracerError::import(&config, e.to_string()))?;
     if let Some(p) = scene {
-        let source = SceneSource::from_scene(p)?;
+        let source = SceneSource::from_scene_with(p, import)?;
         if !same_content(p, &source, &record.scene.hash) {
             return Err(PathTracerError::Config(format!(
                 "{} is not the scene {} was rendered from (content hash {} vs the recorded {})",
@@ -64,7 +65,7 @@ pub fn scene_of_dataset(dataset_dir: &Path, scene: Option<&Path>) -> Result<Scen
                 record.scene.hash
             )));
         }
-        return load(p).map(|renderer| SceneLookup::Found { renderer: Box::new(renderer), path: p.to_path_buf() });
+        return load(p, import).map(|renderer| SceneLookup::Found { renderer: Box::new(renderer), path: p.to_path_buf() });
     }
     let recorded = PathBuf::from(&record.scene.path);
     let mut candidates = vec![recorded.clone()];
@@ -74,20 +75,22 @@ pub fn scene_of_dataset(dataset_dir: &Path, scene: Option<&Path>) -> Result<Scen
             candidates.extend(abs.ancestors().map(|a| a.join(&recorded)));
         }
     }
-    let mut edited = None;
+    let (mut edited, mut unreadable) = (None, None);
     for c in candidates {
         if !c.is_file() {
             continue;
         }
-        match SceneSource::from_scene(&c) {
-            Ok(s) if same_content(&c, &s, &record.scene.hash) => return load(&c).map(|renderer| SceneLookup::Found { renderer: Box::new(renderer), path: c }),
+        match SceneSource::from_scene_with(&c, import) {
+            Ok(s) if same_content(&c, &s, &record.scene.hash) => return load(&c, import).map(|renderer| SceneLookup::Found { renderer: Box::new(renderer), path: c }),
             Ok(_) => edited = edited.or(Some(c)),
-            Err(_) => {}
+            // E.g. a buffer outside the scene's folder without `allow_outside`: said, not hidden.
+            Err(e) => unreadable = unreadable.or(Some(e)),
         }
     }
-    Ok(SceneLookup::Missing(match edited {
-        Some(c) => format!("{} has changed since the dataset was rendered (content hash differs)", c.display()),
-        None => format!("the scene it was rendered from ({}) is not found", record.scene.path),
+    Ok(SceneLookup::Missing(match (edited, unreadable) {
+        (Some(c), _) => format!("{} has changed since the dataset was rendered (content hash differs)", c.display()),
+        (None, Some(e)) => format!("the scene it was rendered from cannot be read ({e})"),
+        (None, None) => format!("the scene it was rendered from ({}) is not found", record.scene.path),
     }))
 }
 
@@ -99,7 +102,7 @@ fn same_content(path: &Path, source: &SceneSource, recorded: &str) -> bool {
     source.hash == recorded || SceneSource::from_file(path).is_ok_and(|f| f.hash == recorded)
 }
 
-fn load(path: &Path) -> Result<Renderer, PathTracerError> {
-    let scene = load_gltf(path, &ImportOptions::default())?;
+fn load(path: &Path, import: &ImportOptions) -> Result<Renderer, PathTracerError> {
+    let scene = load_gltf(path, import)?;
     Renderer::new(scene, &AccelParams::medium_build())
 }

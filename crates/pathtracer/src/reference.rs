@@ -14,7 +14,7 @@
 //! use pathtracer::reference::visible_surface;
 //! let dataset = dataset::Dataset::load(std::path::Path::new("out/tabletop")).unwrap();
 //! let cameras: Vec<dataset::Camera> = dataset.train.iter().chain(&dataset.test).map(|f| f.camera).collect();
-//! if let SceneLookup::Found { renderer, .. } = scene_of_dataset(&dataset.root, None).unwrap() {
+//! if let SceneLookup::Found { renderer, .. } = scene_of_dataset(&dataset.root, None, &Default::default()).unwrap() {
 //!     let r = visible_surface(&renderer, &cameras);
 //!     println!("{} of {} triangles visible, {:.1} % of the area", r.visible_triangles(), r.triangles.len(), 100.0 * r.visible_area_fraction);
 //! }

@@ -31,6 +31,7 @@ use crate::dataset_folder::{
     ShardManifest, ViewImages, ViewRenderer, describe_difference, shard_views, view_files,
 };
 use crate::dataset_render::{render_dataset_part, render_dataset_sharded};
+use crate::import::ImportOptions;
 use crate::rig::build_rig;
 use dataset::lock::LOCK_FILE;
 use dataset::{Camera, SplitKind};
@@ -79,8 +80,15 @@ impl ViewRenderer for AlreadyRendered {
 /// Merges the shard folders `shards` into the dataset folder `out` (see the module docs).
 /// `scene` overrides where the scene file is looked for (default: the path recorded in the
 /// shards' `render_config.json`, as given or relative to a shard folder's ancestors); its
-/// content must match the recorded hash. `out` must not exist or be empty.
+/// content must match the recorded hash. `out` must not exist or be empty. The scene is
+/// imported with the default [`ImportOptions`] ([`merge_shards_with`] takes others).
 pub fn merge_shards(shards: &[PathBuf], out: &Path, scene: Option<&Path>) -> Result<DatasetSummary, PathTracerError> {
+    merge_shards_with(shards, out, scene, &ImportOptions::default())
+}
+
+/// [`merge_shards`], importing the scene with `import` (e.g. external files admitted outside
+/// the scene's folder).
+pub fn merge_shards_with(shards: &[PathBuf], out: &Path, scene: Option<&Path>, import: &ImportOptions) -> Result<DatasetSummary, PathTracerError> {
     let err = |m: String| PathTracerError::Config(m);
     if shards.is_empty() {
         return Err(err("merge: no shard folders given".into()));
@@ -172,8 +180,8 @@ pub fn merge_shards(shards: &[PathBuf], out: &Path, scene: Option<&Path>) -> Res
             crate::version::renderer_version()
         )));
     }
-    let scene_path = find_scene(first_dir, record, scene)?;
-    let loaded = crate::import::load_gltf(&scene_path, &crate::import::ImportOptions::default())?;
+    let scene_path = find_scene(first_dir, record, scene, import)?;
+    let loaded = crate::import::load_gltf(&scene_path, import)?;
     let renderer = crate::render::Renderer::new(loaded, &crate::accel::AccelParams::medium_build())?;
     // Checked: the views of the rig the recorded settings build are the ones the shards hold.
     let rig = build_rig(renderer.scene(), &record.config.rig_config())?;
@@ -235,7 +243,7 @@ fn assemble(
         }
     }
     let adapter = AlreadyRendered { view_dependent: renderer.is_view_dependent() };
-    let opts = RunOptions { threads: Some(1), force: false };
+    let opts = RunOptions { threads: Some(1), force: false, allow_outside: false };
     let summary = render_dataset_part(renderer.scene(), &record.scene, &adapter, out, &record.config, &opts, None, &mut |_| {}, &AtomicBool::new(false))?;
     dataset::io::atomic_write(&out.join(RENDER_CONFIG_FILE), config_bytes)?;
     Ok(summary)
@@ -275,9 +283,9 @@ fn parse_view(v: &str) -> Option<(SplitKind, u32)> {
 
 /// The scene file of a record: `given` (whose content must match), else the recorded path as
 /// given or relative to `dir`'s ancestors, the first with the recorded content.
-fn find_scene(dir: &Path, record: &RenderRecord, given: Option<&Path>) -> Result<PathBuf, PathTracerError> {
+fn find_scene(dir: &Path, record: &RenderRecord, given: Option<&Path>, import: &ImportOptions) -> Result<PathBuf, PathTracerError> {
     if let Some(p) = given {
-        let s = SceneSource::from_scene(p)?;
+        let s = SceneSource::from_scene_with(p, import)?;
         if s.hash != record.scene.hash {
             return Err(PathTracerError::Config(format!(
                 "--scene {}: not the scene the shards were rendered from (content hash {} vs the recorded {})",
@@ -295,7 +303,7 @@ fn find_scene(dir: &Path, record: &RenderRecord, given: Option<&Path>) -> Result
         candidates.extend(abs.ancestors().map(|a| a.join(&recorded)));
     }
     for c in &candidates {
-        if c.is_file() && SceneSource::from_scene(c).is_ok_and(|s| s.hash == record.scene.hash) {
+        if c.is_file() && SceneSource::from_scene_with(c, import).is_ok_and(|s| s.hash == record.scene.hash) {
             return Ok(c.clone());
         }
     }

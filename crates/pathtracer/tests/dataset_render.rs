@@ -40,7 +40,7 @@ fn tiny_config() -> DatasetRenderConfig {
 }
 
 fn render(scene: &Path, out: &Path, cfg: &DatasetRenderConfig, threads: usize) -> Result<DatasetSummary, PathTracerError> {
-    let opts = RunOptions { threads: Some(threads), force: false };
+    let opts = RunOptions { threads: Some(threads), force: false, allow_outside: false };
     render_dataset(scene, out, cfg, &opts, &mut |_| {}, &AtomicBool::new(false))
 }
 
@@ -257,7 +257,7 @@ fn editing_a_scene_buffer_refuses_a_resume() {
     // The refusal names the scene and the files it references, one of which changed.
     let bin = bins[0].file_name().unwrap().to_string_lossy().into_owned();
     assert!(e.contains("content changed") && e.contains(&*scene.to_string_lossy()) && e.contains(&bin) && e.contains("--force"), "{e}");
-    let opts = RunOptions { threads: Some(2), force: true };
+    let opts = RunOptions { threads: Some(2), force: true, allow_outside: false };
     let sum = render_dataset(&scene, &out, &cfg, &opts, &mut |_| {}, &AtomicBool::new(false)).unwrap();
     assert_eq!(sum.views_rendered, 3);
     std::fs::remove_file(&bins[0]).unwrap();

@@ -783,3 +783,135 @@ fn a_corrupt_texture_file_is_named_by_its_uri() {
     let e = load_gltf(&tmp.path().join("scene.gltf"), &ImportOptions::default()).unwrap_err().to_string();
     assert!(e.contains("scene.gltf") && e.contains("image 0 ('no_such_texture.png')") && e.contains("cannot decode"), "{e}");
 }
+
+// ---------------------------------------------------------------------------------------
+// External files: inside the scene's folder, regular files, within the byte budget.
+
+/// A fresh folder `name` holding `scene/` (where the scene goes) and, beside it, `outside.bin`:
+/// the triangle's buffer followed by a marker that no error message may quote.
+fn confinement_dir(name: &str, b: &Builder) -> (PathBuf, PathBuf) {
+    let dir = tmp_dir(name);
+    std::fs::remove_dir_all(&dir).unwrap();
+    std::fs::create_dir_all(dir.join("scene/sub")).unwrap();
+    let mut outside = b.bin.clone();
+    outside.extend_from_slice(SECRET);
+    std::fs::write(dir.join("outside.bin"), outside).unwrap();
+    (dir.clone(), dir.join("scene"))
+}
+
+const SECRET: &[u8] = b"root:x:0:0:SECRET-OUTSIDE-BYTES";
+
+/// Writes `scene_dir/tri.gltf` with its buffer at `uri`.
+fn external_scene(b: &Builder, scene_dir: &Path, uri: &str) -> PathBuf {
+    let path = scene_dir.join("tri.gltf");
+    std::fs::write(&path, serde_json::to_vec(&b.json(&BufferMode::External(uri))).unwrap()).unwrap();
+    path
+}
+
+fn allow_outside() -> ImportOptions {
+    ImportOptions { allow_outside: true, ..ImportOptions::default() }
+}
+
+/// Asserts `e` refuses `uri` as leading outside the scene's folder, naming the scene and the
+/// URI, without a byte of the outside file.
+fn assert_refused_outside(e: &str, uri: &str) {
+    assert!(e.contains("tri.gltf") && e.contains(&format!("'{uri}'")) && e.contains("outside the scene's folder") && e.contains("--allow-outside"), "{uri}: {e}");
+    assert!(!e.contains("root:") && !e.contains("SECRET"), "{uri}: the error quotes the outside file: {e}");
+}
+
+/// Buffer URIs leading outside the scene's folder (`../`, percent-encoded `%2e%2e`, an absolute
+/// path, a symbolic link or a linked folder) are refused by the import and by the scene hash of
+/// `render_config.json`; `allow_outside` admits them (and they load).
+#[test]
+fn external_files_outside_the_scene_folder_are_refused_unless_allowed() {
+    use pathtracer::dataset_folder::SceneSource;
+    let b = triangle_builder();
+    let (dir, scene_dir) = confinement_dir("confined", &b);
+    let absolute = dir.join("outside.bin").to_string_lossy().into_owned();
+    let mut uris = vec!["../outside.bin".to_string(), "%2e%2e/outside.bin".into(), "%2E%2E%2Foutside.bin".into(), "sub/../../outside.bin".into(), absolute];
+    #[cfg(unix)]
+    {
+        std::os::unix::fs::symlink(dir.join("outside.bin"), scene_dir.join("link.bin")).unwrap();
+        std::os::unix::fs::symlink(&dir, scene_dir.join("up")).unwrap();
+        uris.extend(["link.bin".to_string(), "up/outside.bin".into(), "up/scene/../outside.bin".into()]);
+    }
+    for uri in &uris {
+        let path = external_scene(&b, &scene_dir, uri);
+        let e = load_gltf(&path, &ImportOptions::default()).unwrap_err().to_string();
+        assert_refused_outside(&e, uri);
+        assert!(e.contains("buffer 0"), "{e}");
+        let e = SceneSource::from_scene(&path).unwrap_err().to_string();
+        assert_refused_outside(&e, uri);
+        let scene = load_gltf(&path, &allow_outside()).unwrap_or_else(|e| panic!("{uri} with allow_outside: {e}"));
+        assert_eq!(scene.mesh.indices.len(), 1);
+        assert!(SceneSource::from_scene_with(&path, &allow_outside()).is_ok());
+    }
+    // An image URI outside is refused the same way (named by its URI), before it is decoded.
+    let image = scene_dir.join("img.gltf");
+    let text = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/import/missing_image.gltf")).unwrap();
+    std::fs::write(&image, text.replace("no_such_texture.png", "../outside.bin")).unwrap();
+    let e = load_gltf(&image, &ImportOptions::default()).unwrap_err().to_string();
+    assert!(e.contains("image 0 ('../outside.bin')") && e.contains("outside the scene's folder") && !e.contains("SECRET"), "{e}");
+    // Inside by a detour, and a missing file inside: loaded, and reported as missing.
+    std::fs::write(scene_dir.join("tri.bin"), &b.bin).unwrap();
+    assert!(load_gltf(&external_scene(&b, &scene_dir, "../scene/sub/../tri.bin"), &ImportOptions::default()).is_ok());
+    let e = load_gltf(&external_scene(&b, &scene_dir, "missing.bin"), &ImportOptions::default()).unwrap_err().to_string();
+    assert!(e.contains("cannot read") && e.contains("missing.bin"), "{e}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// Runs `f` in a thread and fails the test if it has not returned within five seconds (a
+/// read of a device or a FIFO that blocks would otherwise hang the suite).
+fn promptly<T: Send + 'static>(what: &str, f: impl FnOnce() -> T + Send + 'static) -> T {
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || tx.send(f()));
+    rx.recv_timeout(std::time::Duration::from_secs(5)).unwrap_or_else(|_| panic!("{what} did not return within 5 s"))
+}
+
+/// Only regular files are read: a URI naming `/dev/zero` or `/dev/urandom` (even with
+/// `allow_outside`), a FIFO or a folder, and a scene file that is a FIFO, are refused at once,
+/// by the import and by the scene hash.
+#[cfg(unix)]
+#[test]
+fn devices_fifos_and_folders_are_refused_before_reading() {
+    use pathtracer::dataset_folder::SceneSource;
+    let b = triangle_builder();
+    let (dir, scene_dir) = confinement_dir("regular", &b);
+    assert!(std::process::Command::new("mkfifo").arg(scene_dir.join("pipe.bin")).status().unwrap().success());
+    for (uri, kind) in [("/dev/zero", "device"), ("/dev/urandom", "device"), ("pipe.bin", "FIFO"), ("sub", "folder")] {
+        let path = external_scene(&b, &scene_dir, uri);
+        let p = path.clone();
+        let e = promptly(uri, move || load_gltf(&p, &allow_outside()).unwrap_err().to_string());
+        assert!(e.contains("tri.gltf") && e.contains("not a regular file") && e.contains(kind), "{uri}: {e}");
+        let p = path.clone();
+        let e = promptly(uri, move || SceneSource::from_scene_with(&p, &allow_outside()).unwrap_err().to_string());
+        assert!(e.contains("not a regular file"), "{uri}: {e}");
+    }
+    let fifo = scene_dir.join("scene.gltf");
+    assert!(std::process::Command::new("mkfifo").arg(&fifo).status().unwrap().success());
+    let f = fifo.clone();
+    let e = promptly("a FIFO scene file", move || load_gltf(&f, &ImportOptions::default()).unwrap_err().to_string());
+    assert!(e.contains("scene.gltf") && e.contains("FIFO"), "{e}");
+    let e = promptly("hashing a FIFO scene file", move || SceneSource::from_scene(&fifo).unwrap_err().to_string());
+    assert!(e.contains("FIFO"), "{e}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// An external file larger than what is left of the byte budget is refused by the import and
+/// by the scene hash, naming the limit.
+#[test]
+fn an_external_file_beyond_the_byte_budget_is_refused() {
+    use pathtracer::dataset_folder::SceneSource;
+    let b = triangle_builder();
+    let (dir, scene_dir) = confinement_dir("budget", &b);
+    std::fs::write(scene_dir.join("tri.bin"), vec![0u8; 4096]).unwrap();
+    let path = external_scene(&b, &scene_dir, "tri.bin");
+    let scene_len = std::fs::metadata(&path).unwrap().len();
+    let small = ImportOptions { max_buffer_bytes: scene_len + 1000, ..ImportOptions::default() };
+    let e = load_gltf(&path, &small).unwrap_err().to_string();
+    assert!(e.contains("buffer 0") && e.contains("4096 bytes") && e.contains("limit"), "{e}");
+    let e = SceneSource::from_scene_with(&path, &small).unwrap_err().to_string();
+    assert!(e.contains("tri.bin") && e.contains("limit"), "{e}");
+    assert!(SceneSource::from_scene_with(&path, &ImportOptions { max_buffer_bytes: scene_len + 4096, ..small }).is_ok());
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -18,7 +18,7 @@ fn config() -> DatasetRenderConfig {
 use test_support::file_map as files;
 
 fn shard(cfg: &DatasetRenderConfig, out: &Path, s: &str) {
-    let opts = RunOptions { threads: Some(1), force: false };
+    let opts = RunOptions { threads: Some(1), force: false, allow_outside: false };
     render_shard(&scene(), out, cfg, &opts, s.parse().unwrap(), &mut |_| {}, &AtomicBool::new(false)).unwrap();
 }
 
@@ -27,7 +27,7 @@ fn three_shards_merge_into_the_unsharded_bytes() {
     let tmp = tempfile::tempdir().unwrap();
     let cfg = config();
     let whole = tmp.path().join("whole");
-    render_dataset(&scene(), &whole, &cfg, &RunOptions { threads: None, force: false }, &mut |_| {}, &AtomicBool::new(false)).unwrap();
+    render_dataset(&scene(), &whole, &cfg, &RunOptions { threads: None, force: false, allow_outside: false }, &mut |_| {}, &AtomicBool::new(false)).unwrap();
     let dirs: Vec<PathBuf> = (0..3).map(|k| tmp.path().join(format!("shard{k}"))).collect();
     for (k, d) in dirs.iter().enumerate() {
         shard(&cfg, d, &format!("{k}/3"));

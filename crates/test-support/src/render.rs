@@ -11,6 +11,6 @@ pub fn quick_dataset(scene: &Path, out: &Path, size: u32, counts: [u32; 3], spp:
     let mut cfg = DatasetRenderConfig::preset(Preset::Quick);
     (cfg.width, cfg.height, cfg.spp) = (size, size, spp);
     [cfg.train, cfg.val, cfg.test] = counts;
-    let opts = RunOptions { threads: None, force: false };
+    let opts = RunOptions { threads: None, force: false, allow_outside: false };
     render_dataset(scene, out, &cfg, &opts, &mut |_| {}, &AtomicBool::new(false)).expect("render");
 }

@@ -18,8 +18,11 @@
 //!
 //! Every problem in the file is an [`PathTracerError::Import`] naming the file and the
 //! object at fault; the loader never panics on file contents and caps what a file can make it
-//! allocate ([`ImportOptions`]). Recoverable oddities (an unsupported optional extension, a
-//! line primitive, an orthographic camera) become [`Scene::warnings`] and `tracing` warnings.
+//! allocate ([`ImportOptions`]). External buffers and images must be regular files inside the
+//! scene file's folder once percent-escapes, `..` and symbolic links are resolved, unless
+//! [`ImportOptions::allow_outside`]; every file is read through the byte cap, not trusting its
+//! length. Recoverable oddities (an unsupported optional extension, a line primitive, an
+//! orthographic camera) become [`Scene::warnings`] and `tracing` warnings.
 
 mod accessor;
 mod glb;
@@ -54,6 +57,10 @@ pub struct ImportOptions {
     pub max_texture_texels: u64,
     /// Most bytes over all buffers, external images and the scene file (default 2 GiB).
     pub max_buffer_bytes: u64,
+    /// Read external buffers and images that lie outside the scene file's folder (an absolute
+    /// URI, `../` or `%2e%2e/`, a symbolic link leading out). `false` (the default) refuses
+    /// them naming the scene file and the URI; a command's `--allow-outside` sets it.
+    pub allow_outside: bool,
 }
 
 impl Default for ImportOptions {
@@ -64,6 +71,7 @@ impl Default for ImportOptions {
             max_vertices: 30_000_000,
             max_texture_texels: 1 << 26,
             max_buffer_bytes: 2 << 30,
+            allow_outside: false,
         }
     }
 }
@@ -90,20 +98,64 @@ const IGNORABLE_EXTENSIONS: &[&str] = &[
 /// Reads the glTF or GLB file at `path` into a render [`Scene`]; external buffers and images
 /// are resolved relative to the file's folder.
 pub fn load_gltf(path: &Path, options: &ImportOptions) -> Result<Scene, PathTracerError> {
-    let meta = std::fs::metadata(path).map_err(|e| PathTracerError::import(path, format!("cannot read scene file: {e}")))?;
-    if meta.len() > options.max_buffer_bytes {
-        return Err(PathTracerError::import(
-            path,
-            format!("scene file is {} bytes, above the import limit of {} bytes", meta.len(), options.max_buffer_bytes),
-        ));
-    }
-    let bytes = std::fs::read(path).map_err(|e| PathTracerError::import(path, format!("cannot read scene file: {e}")))?;
+    let bytes = read_scene_file(path, options)?;
     if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("glb")) && !glb::is_glb(&bytes) {
         let head: String = bytes.iter().take(4).map(|b| if b.is_ascii_graphic() { *b as char } else { '.' }).collect();
         return Err(PathTracerError::import(path, format!("not a binary glTF (.glb): the file starts with '{head}', not the GLB magic 'glTF'")));
     }
     let base_dir = path.parent().unwrap_or(Path::new(""));
     load_gltf_from_slice(&bytes, Some(base_dir), &path.display().to_string(), options)
+}
+
+/// Reads the scene file at `path` itself: a regular file of at most
+/// [`ImportOptions::max_buffer_bytes`].
+pub(crate) fn read_scene_file(path: &Path, options: &ImportOptions) -> Result<Vec<u8>, PathTracerError> {
+    read_limited(path, options.max_buffer_bytes).map_err(|e| {
+        PathTracerError::import(
+            path,
+            match e {
+                ReadFailure::TooLarge(len) => format!("scene file is {len} bytes, above the import limit of {} bytes", options.max_buffer_bytes),
+                ReadFailure::Io(e) => format!("cannot read scene file: {e}"),
+            },
+        )
+    })
+}
+
+/// Why [`read_limited`] read nothing.
+pub(crate) enum ReadFailure {
+    /// The file has this many bytes (or at least this many), more than the limit.
+    TooLarge(u64),
+    /// It cannot be opened or read, or is not a regular file.
+    Io(std::io::Error),
+}
+
+/// Reads the regular file `file` ([`dataset::paths::open_regular`]) if it has at most `limit`
+/// bytes: a longer stated length is refused before reading, and the read stops after
+/// `limit + 1` bytes whatever the length said.
+pub(crate) fn read_limited(file: &Path, limit: u64) -> Result<Vec<u8>, ReadFailure> {
+    let f = dataset::paths::open_regular(file).map_err(ReadFailure::Io)?;
+    let len = f.metadata().map_err(ReadFailure::Io)?.len();
+    if len > limit {
+        return Err(ReadFailure::TooLarge(len));
+    }
+    dataset::paths::read_to_end_capped(f, limit, len).map_err(|e| match e.kind() {
+        std::io::ErrorKind::FileTooLarge => ReadFailure::TooLarge(limit.saturating_add(1)),
+        _ => ReadFailure::Io(e),
+    })
+}
+
+/// Refuses the external `file` a scene's `uri` names (resolved against the scene's folder
+/// `base_dir`) when it lies outside that folder ([`dataset::paths::is_inside`]) and
+/// `allow_outside` is not set: the message names the URI and the folder, nothing of the file.
+pub(crate) fn check_inside(base_dir: &Path, uri: &str, file: &Path, allow_outside: bool) -> Result<(), String> {
+    if allow_outside || dataset::paths::is_inside(base_dir, file) {
+        return Ok(());
+    }
+    let folder = if base_dir.as_os_str().is_empty() { Path::new(".") } else { base_dir };
+    Err(format!(
+        "URI '{uri}' leads outside the scene's folder {}; only files inside it are read unless --allow-outside is given",
+        folder.display()
+    ))
 }
 
 /// The external files (buffers and images, not `data:` URIs or the GLB chunk) the glTF or GLB
@@ -333,12 +385,17 @@ impl Importer<'_> {
         let bytes = match target {
             uri::UriTarget::Data { bytes, .. } => bytes,
             uri::UriTarget::File(file) => {
-                let len = std::fs::metadata(&file)
-                    .map_err(|e| self.error(format!("{what}: cannot read '{}': {e}", file.display())))?
-                    .len();
-                self.charge_bytes(len, what)?;
-                return std::fs::read(&file)
-                    .map_err(|e| self.error(format!("{what}: cannot read '{}': {e}", file.display())));
+                let base = self.base_dir.unwrap_or(Path::new(""));
+                check_inside(base, uri, &file, self.options.allow_outside).map_err(|m| self.error(format!("{what}: {m}")))?;
+                let left = self.options.max_buffer_bytes.saturating_sub(self.bytes_loaded);
+                return match read_limited(&file, left) {
+                    Ok(bytes) => {
+                        self.charge_bytes(bytes.len() as u64, what)?;
+                        Ok(bytes)
+                    }
+                    Err(ReadFailure::TooLarge(len)) => Err(self.over_limit(len, what)),
+                    Err(ReadFailure::Io(e)) => Err(self.error(format!("{what}: cannot read '{}': {e}", file.display()))),
+                };
             }
         };
         self.charge_bytes(bytes.len() as u64, what)?;
@@ -348,12 +405,13 @@ impl Importer<'_> {
     fn charge_bytes(&mut self, len: u64, what: &str) -> Result<(), PathTracerError> {
         self.bytes_loaded = self.bytes_loaded.saturating_add(len);
         if self.bytes_loaded > self.options.max_buffer_bytes {
-            return Err(self.error(format!(
-                "{what}: loading {len} bytes exceeds the import limit of {} bytes",
-                self.options.max_buffer_bytes
-            )));
+            return Err(self.over_limit(len, what));
         }
         Ok(())
+    }
+
+    fn over_limit(&self, len: u64, what: &str) -> PathTracerError {
+        self.error(format!("{what}: loading {len} bytes exceeds the import limit of {} bytes", self.options.max_buffer_bytes))
     }
 
     /// Loads every buffer: the GLB BIN chunk, `data:` URIs and external files.
