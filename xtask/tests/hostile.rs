@@ -329,6 +329,7 @@ fn mesh_removes_the_temporaries_of_a_killed_mesh() {
     run(&["mesh".as_ref(), run_dir.as_os_str(), "--out".as_ref(), out.as_os_str(), "--resolution".as_ref(), "8".as_ref(), "--no-metrics".as_ref()]);
     assert!(stale.iter().all(|f| !f.exists()), "the temporaries were kept");
     assert!(other.exists(), "another file's temporary was removed");
+}
 
 /// Runs `xtask ARGS` and fails the test if it has not exited within `secs` seconds (it is
 /// killed then): a read of a device or a FIFO must not hang a command.
