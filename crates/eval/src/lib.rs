@@ -15,7 +15,7 @@
 //! let view = ViewInput {
 //!     name: "r_0", width: w, height: h, pred_rgb: &pred_rgb, gt_rgb: &gt_rgb,
 //!     pred_depth: Some(&pred_depth), gt_depth: Some(&gt_depth), gt_distance: None,
-//!     gt_alpha: Some(&alpha), pred_opacity: &alpha, samples: None, render_s: 0.2,
+//!     gt_alpha: Some(&alpha), pred_opacity: Some(&alpha), samples: None, render_s: 0.2,
 //! };
 //! let run = RunInfo { train_wall_s: 60.0, train_steps: 1000, parameters: 12345 };
 //! let report = evaluate_views(&[view], run, &EvalOptions::with_surface_tol(0.02)).unwrap();
@@ -42,6 +42,8 @@ pub mod metrics;
 pub mod plot;
 pub mod report;
 pub mod run;
+pub mod session;
+pub mod truth;
 
 pub use compare::{ParetoAxis, RunSummary, compare_runs, compare_table, pareto_front};
 pub use curve::{MetricsRecord, parse_metrics_jsonl, read_metrics_jsonl, time_to_psnr, value_at};
