@@ -2,7 +2,8 @@
 //! metrics, mask IoU and off-surface mass per test view; aggregation into `eval.json`; the
 //! speed-versus-error curve read from a run's `metrics.jsonl` (time to 25 dB and 30 dB);
 //! pictures (`speed_vs_error.png`, per-view `grid_<view>.png`, `compare.png`); and Markdown
-//! reports. The crate knows nothing about training: it takes plain slices.
+//! reports; and the same measurements of other tools' renders read from files (`score`). The
+//! crate knows nothing about training: it takes plain slices.
 //!
 //! ```
 //! use eval::{EvalOptions, RunInfo, ViewInput, evaluate_views};

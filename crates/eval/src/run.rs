@@ -4,20 +4,13 @@
 //! compare with the dataset's ground truth at that resolution, and write `eval.json`,
 //! `report.md`, `report.json` and the pictures into the run folder.
 //!
-//! Ground truth at downscale `k`: colour is the dataset's image box-filtered over whole `k × k`
-//! blocks with alpha-premultiplied colour (`dataset::RgbaImage::downscaled`, the filter the
-//! trainer applies to its targets). Depth, distance, normal and alpha are exact at the
-//! downscaled pixel-centre rays and never averaged: for odd `k` each such ray is a
-//! full-resolution centre ray, read from the ground-truth file; for even `k` the rays are cast
-//! exactly through the scene the dataset was rendered from (found through its
-//! `render_config.json` and checked by content hash, or given as [`EvalRunOptions::scene`]);
-//! without the scene the nearest full-resolution pixel's values are used and the report says
-//! so.
-//!
-//! Colour is compared in display space (sRGB in [0, 1]), the space the models are trained in:
-//! the ground-truth PNG (straight alpha) is composited onto the same background the NeRF
-//! renders with (`RunModel::eval_background`). Depth metrics use z-depth; the off-surface mass
-//! uses the Euclidean distance along the pixel-centre ray, both from the ground-truth EXR.
+//! The ground truth at that resolution ([`crate::truth`]: colour box-filtered and composited on
+//! the run's evaluation background, `RunModel::eval_background`; depth, distance, normal and
+//! alpha exact at the downscaled pixel-centre rays) and the per-view metrics and report files
+//! ([`crate::session`]) are shared with [`mod@crate::score`], which measures other tools' renders.
+//! Colour is compared in display space (sRGB in [0, 1]), the space the models are trained in.
+//! Depth metrics use z-depth; the off-surface mass uses the Euclidean distance along the
+//! pixel-centre ray, both from the ground-truth EXR.
 
 use crate::curve::read_metrics_jsonl;
 use crate::evaluate::{EvalReport, RunInfo};
