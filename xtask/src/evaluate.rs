@@ -52,7 +52,8 @@ impl EvalArgs {
 /// Arguments of `compare`.
 #[derive(clap::Args)]
 pub struct CompareArgs {
-    /// Evaluated run folders.
+    /// Evaluated run folders, and `score` output folders (another tool's predictions, placed
+    /// at their stated training time).
     #[arg(required = true)]
     pub runs: Vec<PathBuf>,
     /// Where `compare.png` and `compare.md` go (default: the current folder).
@@ -123,7 +124,8 @@ fn demo_folders(args: &DemoArgs) -> (std::path::PathBuf, std::path::PathBuf) {
     (args.out.join(format!("dataset{suffix}")), args.out.join(format!("run-{}-{time}{suffix}", args.model)))
 }
 
-fn parse_split(s: &str) -> anyhow::Result<SplitKind> {
+/// The split named `s` (`train`, `val` or `test`).
+pub fn parse_split(s: &str) -> anyhow::Result<SplitKind> {
     SplitKind::ALL
         .into_iter()
         .find(|k| k.name() == s)

@@ -13,6 +13,7 @@ mod gen_scenes;
 mod guard;
 mod mesh;
 mod render;
+mod score;
 mod train;
 
 /// mimalloc instead of the system allocator: the burn MLP allocates and frees tensors of
@@ -68,6 +69,8 @@ enum Command {
     Eval(evaluate::EvalArgs),
     /// Extract a mesh (binary PLY) from a trained run's density, and measure it against the scene's triangles.
     Mesh(mesh::MeshArgs),
+    /// Score another tool's renders (nerfstudio, instant-ngp, images) against the dataset's ground truth.
+    Score(score::ScoreArgs),
     /// Compare several runs: one table and overlaid speed-versus-error curves.
     Compare(evaluate::CompareArgs),
     /// The main job on the built-in default scene: render, train, evaluate, report.
@@ -192,6 +195,7 @@ fn main() -> std::process::ExitCode {
         Command::RenderNerf(a) => train::run_render(a),
         Command::Eval(a) => evaluate::run(a),
         Command::Mesh(a) => mesh::run(a),
+        Command::Score(a) => score::run(a),
         Command::Compare(a) => evaluate::run_compare(a),
         Command::Demo(a) => evaluate::run_demo(a),
         Command::Bench(a) => bench::run(a),

@@ -451,3 +451,40 @@ fn mesh_on_bad_input_exits_1_and_writes_nothing() {
     assert_refused(&["mesh", bare.to_str().unwrap(), "--out", o], "checkpoint", &out);
     assert!(!tmp.path().join("mesh.json").exists());
 }
+
+/// `score` on another tool's predictions (here the dataset's own images, so PSNR is +inf):
+/// eval.json carries the method block and `compare` reads the folder; an output inside the
+/// dataset or the predictions, and a missing view, are refused with exit code 1 and nothing
+/// written; the dataset folder is never changed.
+#[test]
+fn score_measures_predictions_and_never_writes_over_its_inputs() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    nerf::data::synthetic::write(&data, 16, [2, 1, 2], false).unwrap();
+    let before = test_support::file_map(&data);
+    let pred = tmp.path().join("pred");
+    std::fs::create_dir_all(&pred).unwrap();
+    for k in 0..2 {
+        std::fs::copy(data.join(format!("test/r_{k}.png")), pred.join(format!("r_{k}.png"))).unwrap();
+    }
+    let (d, p) = (data.to_str().unwrap(), pred.to_str().unwrap());
+    let out = tmp.path().join("scored");
+    let (code, stderr) = xtask(&["score", d, p, "--method", "copy", "--train-seconds", "5", "--out", out.to_str().unwrap()]);
+    assert_eq!(code, 0, "{stderr}");
+    let eval: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("eval.json")).unwrap()).unwrap();
+    assert_eq!((eval["method"]["name"].as_str(), eval["method"]["tool"].as_str()), (Some("copy"), Some("images")));
+    assert_eq!(eval["mean"]["psnr"], "inf");
+    let cmp = tmp.path().join("cmp");
+    let (code, stderr) = xtask(&["compare", out.to_str().unwrap(), "--out", cmp.to_str().unwrap()]);
+    assert_eq!(code, 0, "{stderr}");
+    assert!(std::fs::read_to_string(cmp.join("compare.md")).unwrap().contains("| copy (images) |"));
+    let inside = data.join("test/report");
+    assert_refused(&["score", d, p, "--method", "x", "--out", inside.to_str().unwrap()], "inside the dataset folder", &inside);
+    let mixed = pred.join("report");
+    assert_refused(&["score", d, p, "--method", "x", "--out", mixed.to_str().unwrap()], "lies in the predictions folder", &mixed);
+    std::fs::remove_file(pred.join("r_1.png")).unwrap();
+    let other = tmp.path().join("other");
+    let stderr = assert_refused(&["score", d, p, "--method", "x", "--out", other.to_str().unwrap()], "1 of the 2 test views have no prediction (r_1)", &other);
+    assert_eq!(stderr.trim().lines().count(), 1, "{stderr}");
+    assert_eq!(test_support::file_map(&data), before, "score changed the dataset folder");
+}

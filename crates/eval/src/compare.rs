@@ -24,7 +24,8 @@ pub struct RunSummary {
     /// Mean test-view PSNR of the final model, dB.
     #[serde(with = "nonfinite")]
     pub final_psnr: f64,
-    /// Mean test-view SSIM.
+    /// Mean test-view SSIM (NaN, written `null`, for views smaller than its window).
+    #[serde(with = "nonfinite")]
     pub ssim: f64,
     /// Mean test-view depth MAE, scene units (absent without ground-truth depth).
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -41,11 +42,14 @@ pub struct RunSummary {
     pub mask_iou: Option<f64>,
     /// Trainable parameters.
     pub parameters: u64,
-    /// Wall-clock training time, seconds.
+    /// Wall-clock training time, seconds (a scored method's stated time; NaN, written `null`,
+    /// when not stated).
+    #[serde(with = "nonfinite")]
     pub train_wall_s: f64,
     /// Optimiser steps.
     pub train_steps: u64,
-    /// Mean seconds to render one test view.
+    /// Mean seconds to render one test view (NaN, written `null`, for a scored method).
+    #[serde(with = "nonfinite")]
     pub render_s_per_view: f64,
     /// Validation PSNR curve `[wall_s, dB]`, for `compare.png`.
     #[serde(default)]
@@ -61,6 +65,10 @@ pub struct RunSummary {
     /// Its F-score at 1 % of the scene box's diagonal.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub f_score_1pct: Option<f64>,
+    /// For a method scored by `score` (another tool's predictions), the tool detected; absent
+    /// for our runs.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tool: Option<String>,
 }
 
 impl RunSummary {
@@ -90,6 +98,17 @@ impl RunSummary {
             resolution: report.resolution,
             chamfer_l1: report.mesh.as_ref().map(|m| m.metrics.chamfer_l1),
             f_score_1pct: report.mesh.as_ref().and_then(|m| m.metrics.f_scores.iter().find(|f| (f.fraction - 0.01).abs() < 1e-12).map(|f| f.f_score)),
+            tool: report.method.as_ref().map(|m| m.tool.clone()),
+        }
+    }
+
+    /// Its points in `compare.png`: a run's validation PSNR curve; a scored method's test PSNR
+    /// as one point at its stated training time (none without one).
+    pub fn plot_points(&self) -> Vec<(f64, f64)> {
+        match &self.tool {
+            None => self.val_psnr_points(),
+            Some(_) if self.train_wall_s.is_finite() => vec![(self.train_wall_s, self.final_psnr)],
+            Some(_) => Vec::new(),
         }
     }
 }
@@ -161,20 +180,27 @@ pub fn compare_table(runs: &[RunSummary]) -> String {
     s.push_str("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|:---:|\n");
     for (r, on) in runs.iter().zip(&front) {
         let never = |t: Option<f64>| t.map_or("never".to_string(), |t| format!("{t:.1}"));
+        // A scored method has no training curve, step count or parameter count of ours.
+        let scored = r.tool.is_some();
+        let unknown = |v: String| if scored { "—".to_string() } else { v };
+        let name = match &r.tool {
+            Some(tool) => format!("{} ({tool})", r.name),
+            None => r.name.clone(),
+        };
         s.push_str(&format!(
-            "| {} | {} | {} | {} | {:.2} | {:.4} | {} | {} | {} | {} | {} | {:.1} | {} |\n",
-            r.name.replace('|', "\\|"),
+            "| {} | {} | {} | {} | {:.2} | {:.4} | {} | {} | {} | {} | {} | {} | {} |\n",
+            name.replace('|', "\\|"),
             r.resolution.map_or("-".to_string(), |e| format!("{}x{} (/{})", e.width, e.height, e.downscale)),
-            never(r.time_to_25db_s),
-            never(r.time_to_30db_s),
+            unknown(never(r.time_to_25db_s)),
+            unknown(never(r.time_to_30db_s)),
             r.final_psnr,
             r.ssim,
             opt(r.depth_mae, 4),
             off_surface(r),
             opt(r.chamfer_l1, 4),
             opt(r.f_score_1pct, 3),
-            r.parameters,
-            r.train_wall_s,
+            unknown(r.parameters.to_string()),
+            opt(r.train_wall_s.is_finite().then_some(r.train_wall_s), 1),
             if *on { "★" } else { "" },
         ));
     }
@@ -183,6 +209,20 @@ pub fn compare_table(runs: &[RunSummary]) -> String {
         ParetoAxis::TimeTo30Db => "★ = Pareto front of time to 30 dB (lower is better) against final PSNR (higher is better).\n",
         ParetoAxis::TrainWall => "★ = Pareto front of total training time (lower is better) against final PSNR (higher is better); time to 30 dB is not used because not every run reaches 30 dB.\n",
     });
+    s.push_str(&scored_notes(runs));
+    s
+}
+
+/// The lines that explain the scored methods' rows (empty without any): their training time is
+/// the user's statement, and one without it is left out of `compare.png` and the Pareto front.
+fn scored_notes(runs: &[RunSummary]) -> String {
+    let mut s = String::new();
+    if runs.iter().any(|r| r.tool.is_some()) {
+        s.push_str("Rows with a tool in brackets are other tools' predictions measured by `score`: their training time is as stated (`--train-seconds`), and they are one point (test PSNR) in compare.png.\n");
+    }
+    for r in runs.iter().filter(|r| r.tool.is_some() && !r.train_wall_s.is_finite()) {
+        s.push_str(&format!("{} states no training time: it is in the table but not in compare.png or the Pareto front.\n", r.name));
+    }
     s
 }
 
@@ -195,7 +235,7 @@ pub fn compare_runs(runs: &[RunSummary], out_dir: &Path) -> Result<String, EvalE
     }
     let curves: Vec<Curve> = runs
         .iter()
-        .map(|r| Curve { label: r.name.clone(), points: r.val_psnr_points() })
+        .map(|r| Curve { label: r.name.clone(), points: r.plot_points() })
         .collect();
     compare_png(&out_dir.join("compare.png"), &curves)?;
     let table = compare_table(runs);
@@ -227,6 +267,7 @@ mod tests {
             resolution: None,
             chamfer_l1: None,
             f_score_1pct: None,
+            tool: None,
         }
     }
 
@@ -249,6 +290,29 @@ mod tests {
         assert!(table.contains("| weak | - | never | never | 28.00 |"), "{table}");
         assert!(table.contains("| fast | 100x80 (/2) | 25.0 | 50.0 | 31.00 |"), "{table}");
         assert!(table.contains("total training time"));
+    }
+
+    /// A scored method's row: its tool named, no curve, steps or parameters of ours, its stated
+    /// training time; one point in the plot, or none (and a note) without a stated time.
+    #[test]
+    fn scored_methods_are_rows_and_single_points() {
+        let ours = run("fast", Some(50.0), 31.0, 100.0);
+        let mut nerfacto = run("nerfacto", None, 32.0, 90.0);
+        (nerfacto.tool, nerfacto.val_psnr_curve, nerfacto.time_to_25db_s) = (Some("nerfstudio".into()), Vec::new(), None);
+        let mut ngp = nerfacto.clone();
+        (ngp.name, ngp.tool, ngp.train_wall_s) = ("ngp".into(), Some("instant-ngp".into()), f64::NAN);
+        assert_eq!(ours.plot_points(), ours.val_psnr_points());
+        assert_eq!(nerfacto.plot_points(), vec![(90.0, 32.0)]);
+        assert!(ngp.plot_points().is_empty());
+        let table = compare_table(&[ours.clone(), nerfacto, ngp.clone()]);
+        assert!(table.contains("| nerfacto (nerfstudio) | - | — | — | 32.00 | 0.9000 | — | — | — | — | — | 90.0 | ★ |"), "{table}");
+        assert!(table.contains("| ngp (instant-ngp) | - | — | — | 32.00 | 0.9000 | — | — | — | — | — | — |  |"), "{table}");
+        assert!(table.contains("ngp states no training time"), "{table}");
+        // Without scored methods the table is as it was: no extra lines.
+        assert!(!compare_table(std::slice::from_ref(&ours)).contains("score"));
+        // A summary with an unstated time reads back.
+        let back: RunSummary = serde_json::from_str(&serde_json::to_string(&ngp).unwrap()).unwrap();
+        assert!(back.train_wall_s.is_nan() && back.tool.as_deref() == Some("instant-ngp"));
     }
 
     #[test]

@@ -57,8 +57,9 @@ pub struct ViewInput<'a> {
     /// Ground-truth alpha (coverage of the pixel-centre ray). When absent and `gt_depth`
     /// is present, foreground is taken as `gt_depth > 0`.
     pub gt_alpha: Option<&'a [f32]>,
-    /// The NeRF's accumulated opacity `Σ w`.
-    pub pred_opacity: &'a [f32],
+    /// The NeRF's accumulated opacity `Σ w` (absent for a method that gave none: mask IoU is
+    /// then omitted with a note).
+    pub pred_opacity: Option<&'a [f32]>,
     /// Per-ray samples and weights, for off-surface mass.
     pub samples: Option<RaySamples<'a>>,
     /// Seconds the NeRF took to render this view.
@@ -115,6 +116,9 @@ pub struct ViewReport {
     /// Why metrics are absent, if any are.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub notes: Vec<String>,
+    /// Predicted pixels with a non-finite value (absent when every value is finite).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub nonfinite: Option<NonFiniteCounts>,
 }
 
 /// Facts about the training run that the report carries at the top level.
@@ -162,11 +166,13 @@ pub struct EvalReport {
     pub views: Vec<ViewReport>,
     /// Mean of each metric over the views that have it.
     pub mean: ViewMetrics,
-    /// Wall-clock training time in seconds.
+    /// Wall-clock training time in seconds (a scored method's stated time; NaN, written
+    /// `null`, when not stated).
+    #[serde(with = "nonfinite")]
     pub train_wall_s: f64,
-    /// Optimiser steps taken.
+    /// Optimiser steps taken (0 for a scored method).
     pub train_steps: u64,
-    /// Trainable parameters of the model.
+    /// Trainable parameters of the model (0 for a scored method).
     pub parameters: u64,
     /// Off-surface tolerance used, in scene units.
     pub surface_tol: f32,
@@ -181,6 +187,65 @@ pub struct EvalReport {
     /// when not asked for, and in reports written before it existed).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub mesh: Option<crate::mesh_eval::MeshBlock>,
+    /// The external method whose predictions `score` read (absent for our runs).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub method: Option<MethodInfo>,
+}
+
+/// What `score` measured: another tool's predictions, how they were found and read
+/// (`eval.json`'s `method` block).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MethodInfo {
+    /// The method's name, as the user gave it (`--method`).
+    pub name: String,
+    /// The tool whose output layout was detected: `nerfstudio`, `instant-ngp` or `images`.
+    pub tool: String,
+    /// Training seconds as the user states them (`null` when not stated).
+    #[serde(with = "nonfinite::option")]
+    pub train_seconds: Option<f64>,
+    /// Hardware as the user states it (`null` when not stated).
+    pub hardware: Option<String>,
+    /// The layout detected, in words (which folders and file kinds were read).
+    pub layout: String,
+    /// The predictions folder, as given.
+    pub predictions: String,
+    /// Every file read, relative to the predictions folder, in view order.
+    pub files_read: Vec<String>,
+    /// Views of the split without a prediction (only with `--allow-missing`; excluded from
+    /// every mean).
+    pub missing_views: Vec<String>,
+    /// Predicted pixels with a non-finite value, over all views (each left out of the metrics
+    /// it would enter).
+    pub nonfinite: NonFiniteCounts,
+    /// How depth values became metres of z-depth (absent without depth predictions).
+    pub depth: Option<DepthConversion>,
+    /// The background colour (display RGB) the ground truth and any prediction with alpha were
+    /// composited on.
+    pub background: [f32; 3],
+}
+
+/// Counts of predicted pixels with a non-finite value.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct NonFiniteCounts {
+    /// Pixels with a non-finite colour (or alpha) channel.
+    pub colour: u64,
+    /// Pixels with a non-finite depth.
+    pub depth: u64,
+    /// Pixels with a non-finite opacity.
+    pub opacity: u64,
+}
+
+/// How a method's depth files were read as z-depth in metres.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct DepthConversion {
+    /// `z` (along the camera's −Z axis) or `distance` (along the ray), as read.
+    pub kind: String,
+    /// Whether the user stated the kind (`--depth-kind`) or it is the layout's convention.
+    pub kind_stated: bool,
+    /// Metres per file unit the values were multiplied by.
+    pub metres_per_unit: f64,
+    /// Where that factor comes from.
+    pub unit_source: String,
 }
 
 fn metric_err(view: &str) -> impl Fn(MetricError) -> EvalError + '_ {
@@ -206,9 +271,14 @@ fn optional<T>(
 /// Evaluate one view against its ground truth.
 ///
 /// Colour metrics always; depth metrics when both depths are present; mask IoU when a
-/// ground-truth alpha (or depth) is present; off-surface mass when samples, distance and a
-/// foreground mask are present. Absent metrics come with a note saying why. Errors (wrong
-/// lengths, images smaller than the SSIM window) name the view.
+/// ground-truth alpha (or depth) and a predicted opacity are present; off-surface mass when
+/// samples, distance and a foreground mask are present. Absent metrics come with a note saying
+/// why. A non-finite predicted value (NaN, ±inf) is counted and left out of the metric it would
+/// enter, counted in [`ViewReport::nonfinite`] with a note: a pixel with a non-finite colour channel leaves PSNR's
+/// mean and every SSIM window that touches it ([`metrics::ssim_masked`]), a non-finite depth
+/// leaves the depth metrics' foreground, a non-finite opacity leaves mask IoU; with no finite
+/// pixel left PSNR is NaN (`null`). Errors (wrong lengths, images smaller than the SSIM window)
+/// name the view.
 pub fn evaluate_view(v: &ViewInput<'_>, opts: &EvalOptions) -> Result<ViewReport, EvalError> {
     let err = metric_err(v.name);
     let n = v.width * v.height;
@@ -219,14 +289,39 @@ pub fn evaluate_view(v: &ViewInput<'_>, opts: &EvalOptions) -> Result<ViewReport
             Err(err(MetricError::Length { what, expected: n, got }))
         }
     };
-    len("pred_opacity", v.pred_opacity.len())?;
-    let psnr = metrics::psnr(v.pred_rgb, v.gt_rgb).map_err(&err)?;
+    if let Some(o) = v.pred_opacity {
+        len("pred_opacity", o.len())?;
+    }
     let mut notes = Vec::new();
+    let mut nonfinite = NonFiniteCounts::default();
+    // A non-finite predicted value is counted and left out of the metric it would enter (see
+    // `finite_pixels`): a NaN never turns a mean into NaN, and the note says how many.
+    let colour_ok = finite_pixels(v.pred_rgb, 3);
+    let (psnr, ssim) = match &colour_ok {
+        None => (metrics::psnr(v.pred_rgb, v.gt_rgb).map_err(&err)?, metrics::ssim(v.pred_rgb, v.gt_rgb, v.width, v.height, 3)),
+        Some(ok) => {
+            for (what, got) in [("pred_rgb", v.pred_rgb.len()), ("gt_rgb", v.gt_rgb.len())] {
+                if got != 3 * n {
+                    return Err(err(MetricError::Length { what, expected: 3 * n, got }));
+                }
+            }
+            let bad = ok.iter().filter(|k| !**k).count();
+            nonfinite.colour = bad as u64;
+            notes.push("pixels with a non-finite colour are left out of PSNR and SSIM".into());
+            let keep = |x: &[f32]| -> Vec<f32> { x.chunks_exact(3).zip(ok).filter(|(_, k)| **k).flat_map(|(p, _)| p.iter().copied()).collect() };
+            let psnr = if bad == n { f64::NAN } else { metrics::psnr(&keep(v.pred_rgb), &keep(v.gt_rgb)).map_err(&err)? };
+            (psnr, metrics::ssim_masked(v.pred_rgb, v.gt_rgb, v.width, v.height, 3, ok))
+        }
+    };
     // An image smaller than SSIM's window (e.g. a small view evaluated at a high downscale)
     // has no SSIM: NaN (`null` in JSON) with a note, the other metrics still count.
-    let ssim = match metrics::ssim(v.pred_rgb, v.gt_rgb, v.width, v.height, 3) {
+    let ssim = match ssim {
         Err(MetricError::TooSmall { width, height, window }) => {
             notes.push(format!("image of {width}x{height} is smaller than SSIM's {window}x{window} window: SSIM omitted"));
+            f64::NAN
+        }
+        Err(MetricError::EmptyMask(_)) => {
+            notes.push("no 11x11 window free of non-finite colour: SSIM omitted".into());
             f64::NAN
         }
         other => other.map_err(&err)?,
@@ -248,7 +343,16 @@ pub fn evaluate_view(v: &ViewInput<'_>, opts: &EvalOptions) -> Result<ViewReport
         (Some(p), Some(g), Some(a)) => {
             len("pred_depth", p.len())?;
             len("gt_depth", g.len())?;
-            optional(metrics::depth_metrics(p, g, a), v.name, &mut notes)?
+            len("gt_alpha", a.len())?;
+            match finite_pixels(p, 1) {
+                None => optional(metrics::depth_metrics(p, g, a), v.name, &mut notes)?,
+                Some(ok) => {
+                    nonfinite.depth = ok.iter().filter(|k| !**k).count() as u64;
+                    notes.push("pixels with a non-finite depth are left out of the depth metrics".into());
+                    let a: Vec<f32> = a.iter().zip(&ok).map(|(&a, &k)| if k { a } else { 0.0 }).collect();
+                    optional(metrics::depth_metrics(p, g, &a), v.name, &mut notes)?
+                }
+            }
         }
         (_, None, _) => {
             notes.push("no ground-truth depth (e.g. Blender synthetic): depth metrics omitted".into());
@@ -259,10 +363,22 @@ pub fn evaluate_view(v: &ViewInput<'_>, opts: &EvalOptions) -> Result<ViewReport
             None
         }
     };
-    let mask_iou = match alpha {
-        Some(a) => Some(metrics::mask_iou(v.pred_opacity, a).map_err(&err)?),
-        None => {
+    let mask_iou = match (alpha, v.pred_opacity) {
+        (Some(a), Some(o)) => match finite_pixels(o, 1) {
+            None => Some(metrics::mask_iou(o, a).map_err(&err)?),
+            Some(ok) => {
+                nonfinite.opacity = ok.iter().filter(|k| !**k).count() as u64;
+                notes.push("pixels with a non-finite opacity are left out of mask_iou".into());
+                let keep = |x: &[f32]| -> Vec<f32> { x.iter().zip(&ok).filter(|(_, k)| **k).map(|(v, _)| *v).collect() };
+                Some(metrics::mask_iou(&keep(o), &keep(a)).map_err(&err)?)
+            }
+        },
+        (None, _) => {
             notes.push("no ground-truth alpha or depth: mask_iou omitted".into());
+            None
+        }
+        (_, None) => {
+            notes.push("the method gave no opacity: mask_iou omitted".into());
             None
         }
     };
@@ -300,7 +416,17 @@ pub fn evaluate_view(v: &ViewInput<'_>, opts: &EvalOptions) -> Result<ViewReport
             render_s_per_view: v.render_s,
         },
         notes,
+        nonfinite: (nonfinite != NonFiniteCounts::default()).then_some(nonfinite),
     })
+}
+
+/// `None` when every value is finite; otherwise, per pixel of `channels` values, whether all of
+/// them are finite.
+fn finite_pixels(values: &[f32], channels: usize) -> Option<Vec<bool>> {
+    if values.iter().all(|v| v.is_finite()) {
+        return None;
+    }
+    Some(values.chunks_exact(channels).map(|p| p.iter().all(|v| v.is_finite())).collect())
 }
 
 fn mean(values: impl Iterator<Item = f64>) -> Option<f64> {
@@ -310,15 +436,16 @@ fn mean(values: impl Iterator<Item = f64>) -> Option<f64> {
 
 impl ViewMetrics {
     /// Mean of each metric over the views that have it (an optional metric is absent only
-    /// when no view has it). PSNR is the mean of per-view PSNR, as NeRF papers report it
-    /// (so one identical view makes the mean `+∞`). `None` for an empty slice.
+    /// when no view has it; a view without a finite pixel has a NaN PSNR and is left out).
+    /// PSNR is the mean of per-view PSNR, as NeRF papers report it (so one identical view
+    /// makes the mean `+∞`). `None` for an empty slice.
     pub fn mean(views: &[ViewMetrics]) -> Option<ViewMetrics> {
         if views.is_empty() {
             return None;
         }
         let opt = |f: fn(&ViewMetrics) -> Option<f64>| mean(views.iter().filter_map(f));
         Some(ViewMetrics {
-            psnr: mean(views.iter().map(|v| v.psnr))?,
+            psnr: mean(views.iter().map(|v| v.psnr).filter(|p| !p.is_nan())).unwrap_or(f64::NAN),
             ssim: mean(views.iter().map(|v| v.ssim).filter(|s| !s.is_nan())).unwrap_or(f64::NAN),
             depth_mae: opt(|v| v.depth_mae),
             depth_rmse: opt(|v| v.depth_rmse),
@@ -346,7 +473,10 @@ impl ViewMetrics {
             ("off_surface_front", self.off_surface_front),
         ];
         out.extend(opt.into_iter().filter_map(|(k, v)| v.map(|v| (k, v))));
-        out.push(("render_s_per_view", self.render_s_per_view));
+        // Unknown for a scored method's files.
+        if !self.render_s_per_view.is_nan() {
+            out.push(("render_s_per_view", self.render_s_per_view));
+        }
         out
     }
 }
@@ -372,6 +502,7 @@ impl EvalReport {
         }
         let present = |f: fn(&ViewMetrics) -> Option<f64>| metrics.iter().filter(|m| f(m).is_some()).count();
         for (key, k) in [
+            ("psnr", metrics.iter().filter(|m| !m.psnr.is_nan()).count()),
             ("depth_mae", present(|m| m.depth_mae)),
             ("mask_iou", present(|m| m.mask_iou)),
             ("off_surface_mass", present(|m| m.off_surface_mass)),
@@ -393,6 +524,7 @@ impl EvalReport {
             resolution: None,
             notes,
             mesh: None,
+            method: None,
         })
     }
 }
@@ -534,7 +666,7 @@ mod tests {
             // the camera looks straight at the surface in this fixture: distance = depth
             gt_distance: Some(&f.gt_depth),
             gt_alpha: Some(&f.gt_alpha),
-            pred_opacity: &f.opacity,
+            pred_opacity: Some(&f.opacity),
             samples: Some(RaySamples { pixel: &f.pixel, offsets: &f.offsets, t: &f.t, w: &f.wts }),
             render_s: 0.5,
         }
@@ -647,6 +779,50 @@ mod tests {
         let e = evaluate_view(&v, &EvalOptions::with_surface_tol(0.05)).unwrap_err();
         assert!(e.to_string().contains("bad_view") && e.to_string().contains("pred_depth"), "{e}");
         assert!(evaluate_views(&[], RUN, &EvalOptions::with_surface_tol(0.05)).is_err());
+    }
+
+    /// A NaN colour, an infinite depth and a NaN opacity are counted and left out of the
+    /// metrics they would enter: the rest of the view is still off by exactly 0.1 in colour and
+    /// depth, and its masks still agree.
+    #[test]
+    fn non_finite_predictions_are_counted_and_left_out() {
+        let mut f = fixture();
+        f.pred_rgb[3 * 17 + 1] = f32::NAN;
+        f.pred_depth[40] = f32::INFINITY; // a foreground pixel (column 8)
+        f.opacity[5] = f32::NAN;
+        let r = evaluate_view(&view(&f, "nan"), &EvalOptions::with_surface_tol(0.05)).unwrap();
+        let m = &r.metrics;
+        assert!((m.psnr - 20.0).abs() < 1e-4, "{}", m.psnr);
+        assert!(m.ssim.is_finite());
+        assert!((m.depth_mae.unwrap() - 0.1).abs() < 1e-6);
+        assert_eq!(m.mask_iou, Some(1.0));
+        assert_eq!(r.nonfinite, Some(NonFiniteCounts { colour: 1, depth: 1, opacity: 1 }));
+        assert_eq!(r.notes.len(), 3, "{:?}", r.notes);
+        // A view without a finite colour: PSNR and SSIM NaN, left out of the mean with a note.
+        let mut g = fixture();
+        g.pred_rgb.fill(f32::NAN);
+        let report = evaluate_views(&[view(&f, "a"), view(&g, "b")], RUN, &EvalOptions::with_surface_tol(0.05)).unwrap();
+        assert!(report.views[1].metrics.psnr.is_nan() && report.views[1].metrics.ssim.is_nan());
+        assert!((report.mean.psnr - 20.0).abs() < 1e-4);
+        assert!(report.notes.iter().any(|n| n == "mean psnr is over 1 of 2 views"), "{:?}", report.notes);
+        let json = serde_json::to_value(&report).unwrap();
+        assert_eq!(json["views"][1]["psnr"], serde_json::Value::Null);
+        assert_eq!(json["views"][0]["nonfinite"]["colour"], 1);
+        // Finite predictions keep the per-view JSON as it was: no nonfinite key.
+        let clean = evaluate_views(&[view(&fixture(), "c")], RUN, &EvalOptions::with_surface_tol(0.05)).unwrap();
+        assert!(serde_json::to_value(&clean).unwrap()["views"][0].get("nonfinite").is_none());
+    }
+
+    #[test]
+    fn a_method_without_opacity_has_no_mask_iou_and_says_why() {
+        let f = fixture();
+        let mut v = view(&f, "rgb-only");
+        v.pred_opacity = None;
+        v.samples = None;
+        let r = evaluate_view(&v, &EvalOptions::with_surface_tol(0.05)).unwrap();
+        assert_eq!(r.metrics.mask_iou, None);
+        assert!((r.metrics.depth_mae.unwrap() - 0.1).abs() < 1e-6);
+        assert!(r.notes.iter().any(|n| n == "the method gave no opacity: mask_iou omitted"), "{:?}", r.notes);
     }
 
     #[test]

@@ -129,8 +129,7 @@ fn build_panels(v: &ViewInput<'_>, pw: usize, ph: usize) -> Result<Vec<Panel>, E
     let n = w * h;
     check(v, "pred_rgb", v.pred_rgb.len(), n * 3)?;
     check(v, "gt_rgb", v.gt_rgb.len(), n * 3)?;
-    check(v, "pred_opacity", v.pred_opacity.len(), n)?;
-    for (what, a) in [("gt_alpha", v.gt_alpha), ("gt_depth", v.gt_depth), ("pred_depth", v.pred_depth)] {
+    for (what, a) in [("gt_alpha", v.gt_alpha), ("gt_depth", v.gt_depth), ("pred_depth", v.pred_depth), ("pred_opacity", v.pred_opacity)] {
         if let Some(a) = a {
             check(v, what, a.len(), n)?;
         }
@@ -157,6 +156,12 @@ fn build_panels(v: &ViewInput<'_>, pw: usize, ph: usize) -> Result<Vec<Panel>, E
     let Some(pred_depth) = v.pred_depth else {
         return Ok(panels);
     };
+    // Where the prediction sees a surface: opacity at least 0.5, or without an opacity a
+    // positive finite depth.
+    let seen = |i: usize| match v.pred_opacity {
+        Some(o) => o[i] >= 0.5,
+        None => pred_depth[i] > 0.0 && pred_depth[i].is_finite(),
+    };
     // Foreground: gt alpha if given, else gt depth > 0.
     let fg: Option<Vec<bool>> = match (v.gt_alpha, v.gt_depth) {
         (Some(a), Some(g)) => Some((0..n).map(|i| a[i] >= FOREGROUND_ALPHA && g[i] > 0.0).collect()),
@@ -165,7 +170,7 @@ fn build_panels(v: &ViewInput<'_>, pw: usize, ph: usize) -> Result<Vec<Panel>, E
     };
     let range_src: Vec<f64> = match (&fg, v.gt_depth) {
         (Some(fg), Some(g)) => (0..n).filter(|&i| fg[i]).map(|i| f64::from(g[i])).collect(),
-        _ => (0..n).filter(|&i| v.pred_opacity[i] >= 0.5).map(|i| f64::from(pred_depth[i])).collect(),
+        _ => (0..n).filter(|&i| seen(i)).map(|i| f64::from(pred_depth[i])).collect(),
     };
     let lo = percentile(range_src.clone(), 0.0).unwrap_or(0.0);
     let hi = percentile(range_src, 1.0).unwrap_or(1.0);
@@ -182,7 +187,7 @@ fn build_panels(v: &ViewInput<'_>, pw: usize, ph: usize) -> Result<Vec<Panel>, E
     panels.push(Panel {
         title: "NeRF depth".into(),
         rgb: resample(w, h, pw, ph, |i| {
-            if v.pred_opacity[i] >= 0.5 { Colormap::Viridis.map(f64::from(pred_depth[i]), lo, hi) } else { GREY }
+            if seen(i) { Colormap::Viridis.map(f64::from(pred_depth[i]), lo, hi) } else { GREY }
         }),
         bar: Some(depth_bar()),
     });

@@ -2,7 +2,8 @@
 //! metrics, mask IoU and off-surface mass per test view; aggregation into `eval.json`; the
 //! speed-versus-error curve read from a run's `metrics.jsonl` (time to 25 dB and 30 dB);
 //! pictures (`speed_vs_error.png`, per-view `grid_<view>.png`, `compare.png`); and Markdown
-//! reports. The crate knows nothing about training: it takes plain slices.
+//! reports; and the same measurements of other tools' renders read from files (`score`). The
+//! crate knows nothing about training: it takes plain slices.
 //!
 //! ```
 //! use eval::{EvalOptions, RunInfo, ViewInput, evaluate_views};
@@ -15,7 +16,7 @@
 //! let view = ViewInput {
 //!     name: "r_0", width: w, height: h, pred_rgb: &pred_rgb, gt_rgb: &gt_rgb,
 //!     pred_depth: Some(&pred_depth), gt_depth: Some(&gt_depth), gt_distance: None,
-//!     gt_alpha: Some(&alpha), pred_opacity: &alpha, samples: None, render_s: 0.2,
+//!     gt_alpha: Some(&alpha), pred_opacity: Some(&alpha), samples: None, render_s: 0.2,
 //! };
 //! let run = RunInfo { train_wall_s: 60.0, train_steps: 1000, parameters: 12345 };
 //! let report = evaluate_views(&[view], run, &EvalOptions::with_surface_tol(0.02)).unwrap();
@@ -32,6 +33,7 @@ pub mod curve;
 pub mod error;
 pub mod evaluate;
 pub mod grid;
+pub mod interop;
 pub mod io;
 pub mod marching_cubes;
 pub mod mesh;
@@ -40,8 +42,13 @@ pub mod mesh_extract;
 pub mod mesh_metrics;
 pub mod metrics;
 pub mod plot;
+pub mod prediction_io;
+pub mod predictions;
 pub mod report;
 pub mod run;
+pub mod score;
+pub mod session;
+pub mod truth;
 
 pub use compare::{ParetoAxis, RunSummary, compare_runs, compare_table, pareto_front};
 pub use curve::{MetricsRecord, parse_metrics_jsonl, read_metrics_jsonl, time_to_psnr, value_at};
@@ -51,3 +58,4 @@ pub use io::read_json;
 pub use metrics::RaySamples;
 pub use report::write_report;
 pub use run::{EvalRunOptions, EvalRunOutput, evaluate_run, summarise_run};
+pub use score::{ScoreOptions, ScoreOutput, score};

@@ -140,8 +140,9 @@ pub fn filter_separable(img: &[f64], width: usize, height: usize, kernel: &[f64]
     out
 }
 
-/// SSIM of one channel (mean of the SSIM map over the interior), see [`ssim`].
-fn ssim_channel(x: &[f64], y: &[f64], width: usize, height: usize, kernel: &[f64]) -> f64 {
+/// SSIM of one channel: the sum of the SSIM map over the interior positions `keep` accepts
+/// (row, column) and their count, see [`ssim`].
+fn ssim_channel(x: &[f64], y: &[f64], width: usize, height: usize, kernel: &[f64], keep: &(dyn Fn(usize, usize) -> bool + Sync)) -> (f64, usize) {
     let c1 = SSIM_K1 * SSIM_K1;
     let c2 = SSIM_K2 * SSIM_K2;
     let pad = (kernel.len() - 1) / 2;
@@ -157,6 +158,9 @@ fn ssim_channel(x: &[f64], y: &[f64], width: usize, height: usize, kernel: &[f64
     let mut count = 0usize;
     for row in pad..height - pad {
         for col in pad..width - pad {
+            if !keep(row, col) {
+                continue;
+            }
             let i = row * width + col;
             let vx = uxx[i] - ux[i] * ux[i];
             let vy = uyy[i] - uy[i] * uy[i];
@@ -169,7 +173,7 @@ fn ssim_channel(x: &[f64], y: &[f64], width: usize, height: usize, kernel: &[f64
             count += 1;
         }
     }
-    sum / count as f64
+    (sum, count)
 }
 
 /// Structural similarity (Wang et al. 2004), exactly as scikit-image computes
@@ -205,22 +209,82 @@ pub fn ssim(
     if width < win || height < win {
         return Err(MetricError::TooSmall { width, height, window: win });
     }
-    // Channels are independent: compute them on scoped threads and sum in channel order, so
-    // the result is the same whatever the thread count.
-    let per_channel: Vec<f64> = std::thread::scope(|scope| {
+    let per_channel = ssim_channels(pred, gt, width, height, channels, &kernel, &|_, _| true);
+    let total: f64 = per_channel.iter().map(|(s, n)| s / *n as f64).sum();
+    Ok(total / channels as f64)
+}
+
+/// Each channel's SSIM map sum and count over the interior positions `keep` accepts.
+/// Channels are independent: they are computed on scoped threads and returned in channel
+/// order, so the result is the same whatever the thread count.
+fn ssim_channels(
+    pred: &[f32],
+    gt: &[f32],
+    width: usize,
+    height: usize,
+    channels: usize,
+    kernel: &[f64],
+    keep: &(dyn Fn(usize, usize) -> bool + Sync),
+) -> Vec<(f64, usize)> {
+    std::thread::scope(|scope| {
         let handles: Vec<_> = (0..channels)
             .map(|c| {
-                let kernel = &kernel;
                 scope.spawn(move || {
                     let x: Vec<f64> = (0..width * height).map(|i| f64::from(pred[i * channels + c])).collect();
                     let y: Vec<f64> = (0..width * height).map(|i| f64::from(gt[i * channels + c])).collect();
-                    ssim_channel(&x, &y, width, height, kernel)
+                    ssim_channel(&x, &y, width, height, kernel, keep)
                 })
             })
             .collect();
-        handles.into_iter().map(|h| h.join().unwrap_or(f64::NAN)).collect()
-    });
-    let total: f64 = per_channel.iter().sum();
+        handles.into_iter().map(|h| h.join().unwrap_or((f64::NAN, 1))).collect()
+    })
+}
+
+/// [`ssim`] over the pixels `valid` marks: a pixel that is not valid (e.g. a non-finite
+/// prediction) is replaced by the ground truth for filtering, and every position of the SSIM
+/// map whose 11x11 window touches one is left out of the mean. With every pixel valid this is
+/// [`ssim`] exactly. An [`MetricError::EmptyMask`] when no window is free of invalid pixels.
+///
+/// # Shapes
+/// `pred`, `gt`: `[H * W * C]`; `valid`: `[H * W]`.
+pub fn ssim_masked(
+    pred: &[f32],
+    gt: &[f32],
+    width: usize,
+    height: usize,
+    channels: usize,
+    valid: &[bool],
+) -> Result<f64, MetricError> {
+    let n = width * height * channels;
+    if n == 0 {
+        return Err(MetricError::Empty("ssim"));
+    }
+    check_len("pred", n, pred.len())?;
+    check_len("gt", n, gt.len())?;
+    check_len("valid", width * height, valid.len())?;
+    let kernel = gaussian_kernel(SSIM_SIGMA, SSIM_TRUNCATE);
+    let win = kernel.len();
+    if width < win || height < win {
+        return Err(MetricError::TooSmall { width, height, window: win });
+    }
+    let filled: Vec<f32> = pred.iter().zip(gt).enumerate().map(|(i, (&p, &g))| if valid[i / channels] { p } else { g }).collect();
+    // Invalid pixels above and left of each position, for a window's count in four lookups.
+    let (w1, r) = (width + 1, win / 2);
+    let mut sat = vec![0usize; w1 * (height + 1)];
+    for y in 0..height {
+        for x in 0..width {
+            sat[(y + 1) * w1 + x + 1] = sat[y * w1 + x + 1] + sat[(y + 1) * w1 + x] - sat[y * w1 + x] + usize::from(!valid[y * width + x]);
+        }
+    }
+    let keep = |row: usize, col: usize| {
+        let (y0, y1, x0, x1) = (row - r, row + r + 1, col - r, col + r + 1);
+        sat[y1 * w1 + x1] + sat[y0 * w1 + x0] - sat[y0 * w1 + x1] - sat[y1 * w1 + x0] == 0
+    };
+    let per_channel = ssim_channels(&filled, gt, width, height, channels, &kernel, &keep);
+    if per_channel.iter().any(|(_, n)| *n == 0) {
+        return Err(MetricError::EmptyMask("ssim"));
+    }
+    let total: f64 = per_channel.iter().map(|(s, n)| s / *n as f64).sum();
     Ok(total / channels as f64)
 }
 
@@ -650,6 +714,32 @@ mod tests {
         let a = vec![0.0_f32; 10 * 10];
         assert!(matches!(ssim(&a, &a, 10, 10, 1), Err(MetricError::TooSmall { window: 11, .. })));
         assert!(matches!(ssim(&a, &a[1..], 10, 10, 1), Err(MetricError::Length { .. })));
+    }
+
+    /// Masked SSIM: with every pixel valid it is SSIM to the bit; an invalid pixel's value
+    /// never matters (the windows touching it are left out); a mask that leaves no window
+    /// free is an error, not NaN.
+    #[test]
+    fn ssim_masked_leaves_out_the_windows_touching_invalid_pixels() {
+        let (w, h, c) = (24, 20, 3);
+        let (a, b) = ssim_pair(h, w, c);
+        let all = vec![true; w * h];
+        assert_eq!(ssim_masked(&a, &b, w, h, c, &all).unwrap(), ssim(&a, &b, w, h, c).unwrap());
+        let mut valid = all.clone();
+        valid[3 * w + 4] = false;
+        let mut nan = a.clone();
+        nan[(3 * w + 4) * c + 1] = f32::NAN;
+        let mut other = a.clone();
+        other[(3 * w + 4) * c + 1] = 7.0;
+        let m = ssim_masked(&nan, &b, w, h, c, &valid).unwrap();
+        assert!(m.is_finite() && m != ssim(&a, &b, w, h, c).unwrap());
+        assert_eq!(m, ssim_masked(&other, &b, w, h, c, &valid).unwrap());
+        // A pixel far from it changes the masked value: the rest still counts.
+        let mut far = a.clone();
+        far[(15 * w + 18) * c] += 0.2;
+        assert_ne!(m, ssim_masked(&far, &b, w, h, c, &valid).unwrap());
+        let none = vec![false; w * h];
+        assert!(matches!(ssim_masked(&a, &b, w, h, c, &none), Err(MetricError::EmptyMask("ssim"))));
     }
 
     /// A `w x h` foreground depth map at `g`, with a background column (alpha 0, depth 0)

@@ -71,6 +71,9 @@ pub fn mesh_section(b: &crate::mesh_eval::MeshBlock) -> String {
 
 /// The Markdown report (summary table, notes, pictures linked relatively).
 pub fn report_markdown(name: &str, report: &EvalReport, summary: &RunSummary, grids: &[String]) -> String {
+    if let Some(m) = &report.method {
+        return scored_markdown(m, report, grids);
+    }
     let mut s = format!("# Evaluation: {name}\n\n");
     if let Some(r) = &report.resolution {
         s.push_str(&format!("Evaluated at {}.\n\n", r.label()));
@@ -92,6 +95,14 @@ pub fn report_markdown(name: &str, report: &EvalReport, summary: &RunSummary, gr
         report.views.len(),
         report.surface_tol
     ));
+    geometry_and_notes(&mut s, report);
+    s.push_str("\n## Speed versus error\n\n![validation PSNR against wall-clock training time](speed_vs_error.png)\n");
+    per_view_and_grids(&mut s, report, grids, "NeRF");
+    s
+}
+
+/// The mesh section (when measured) and the notes.
+fn geometry_and_notes(s: &mut String, report: &EvalReport) {
     if let Some(m) = &report.mesh {
         s.push_str(&mesh_section(m));
     }
@@ -101,7 +112,58 @@ pub fn report_markdown(name: &str, report: &EvalReport, summary: &RunSummary, gr
             s.push_str(&format!("- {n}\n"));
         }
     }
-    s.push_str("\n## Speed versus error\n\n![validation PSNR against wall-clock training time](speed_vs_error.png)\n");
+}
+
+/// The report of another tool's predictions measured by `score`: the same metrics, what was
+/// read and stated instead of a training curve.
+fn scored_markdown(m: &crate::evaluate::MethodInfo, report: &EvalReport, grids: &[String]) -> String {
+    let mut s = format!("# Score: {} ({})\n\n", m.name, m.tool);
+    if let Some(r) = &report.resolution {
+        let at = if r.downscale == 1 { "full resolution".to_string() } else { format!("downscale {}", r.downscale) };
+        s.push_str(&format!("Scored at {}x{} ({at}) against the dataset's ground truth.\n\n", r.width, r.height));
+    }
+    s.push_str("## Summary\n\n| metric | value |\n|---|---:|\n");
+    for (key, v) in report.mean.entries() {
+        let (label, unit) = describe(key);
+        let unit = if unit.is_empty() { String::new() } else { format!(" ({unit})") };
+        s.push_str(&format!("| {label}{unit} | {} |\n", fmt(key, v)));
+    }
+    let stated = |v: Option<String>| v.unwrap_or_else(|| "not stated".into());
+    s.push_str(&format!("| training time (s, as stated) | {} |\n", stated(m.train_seconds.map(|t| format!("{t:.1}")))));
+    s.push_str(&format!("| hardware (as stated) | {} |\n", stated(m.hardware.clone()).replace('|', "\\|")));
+    s.push_str(&format!(
+        "\nMeans over {} views. Depth is z-depth in scene units (m) over foreground pixels (ground-truth alpha ≥ 0.999).\n",
+        report.views.len()
+    ));
+    s.push_str(&format!("\n## Predictions read\n\n- layout: {}\n- folder: `{}` ({} files read)\n", m.layout, m.predictions, m.files_read.len()));
+    if let Some(d) = &m.depth {
+        s.push_str(&format!(
+            "- depth: {} ({}), {} m per unit ({})\n",
+            if d.kind == "z" { "z-depth" } else { "distance along the ray, converted to z-depth" },
+            if d.kind_stated { "as stated" } else { "the layout's convention" },
+            d.metres_per_unit,
+            d.unit_source
+        ));
+    }
+    let bg = m.background;
+    s.push_str(&format!("- background composited: ({:.3}, {:.3}, {:.3})\n", bg[0], bg[1], bg[2]));
+    if !m.missing_views.is_empty() {
+        s.push_str(&format!("- missing views (left out of every mean): {}\n", m.missing_views.join(", ")));
+    }
+    let nf = m.nonfinite;
+    if nf != crate::evaluate::NonFiniteCounts::default() {
+        s.push_str(&format!(
+            "- non-finite values (left out of the metrics they would enter): {} colour, {} depth, {} opacity pixels\n",
+            nf.colour, nf.depth, nf.opacity
+        ));
+    }
+    geometry_and_notes(&mut s, report);
+    per_view_and_grids(&mut s, report, grids, &m.name);
+    s
+}
+
+/// The per-view table and the grid pictures; `method` names the prediction's column.
+fn per_view_and_grids(s: &mut String, report: &EvalReport, grids: &[String], method: &str) {
     s.push_str("\n## Per view\n\n");
     let keys: Vec<&str> = report.mean.entries().iter().map(|(k, _)| *k).collect();
     s.push_str("| view |");
@@ -121,18 +183,17 @@ pub fn report_markdown(name: &str, report: &EvalReport, summary: &RunSummary, gr
         s.push('\n');
     }
     if !grids.is_empty() {
-        s.push_str("\n## Views\n\nGround truth | NeRF | colour error; ground-truth depth | NeRF depth | signed depth error.\n");
+        s.push_str(&format!("\n## Views\n\nGround truth | {method} | colour error; ground-truth depth | {method} depth | signed depth error.\n"));
         for g in grids {
             s.push_str(&format!("\n![{g}]({g})\n"));
         }
     }
-    s
 }
 
 /// Write the report of run `name` into `out_dir`: `eval.json` (the [`EvalReport`]),
-/// `report.json` (the [`RunSummary`]), `speed_vs_error.png` (from `curve`), one
-/// `grid_<view>.png` per entry of `grids`, and `report.md`, whose path is returned.
-/// Every file is written atomically.
+/// `report.json` (the [`RunSummary`]), `speed_vs_error.png` (from `curve`; not for a scored
+/// method, which has no training curve), one `grid_<view>.png` per entry of `grids`, and
+/// `report.md`, whose path is returned. Every file is written atomically.
 pub fn write_report(
     out_dir: &Path,
     name: &str,
@@ -143,15 +204,9 @@ pub fn write_report(
     write_json_atomic(&out_dir.join("eval.json"), report)?;
     let summary = RunSummary::from_report(name, report, curve);
     write_json_atomic(&out_dir.join("report.json"), &summary)?;
-    let data = SpeedVsError {
-        val_psnr: val_psnr_points(curve),
-        train_psnr: curve.iter().filter_map(|r| r.train_psnr.map(|p| (r.wall_s, p))).collect(),
-        val_depth_mae: val_depth_points(curve),
-        t25: summary.time_to_25db_s,
-        t30: summary.time_to_30db_s,
-        title: name.to_string(),
-    };
-    speed_vs_error_png(&out_dir.join("speed_vs_error.png"), &data)?;
+    if report.method.is_none() {
+        speed_vs_error(out_dir, name, &summary, curve)?;
+    }
     let mut grid_files = Vec::new();
     for v in grids {
         let file = grid_file_name(v.name);
@@ -166,6 +221,19 @@ pub fn write_report(
     let path = out_dir.join("report.md");
     write_atomic(&path, md.as_bytes())?;
     Ok(path)
+}
+
+/// `speed_vs_error.png` from a run's training curve.
+fn speed_vs_error(out_dir: &Path, name: &str, summary: &RunSummary, curve: &[MetricsRecord]) -> Result<(), EvalError> {
+    let data = SpeedVsError {
+        val_psnr: val_psnr_points(curve),
+        train_psnr: curve.iter().filter_map(|r| r.train_psnr.map(|p| (r.wall_s, p))).collect(),
+        val_depth_mae: val_depth_points(curve),
+        t25: summary.time_to_25db_s,
+        t30: summary.time_to_30db_s,
+        title: name.to_string(),
+    };
+    speed_vs_error_png(&out_dir.join("speed_vs_error.png"), &data)
 }
 
 #[cfg(test)]
@@ -224,7 +292,7 @@ mod tests {
             gt_depth: Some(&gt_depth),
             gt_distance: Some(&gt_depth),
             gt_alpha: Some(&alpha),
-            pred_opacity: &opacity,
+            pred_opacity: Some(&opacity),
             samples: Some(RaySamples { pixel: &pixel, offsets: &offsets, t: &t, w: &wts }),
             render_s: 0.3,
         };

@@ -4,30 +4,21 @@
 //! compare with the dataset's ground truth at that resolution, and write `eval.json`,
 //! `report.md`, `report.json` and the pictures into the run folder.
 //!
-//! Ground truth at downscale `k`: colour is the dataset's image box-filtered over whole `k × k`
-//! blocks with alpha-premultiplied colour (`dataset::RgbaImage::downscaled`, the filter the
-//! trainer applies to its targets). Depth, distance, normal and alpha are exact at the
-//! downscaled pixel-centre rays and never averaged: for odd `k` each such ray is a
-//! full-resolution centre ray, read from the ground-truth file; for even `k` the rays are cast
-//! exactly through the scene the dataset was rendered from (found through its
-//! `render_config.json` and checked by content hash, or given as [`EvalRunOptions::scene`]);
-//! without the scene the nearest full-resolution pixel's values are used and the report says
-//! so.
-//!
-//! Colour is compared in display space (sRGB in [0, 1]), the space the models are trained in:
-//! the ground-truth PNG (straight alpha) is composited onto the same background the NeRF
-//! renders with (`RunModel::eval_background`). Depth metrics use z-depth; the off-surface mass
-//! uses the Euclidean distance along the pixel-centre ray, both from the ground-truth EXR.
+//! The ground truth at that resolution ([`crate::truth`]: colour box-filtered and composited on
+//! the run's evaluation background, `RunModel::eval_background`; depth, distance, normal and
+//! alpha exact at the downscaled pixel-centre rays) and the per-view metrics and report files
+//! ([`crate::session`]) are shared with [`mod@crate::score`], which measures other tools' renders.
+//! Colour is compared in display space (sRGB in [0, 1]), the space the models are trained in.
+//! Depth metrics use z-depth; the off-surface mass uses the Euclidean distance along the
+//! pixel-centre ray, both from the ground-truth EXR.
 
 use crate::curve::read_metrics_jsonl;
-use crate::evaluate::{EvalOptions, EvalReport, RunInfo, ViewInput, evaluate_view};
-use crate::metrics::RaySamples;
-use crate::report::write_report;
+use crate::evaluate::{EvalReport, RunInfo};
+use crate::session::{FrameSettings, MESH_FILE, Prediction, Samples, evaluate_frames, is_eval_output, write_outputs};
+use crate::truth::{ground_truth_source, surface_options};
 use crate::{EvalError, RunSummary};
-use crate::evaluate::EvalResolution;
-use dataset::{Dataset, Frame, GroundTruth, SplitKind};
-use pathtracer::ground_truth::{SceneLookup, scene_of_dataset};
-use nerf::render::{RenderedView, RunModel};
+use dataset::{Dataset, Frame, SplitKind};
+use nerf::render::RunModel;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -92,184 +83,24 @@ pub struct EvalRunOutput {
     pub report_md: PathBuf,
 }
 
-struct LoadedView {
-    name: String,
-    width: usize,
-    height: usize,
-    gt_rgb: Vec<f32>,
-    gt: Option<GroundTruth>,
-    pred: RenderedView,
-    pixel: Vec<usize>,
-    offsets: Vec<usize>,
-    render_s: f64,
-}
-
 fn run_error(run: &Path, message: impl ToString) -> EvalError {
     EvalError::Run { run: run.to_path_buf(), message: message.to_string() }
 }
 
-/// Where a view's depth / distance / normal / alpha ground truth at the evaluated resolution
-/// comes from.
-enum GroundTruthSource {
-    /// Read from the ground-truth file: the full-resolution centre ray of an odd factor's block
-    /// is the downscaled centre ray.
-    File,
-    /// Cast exactly through the scene (even factors).
-    Scene(Box<pathtracer::render::Renderer>),
-    /// The nearest full-resolution pixel (even factors without the scene).
-    Nearest,
-}
-
-fn load_view(
-    run_dir: &Path,
-    model: &RunModel,
-    frame: &Frame,
-    background: [f32; 3],
-    downscale: u32,
-    source: &GroundTruthSource,
-) -> Result<LoadedView, EvalError> {
-    let full = frame.camera.intrinsics;
-    let png = dataset::read_png_rgba(&frame.image_path)?;
-    if (png.width, png.height) != (full.width, full.height) {
-        return Err(run_error(
-            run_dir,
-            format!("{}: image is {}x{}, camera says {}x{}", frame.image_path.display(), png.width, png.height, full.width, full.height),
-        ));
-    }
+/// Renders `frame` at `downscale` through the run's model.
+fn render(model: &RunModel, frame: &Frame, background: [f32; 3], downscale: u32) -> Prediction {
     let camera = frame.camera.downscaled(downscale);
-    let k = camera.intrinsics;
-    let png = png.downscaled(downscale);
-    let gt_rgb: Vec<f32> = png
-        .data
-        .chunks_exact(4)
-        .flat_map(|p| {
-            let a = p[3];
-            [0, 1, 2].map(|c| p[c] * a + background[c] * (1.0 - a))
-        })
-        .collect();
-    let gt = ground_truth_at(run_dir, frame, downscale, source)?;
     let start = Instant::now();
     let pred = model.render_view(&camera, background);
     let render_s = start.elapsed().as_secs_f64();
-    let n = k.width as usize * k.height as usize;
-    let offsets = pred.samples.offsets.iter().map(|&o| o as usize).collect();
-    Ok(LoadedView {
-        name: frame.name.clone(),
-        width: k.width as usize,
-        height: k.height as usize,
-        gt_rgb,
-        gt,
-        pred,
+    let n = pred.width as usize * pred.height as usize;
+    let samples = Samples {
         pixel: (0..n).collect(),
-        offsets,
-        render_s,
-    })
-}
-
-/// The frame's depth / distance / normal / alpha ground truth at `downscale` (see
-/// [`GroundTruthSource`]); `None` when the frame has none.
-fn ground_truth_at(run_dir: &Path, frame: &Frame, downscale: u32, source: &GroundTruthSource) -> Result<Option<GroundTruth>, EvalError> {
-    let Some(p) = &frame.gt_path else { return Ok(None) };
-    let full = frame.camera.intrinsics;
-    let g = dataset::read_ground_truth(p)?;
-    if (g.width, g.height) != (full.width, full.height) {
-        return Err(run_error(run_dir, format!("{}: ground truth is {}x{}, camera says {}x{}", p.display(), g.width, g.height, full.width, full.height)));
-    }
-    Ok(Some(match (g.at_downscale(downscale), source) {
-        (Some(exact), _) => exact,
-        (None, GroundTruthSource::Scene(r)) => r.ground_truth(&frame.camera.downscaled(downscale)),
-        (None, _) => g.nearest_at_downscale(downscale),
-    }))
-}
-
-/// How the ground truth at `downscale` is obtained, and the report's note saying so (`None`
-/// when it is read exactly from the files, or there is none).
-fn ground_truth_source(
-    dataset: &Dataset,
-    frames: &[&Frame],
-    downscale: u32,
-    scene: Option<&Path>,
-    import: &pathtracer::import::ImportOptions,
-) -> Result<(GroundTruthSource, Option<String>), EvalError> {
-    if downscale % 2 == 1 || frames.iter().all(|f| f.gt_path.is_none()) {
-        return Ok((GroundTruthSource::File, None));
-    }
-    let pt = |e: pathtracer::PathTracerError| EvalError::Input(e.to_string());
-    Ok(match scene_of_dataset(&dataset.root, scene, import).map_err(pt)? {
-        SceneLookup::Found { renderer, path } => (
-            GroundTruthSource::Scene(renderer),
-            Some(format!(
-                "depth, distance, normal and alpha ground truth at downscale {downscale} are cast exactly through {} at the downscaled pixel centres",
-                path.display()
-            )),
-        ),
-        SceneLookup::Missing(why) => (
-            GroundTruthSource::Nearest,
-            Some(format!(
-                "depth, distance, normal and alpha ground truth at the even downscale {downscale} are those of the nearest full-resolution pixel centre (half a full-resolution pixel off the evaluated ray), because {why}; give the scene (`--scene`) for exact values or evaluate at an odd downscale"
-            )),
-        ),
-    })
-}
-
-fn view_input(v: &LoadedView) -> ViewInput<'_> {
-    let samples = (v.offsets.len() == v.pixel.len() + 1).then(|| RaySamples {
-        pixel: &v.pixel,
-        offsets: &v.offsets,
-        t: &v.pred.samples.t,
-        w: &v.pred.samples.w,
-    });
-    ViewInput {
-        name: &v.name,
-        width: v.width,
-        height: v.height,
-        pred_rgb: &v.pred.rgb,
-        gt_rgb: &v.gt_rgb,
-        pred_depth: v.gt.as_ref().map(|_| v.pred.depth.as_slice()),
-        gt_depth: v.gt.as_ref().map(|g| g.depth.as_slice()),
-        gt_distance: v.gt.as_ref().map(|g| g.distance.as_slice()),
-        gt_alpha: v.gt.as_ref().map(|g| g.alpha.as_slice()),
-        pred_opacity: &v.pred.opacity,
-        samples: v.gt.as_ref().and(samples),
-        render_s: v.render_s,
-    }
-}
-
-/// The box around ground-truth surface points (each covered pixel-centre ray, alpha at least
-/// [`crate::metrics::FOREGROUND_ALPHA`], lifted by its true distance), grown view by view: the
-/// scene's extent for the off-surface tolerance when the dataset has no scene facts but has
-/// ground truth.
-#[derive(Clone, Copy, Debug)]
-struct SurfaceBox {
-    lo: [f64; 3],
-    hi: [f64; 3],
-}
-
-impl SurfaceBox {
-    fn empty() -> Self {
-        Self { lo: [f64::INFINITY; 3], hi: [f64::NEG_INFINITY; 3] }
-    }
-
-    /// Adds the surface points of `g`, seen by `camera` (of `g`'s resolution).
-    fn extend(&mut self, camera: &dataset::Camera, g: &GroundTruth) {
-        let w = g.width as usize;
-        for (p, (&d, &a)) in g.distance.iter().zip(&g.alpha).enumerate() {
-            if a < crate::metrics::FOREGROUND_ALPHA || !(d > 0.0 && d.is_finite()) {
-                continue;
-            }
-            let ray = camera.pixel_center_ray((p % w) as u32, (p / w) as u32);
-            let x = ray.origin + ray.direction * d as f64;
-            for k in 0..3 {
-                self.lo[k] = self.lo[k].min(x[k]);
-                self.hi[k] = self.hi[k].max(x[k]);
-            }
-        }
-    }
-
-    /// `None` without any surface point.
-    fn bounds(&self) -> Option<([f32; 3], [f32; 3])> {
-        self.lo[0].is_finite().then(|| (self.lo.map(|v| v as f32), self.hi.map(|v| v as f32)))
-    }
+        offsets: pred.samples.offsets.iter().map(|&o| o as usize).collect(),
+        t: pred.samples.t,
+        w: pred.samples.w,
+    };
+    Prediction { rgb: pred.rgb, depth: Some(pred.depth), opacity: Some(pred.opacity), samples: Some(samples), render_s }
 }
 
 /// Evaluates the run in `run_dir` on `opts.split` and writes its report into the run folder.
@@ -298,57 +129,18 @@ pub fn evaluate_run(
             .map_err(|e| run_error(run_dir, format!("{e} ({})", f.image_path.display())))?;
     }
     let (source, gt_note) = ground_truth_source(&dataset, &frames, downscale, opts.scene.as_deref(), &opts.import_options())?;
-    // The off-surface tolerance's box, and the note that says where it came from: the scene
-    // facts' box, or a first pass over the evaluated views' ground truth.
-    let surface = match &dataset.facts {
-        Some(_) => None,
-        None => {
-            let mut b = SurfaceBox::empty();
-            for f in &frames {
-                if let Some(g) = ground_truth_at(run_dir, f, downscale, &source)? {
-                    b.extend(&f.camera.downscaled(downscale), &g);
-                }
-            }
-            b.bounds()
-        }
-    };
-    let (options, note) = match (&dataset.facts, surface) {
-        (Some(f), _) => (EvalOptions::for_scene_bbox(f.aabb_min.map(|v| v as f32), f.aabb_max.map(|v| v as f32)), None),
-        (None, Some((lo, hi))) => {
-            let o = EvalOptions::for_scene_bbox(lo, hi);
-            let note = format!(
-                "the dataset carries no scene facts: the off-surface tolerance ({:.4}) is 1 % of the diagonal of the box around the ground-truth surface points of the evaluated views",
-                o.surface_tol
-            );
-            (o, Some(note))
-        }
-        (None, None) => (
-            EvalOptions::with_surface_tol(0.0),
-            Some("the dataset carries no scene facts (e.g. Blender synthetic): no bounding box for the off-surface tolerance".to_string()),
-        ),
-    };
-    // One view at a time: its samples (tens of MB at 800x800) are dropped once its metrics are
-    // taken, except for the views that get a picture grid.
+    let err = |m: String| run_error(run_dir, m);
+    let (options, note) = surface_options(&dataset, &frames, downscale, &source, &err)?;
     let background = model.eval_background();
-    let mut reports = Vec::with_capacity(frames.len());
-    let mut kept = Vec::new();
-    let mut resolution = None;
-    for (k, frame) in frames.iter().enumerate() {
-        let view = load_view(run_dir, &model, frame, background, downscale, &source)?;
-        resolution.get_or_insert(EvalResolution { width: view.width as u32, height: view.height as u32, downscale, train_downscale });
-        reports.push(evaluate_view(&view_input(&view), &options)?);
-        if k < opts.grid_views {
-            kept.push(view);
-        }
-        progress(k + 1, frames.len());
-    }
+    let settings = FrameSettings { background, downscale, train_downscale, source: &source, options: &options, grid_views: opts.grid_views, err: &err };
+    let evaluated = evaluate_frames(&frames, &settings, &mut |frame| Ok(render(&model, frame, background, downscale)), progress)?;
     let info = RunInfo {
         train_wall_s: model.train_wall_s(),
         train_steps: model.train_steps(),
         parameters: model.parameters() as u64,
     };
-    let mut report = EvalReport::new(reports, info, &options)?;
-    report.resolution = resolution;
+    let mut report = EvalReport::new(evaluated.reports, info, &options)?;
+    report.resolution = evaluated.resolution;
     report.notes.extend(note);
     report.notes.extend(gt_note);
     // Every input is read before the first output (the mesh's files) is written, so a bad
@@ -376,39 +168,8 @@ pub fn evaluate_run(
         ));
     }
     let name = run_name(run_dir);
-    let grids: Vec<ViewInput<'_>> = kept.iter().map(view_input).collect();
-    let report_md = write_report(run_dir, &name, &report, &curve, &grids)?;
-    let written: Vec<String> = kept.iter().map(|v| crate::grid::grid_file_name(&v.name)).collect();
-    remove_stale_outputs(run_dir, &written, report.mesh.is_some())?;
-    let summary = RunSummary::from_report(&name, &report, &curve);
+    let (report_md, summary) = write_outputs(run_dir, &name, &report, &curve, &evaluated.kept)?;
     Ok(EvalRunOutput { report, summary, report_md })
-}
-
-/// The mesh an evaluation writes into the run folder, and its error picture.
-const MESH_FILE: &str = "mesh.ply";
-const MESH_PICTURE: &str = "mesh_error.png";
-
-/// Whether `name` is a file [`evaluate_run`] writes into the run folder.
-fn is_eval_output(name: &str) -> bool {
-    ["eval.json", "report.json", "report.md", "speed_vs_error.png", MESH_FILE, MESH_PICTURE].contains(&name)
-        || (name.starts_with("grid_") && name.ends_with(".png"))
-}
-
-/// Removes what an earlier evaluation wrote and this one did not, so that the folder shows only
-/// this report's pictures: grids (`grid_<view>.png`) other than `grids`, and without a mesh the
-/// mesh's error picture. The mesh itself may be `cargo xtask mesh`'s and is kept (the report
-/// says it is not this evaluation's).
-fn remove_stale_outputs(run_dir: &Path, grids: &[String], mesh: bool) -> Result<(), EvalError> {
-    let entries = std::fs::read_dir(run_dir).map_err(|source| EvalError::Io { path: run_dir.to_path_buf(), source })?;
-    for e in entries.flatten() {
-        let name = e.file_name().to_string_lossy().into_owned();
-        let stale = (name.starts_with("grid_") && name.ends_with(".png") && !grids.contains(&name)) || (!mesh && name == MESH_PICTURE);
-        if stale && e.file_type().is_ok_and(|t| t.is_file()) {
-            let p = e.path();
-            std::fs::remove_file(&p).map_err(|source| EvalError::Io { path: p.clone(), source })?;
-        }
-    }
-    Ok(())
 }
 
 /// A run's display name: its folder name.

@@ -487,6 +487,7 @@ mod tests {
             resolution: None,
             chamfer_l1: None,
             f_score_1pct: None,
+            tool: None,
         }
     }
 

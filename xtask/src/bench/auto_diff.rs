@@ -390,6 +390,7 @@ mod tests {
             resolution: None,
             chamfer_l1: chamfer,
             f_score_1pct: None,
+            tool: None,
         }
     }
 
