@@ -31,6 +31,7 @@ pub mod compare;
 pub mod curve;
 pub mod error;
 pub mod evaluate;
+pub mod geometry;
 pub mod grid;
 pub mod io;
 pub mod marching_cubes;
