@@ -99,10 +99,11 @@ pub fn run(args: MeshArgs) -> anyhow::Result<()> {
                     metrics: m,
                     predicted_visible_area_fraction: fraction,
                     reference: reference.info,
-                    resolution: args.resolution,
-                    level: extracted.level.clone(),
+                    resolution: Some(args.resolution),
+                    level: Some(extracted.level.clone()),
                     mesh_file: Some(args.out.display().to_string()),
                     picture: None,
+                    input: None,
                 })
             }
             Err(why) => {
@@ -144,9 +145,10 @@ pub fn print_metrics(b: &MeshBlock) {
         100.0 * b.reference.visible_area_fraction,
         100.0 * b.predicted_visible_area_fraction
     );
+    let nc = m.normal_consistency.map_or("absent".to_string(), |v| format!("{v:.3}"));
     let f: Vec<String> = m.f_scores.iter().map(|f| format!("F@{:.1}% {:.3} (P {:.3} R {:.3})", 100.0 * f.fraction, f.f_score, f.precision, f.recall)).collect();
     println!(
-        "accuracy {:.4} m, completeness {:.4} m, Chamfer-L1 {:.4} m (medians {:.4} / {:.4}), normal consistency {:.3}, {}; diagonal {:.3} m, {} samples per mesh",
-        m.accuracy, m.completeness, m.chamfer_l1, m.accuracy_median, m.completeness_median, m.normal_consistency, f.join(", "), m.diagonal, m.samples
+        "accuracy {:.4} m, completeness {:.4} m, Chamfer-L1 {:.4} m (medians {:.4} / {:.4}), normal consistency {}, {}; diagonal {:.3} m, {} samples per mesh",
+        m.accuracy, m.completeness, m.chamfer_l1, m.accuracy_median, m.completeness_median, nc, f.join(", "), m.diagonal, m.samples
     );
 }

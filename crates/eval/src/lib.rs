@@ -32,6 +32,7 @@ pub mod compare;
 pub mod curve;
 pub mod error;
 pub mod evaluate;
+pub mod geometry;
 pub mod grid;
 pub mod interop;
 pub mod io;

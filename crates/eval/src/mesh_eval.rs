@@ -79,24 +79,95 @@ pub fn scene_reference(
 }
 
 /// The `mesh` block of `eval.json` (and of the mesh sidecar): the metrics of the extracted
-/// mesh against the visible reference surface, and how both were obtained.
+/// mesh, or of another tool's geometry, against the visible reference surface, and how both
+/// were obtained.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct MeshBlock {
     /// The metrics (of the part of the mesh the cameras see).
     pub metrics: MeshMetrics,
-    /// The share of the extracted mesh's area that the train and test cameras see (the part
-    /// measured).
+    /// The share of the mesh's area that the train and test cameras see (the part measured;
+    /// 1 for a point cloud, every point of which is measured).
     pub predicted_visible_area_fraction: f64,
     /// The reference.
     pub reference: ReferenceInfo,
-    /// Grid cells along the longest side of the scene box.
-    pub resolution: usize,
-    /// The density level and why.
-    pub level: LevelChoice,
+    /// Grid cells along the longest side of the scene box (absent for another tool's geometry).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub resolution: Option<usize>,
+    /// The density level and why (absent for another tool's geometry).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub level: Option<LevelChoice>,
     /// The mesh file, relative to the run folder when inside it.
     pub mesh_file: Option<String>,
     /// The error picture, relative to the run folder.
     pub picture: Option<String>,
+    /// The geometry file read, when it is another tool's rather than extracted from our field.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub input: Option<GeometryInput>,
+}
+
+/// Whether another tool's geometry is a surface or points.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum GeometryKind {
+    /// Triangles (polygons fan-triangulated).
+    #[serde(rename = "mesh")]
+    Mesh,
+    /// Points without faces, optionally with normals.
+    #[serde(rename = "point cloud")]
+    PointCloud,
+}
+
+/// Another tool's geometry file as read and brought to the dataset's frame
+/// ([`crate::geometry`]), recorded in the `mesh` block.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct GeometryInput {
+    /// The file, as given.
+    pub file: String,
+    /// `"PLY ascii"`, `"PLY binary_little_endian"`, `"PLY binary_big_endian"` or `"OBJ"`.
+    pub format: String,
+    /// Mesh or point cloud.
+    pub kind: GeometryKind,
+    /// Vertices (points) kept.
+    pub vertices: usize,
+    /// Triangles kept, after fan triangulation of polygons (0 for a point cloud).
+    pub triangles: usize,
+    /// Polygons of more than three corners that were fan-triangulated.
+    pub polygons: usize,
+    /// Vertices dropped for a non-finite coordinate (with the triangles using them).
+    pub dropped_vertices: usize,
+    /// Triangles dropped because a corner was dropped.
+    pub dropped_triangles: usize,
+    /// Whether the points carry normals that the metrics use (point clouds only).
+    pub normals: bool,
+    /// The row-major 4x4 affine transform applied to bring the file's coordinates into the
+    /// dataset's frame (absent: used as read).
+    pub to_dataset: Option<[[f64; 4]; 4]>,
+    /// Points of a point cloud whose distances to the reference were averaged (all of them,
+    /// or a seeded draw of as many as the samples per mesh).
+    pub measured_points: Option<usize>,
+    /// What was dropped or is absent, and why, one sentence each.
+    pub notes: Vec<String>,
+}
+
+impl GeometryInput {
+    /// One phrase for reports: what was read and how it was brought to the dataset's frame.
+    pub fn describe(&self) -> String {
+        let body = match self.kind {
+            GeometryKind::Mesh => format!("{} vertices, {} triangles", self.vertices, self.triangles),
+            GeometryKind::PointCloud => format!("{} points{}", self.vertices, if self.normals { " with normals" } else { ", no normals" }),
+        };
+        let frame = if self.to_dataset.is_some() { "brought to the dataset's frame by the given transform" } else { "in the dataset's frame as read" };
+        let kind = match self.kind {
+            GeometryKind::Mesh => "mesh",
+            GeometryKind::PointCloud => "point cloud",
+        };
+        format!("The {kind} `{}` ({}, {body}, {frame})", self.file, self.format)
+    }
+}
+
+/// The options [`compare_with_reference`] measures with: `samples` points per mesh, seed 0,
+/// F-score thresholds relative to the reference's diagonal.
+pub fn metrics_options(reference: &SceneReference, samples: usize) -> MeshMetricsOptions {
+    MeshMetricsOptions { samples, ..MeshMetricsOptions::for_diagonal(reference.diagonal) }
 }
 
 /// The metrics of the part of `mesh` the reference's cameras see ([`visible_part`]) against
@@ -104,8 +175,7 @@ pub struct MeshBlock {
 /// area.
 pub fn compare_with_reference(mesh: &TriMesh, reference: &SceneReference, samples: usize) -> Result<(MeshMetrics, f64), EvalError> {
     let (visible, fraction) = visible_part(mesh, &reference.cameras)?;
-    let opts = MeshMetricsOptions { samples, ..MeshMetricsOptions::for_diagonal(reference.diagonal) };
-    Ok((mesh_metrics(&visible, &reference.mesh, &opts)?, fraction))
+    Ok((mesh_metrics(&visible, &reference.mesh, &metrics_options(reference, samples))?, fraction))
 }
 
 /// `mesh` as a path-tracer scene (one double-sided default material, world = local) behind a
@@ -253,10 +323,11 @@ pub fn evaluate_run_mesh(
         metrics,
         predicted_visible_area_fraction,
         reference: reference.info,
-        resolution: opts.resolution,
-        level: m.level,
+        resolution: Some(opts.resolution),
+        level: Some(m.level),
         mesh_file: Some("mesh.ply".into()),
         picture: Some("mesh_error.png".into()),
+        input: None,
     })
 }
 

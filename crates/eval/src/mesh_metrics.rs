@@ -16,6 +16,9 @@
 //!   against the normal of the closest triangle on the other mesh (unsigned, so single-sided
 //!   reference triangles of either winding count alike).
 //!
+//! A point cloud ([`point_metrics`]) stands in for the predicted mesh's samples with its
+//! points; completeness then looks for the nearest point, and normal consistency needs normals.
+//!
 //! ```
 //! use eval::mesh::TriMesh;
 //! use eval::mesh_metrics::{MeshMetricsOptions, mesh_metrics};
@@ -87,19 +90,20 @@ pub struct MeshMetrics {
     pub completeness_median: f64,
     /// One entry per threshold.
     pub f_scores: Vec<FScore>,
-    /// Mean |n · n'| over both sample sets.
-    pub normal_consistency: f64,
+    /// Mean |n · n'| over both sample sets (absent for a point cloud without normals).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub normal_consistency: Option<f64>,
     /// Points sampled on each mesh.
     pub samples: usize,
     /// Seed of the samples.
     pub seed: u64,
     /// The diagonal the thresholds are fractions of.
     pub diagonal: f64,
-    /// Area of the predicted mesh, m².
+    /// Area of the predicted mesh, m² (0 for a point cloud).
     pub predicted_area: f64,
     /// Area of the reference mesh, m².
     pub reference_area: f64,
-    /// Triangles of the predicted mesh.
+    /// Triangles of the predicted mesh (0 for a point cloud).
     pub predicted_triangles: usize,
     /// Triangles of the reference mesh.
     pub reference_triangles: usize,
@@ -176,6 +180,22 @@ impl SurfaceIndex {
         Ok(Self { set, normals: (0..mesh.triangles.len()).map(|k| mesh.triangle_normal(k)).collect() })
     }
 
+    /// Builds the BVH of a point set (each point a degenerate triangle, so that a query finds
+    /// the exact nearest point), with a unit normal per point or none (zero normals: every
+    /// |n · n'| is then 0).
+    ///
+    /// # Shapes
+    /// `normals`, when given: one per point.
+    pub fn from_points(points: &[Vec3], normals: Option<&[DVec3]>) -> Result<Self, EvalError> {
+        let n = u32::try_from(points.len()).map_err(|_| EvalError::Input(format!("{} points are more than a point index holds", points.len())))?;
+        if normals.is_some_and(|v| v.len() != points.len()) {
+            return Err(EvalError::Input(format!("{} normals for {n} points", normals.map_or(0, |v| v.len()))));
+        }
+        let singles: Vec<[u32; 3]> = (0..n).map(|i| [i, i, i]).collect();
+        let set = NearestTriangles::build(points, &singles).map_err(|e| EvalError::Input(format!("points: {e}")))?;
+        Ok(Self { set, normals: normals.map_or_else(|| vec![DVec3::ZERO; points.len()], <[DVec3]>::to_vec) })
+    }
+
     /// Distance of each point to the mesh and |n · n'| against the closest triangle's normal
     /// (`normals[k]` belongs to `points[k]`; infinite distance and 0 on an empty mesh).
     pub fn query(&self, points: &[Vec3], normals: &[DVec3]) -> Vec<(f64, f64)> {
@@ -215,49 +235,129 @@ fn median(v: &[f64]) -> f64 {
 /// `reference` (see the module docs). Errors when either mesh is invalid or has no area, or the
 /// options ask for no samples or a non-positive diagonal.
 pub fn mesh_metrics(predicted: &TriMesh, reference: &TriMesh, opts: &MeshMetricsOptions) -> Result<MeshMetrics, EvalError> {
+    check_options(opts)?;
+    predicted.validate()?;
+    reference.validate()?;
+    let ps = sample_surface(predicted, opts.samples, opts.seed).map_err(metric("predicted mesh"))?;
+    let rs = sample_surface(reference, opts.samples, opts.seed ^ REFERENCE_SEED).map_err(metric("reference mesh"))?;
+    let to_ref = SurfaceIndex::new(reference)?.query(&ps.points, &ps.normals);
+    let to_pred = SurfaceIndex::new(predicted)?.query(&rs.points, &rs.normals);
+    let sides = Sides { to_ref, to_pred, normals: true, predicted_area: predicted.area(), predicted_triangles: predicted.triangles.len() };
+    Ok(sides.metrics(reference, opts))
+}
+
+/// The metrics of a point cloud against `reference`, the way [`mesh_metrics`] takes them with
+/// the points in place of the predicted mesh's samples: accuracy over the points (all of them,
+/// or `opts.samples` of them drawn without replacement, seeded, when there are more),
+/// completeness from the reference's samples to the nearest point, F-scores alike; normal
+/// consistency only when `normals` are given (the point's normal against the closest
+/// reference triangle's, the reference sample's against the nearest point's). Area and
+/// triangles of the prediction are 0. Errors on no points or a non-finite one.
+///
+/// # Shapes
+/// `normals`, when given: one unit vector per point.
+pub fn point_metrics(points: &[Vec3], normals: Option<&[DVec3]>, reference: &TriMesh, opts: &MeshMetricsOptions) -> Result<MeshMetrics, EvalError> {
+    check_options(opts)?;
+    reference.validate()?;
+    if points.is_empty() {
+        return Err(EvalError::Input("the point cloud has no points".into()));
+    }
+    if let Some(k) = points.iter().position(|p| !p.is_finite()) {
+        return Err(EvalError::Input(format!("point {k} is not finite")));
+    }
+    let index = SurfaceIndex::from_points(points, normals)?;
+    let picked = pick(points.len(), opts.samples, opts.seed);
+    let ps: Vec<Vec3> = picked.iter().map(|&k| points[k]).collect();
+    let pn: Vec<DVec3> = match normals {
+        Some(n) => picked.iter().map(|&k| n[k]).collect(),
+        None => vec![DVec3::ZERO; ps.len()],
+    };
+    let rs = sample_surface(reference, opts.samples, opts.seed ^ REFERENCE_SEED).map_err(metric("reference mesh"))?;
+    let to_ref = SurfaceIndex::new(reference)?.query(&ps, &pn);
+    let to_pred = index.query(&rs.points, &rs.normals);
+    let sides = Sides { to_ref, to_pred, normals: normals.is_some(), predicted_area: 0.0, predicted_triangles: 0 };
+    Ok(sides.metrics(reference, opts))
+}
+
+/// The reference's samples are drawn with the seed xor this, apart from the prediction's.
+const REFERENCE_SEED: u64 = 0x05ee_d0f2_ef00;
+
+fn metric(what: &'static str) -> impl Fn(MetricError) -> EvalError {
+    move |e| EvalError::Metric { view: what.into(), source: e }
+}
+
+fn check_options(opts: &MeshMetricsOptions) -> Result<(), EvalError> {
     if opts.samples == 0 {
         return Err(EvalError::Input("mesh metrics need at least one sample per mesh".into()));
     }
     if !(opts.diagonal > 0.0 && opts.diagonal.is_finite()) {
         return Err(EvalError::Input(format!("mesh metrics need a positive scene diagonal, got {}", opts.diagonal)));
     }
-    predicted.validate()?;
-    reference.validate()?;
-    let metric = |what: &'static str| move |e: MetricError| EvalError::Metric { view: what.into(), source: e };
-    let ps = sample_surface(predicted, opts.samples, opts.seed).map_err(metric("predicted mesh"))?;
-    let rs = sample_surface(reference, opts.samples, opts.seed ^ 0x05ee_d0f2_ef00).map_err(metric("reference mesh"))?;
-    let to_ref = SurfaceIndex::new(reference)?.query(&ps.points, &ps.normals);
-    let to_pred = SurfaceIndex::new(predicted)?.query(&rs.points, &rs.normals);
-    let mean = |v: &[(f64, f64)], f: fn(&(f64, f64)) -> f64| v.iter().map(f).sum::<f64>() / v.len() as f64;
-    let accuracy = mean(&to_ref, |x| x.0);
-    let completeness = mean(&to_pred, |x| x.0);
-    let within = |v: &[(f64, f64)], tau: f64| v.iter().filter(|x| x.0 < tau).count() as f64 / v.len() as f64;
-    let f_scores = opts
-        .fractions
-        .iter()
-        .map(|&fraction| {
-            let threshold = fraction * opts.diagonal;
-            let (precision, recall) = (within(&to_ref, threshold), within(&to_pred, threshold));
-            let f_score = if precision + recall > 0.0 { 2.0 * precision * recall / (precision + recall) } else { 0.0 };
-            FScore { fraction, threshold, precision, recall, f_score }
-        })
-        .collect();
-    Ok(MeshMetrics {
-        accuracy,
-        completeness,
-        chamfer_l1: 0.5 * (accuracy + completeness),
-        accuracy_median: median(&to_ref.iter().map(|x| x.0).collect::<Vec<_>>()),
-        completeness_median: median(&to_pred.iter().map(|x| x.0).collect::<Vec<_>>()),
-        f_scores,
-        normal_consistency: 0.5 * (mean(&to_ref, |x| x.1) + mean(&to_pred, |x| x.1)),
-        samples: opts.samples,
-        seed: opts.seed,
-        diagonal: opts.diagonal,
-        predicted_area: predicted.area(),
-        reference_area: reference.area(),
-        predicted_triangles: predicted.triangles.len(),
-        reference_triangles: reference.triangles.len(),
-    })
+    Ok(())
+}
+
+/// `0..n` when `n <= m`, else `m` distinct indices of `0..n` drawn uniformly (Floyd's
+/// algorithm on the counter-based random numbers of `seed`), ascending.
+fn pick(n: usize, m: usize, seed: u64) -> Vec<usize> {
+    if n <= m {
+        return (0..n).collect();
+    }
+    let mut chosen = std::collections::HashSet::with_capacity(m);
+    for j in n - m..n {
+        let t = ((uniform(seed, j as u64, 3) * (j + 1) as f64) as usize).min(j);
+        if !chosen.insert(t) {
+            chosen.insert(j);
+        }
+    }
+    let mut out: Vec<usize> = chosen.into_iter().collect();
+    out.sort_unstable();
+    out
+}
+
+/// Distances (and |n · n'|) of the prediction's samples to the reference and of the
+/// reference's samples to the prediction.
+struct Sides {
+    to_ref: Vec<(f64, f64)>,
+    to_pred: Vec<(f64, f64)>,
+    normals: bool,
+    predicted_area: f64,
+    predicted_triangles: usize,
+}
+
+impl Sides {
+    fn metrics(self, reference: &TriMesh, opts: &MeshMetricsOptions) -> MeshMetrics {
+        let Sides { to_ref, to_pred, normals, predicted_area, predicted_triangles } = self;
+        let mean = |v: &[(f64, f64)], f: fn(&(f64, f64)) -> f64| v.iter().map(f).sum::<f64>() / v.len() as f64;
+        let accuracy = mean(&to_ref, |x| x.0);
+        let completeness = mean(&to_pred, |x| x.0);
+        let within = |v: &[(f64, f64)], tau: f64| v.iter().filter(|x| x.0 < tau).count() as f64 / v.len() as f64;
+        let f_scores = opts
+            .fractions
+            .iter()
+            .map(|&fraction| {
+                let threshold = fraction * opts.diagonal;
+                let (precision, recall) = (within(&to_ref, threshold), within(&to_pred, threshold));
+                let f_score = if precision + recall > 0.0 { 2.0 * precision * recall / (precision + recall) } else { 0.0 };
+                FScore { fraction, threshold, precision, recall, f_score }
+            })
+            .collect();
+        MeshMetrics {
+            accuracy,
+            completeness,
+            chamfer_l1: 0.5 * (accuracy + completeness),
+            accuracy_median: median(&to_ref.iter().map(|x| x.0).collect::<Vec<_>>()),
+            completeness_median: median(&to_pred.iter().map(|x| x.0).collect::<Vec<_>>()),
+            f_scores,
+            normal_consistency: normals.then(|| 0.5 * (mean(&to_ref, |x| x.1) + mean(&to_pred, |x| x.1))),
+            samples: opts.samples,
+            seed: opts.seed,
+            diagonal: opts.diagonal,
+            predicted_area,
+            reference_area: reference.area(),
+            predicted_triangles,
+            reference_triangles: reference.triangles.len(),
+        }
+    }
 }
 
 #[cfg(test)]
@@ -324,7 +424,7 @@ mod tests {
         for f in &m.f_scores {
             assert_eq!((f.precision, f.recall, f.f_score), (1.0, 1.0, 1.0));
         }
-        assert!((m.normal_consistency - 1.0).abs() < 1e-9);
+        assert!((m.normal_consistency.unwrap() - 1.0).abs() < 1e-9);
     }
 
     #[test]
@@ -335,7 +435,7 @@ mod tests {
         assert!((m.accuracy - d).abs() < 1e-7 && (m.completeness - d).abs() < 1e-7 && (m.chamfer_l1 - d).abs() < 1e-7, "{m:?}");
         let f: Vec<f64> = m.f_scores.iter().map(|f| f.f_score).collect();
         assert_eq!(f, [0.0, 0.0, 1.0]); // thresholds 0.005, 0.01, 0.02
-        assert!((m.normal_consistency - 1.0).abs() < 1e-9);
+        assert!((m.normal_consistency.unwrap() - 1.0).abs() < 1e-9);
         // A half-size square over the unit one: accuracy stays d, but only a quarter of the
         // reference is near the prediction, and the rest is √(d² + x²) away, x the distance
         // to the half square's footprint. Recall at τ = 0.02 is the share of the unit
@@ -371,8 +471,40 @@ mod tests {
         // (not exactly: the reference is a polyhedron too).
         assert!(fine.chamfer_l1 < coarse.chamfer_l1 / 8.0, "{} vs {}", fine.chamfer_l1, coarse.chamfer_l1);
         assert!(fine.chamfer_l1 < 2e-3, "{}", fine.chamfer_l1);
-        assert!(fine.normal_consistency > coarse.normal_consistency && fine.normal_consistency > 0.999);
+        assert!(fine.normal_consistency > coarse.normal_consistency && fine.normal_consistency > Some(0.999));
         assert!(fine.f_scores[0].f_score >= coarse.f_scores[0].f_score);
+    }
+
+    #[test]
+    fn point_clouds_give_the_closed_form() {
+        // A 101 x 101 grid of points 0.015 above the unit square: every point is exactly d from
+        // it; a reference sample is √(d² + r²) from the nearest point, r ≤ half a diagonal
+        // of a 0.01 cell.
+        let d = 0.015f32;
+        let pts: Vec<Vec3> = (0..101 * 101).map(|k| Vec3::new((k % 101) as f32 / 100.0, (k / 101) as f32 / 100.0, d)).collect();
+        let m = point_metrics(&pts, None, &square(0.0, 1.0), &opts(5_000, 1.0)).unwrap();
+        assert!((m.accuracy - d as f64).abs() < 1e-7 && m.accuracy_median == m.accuracy, "{m:?}");
+        let reach = (d as f64).hypot(0.005 * 2f64.sqrt());
+        assert!(m.completeness >= d as f64 - 1e-7 && m.completeness <= reach + 1e-7, "{m:?}");
+        let f: Vec<f64> = m.f_scores.iter().map(|f| f.f_score).collect();
+        assert_eq!(f, [0.0, 0.0, 1.0]);
+        assert_eq!((m.normal_consistency, m.predicted_area, m.predicted_triangles, m.reference_triangles), (None, 0.0, 0, 2));
+        // Normals of either sign count alike; a tilted one by its cosine.
+        let up = vec![DVec3::NEG_Z; pts.len()];
+        let m = point_metrics(&pts, Some(&up), &square(0.0, 1.0), &opts(5_000, 1.0)).unwrap();
+        assert!((m.normal_consistency.unwrap() - 1.0).abs() < 1e-12);
+        let tilted = vec![DVec3::new(0.6, 0.0, 0.8); pts.len()];
+        let m = point_metrics(&pts, Some(&tilted), &square(0.0, 1.0), &opts(5_000, 1.0)).unwrap();
+        assert!((m.normal_consistency.unwrap() - 0.8).abs() < 1e-9, "{m:?}");
+        // More points than samples: a seeded draw of as many, the same each time.
+        assert_eq!(pick(3, 5, 0), [0, 1, 2]);
+        let p = pick(1000, 50, 7);
+        assert!(p.len() == 50 && p.windows(2).all(|w| w[0] < w[1]) && p[49] < 1000);
+        assert_eq!(p, pick(1000, 50, 7));
+        assert_ne!(p, pick(1000, 50, 8));
+        assert!(point_metrics(&[], None, &square(0.0, 1.0), &opts(10, 1.0)).is_err());
+        assert!(point_metrics(&[Vec3::NAN], None, &square(0.0, 1.0), &opts(10, 1.0)).is_err());
+        assert!(point_metrics(&pts, Some(&up[..3]), &square(0.0, 1.0), &opts(10, 1.0)).is_err());
     }
 
     #[test]

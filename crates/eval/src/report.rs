@@ -52,17 +52,33 @@ pub fn metrics_line(name: &str, m: &ViewMetrics) -> String {
 /// The report's geometry section: the extracted mesh against the scene's visible triangles.
 pub fn mesh_section(b: &crate::mesh_eval::MeshBlock) -> String {
     let m = &b.metrics;
+    let what = match (&b.input, &b.level, b.resolution) {
+        (Some(g), _, _) => g.describe(),
+        (None, Some(level), Some(resolution)) => format!(
+            "The mesh extracted at density level {:.3} /m ({}) on a grid of {resolution} cells along the box's longest side",
+            level.level, level.source
+        ),
+        (None, _, _) => "The mesh".to_string(),
+    };
     let mut s = format!(
-        "\n## Geometry\n\nThe mesh extracted at density level {:.3} /m ({}) on a grid of {} cells along the box's longest side, against the scene's triangles seen by the {} train and test cameras ({:.1} % of the scene's area), {} points sampled on each:\n\n",
-        b.level.level, b.level.source, b.resolution, b.reference.cameras, 100.0 * b.reference.visible_area_fraction, m.samples
+        "\n## Geometry\n\n{what}, against the scene's triangles seen by the {} train and test cameras ({:.1} % of the scene's area), {} points sampled on each:\n\n",
+        b.reference.cameras, 100.0 * b.reference.visible_area_fraction, m.samples
     );
     s.push_str("| metric | value |\n|---|---:|\n");
     s.push_str(&format!("| accuracy (m) | {:.4} |\n| completeness (m) | {:.4} |\n| Chamfer-L1 (m) | {:.4} |\n", m.accuracy, m.completeness, m.chamfer_l1));
     for f in &m.f_scores {
         s.push_str(&format!("| F-score at {:.1} % of the diagonal ({:.4} m) | {:.3} (P {:.3}, R {:.3}) |\n", 100.0 * f.fraction, f.threshold, f.f_score, f.precision, f.recall));
     }
-    s.push_str(&format!("| normal consistency | {:.3} |\n", m.normal_consistency));
-    s.push_str(&format!("\nLevel: {}.\n", b.level.reason));
+    match m.normal_consistency {
+        Some(v) => s.push_str(&format!("| normal consistency | {v:.3} |\n")),
+        None => s.push_str("| normal consistency | absent |\n"),
+    }
+    if let Some(level) = &b.level {
+        s.push_str(&format!("\nLevel: {}.\n", level.reason));
+    }
+    for note in b.input.iter().flat_map(|g| &g.notes) {
+        s.push_str(&format!("\n{note}\n"));
+    }
     if let Some(p) = &b.picture {
         s.push_str(&format!("\n![the mesh from the first test camera, coloured by its distance to the scene (0 to 2 % of the diagonal, {:.4} m)]({p})\n", 0.02 * m.diagonal));
     }
