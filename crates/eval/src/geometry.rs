@@ -279,7 +279,7 @@ impl Affine {
         let linear = DMat3::from_cols(col(0), col(1), col(2));
         let det = linear.determinant();
         let scale = (0..3).map(|c| col(c).length()).fold(0.0, f64::max);
-        if !(det.abs() > 1e-12 * scale.powi(3)) {
+        if det.is_nan() || det.abs() <= 1e-12 * scale.powi(3) {
             return Err(format!("the transform to the dataset's frame is singular (its 3x3 part has determinant {det:e})"));
         }
         Ok(Self { linear, translation: col(3), normal: linear.inverse().transpose() })
@@ -411,7 +411,7 @@ pub fn score_geometry(g: &Geometry, reference: &SceneReference, samples: usize) 
     let (metrics, fraction) = match &g.shape {
         Shape::Mesh(mesh) => {
             let (visible, fraction) = visible_part(mesh, &reference.cameras)?;
-            if !(visible.area() > 0.0) {
+            if visible.area() <= 0.0 {
                 let hint = frame_hint(&mesh.positions, reference).map_or(String::new(), |h| format!(" {h}"));
                 return Err(EvalError::Input(format!(
                     "{}: none of the mesh's {} triangles is seen by the dataset's {} cameras.{hint}",

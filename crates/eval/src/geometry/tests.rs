@@ -199,33 +199,25 @@ fn test_support_scene(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../scenes").join(name)
 }
 
-/// Rotation about a tilted axis by 0.7 rad, scale 2.5, translation (40, -10, 70), row-major:
-/// out of the test cameras' view.
+/// The row-major 4x4 of `p ↦ linear·p + t`.
+fn rows(linear: DMat3, t: DVec3) -> [[f64; 4]; 4] {
+    let r = |i: usize| {
+        let row = linear.row(i);
+        [row.x, row.y, row.z, t[i]]
+    };
+    [r(0), r(1), r(2), [0.0, 0.0, 0.0, 1.0]]
+}
+
+/// Rotation about a tilted axis by 0.7 rad, scale 2.5, translation (40, -10, 70): out of the
+/// test cameras' view.
 fn similarity() -> [[f64; 4]; 4] {
-    let r = DMat3::from_axis_angle(DVec3::new(1.0, 2.0, -0.5).normalize(), 0.7) * 2.5;
-    let t = [40.0, -10.0, 70.0];
-    let mut m = [[0.0, 0.0, 0.0, 1.0]; 4];
-    for (row, out) in m.iter_mut().take(3).enumerate() {
-        for c in 0..3 {
-            out[c] = r.col(c)[row];
-        }
-        out[3] = t[row];
-    }
-    m
+    rows(DMat3::from_axis_angle(DVec3::new(1.0, 2.0, -0.5).normalize(), 0.7) * 2.5, DVec3::new(40.0, -10.0, 70.0))
 }
 
 fn inverse(m: &[[f64; 4]; 4]) -> [[f64; 4]; 4] {
     let a = Affine::new(m).unwrap();
     let li = a.linear.inverse();
-    let t = -(li * a.translation);
-    let mut out = [[0.0, 0.0, 0.0, 1.0]; 4];
-    for (row, o) in out.iter_mut().take(3).enumerate() {
-        for c in 0..3 {
-            o[c] = li.col(c)[row];
-        }
-        o[3] = t[row];
-    }
-    out
+    rows(li, -(li * a.translation))
 }
 
 #[test]
@@ -431,19 +423,12 @@ fn bad_transforms_are_refused_and_leave_the_geometry() {
     assert!(transform(&mut g, &m).unwrap_err().to_string().contains("out of range"));
     assert_eq!(g, before);
     // Normals go through the inverse transpose: a plane's normal stays normal to it under a shear.
-    let shear = [[1.0, 2.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]];
     let plane = dir.join("plane.ply");
     let pts = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [1.0, 1.0, 0.0]];
     std::fs::write(&plane, ply_ascii(&pts, &[], Some(&[[0.0, 0.0, 2.0]; 4]))).unwrap();
     let mut g = read_geometry(&plane).unwrap();
-    let tilt = DMat3::from_rotation_x(0.4);
-    let mut m = shear;
-    for r in 0..3 {
-        for c in 0..3 {
-            m[r][c] = (tilt * DMat3::from_cols(DVec3::new(1.0, 0.0, 0.0), DVec3::new(2.0, 1.0, 0.0), DVec3::Z)).col(c)[r];
-        }
-    }
-    transform(&mut g, &m).unwrap();
+    let shear = DMat3::from_cols(DVec3::X, DVec3::new(2.0, 1.0, 0.0), DVec3::Z);
+    transform(&mut g, &rows(DMat3::from_rotation_x(0.4) * shear, DVec3::ONE)).unwrap();
     let Shape::Points { points, normals: Some(normals) } = &g.shape else { panic!("points with normals") };
     let n = Vec3::from(normals[0]);
     assert!((n.length() - 1.0).abs() < 1e-6);
