@@ -57,6 +57,24 @@ pub struct ScoreArgs {
     /// Number of views that get a picture grid in the report.
     #[arg(long, default_value_t = 3)]
     pub grids: usize,
+    /// The method's mesh or point cloud (PLY or OBJ, e.g. from `ns-export tsdf` or
+    /// instant-ngp's `--save_mesh`), scored against the scene like `eval`'s mesh.
+    #[arg(long)]
+    pub geometry: Option<PathBuf>,
+    /// The frame of --geometry: tool (undo the tool's frame as found beside the predictions:
+    /// nerfstudio's dataparser_transforms.json, instant-ngp's scale and offset) or dataset.
+    #[arg(long, value_parser = ["tool", "dataset"], default_value = "tool", conflicts_with = "to_dataset")]
+    pub geometry_frame: String,
+    /// A row-major 4x4 affine from --geometry's frame to the dataset's: 16 numbers (or the top
+    /// 12) separated by spaces or commas, or a file holding them.
+    #[arg(long, allow_hyphen_values = true)]
+    pub to_dataset: Option<String>,
+    /// Points sampled on each mesh for the geometry metrics (as `eval`).
+    #[arg(long, default_value_t = eval::mesh_eval::MeshEvalOptions::standard().samples)]
+    pub geometry_samples: usize,
+    /// Admit dataset images and scene files outside their folders (symlinks, absolute paths).
+    #[arg(long)]
+    pub allow_outside: bool,
 }
 
 /// Parses `--background`.
@@ -101,6 +119,14 @@ pub fn run(args: ScoreArgs) -> anyhow::Result<()> {
         scene: crate::render::resolve_scene_option(args.scene.as_deref())?,
         dataparser_transforms: args.dataparser_transforms.clone(),
         grid_views: args.grids,
+        geometry: args.geometry.clone(),
+        geometry_frame: match (&args.to_dataset, args.geometry_frame.as_str()) {
+            (Some(m), _) => eval::GeometryFrame::Matrix(eval::geometry::parse_matrix(m).map_err(|e| anyhow::anyhow!("--to-dataset: {e}"))?),
+            (None, "dataset") => eval::GeometryFrame::Dataset,
+            (None, _) => eval::GeometryFrame::Tool,
+        },
+        geometry_samples: args.geometry_samples,
+        allow_outside: args.allow_outside,
     };
     let _lock = crate::lock_folder(&args.out)?;
     let bar = indicatif::ProgressBar::new(0);
@@ -131,6 +157,11 @@ pub fn run(args: ScoreArgs) -> anyhow::Result<()> {
         opt(m.mask_iou, 3),
         opt(args.train_seconds, 1)
     );
+    if let Some(mesh) = &out.report.mesh {
+        let g = &mesh.metrics;
+        let f = g.f_scores.first().map_or("-".to_string(), |f| format!("{:.3} at {:.4} m", f.f_score, f.threshold));
+        println!("geometry: Chamfer-L1 {:.4} m, accuracy {:.4} m, completeness {:.4} m, F-score {f}", g.chamfer_l1, g.accuracy, g.completeness);
+    }
     for note in &out.report.notes {
         println!("note: {note}");
     }

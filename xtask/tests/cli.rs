@@ -488,3 +488,102 @@ fn score_measures_predictions_and_never_writes_over_its_inputs() {
     assert_eq!(stderr.trim().lines().count(), 1, "{stderr}");
     assert_eq!(test_support::file_map(&data), before, "score changed the dataset folder");
 }
+
+/// Writes `mesh` as an OBJ with every vertex mapped by the column-vector affine `m`.
+fn write_moved_obj(path: &Path, mesh: &eval::mesh::TriMesh, m: glam::DMat4) {
+    let mut s = String::new();
+    for p in &mesh.positions {
+        let q = m.transform_point3(glam::Vec3::from(*p).as_dvec3());
+        s.push_str(&format!("v {:?} {:?} {:?}\n", q.x, q.y, q.z));
+    }
+    for t in &mesh.triangles {
+        s.push_str(&format!("f {} {} {}\n", t[0] + 1, t[1] + 1, t[2] + 1));
+    }
+    std::fs::write(path, s).unwrap();
+}
+
+/// Row-major numbers of `m`, as `--to-dataset` reads them.
+fn row_major(m: glam::DMat4) -> String {
+    m.transpose().to_cols_array().iter().map(|x| format!("{x:?}")).collect::<Vec<_>>().join(" ")
+}
+
+fn chamfer(out: &Path) -> f64 {
+    let eval: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("eval.json")).unwrap()).unwrap();
+    eval["mesh"]["metrics"]["chamfer_l1"].as_f64().unwrap_or_else(|| panic!("no chamfer in {eval}"))
+}
+
+/// `score --geometry`: the scene's own visible surface, moved by a known similarity, scores
+/// Chamfer 0 once `--to-dataset` undoes it, and so does the same surface written in nerfstudio's
+/// frame beside a `dataparser_transforms.json` with the default `--geometry-frame tool`; left in
+/// that frame it is far from the scene (or refused as unseen), and a singular `--to-dataset` is
+/// refused naming the option.
+#[test]
+fn score_geometry_moved_by_a_known_similarity_scores_chamfer_zero() {
+    use glam::{DMat4, DQuat, DVec3};
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    test_support::render::quick_dataset(&test_support::scene("tabletop"), &data, 16, [3, 1, 2], 1);
+    let ds = dataset::Dataset::load(&data).unwrap();
+    let reference = eval::mesh_eval::scene_reference(&ds, None, &Default::default()).unwrap().unwrap();
+    let d = data.to_str().unwrap();
+    let samples = ["--geometry-samples", "20000"];
+
+    // A plain folder of images, and the surface moved by S = T·R·(0.37).
+    let pred = tmp.path().join("pred");
+    std::fs::create_dir_all(&pred).unwrap();
+    for k in 0..2 {
+        std::fs::copy(data.join(format!("test/r_{k}.png")), pred.join(format!("r_{k}.png"))).unwrap();
+    }
+    let rotation = DQuat::from_axis_angle(DVec3::new(1.0, 2.0, 3.0).normalize(), 0.52);
+    let s = DMat4::from_scale_rotation_translation(DVec3::splat(0.37), rotation, DVec3::new(0.4, -1.2, 2.5));
+    let moved = tmp.path().join("moved.obj");
+    write_moved_obj(&moved, &reference.mesh, s);
+    let out = tmp.path().join("scored");
+    let inverse = row_major(s.inverse());
+    let mut args = vec!["score", d, pred.to_str().unwrap(), "--method", "m", "--out", out.to_str().unwrap(), "--geometry", moved.to_str().unwrap()];
+    args.extend(["--to-dataset", &inverse]);
+    args.extend(samples);
+    let (code, stderr) = xtask(&args);
+    assert_eq!(code, 0, "{stderr}");
+    let c = chamfer(&out);
+    assert!(c < 1e-5, "Chamfer {c} m after undoing the similarity");
+    assert!(std::fs::read_to_string(out.join("report.md")).unwrap().contains("## Geometry"));
+
+    // nerfstudio's layout: x_ns = scale · (R x + t), written to dataparser_transforms.json.
+    let ns = tmp.path().join("ns");
+    std::fs::create_dir_all(ns.join("test/rgb")).unwrap();
+    for k in 0..2 {
+        std::fs::copy(data.join(format!("test/r_{k}.png")), ns.join(format!("test/rgb/r_{k}.png"))).unwrap();
+    }
+    let (r, t, scale) = (glam::DMat3::from_quat(rotation), DVec3::new(-0.3, 0.2, 0.9), 0.41);
+    let rows: Vec<[f64; 4]> = (0..3).map(|i| [r.row(i).x, r.row(i).y, r.row(i).z, t[i]]).collect();
+    std::fs::write(ns.join("dataparser_transforms.json"), serde_json::json!({"transform": rows, "scale": scale}).to_string()).unwrap();
+    let to_ns = DMat4::from_scale(DVec3::splat(scale)) * DMat4::from_translation(t) * DMat4::from_mat3(r);
+    let in_ns = tmp.path().join("tsdf_mesh.obj");
+    write_moved_obj(&in_ns, &reference.mesh, to_ns);
+    let out_ns = tmp.path().join("scored-ns");
+    let mut args = vec!["score", d, ns.to_str().unwrap(), "--method", "ns", "--out", out_ns.to_str().unwrap(), "--geometry", in_ns.to_str().unwrap()];
+    args.extend(samples);
+    let (code, stderr) = xtask(&args);
+    assert_eq!(code, 0, "{stderr}");
+    let c = chamfer(&out_ns);
+    assert!(c < 1e-5, "Chamfer {c} m after undoing nerfstudio's transform");
+
+    // Left in nerfstudio's frame, the surface is far from the scene or unseen.
+    let out_raw = tmp.path().join("scored-raw");
+    let mut args = vec!["score", d, ns.to_str().unwrap(), "--method", "raw", "--out", out_raw.to_str().unwrap(), "--geometry", in_ns.to_str().unwrap()];
+    args.extend(["--geometry-frame", "dataset"]);
+    args.extend(samples);
+    let (code, stderr) = xtask(&args);
+    if code == 0 {
+        let c = chamfer(&out_raw);
+        assert!(c > 0.05, "Chamfer {c} m with the transform left out");
+    } else {
+        assert!(stderr.contains("none of the mesh's") && stderr.contains("frame"), "{stderr}");
+    }
+
+    let bad = tmp.path().join("scored-bad");
+    let mut args = vec!["score", d, pred.to_str().unwrap(), "--method", "m", "--out", bad.to_str().unwrap(), "--geometry", moved.to_str().unwrap()];
+    args.extend(["--to-dataset", "0 0 0 0 0 1 0 0 0 0 1 0 0 0 0 1"]);
+    assert_refused(&args, "--to-dataset", &bad);
+}

@@ -13,7 +13,8 @@
 //!   `scripts/common.py` and `nerf_loader.cu`), `scale` and `offset` read from the transforms
 //!   file (defaults 0.33 and (0.5, 0.5, 0.5)); the offset is in the file's axis order.
 //!   [`InstantNgpTransform::to_dataset`] is the inverse; a length in instant-ngp's frame is
-//!   `scale` times the dataset's.
+//!   `scale` times the dataset's. Its saved meshes are in `(x − offset) / scale` of its frame,
+//!   axes still cycled ([`InstantNgpTransform::mesh_to_dataset`]).
 //!
 //! Both give a 4x4 `f64` matrix acting on column vectors `(x, y, z, 1)` (glam's convention).
 
@@ -137,5 +138,13 @@ impl InstantNgpTransform {
     /// A length in instant-ngp's frame, in the dataset's metres.
     pub fn length_to_dataset(&self, length: f64) -> f64 {
         length / self.scale
+    }
+
+    /// The map from the frame of a mesh instant-ngp saved (`--save_mesh`) to the dataset's.
+    /// `save_mesh` writes `v = (x − offset) / scale` for a point `x` of its own frame, undoing
+    /// the scale and offset but not the axis cycle, so `x = v · scale + offset` and then
+    /// [`Self::to_dataset`].
+    pub fn mesh_to_dataset(&self) -> DMat4 {
+        self.to_dataset() * DMat4::from_translation(DVec3::from_array(self.offset)) * DMat4::from_scale(DVec3::splat(self.scale))
     }
 }

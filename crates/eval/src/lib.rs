@@ -59,4 +59,4 @@ pub use io::read_json;
 pub use metrics::RaySamples;
 pub use report::write_report;
 pub use run::{EvalRunOptions, EvalRunOutput, evaluate_run, summarise_run};
-pub use score::{ScoreOptions, ScoreOutput, score};
+pub use score::{GeometryFrame, ScoreOptions, ScoreOutput, score};

@@ -15,6 +15,10 @@
 //! - **Opacity** (mask IoU) from an opacity file or the colour's alpha; without either, mask IoU
 //!   is absent with a note. Off-surface mass needs density samples along the rays, which files
 //!   do not carry: always absent for scored methods.
+//! - **Geometry** ([`ScoreOptions::geometry`], a PLY or OBJ mesh or point cloud) is brought to
+//!   the dataset's frame ([`GeometryFrame`]: by default the inverse of what the layout found,
+//!   nerfstudio's dataparser transform or instant-ngp's mesh frame) and scored by
+//!   [`crate::geometry::score_geometry`] into the `mesh` block, as `eval` scores our mesh.
 //! - **Missing views** are an error, or with [`ScoreOptions::allow_missing`] recorded in
 //!   `eval.json` (`method.missing_views`) and left out of every mean. Non-finite values are
 //!   counted and left out of the metrics they would enter ([`crate::evaluate::evaluate_view`]).
@@ -66,6 +70,27 @@ pub struct ScoreOptions {
     pub dataparser_transforms: Option<PathBuf>,
     /// How many views (the first ones scored) get a picture grid.
     pub grid_views: usize,
+    /// The method's mesh or point cloud (PLY, OBJ), scored like our extracted mesh.
+    pub geometry: Option<PathBuf>,
+    /// The frame [`ScoreOptions::geometry`] is in.
+    pub geometry_frame: GeometryFrame,
+    /// Points sampled on each mesh for the geometry metrics.
+    pub geometry_samples: usize,
+    /// Admit the dataset's files and the scene's external files outside their folders.
+    pub allow_outside: bool,
+}
+
+/// The frame a scored geometry file is in, and so how it is brought to the dataset's.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum GeometryFrame {
+    /// The tool's own frame, undone with what the layout found: nerfstudio's
+    /// `dataparser_transforms.json` (`ns-export`), instant-ngp's scale and offset
+    /// (`--save_mesh`); the dataset's frame for a plain folder of images.
+    Tool,
+    /// Already the dataset's frame.
+    Dataset,
+    /// A row-major affine 4x4 from the file's frame to the dataset's (`--to-dataset`).
+    Matrix([[f64; 4]; 4]),
 }
 
 /// The result of [`score`].
@@ -96,6 +121,12 @@ fn check_options(o: &ScoreOptions) -> Result<(), EvalError> {
     if let Some(k) = o.depth_scale.filter(|k| !(k.is_finite() && *k > 0.0)) {
         return Err(invalid(format!("--depth-scale {k}: not a positive number of metres per unit")));
     }
+    if o.geometry.is_some() && o.geometry_samples == 0 {
+        return Err(invalid("--geometry-samples 0: at least one point per mesh is needed"));
+    }
+    if o.geometry.is_none() && o.geometry_frame != GeometryFrame::Tool {
+        return Err(invalid("--to-dataset / --geometry-frame given without --geometry"));
+    }
     if o.background.iter().any(|c| !(0.0..=1.0).contains(c)) {
         return Err(invalid(format!("--background {:?}: each channel must be in [0, 1]", o.background)));
     }
@@ -106,7 +137,7 @@ fn check_options(o: &ScoreOptions) -> Result<(), EvalError> {
 /// `progress(done, total)` is called after every view.
 pub fn score(opts: &ScoreOptions, progress: &mut dyn FnMut(usize, usize)) -> Result<ScoreOutput, EvalError> {
     check_options(opts)?;
-    let dataset = Dataset::load(&opts.dataset)?;
+    let dataset = Dataset::load_with(&opts.dataset, &dataset::LoadOptions { allow_outside: opts.allow_outside })?;
     let all: Vec<&Frame> = dataset.split(opts.split).iter().collect();
     if all.is_empty() {
         return Err(invalid(format!("dataset {} has no {} views", dataset.root.display(), opts.split.name())));
@@ -133,7 +164,7 @@ pub fn score(opts: &ScoreOptions, progress: &mut dyn FnMut(usize, usize)) -> Res
     let frames: Vec<&Frame> = present.iter().map(|(f, _)| *f).collect();
     let depth = depth_conversion(opts, &layout, &present)?;
 
-    let (source, gt_note) = ground_truth_source(&dataset, &frames, downscale, opts.scene.as_deref(), &pathtracer::import::ImportOptions::default())?;
+    let (source, gt_note) = ground_truth_source(&dataset, &frames, downscale, opts.scene.as_deref(), &pathtracer::import::ImportOptions { allow_outside: opts.allow_outside, ..Default::default() })?;
     let err = |m: String| invalid(format!("{}: {m}", dataset.root.display()));
     let (options, note) = surface_options(&dataset, &frames, downscale, &source, &err)?;
     let settings = FrameSettings {
@@ -193,12 +224,52 @@ pub fn score(opts: &ScoreOptions, progress: &mut dyn FnMut(usize, usize)) -> Res
         depth,
         background: opts.background,
     });
-    // Geometry (a mesh or point cloud of the method, brought to the dataset's frame) is measured
-    // here, before any file is written, into `report.mesh`.
+    if let Some(path) = &opts.geometry {
+        report.mesh = Some(score_method_geometry(opts, path, &layout, &dataset)?);
+    }
     std::fs::create_dir_all(&opts.out).map_err(|e| EvalError::from(dataset::DatasetError::write(&opts.out, e)))?;
     dataset::io::remove_stale_temporaries(&opts.out, is_eval_output)?;
     let (report_md, summary) = write_outputs(&opts.out, &opts.method, &report, &[], &evaluated.kept)?;
     Ok(ScoreOutput { report, summary, report_md, layout })
+}
+
+/// The map from a geometry file's frame to the dataset's, and where it comes from; `None`:
+/// the file is in the dataset's frame.
+fn geometry_to_dataset(frame: GeometryFrame, layout: &Layout) -> Result<Option<([[f64; 4]; 4], String)>, EvalError> {
+    let rows = |m: glam::DMat4| -> [[f64; 4]; 4] { m.transpose().to_cols_array_2d() };
+    Ok(match frame {
+        GeometryFrame::Dataset => None,
+        GeometryFrame::Matrix(m) => Some((m, "the transform given (--to-dataset)".into())),
+        GeometryFrame::Tool => match layout.tool {
+            Tool::Images => None,
+            Tool::Nerfstudio => match &layout.nerfstudio {
+                Some(t) => Some((rows(t.to_dataset()), "nerfstudio's frame, undone with dataparser_transforms.json".into())),
+                None => {
+                    return Err(invalid(
+                        "--geometry: nerfstudio exports meshes in its own frame, and no dataparser_transforms.json was found beside the predictions; give --dataparser-transforms (it is beside the run's config.yml), --to-dataset, or --geometry-frame dataset",
+                    ));
+                }
+            },
+            Tool::InstantNgp => layout.instant_ngp.map(|t| (rows(t.mesh_to_dataset()), format!("instant-ngp's mesh frame (scale {}, offset {:?}), undone", t.scale, t.offset))),
+        },
+    })
+}
+
+/// Reads the method's geometry, brings it to the dataset's frame and scores it against the
+/// scene's visible surface; every failure is an error, since the user asked for it.
+fn score_method_geometry(opts: &ScoreOptions, path: &std::path::Path, layout: &Layout, dataset: &Dataset) -> Result<crate::mesh_eval::MeshBlock, EvalError> {
+    let mut g = crate::geometry::read_geometry(path)?;
+    let map = geometry_to_dataset(opts.geometry_frame, layout)?;
+    if let Some((m, source)) = &map {
+        crate::geometry::transform(&mut g, m)?;
+        g.input.notes.push(format!("Frame: {source}."));
+    }
+    let import = pathtracer::import::ImportOptions { allow_outside: opts.allow_outside, ..Default::default() };
+    let reference = match crate::mesh_eval::scene_reference(dataset, opts.scene.as_deref(), &import)? {
+        Ok(r) => r,
+        Err(why) => return Err(invalid(format!("--geometry {}: no reference surface to score it against: {why}", path.display()))),
+    };
+    crate::geometry::score_geometry(&g, &reference, opts.geometry_samples)
 }
 
 /// Why the layout's depth kind is what it is.

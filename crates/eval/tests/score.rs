@@ -36,6 +36,10 @@ fn options(data: &Path, pred: &Path, out: &Path) -> ScoreOptions {
         scene: None,
         dataparser_transforms: None,
         grid_views: 1,
+        geometry: None,
+        geometry_frame: eval::GeometryFrame::Tool,
+        geometry_samples: 1000,
+        allow_outside: false,
     }
 }
 
@@ -115,7 +119,7 @@ fn ground_truth_plus_gaussian_noise_scores_the_formulas_psnr() {
 }
 
 /// A point of the dataset mapped into nerfstudio's frame and back is itself; lengths scale by
-/// `s`. instant-ngp's map is `cycle(p s + o)`.
+/// `s`. instant-ngp's map is `cycle(p s + o)`; its saved meshes are `(cycle(p s + o) − o) / s`.
 #[test]
 fn tool_frames_map_back_to_the_dataset() {
     let json = r#"{"transform": [[0.0, -1.0, 0.0, 0.25], [0.0, 0.0, 1.0, -0.5], [-1.0, 0.0, 0.0, 1.0]], "scale": 0.4}"#;
@@ -132,6 +136,9 @@ fn tool_frames_map_back_to_the_dataset() {
     let s = p * 0.5 + glam::DVec3::new(0.1, 0.2, 0.3);
     assert!((q - glam::DVec3::new(s.y, s.z, s.x)).length() < 1e-12, "{q}");
     assert!((ngp.to_dataset().transform_point3(q) - p).length() < 1e-12);
+    // `--save_mesh` writes (q - offset) / scale, axes still cycled.
+    let saved = (q - glam::DVec3::new(0.1, 0.2, 0.3)) / 0.5;
+    assert!((ngp.mesh_to_dataset().transform_point3(saved) - p).length() < 1e-12);
     let d = eval::interop::InstantNgpTransform::from_json(&serde_json::json!({}), Path::new("t.json")).unwrap();
     assert_eq!((d.scale, d.offset), (0.33, [0.5; 3]));
 }
