@@ -17,7 +17,7 @@ Steps (each prints `== step NAME`; a failure prints `FAILED at step NAME` and ex
   facts      what the steps above wrote (layout, dtypes, shapes, dataparser transform, mesh)
              into OUT/facts.json
   fast, auto `xtask train --model M --time S` (S = nerfacto's training-loop seconds), `xtask eval`
-  score      `xtask score DATASET OUT/ns_render --method nerfacto --tool nerfstudio --split test
+  score      `xtask score DATASET OUT/ns_render --method nerfacto --split test
              --train-seconds S --out OUT/score` (plus --score-args)
   compare    `xtask compare OUT/runs/fast OUT/runs/auto OUT/score --out OUT/compare`
 
@@ -261,9 +261,11 @@ def main() -> int:
         return step
 
     def score():
-        run(xtask + ["score", ds, out / "ns_render", "--method", "nerfacto", "--tool", "nerfstudio",
+        mesh = out / "ns_export" / "tsdf_mesh.ply"  # nerfstudio's frame: score undoes it
+        geometry = ["--geometry", mesh] if mesh.is_file() else []
+        run(xtask + ["score", ds, out / "ns_render", "--method", "nerfacto",
                      "--split", "test", "--train-seconds", f"{budget():.1f}", "--out", out / "score"]
-            + args.score_args.split(), logs / "score.log")
+            + geometry + args.score_args.split(), logs / "score.log")
 
     def compare():
         run(xtask + ["compare", out / "runs" / "fast", out / "runs" / "auto", out / "score",
