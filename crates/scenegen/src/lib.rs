@@ -2,7 +2,7 @@
 //! datasets: a small deterministic glTF writer ([`SceneBuilder`]), mesh
 //! builders with normals and UVs ([`Mesh`]), procedural PNG textures
 //! ([`texture`]), and the committed test scenes (`cornell`, `tabletop`,
-//! `thin`, `deep`, `materials`) that `cargo xtask gen-scenes` regenerates with
+//! `thin`, `deep`, `materials`, `bricks`) that `cargo xtask gen-scenes` regenerates with
 //! [`write_all`].
 //!
 //! Units are metres in glTF's right-handed, +Y-up world. Lights use
@@ -22,6 +22,7 @@
 use std::path::{Path, PathBuf};
 
 mod bin_writer;
+mod bricks;
 pub mod builder;
 pub mod mesh;
 pub mod scenes;

@@ -71,11 +71,25 @@ const SCENES: &[SceneDef] = &[
             outer 20°) aimed at the normal-mapped box. Lambertian renders see only base colours. No camera.",
         build: materials,
     },
+    SceneDef {
+        name: "bricks",
+        description: "The hard scene: a construction-toy town of about 500 parts on a 24 × 24-stud base plate \
+            (1.44 m square, stud pitch 6 cm, bounding radius ≈ 1 m): a house of bricks in running bond with a door, \
+            windows, a plate roof and a chimney, a car on metal axles with rubber wheels and a printed grille, a \
+            tree of plates, a tower of 2 × 2 bricks with a 3 mm metal antenna, a fence of 4 mm metal posts and \
+            3 mm rails, and about 320 loose bricks and plates stacked up to two high. Studs (3.6 cm wide) span \
+            2–3 pixels at 200 × 200, the seams between parts (1.6 mm) and the rods are below a pixel, the printed \
+            tiles carry 16 stripes or an 8 × 8 checker, and the plastic is saturated and glossy (roughness 0.25). \
+            Tests what users' own scenes ask of a radiance field: many small parts, thin structures, fine \
+            texture and glossy highlights. Lights: a 2.5 lux sun and a 5 cd point light. No camera; no ground \
+            beyond the base plate.",
+        build: crate::bricks::bricks,
+    },
 ];
 
 /// Names of the built-in scenes, in the order [`crate::write_all`] writes them.
 pub fn scene_names() -> &'static [&'static str] {
-    const NAMES: &[&str] = &["cornell", "tabletop", "thin", "deep", "materials"];
+    const NAMES: &[&str] = &["cornell", "tabletop", "thin", "deep", "materials", "bricks"];
     NAMES
 }
 
