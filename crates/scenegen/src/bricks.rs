@@ -313,11 +313,11 @@ fn build() -> Result<(SceneBuilder, usize), SceneGenError> {
         t.s.add_mesh(&format!("rail_{k}"), Mesh::cylinder_between(a, b, 0.003, 8), metal, Transform::IDENTITY)?;
     }
 
-    // Loose parts: random shapes and colours on the free cells, stacked up to two bricks.
+    // Loose parts: random shapes and colours on the free cells, stacked up to three bricks high.
     let palette = [red, blue, yellow, green, white, black, orange];
     let sizes = [(1u32, 1u32), (1, 2), (1, 3), (1, 4), (2, 2), (2, 3), (2, 4), (1, 6), (2, 6)];
     let mut placed = 0;
-    for _ in 0..4000 {
+    for _ in 0..20_000 {
         if placed == 320 {
             break;
         }
@@ -327,7 +327,7 @@ fn build() -> Result<(SceneBuilder, usize), SceneGenError> {
         let z = rng.below((GRID - l as i32 + 1) as u32) as i32;
         let plates = if rng.below(3) == 0 { 1 } else { 3 };
         let level = t.top(x, z, w, l);
-        if level > 6 || (x, z) == (0, 0) {
+        if level > 9 {
             continue;
         }
         // Keep the structures' own cells clear (they are taller than 6 plates near their

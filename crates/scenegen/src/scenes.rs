@@ -73,11 +73,11 @@ const SCENES: &[SceneDef] = &[
     },
     SceneDef {
         name: "bricks",
-        description: "The hard scene: a construction-toy town of about 500 parts on a 24 × 24-stud base plate \
+        description: "The hard scene: a construction-toy town of about 440 parts on a 24 × 24-stud base plate \
             (1.44 m square, stud pitch 6 cm, bounding radius ≈ 1 m): a house of bricks in running bond with a door, \
             windows, a plate roof and a chimney, a car on metal axles with rubber wheels and a printed grille, a \
             tree of plates, a tower of 2 × 2 bricks with a 3 mm metal antenna, a fence of 4 mm metal posts and \
-            3 mm rails, and about 320 loose bricks and plates stacked up to two high. Studs (3.6 cm wide) span \
+            3 mm rails, and about 280 loose bricks and plates stacked up to three high. Studs (3.6 cm wide) span \
             2–3 pixels at 200 × 200, the seams between parts (1.6 mm) and the rods are below a pixel, the printed \
             tiles carry 16 stripes or an 8 × 8 checker, and the plastic is saturated and glossy (roughness 0.25). \
             Tests what users' own scenes ask of a radiance field: many small parts, thin structures, fine \
