@@ -29,6 +29,7 @@ mod transforms;
 pub mod io;
 pub mod lock;
 pub mod paths;
+pub mod pose;
 
 pub use camera::{Camera, Intrinsics, MAX_TRANSLATION, MIN_FIELD_OF_VIEW, Ray};
 pub use downscale::check_downscale;
