@@ -81,19 +81,19 @@ pub struct SupervisionArgs {
     #[arg(long, value_parser = parse_depth_loss)]
     pub depth_loss: Option<nerf::supervision::DepthLoss>,
     /// Weight of the depth term at step 0 (default 0.05).
-    #[arg(long, value_parser = parse_weight)]
+    #[arg(long, value_parser = parse_weight, allow_hyphen_values = true)]
     pub depth_weight: Option<f32>,
     /// Half-life of the depth term's weight in steps (default: constant).
-    #[arg(long, value_parser = parse_half_life)]
+    #[arg(long, value_parser = parse_half_life, allow_hyphen_values = true)]
     pub depth_half_life: Option<u64>,
     /// Depth targets: exact (default), noisy:SIGMA_REL (depth · (1 + SIGMA_REL · normal
     /// noise)), sparse:FRACTION (only that fraction of pixels has depth) or holes:FRACTION
     /// (that fraction has none); seeded per (seed, view, pixel).
-    #[arg(long, value_parser = parse_depth_source)]
+    #[arg(long, value_parser = parse_depth_source, allow_hyphen_values = true)]
     pub depth_source: Option<nerf::supervision::DepthSource>,
     /// Weight of the empty-space term: the weight mass along rays whose pixel's exact alpha is
     /// 0 is penalised (default off).
-    #[arg(long, value_parser = parse_weight)]
+    #[arg(long, value_parser = parse_weight, allow_hyphen_values = true)]
     pub empty_loss: Option<f32>,
 }
 
