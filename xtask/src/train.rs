@@ -67,6 +67,94 @@ pub struct TrainArgs {
     /// by default.
     #[arg(long)]
     pub allow_outside: bool,
+    #[command(flatten)]
+    pub supervision: SupervisionArgs,
+}
+
+/// Supervision beyond colour from the dataset's ground truth (formulas in the `nerf` crate's
+/// `supervision` module and docs/supervision.md).
+#[derive(clap::Args, Default)]
+pub struct SupervisionArgs {
+    /// Depth term: off (default), expected (Charbonnier on the expected depth's relative
+    /// error) or termination (line-of-sight loss on the ray's weights). Needs a dataset with
+    /// ground-truth depth.
+    #[arg(long, value_parser = parse_depth_loss)]
+    pub depth_loss: Option<nerf::supervision::DepthLoss>,
+    /// Weight of the depth term at step 0 (default 0.05).
+    #[arg(long, value_parser = parse_weight, allow_hyphen_values = true)]
+    pub depth_weight: Option<f32>,
+    /// Half-life of the depth term's weight in steps (default: constant).
+    #[arg(long, value_parser = parse_half_life, allow_hyphen_values = true)]
+    pub depth_half_life: Option<u64>,
+    /// Depth targets: exact (default), noisy:SIGMA_REL (depth · (1 + SIGMA_REL · normal
+    /// noise)), sparse:FRACTION (only that fraction of pixels has depth) or holes:FRACTION
+    /// (that fraction has none); seeded per (seed, view, pixel).
+    #[arg(long, value_parser = parse_depth_source, allow_hyphen_values = true)]
+    pub depth_source: Option<nerf::supervision::DepthSource>,
+    /// Weight of the empty-space term: the weight mass along rays whose pixel's exact alpha is
+    /// 0 is penalised (default off).
+    #[arg(long, value_parser = parse_weight, allow_hyphen_values = true)]
+    pub empty_loss: Option<f32>,
+}
+
+fn parse_depth_loss(s: &str) -> Result<nerf::supervision::DepthLoss, String> {
+    s.parse()
+}
+
+fn parse_depth_source(s: &str) -> Result<nerf::supervision::DepthSource, String> {
+    s.parse()
+}
+
+fn parse_weight(s: &str) -> Result<f32, String> {
+    match s.trim().parse::<f32>() {
+        Ok(v) if v.is_finite() && v >= 0.0 => Ok(v),
+        _ => Err(format!("'{s}' is not a weight (a finite number ≥ 0)")),
+    }
+}
+
+fn parse_half_life(s: &str) -> Result<u64, String> {
+    match s.trim().parse::<u64>() {
+        Ok(v) if v > 0 => Ok(v),
+        _ => Err(format!("'{s}' is not a half-life (a positive number of steps)")),
+    }
+}
+
+impl SupervisionArgs {
+    /// Whether any supervision option is given.
+    fn any(&self) -> bool {
+        self.depth_loss.is_some() || self.depth_weight.is_some() || self.depth_half_life.is_some() || self.depth_source.is_some() || self.empty_loss.is_some()
+    }
+
+    /// The options applied to `cfg`'s supervision (created when an option is given; a run
+    /// without them keeps `None`, colour only). Depth settings without `--depth-loss` are
+    /// refused: they would change nothing.
+    fn apply(&self, cfg: &mut TrainConfig) -> anyhow::Result<()> {
+        if !self.any() {
+            return Ok(());
+        }
+        let s = cfg.supervision.get_or_insert_with(nerf::supervision::SupervisionConfig::new);
+        if let Some(l) = self.depth_loss {
+            s.depth_loss = l;
+        }
+        if let Some(w) = self.depth_weight {
+            s.depth_weight = w;
+        }
+        if let Some(h) = self.depth_half_life {
+            s.depth_half_life_steps = Some(h);
+        }
+        if let Some(d) = self.depth_source {
+            s.depth_source = d;
+        }
+        if let Some(e) = self.empty_loss {
+            s.empty_weight = e;
+        }
+        if !s.uses_depth() {
+            for (given, name) in [(self.depth_weight.is_some(), "--depth-weight"), (self.depth_half_life.is_some(), "--depth-half-life"), (self.depth_source.is_some(), "--depth-source")] {
+                anyhow::ensure!(!given, "{name} sets the depth term, which is off: give --depth-loss expected or termination with it");
+            }
+        }
+        Ok(())
+    }
 }
 
 /// Arguments of `render-nerf`.
@@ -116,6 +204,7 @@ impl TrainArgs {
             batch_samples: None,
             mlp_precision: None,
             allow_outside: false,
+            supervision: SupervisionArgs::default(),
         }
     }
 }
@@ -182,6 +271,7 @@ fn build_config(args: &TrainArgs) -> anyhow::Result<TrainConfig> {
             _ => anyhow::bail!("--mlp-precision applies to the fast and auto models, not {}", cfg.model_label()),
         }
     }
+    args.supervision.apply(&mut cfg)?;
     if let Err(e) = cfg.check() {
         match &args.config {
             Some(p) => anyhow::bail!("{}: {e}", p.display()),
@@ -309,6 +399,10 @@ fn resume_trainer(args: &TrainArgs) -> anyhow::Result<Trainer> {
         ("--batch-rays", args.batch_rays.is_some_and(|b| b != cfg.batch_rays)),
         ("--batch-samples", args.batch_samples.is_some_and(|b| Some(b) != cfg.batch_samples)),
         ("--model", args.model.as_deref().is_some_and(|m| m != cfg.model_label())),
+        ("--depth-loss, --depth-weight, --depth-half-life, --depth-source or --empty-loss", {
+            let mut c = cfg.clone();
+            args.supervision.apply(&mut c).is_err() || serde_json::to_value(&c.supervision).ok() != serde_json::to_value(&cfg.supervision).ok()
+        }),
         (
             "--mlp-precision",
             args.mlp_precision.as_deref().is_some_and(|p| match &cfg.model {

@@ -586,4 +586,40 @@ fn score_geometry_moved_by_a_known_similarity_scores_chamfer_zero() {
     let mut args = vec!["score", d, pred.to_str().unwrap(), "--method", "m", "--out", bad.to_str().unwrap(), "--geometry", moved.to_str().unwrap()];
     args.extend(["--to-dataset", "0 0 0 0 0 1 0 0 0 0 1 0 0 0 0 1"]);
     assert_refused(&args, "--to-dataset", &bad);
+
+/// The supervision options are checked when parsed: a sparse or holes fraction outside
+/// (0, 1], a negative sigma or weight, an unknown loss or source, and depth settings without
+/// `--depth-loss` are refused in one sentence naming the option, before anything is read or
+/// written; a dataset without ground-truth depth (a Blender one) given `--depth-loss` or
+/// `--empty-loss` is refused naming the dataset.
+#[test]
+fn supervision_options_are_refused_naming_the_option_or_the_dataset() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("run");
+    let valid = dataset_corpus().join("valid_blender");
+    let ds = valid.to_str().unwrap();
+    let o = out.to_str().unwrap();
+    for (args, what) in [
+        (vec!["--depth-loss", "expected", "--depth-source", "sparse:0"], "--depth-source"),
+        (vec!["--depth-loss", "expected", "--depth-source", "sparse:1.5"], "the fraction must be in (0, 1]"),
+        (vec!["--depth-loss", "expected", "--depth-source", "holes:-0.3"], "--depth-source"),
+        (vec!["--depth-loss", "expected", "--depth-source", "noisy:-0.01"], "the relative standard deviation must be a finite number ≥ 0"),
+        (vec!["--depth-loss", "expected", "--depth-source", "lidar"], "unknown depth source"),
+        (vec!["--depth-loss", "median"], "--depth-loss"),
+        (vec!["--depth-loss", "expected", "--depth-weight", "-1"], "--depth-weight"),
+        (vec!["--empty-loss", "nan"], "--empty-loss"),
+        (vec!["--depth-loss", "expected", "--depth-half-life", "0"], "--depth-half-life"),
+        (vec!["--depth-source", "noisy:0.01"], "--depth-source sets the depth term, which is off"),
+    ] {
+        let mut a = vec!["train", ds, "--out", o, "--steps", "2"];
+        a.extend(args);
+        let err = assert_refused(&a, what, &out);
+        assert_eq!(err.lines().filter(|l| l.starts_with("error")).count(), 1, "{a:?}: {err}");
+    }
+    for opt in [["--depth-loss", "expected"], ["--empty-loss", "0.1"]] {
+        let mut a = vec!["train", ds, "--out", o, "--steps", "2"];
+        a.extend(opt);
+        let err = assert_refused(&a, &format!("the dataset has no ground-truth depth and alpha files (gt_file_path, r_<k>_gt.exr) for its train views, which {} needs", opt[0]), &out);
+        assert!(err.contains("valid_blender"), "{err}");
+    }
 }

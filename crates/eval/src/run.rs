@@ -143,6 +143,9 @@ pub fn evaluate_run(
     report.resolution = evaluated.resolution;
     report.notes.extend(note);
     report.notes.extend(gt_note);
+    if let Some(s) = &model.config.supervision {
+        report.notes.push(format!("trained with supervision beyond colour: {}", s.describe()));
+    }
     // Every input is read before the first output (the mesh's files) is written, so a bad
     // metrics file leaves the run as it was.
     let metrics_path = run_dir.join("metrics.jsonl");

@@ -6,6 +6,7 @@
 //! onto the background in that space: `c = a·rgb + (1 − a)·bg`.
 
 use crate::kernels::{stream, uniform};
+use crate::supervision::{RaySupervision, SupervisionConfig, clamp_target};
 use dataset::{Camera, Dataset, Frame, SceneFacts};
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
@@ -163,6 +164,9 @@ pub struct RayBatch {
     /// Whether each ray's pixel is a mixed pixel ([`mixed_pixels`]); empty when the data
     /// carries no such masks (then no ray counts as mixed).
     pub mixed: Vec<bool>,
+    /// Depth and empty-space targets of the rays and this step's weights, when the run is
+    /// supervised beyond colour ([`TrainData::set_supervision`]).
+    pub supervision: Option<RaySupervision>,
 }
 
 /// Alpha below which a pixel is background and above which it is fully covered (the
@@ -253,6 +257,9 @@ pub struct TrainData {
     cumulative: Vec<usize>,
     /// Per view, which pixels are mixed ([`Self::set_mixed`]); empty: none known.
     mixed: Vec<Vec<bool>>,
+    /// The supervision settings and, per view and pixel, the target distance along the
+    /// pixel-centre ray (NaN: none) and whether the exact alpha is 0.
+    supervision: Option<(SupervisionConfig, Vec<Vec<f32>>, Vec<Vec<bool>>)>,
 }
 
 impl TrainData {
@@ -266,7 +273,7 @@ impl TrainData {
         for v in &views {
             cumulative.push(cumulative.last().copied().unwrap_or(0) + v.pixels());
         }
-        Ok(Self { views, background, cumulative, mixed: Vec::new() })
+        Ok(Self { views, background, cumulative, mixed: Vec::new(), supervision: None })
     }
 
     /// Every view's alpha channel.
@@ -301,6 +308,44 @@ impl TrainData {
         }
         self.mixed = masks;
         Ok(())
+    }
+
+    /// Supervises the batches beyond colour ([`crate::supervision`]): reads each frame's ground
+    /// truth (`frames` are the views' frames, in order) at `downscale`, degrades its z-depth by
+    /// `cfg.depth_source` keyed by (seed, view, pixel), converts it to the distance along the
+    /// pixel-centre ray and clamps it into `near..far`. Refused when a frame has no ground-truth
+    /// file.
+    pub fn set_supervision(&mut self, cfg: &SupervisionConfig, frames: &[Frame], downscale: u32, seed: u64, near: f32, far: f32) -> Result<(), DataError> {
+        if frames.len() != self.views.len() {
+            return Err(DataError::Invalid("supervision: the frames do not match the train views".into()));
+        }
+        let (mut depths, mut empties) = (Vec::with_capacity(frames.len()), Vec::with_capacity(frames.len()));
+        for (v, (f, view)) in frames.iter().zip(&self.views).enumerate() {
+            let Some((z, alpha)) = ViewPixels::load_ground_truth(f, downscale)? else {
+                return Err(DataError::Invalid(format!("train view {} has no ground-truth depth and alpha (gt_file_path)", f.name)));
+            };
+            let w = view.camera.intrinsics.width as usize;
+            let depth = (0..z.len())
+                .map(|p| {
+                    if alpha[p] < 0.999 {
+                        return f32::NAN;
+                    }
+                    let zd = cfg.depth_source.degrade(z[p], seed, v as u64, p as u64);
+                    let d = view.camera.distance_from_z_depth((p % w) as f64 + 0.5, (p / w) as f64 + 0.5, zd as f64);
+                    clamp_target(d, near, far)
+                })
+                .collect();
+            depths.push(depth);
+            empties.push(alpha.iter().map(|&a| a == 0.0).collect());
+        }
+        self.supervision = Some((cfg.clone(), depths, empties));
+        Ok(())
+    }
+
+    /// The depth targets per view and pixel ([`Self::set_supervision`]), for tests that plant
+    /// faults in them; `None` without supervision.
+    pub fn depth_targets_mut(&mut self) -> Option<&mut Vec<Vec<f32>>> {
+        self.supervision.as_mut().map(|s| &mut s.1)
     }
 
     /// Total pixels over all views.
@@ -348,9 +393,20 @@ impl TrainData {
             background: drawn.iter().map(|d| d.2).collect(),
             ids: drawn.iter().map(|&(v, p, _)| ((v as u64) << 32) | p as u64).collect(),
             mixed: Vec::new(),
+            supervision: None,
         };
         if self.has_mixed() {
             b.mixed = b.ids.iter().map(|id| self.mixed[(id >> 32) as usize][(id & 0xffff_ffff) as usize]).collect();
+        }
+        if let Some((cfg, depths, empties)) = &self.supervision {
+            let at = |id: &u64| ((id >> 32) as usize, (id & 0xffff_ffff) as usize);
+            b.supervision = Some(RaySupervision {
+                depth_loss: cfg.depth_loss,
+                depth_weight: cfg.depth_weight_at(step),
+                empty_weight: cfg.empty_weight,
+                depth: b.ids.iter().map(|id| at(id)).map(|(v, p)| depths[v][p]).collect(),
+                empty: b.ids.iter().map(|id| at(id)).map(|(v, p)| empties[v][p]).collect(),
+            });
         }
         b
     }

@@ -37,6 +37,10 @@ pub mod stream {
     pub const VAL: u64 = 7;
     /// Marching start offset.
     pub const MARCH: u64 = 8;
+    /// Noise of degraded depth targets ([`crate::supervision::DepthSource`]).
+    pub const DEPTH_NOISE: u64 = 9;
+    /// Which pixels keep a degraded depth target.
+    pub const DEPTH_MASK: u64 = 10;
 }
 
 /// The seed of a shared sampler for one random stream.

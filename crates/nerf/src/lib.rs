@@ -21,5 +21,6 @@ pub mod occupancy;
 pub mod render;
 pub mod roofline;
 pub mod sampling;
+pub mod supervision;
 pub mod train;
 pub mod volrend;

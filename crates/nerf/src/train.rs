@@ -29,6 +29,7 @@ use crate::data::{Background, DataError, SceneBounds, TrainData, ViewPixels, pix
 use crate::kernels::{stream, uniform};
 use crate::models::fast::FastModel;
 use crate::models::{Model, ModelConfig, StepStats, StepTimings};
+use crate::supervision::SupervisionConfig;
 use burn::config::Config;
 use serde::{Deserialize, Serialize};
 use std::io::Write;
@@ -149,6 +150,10 @@ pub struct TrainConfig {
     /// ([`crate::auto::view_dependence_from_model`]); `None` once decided (or never needed).
     #[config(default = "None")]
     pub view_test_at: Option<u64>,
+    /// Supervision beyond colour from the dataset's ground truth ([`crate::supervision`]:
+    /// depth and empty-space terms); `None`: colour only.
+    #[config(default = "None")]
+    pub supervision: Option<SupervisionConfig>,
 }
 
 impl TrainConfig {
@@ -249,6 +254,9 @@ impl TrainConfig {
             b.check()?;
         }
         self.model.check()?;
+        if let Some(s) = &self.supervision {
+            s.check()?;
+        }
         Ok(())
     }
 
@@ -525,6 +533,16 @@ impl Trainer {
             ));
         }
         let bounds = config.bounds.clone().unwrap_or_else(|| unreachable!());
+        if let Some(sup) = &config.supervision {
+            if ds.train.iter().any(|f| f.gt_path.is_none()) {
+                let what = if sup.uses_depth() { "--depth-loss" } else { "--empty-loss" };
+                return Err(TrainError::Invalid(format!(
+                    "{}: the dataset has no ground-truth depth and alpha files (gt_file_path, r_<k>_gt.exr) for its train views, which {what} needs: train on a dataset rendered by `cargo xtask render`, or without {what}",
+                    config.dataset.display()
+                )));
+            }
+            data.set_supervision(sup, &ds.train, config.downscale, config.seed, bounds.near, bounds.far)?;
+        }
         let val_frames = if ds.val.is_empty() { &ds.test } else { &ds.val };
         let val = ValSet::load(val_frames, &config)?;
         let model = config.model.init(&bounds, config.seed).map_err(TrainError::Invalid)?;

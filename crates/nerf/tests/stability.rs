@@ -93,3 +93,40 @@ fn a_nan_target_pixel_skips_exactly_its_steps_and_training_continues() {
     assert!(stats.loss.is_finite() && !stats.skipped_nonfinite);
     assert!(learned(&replay).arrays != s0.arrays, "training did not continue after the skipped step");
 }
+
+/// Depth targets planted with huge values, infinities and NaN (past the trainer's clamping)
+/// leave every step of both models finite: no step is skipped, the loss is finite, and the
+/// parameters stay finite and move.
+#[test]
+fn huge_and_nan_depth_targets_keep_every_step_finite() {
+    use nerf::supervision::{DepthLoss, SupervisionConfig};
+    let paper = {
+        let field = nerf::field::NerfFieldConfig::new().with_width(32).with_depth(2).with_skip(1).with_color_width(16);
+        ModelConfig::Paper(nerf::models::paper::PaperConfig::new().with_field(field).with_coarse_samples(16).with_fine_samples(16))
+    };
+    for (model, kind) in [(ModelConfig::Fast(tiny_fast(8, 4)), DepthLoss::Expected), (ModelConfig::Fast(tiny_fast(8, 4)), DepthLoss::Termination), (paper, DepthLoss::Expected)] {
+        let (tmp, data) = synthetic_dataset(16, [3, 1, 0]);
+        let sup = SupervisionConfig::new().with_depth_loss(kind).with_depth_weight(1.0).with_empty_weight(1.0);
+        let cfg = TrainConfig::new(data, model, RAYS, 1e-2, 1e-3, 100).with_seed(3).with_steps(Some(20)).with_val_max_pixels(64).with_supervision(Some(sup));
+        let mut t = Trainer::new(cfg, &tmp.path().join("run"), false).unwrap();
+        let planted = [1e30f32, f32::MAX, f32::NAN, f32::INFINITY, -1e30, 0.0, 1e-3];
+        let targets = t.data.depth_targets_mut().expect("supervised");
+        let mut n = 0;
+        for view in targets.iter_mut() {
+            for (p, d) in view.iter_mut().enumerate() {
+                if p % 2 == 0 {
+                    *d = planted[p / 2 % planted.len()];
+                    n += 1;
+                }
+            }
+        }
+        assert!(n > 100);
+        let before = t.model.state();
+        let mut losses = Vec::new();
+        let summary = t.run(&AtomicBool::new(false), &mut |p| losses.push(p.loss)).unwrap();
+        assert_eq!(summary.skipped_nonfinite, 0, "{kind:?}: steps skipped");
+        assert!(losses.iter().all(|l| l.is_finite()), "{kind:?}: {losses:?}");
+        let after = t.model.state();
+        assert!(all_finite(&after) && before.arrays != after.arrays, "{kind:?}: parameters not finite or not updated");
+    }
+}

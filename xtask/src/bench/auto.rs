@@ -63,12 +63,12 @@ pub struct AutoBenchArgs {
 }
 
 /// The non-empty items of a comma-separated option, trimmed.
-fn comma_list(s: &str) -> Vec<String> {
+pub(super) fn comma_list(s: &str) -> Vec<String> {
     s.split(',').map(|x| x.trim().to_string()).filter(|x| !x.is_empty()).collect()
 }
 
 /// The seeds of `--seeds`: at least one, no repeats.
-fn parse_seeds(s: &str) -> anyhow::Result<Vec<u64>> {
+pub(super) fn parse_seeds(s: &str) -> anyhow::Result<Vec<u64>> {
     let mut seeds = Vec::new();
     for t in comma_list(s) {
         let v: u64 = t.parse().with_context(|| format!("--seeds: '{t}' is not a non-negative integer"))?;
@@ -126,8 +126,9 @@ fn config_of(name: &str, dataset: &Path, budget_s: f64) -> anyhow::Result<TrainC
     Ok(cfg)
 }
 
-fn scene_names(args: &AutoBenchArgs) -> anyhow::Result<Vec<String>> {
-    if let Some(s) = &args.scenes {
+/// The scenes of `--scenes`, or every scene in `scenes/`.
+pub(super) fn scene_names(scenes: Option<&str>) -> anyhow::Result<Vec<String>> {
+    if let Some(s) = scenes {
         let v = comma_list(s);
         anyhow::ensure!(!v.is_empty(), "--scenes is empty");
         return Ok(v);
@@ -147,7 +148,7 @@ fn scene_names(args: &AutoBenchArgs) -> anyhow::Result<Vec<String>> {
 
 /// The renderer of a finished dataset in `dir` when it is not this one (`None` when there is
 /// no finished dataset, or it is this renderer's: then `render` resumes or checks it).
-fn older_dataset(dir: &Path) -> Option<String> {
+pub(super) fn older_dataset(dir: &Path) -> Option<String> {
     crate::render::older_renderer(dir).filter(|_| dataset::Dataset::load(dir).is_ok())
 }
 
@@ -395,7 +396,7 @@ pub fn run(args: AutoBenchArgs) -> anyhow::Result<()> {
     anyhow::ensure!(args.max_views != Some(0), "--max-views 0 evaluates nothing");
     anyhow::ensure!(args.paper_views != Some(0), "--paper-views 0 evaluates nothing");
     let views_of = |c: &str| if c == "paper" { args.paper_views.or(args.max_views) } else { args.max_views };
-    let scenes = scene_names(&args)?;
+    let scenes = scene_names(args.scenes.as_deref())?;
     let mut md = format!(
         "# bench auto\n\npreset {}, budget {} per run, configurations: {}, seeds: {}{}\n\nfixed sizes: {}\n\n",
         args.preset.name(),

@@ -1,6 +1,6 @@
 //! `cargo xtask bench`: performance figures, one benchmark per file. `render`, `scaling` and
-//! `nerf` measure in the release profile (a dev build re-runs itself there); `auto` and
-//! `auto-diff` measure quality at equal time. `cpu` names the machine and build a figure came
+//! `nerf` measure in the release profile (a dev build re-runs itself there); `auto`,
+//! `auto-diff` and `supervision` measure quality at equal time. `cpu` names the machine and build a figure came
 //! from; `figures` holds the spread of repeated figures and the printed report beside the JSON.
 
 mod auto;
@@ -11,6 +11,7 @@ mod mitsuba;
 mod nerf;
 mod render;
 mod scaling;
+mod supervision;
 
 use anyhow::Context;
 use std::path::PathBuf;
@@ -36,6 +37,8 @@ pub enum BenchWhat {
     Auto(auto::AutoBenchArgs),
     /// Quality at equal time before and after a change: two `bench auto` output folders (two builds, the same runs) compared figure by figure against the seeds' noise.
     AutoDiff(auto_diff::AutoDiffArgs),
+    /// Depth and empty-space supervision against colour only, at equal time on every scene (train, eval with the mesh, tables of means ± 2 SE over seeds).
+    Supervision(supervision::SupervisionBenchArgs),
 }
 
 /// Runs a benchmark.
@@ -62,6 +65,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         }
         BenchWhat::Auto(a) => auto::run(a),
         BenchWhat::AutoDiff(a) => auto_diff::run(a),
+        BenchWhat::Supervision(a) => supervision::run(a),
     }
 }
 
@@ -74,6 +78,7 @@ fn check_outputs(what: &BenchWhat) -> anyhow::Result<()> {
         BenchWhat::Scaling(a) => folder(&figures::out_dir(&a.out)),
         BenchWhat::Nerf(a) => folder(&a.out),
         BenchWhat::Auto(a) => folder(&a.out),
+        BenchWhat::Supervision(a) => folder(&a.out),
         BenchWhat::AutoDiff(a) => {
             let path = auto_diff::report_path(a);
             crate::guard::check_output_files("--out", &path, std::slice::from_ref(&path), &[])

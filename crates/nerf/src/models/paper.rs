@@ -170,15 +170,16 @@ impl PaperModel {
         net.forward(tensor2(e.pos, n, f.pos_dims(), dev), tensor2(e.dir, n, f.dir_dims(), dev))
     }
 
-    /// Volume rendering of one network's outputs and the gradients of its MSE w.r.t. the raw
-    /// outputs: (composite, mse, ∂L/∂raw density, ∂L/∂rgb flat).
+    /// Volume rendering of one network's outputs and the gradients of its MSE (plus the batch's
+    /// supervision terms, when it has any) w.r.t. the raw outputs: (composite, mse, supervision
+    /// loss, ∂L/∂raw density, ∂L/∂rgb flat).
     fn render_and_grad(
         &self,
         s: &RaySamples,
         raw: &[f32],
         rgb: &[f32],
         batch: &RayBatch,
-    ) -> (volrend::CompositeOutput, f32, Vec<f32>, Vec<f32>) {
+    ) -> (volrend::CompositeOutput, f32, f32, Vec<f32>, Vec<f32>) {
         let act = self.config.density_activation;
         let sigma: Vec<f32> = raw.iter().map(|x| act.forward(*x)).collect();
         let rgb3 = ops::rgb3(rgb);
@@ -186,9 +187,17 @@ impl PaperModel {
         let comp = volrend::composite_forward(&inputs);
         let (mse, d_out) = mse_and_grad(&comp.rgb, &batch.target);
         let zeros = vec![0.0; d_out.len()];
-        let g = volrend::composite_backward(&inputs, &comp, &volrend::OutputGrads { d_rgb: &d_out, d_opacity: &zeros, d_distance: &zeros, d_weights: None });
+        let (g, extra) = match &batch.supervision {
+            None => (volrend::composite_backward(&inputs, &comp, &volrend::OutputGrads { d_rgb: &d_out, d_opacity: &zeros, d_distance: &zeros, d_weights: None }), 0.0),
+            Some(sup) => {
+                // The depth and empty-space terms ([`crate::supervision`]) through the same backward.
+                let sg = crate::supervision::loss_and_grads(sup, 0, d_out.len(), &s.offsets, &s.t_start, &s.t_end, &comp);
+                let g = volrend::composite_backward(&inputs, &comp, &volrend::OutputGrads { d_rgb: &d_out, d_opacity: &sg.d_opacity, d_distance: &sg.d_distance, d_weights: Some(&sg.d_weights) });
+                (g, sg.loss as f32)
+            }
+        };
         let d_raw = g.d_sigma.iter().zip(raw).map(|(g, x)| act.backward(*x, *g)).collect();
-        (comp, mse, d_raw, g.d_rgb.into_iter().flatten().collect())
+        (comp, mse, extra, d_raw, g.d_rgb.into_iter().flatten().collect())
     }
 
 
@@ -239,7 +248,7 @@ impl NerfModel for PaperModel {
         tm.mlp += t0.elapsed().as_secs_f64();
 
         let t0 = Instant::now();
-        let (comp_c, mse_c, draw_c, drgb_c) = self.render_and_grad(&coarse, &raw_c, &rgb_c, batch);
+        let (comp_c, mse_c, sup_c, draw_c, drgb_c) = self.render_and_grad(&coarse, &raw_c, &rgb_c, batch);
         tm.render += t0.elapsed().as_secs_f64();
 
         let t0 = Instant::now();
@@ -256,9 +265,10 @@ impl NerfModel for PaperModel {
         tm.mlp += t0.elapsed().as_secs_f64();
 
         let t0 = Instant::now();
-        let (_, mse_f, draw_f, drgb_f) = self.render_and_grad(&fine, &raw_f, &rgb_f, batch);
+        let (_, mse_f, sup_f, draw_f, drgb_f) = self.render_and_grad(&fine, &raw_f, &rgb_f, batch);
         tm.render += t0.elapsed().as_secs_f64();
         let loss = mse_c + mse_f;
+        let loss = if batch.supervision.is_some() { loss + sup_c + sup_f } else { loss };
         let stats = |skipped, tm| StepStats { loss, mse: mse_f, samples: nc + nf, marched: nc + nf, encoded: nc + nf, skipped_nonfinite: skipped, timings: tm, ..Default::default() };
         if !loss.is_finite() || ![&draw_c, &draw_f, &drgb_c, &drgb_f].iter().all(|v| all_finite(v)) {
             return stats(true, tm);

@@ -27,7 +27,7 @@ use crate::kernels::{seeded_init, stream, stream_seed};
 use crate::mlp::{GroupGrads, HashMlp};
 use crate::occupancy::{MarchOptions, OccupancyBlocks, OccupancyGrid, OccupancyGridConfig};
 use crate::sampling::{Aabb, RaySamples, SampleMode};
-use crate::volrend;
+use crate::{supervision, volrend};
 use burn::module::Module;
 use rayon::prelude::*;
 use std::time::Instant;
@@ -367,10 +367,23 @@ impl NerfModel for FastModel {
                 None => (0.0, None),
             };
             let zeros = vec![0.0; rays.len()];
-            let g = volrend::composite_backward(&inputs, &comp, &volrend::OutputGrads { d_rgb: &d_out, d_opacity: &zeros, d_distance: &zeros, d_weights: d_weights.as_deref() });
+            let g = match &batch.supervision {
+                None => volrend::composite_backward(&inputs, &comp, &volrend::OutputGrads { d_rgb: &d_out, d_opacity: &zeros, d_distance: &zeros, d_weights: d_weights.as_deref() }),
+                Some(sup) => {
+                    // The depth and empty-space terms ([`crate::supervision`]) through the same backward.
+                    let mut sg = supervision::loss_and_grads(sup, rays.start, n_rays, &o, ts, te, &comp);
+                    if let Some(dw) = &d_weights {
+                        sg.d_weights.iter_mut().zip(dw).for_each(|(a, b)| *a += b);
+                    }
+                    let g = volrend::composite_backward(&inputs, &comp, &volrend::OutputGrads { d_rgb: &d_out, d_opacity: &sg.d_opacity, d_distance: &sg.d_distance, d_weights: Some(&sg.d_weights) });
+                    let d_raw = g.d_sigma.iter().zip(raw).map(|(g, x)| ACT.backward(*x, *g)).collect();
+                    composite_ns.fetch_add(tc.elapsed().as_nanos() as u64, std::sync::atomic::Ordering::Relaxed);
+                    return GroupGrads { d_raw, d_rgb: g.d_rgb, value: (sq, dist, sg.loss) };
+                }
+            };
             let d_raw = g.d_sigma.iter().zip(raw).map(|(g, x)| ACT.backward(*x, *g)).collect();
             composite_ns.fetch_add(tc.elapsed().as_nanos() as u64, std::sync::atomic::Ordering::Relaxed);
-            GroupGrads { d_raw, d_rgb: g.d_rgb, value: (sq, dist) }
+            GroupGrads { d_raw, d_rgb: g.d_rgb, value: (sq, dist, 0.0) }
         });
         tm.phases.composite_cpu = composite_ns.into_inner() as f64 * 1e-9;
         let mse = (parts.iter().map(|p| p.0).sum::<f64>() / norm as f64) as f32;
@@ -378,6 +391,7 @@ impl NerfModel for FastModel {
             Some(l) => mse + l * (parts.iter().map(|p| p.1).sum::<f64>() / n_rays.max(1) as f64) as f32,
             None => mse,
         };
+        let loss = if batch.supervision.is_some() { loss + parts.iter().map(|p| p.2).sum::<f64>() as f32 } else { loss };
         tm.phases.mlp_sweep = t0.elapsed().as_secs_f64();
         tm.mlp += tm.phases.mlp_sweep;
         let stats = |skipped, tm, touched| StepStats { loss, mse, samples: n, marched: n_marched, encoded: n_marched, touched, skipped_nonfinite: skipped, timings: tm };

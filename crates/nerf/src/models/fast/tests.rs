@@ -33,6 +33,7 @@ fn bf16_networks_train_like_fp32_or_are_refused() {
         background: vec![[0.0; 3]; n],
         ids: (0..n as u64).collect(),
         mixed: Vec::new(),
+        supervision: None,
     };
     let losses = |p: &str| -> Result<Vec<f32>, String> {
         let mut m = FastModel::new(cfg(p), bounds.clone(), 3)?;
@@ -83,6 +84,7 @@ fn dropping_view_dependence_keeps_the_direction_averaged_colour() {
         background: vec![[0.0; 3]; n],
         ids: (0..n as u64).collect(),
         mixed: Vec::new(),
+        supervision: None,
     };
     for step in 0..4 {
         m.lr = 1e-2;
