@@ -586,6 +586,7 @@ fn score_geometry_moved_by_a_known_similarity_scores_chamfer_zero() {
     let mut args = vec!["score", d, pred.to_str().unwrap(), "--method", "m", "--out", bad.to_str().unwrap(), "--geometry", moved.to_str().unwrap()];
     args.extend(["--to-dataset", "0 0 0 0 0 1 0 0 0 0 1 0 0 0 0 1"]);
     assert_refused(&args, "--to-dataset", &bad);
+}
 
 /// The supervision options are checked when parsed: a sparse or holes fraction outside
 /// (0, 1], a negative sigma or weight, an unknown loss or source, and depth settings without
