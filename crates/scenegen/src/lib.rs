@@ -23,6 +23,7 @@ use std::path::{Path, PathBuf};
 
 mod bin_writer;
 pub mod builder;
+pub mod deform;
 pub mod mesh;
 pub mod scenes;
 pub mod texture;
@@ -31,6 +32,7 @@ pub use builder::{
     GeometryId, Light, Material, MaterialId, NodeId, PerspectiveCamera, SceneBuilder, TextureId,
     Transform,
 };
+pub use deform::{MorphTarget, Skin};
 pub use mesh::Mesh;
 pub use scenes::{build_scene, scene_description, scene_names, stress};
 
