@@ -4,9 +4,11 @@
 //!
 //! The writer lays out one little-endian buffer: for each geometry, tightly
 //! packed `POSITION`, `NORMAL`, `TEXCOORD_0` (f32), optional `COLOR_0` (f32
-//! VEC3) and `TANGENT` (f32 VEC4), then indices (u16 when every index fits,
-//! else u32), each in its own bufferView starting on a 4-byte boundary. Every
-//! accessor carries exact `min`/`max`. JSON objects are written with sorted
+//! VEC3) and `TANGENT` (f32 VEC4), a skinned geometry's `JOINTS_0` (u8 VEC4)
+//! and `WEIGHTS_0` (f32 VEC4), its morph targets (dense, or sparse with u32
+//! indices), then indices (u16 when every index fits, else u32), each in its
+//! own bufferView starting on a 4-byte boundary; skins' inverse bind matrices
+//! follow. Every accessor carries exact `min`/`max`. JSON objects are written with sorted
 //! keys and floats in their shortest round-trip form, so the output is
 //! byte-identical for identical input.
 

@@ -1,9 +1,9 @@
 //! Procedural glTF 2.0 scene authoring for the project's ground-truth
 //! datasets: a small deterministic glTF writer ([`SceneBuilder`]), mesh
-//! builders with normals and UVs ([`Mesh`]), procedural PNG textures
-//! ([`texture`]), and the committed test scenes (`cornell`, `tabletop`,
-//! `thin`, `deep`, `materials`) that `cargo xtask gen-scenes` regenerates with
-//! [`write_all`].
+//! builders with normals and UVs ([`Mesh`]), skins and morph targets
+//! ([`deform`]), procedural PNG textures ([`texture`]), and the committed test
+//! scenes (`cornell`, `tabletop`, `thin`, `deep`, `materials`, `skinned`,
+//! `morphed`) that `cargo xtask gen-scenes` regenerates with [`write_all`].
 //!
 //! Units are metres in glTF's right-handed, +Y-up world. Lights use
 //! `KHR_lights_punctual` (point and spot intensity in candela, directional in
