@@ -915,3 +915,38 @@ fn an_external_file_beyond_the_byte_budget_is_refused() {
     assert!(SceneSource::from_scene_with(&path, &ImportOptions { max_buffer_bytes: scene_len + 4096, ..small }).is_ok());
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// The committed `skinned` and `morphed` scenes import at the default pose scenegen computes
+/// independently (in `f32`, from its own joint and morph data): every vertex of the posed
+/// meshes is found among the imported positions, and that pose is far from the bind pose.
+#[test]
+fn skinned_and_morphed_scenes_import_at_their_default_pose() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes");
+    for (name, meshes) in [("skinned", &["tube"][..]), ("morphed", &["blob_mesh_weights", "blob_node_weights"][..])] {
+        let b = scenegen::build_scene(name).unwrap();
+        let s = load_gltf(&dir.join(format!("{name}.gltf")), &ImportOptions::default()).unwrap();
+        assert!(s.warnings.is_empty(), "{name}: {:?}", s.warnings);
+        let imported: Vec<DVec3> = (0..s.mesh.positions.len()).map(|i| world(&s, i)).collect();
+        let gltf = gltf::Gltf::open(dir.join(format!("{name}.gltf"))).unwrap();
+        for mesh_name in meshes {
+            let node = gltf.nodes().find(|n| n.name() == Some(mesh_name)).unwrap();
+            let posed = b.world_positions(scenegen::NodeId(node.index())).unwrap();
+            let mut moved = 0.0f64;
+            for p in &posed {
+                let p = p.as_dvec3();
+                let nearest = imported.iter().map(|q| (*q - p).length()).fold(f64::INFINITY, f64::min);
+                assert!(nearest < 2e-6, "{name}/{mesh_name}: posed vertex {p} is {nearest} m from every imported vertex");
+            }
+            // The unposed mesh under the node's own transform: the pose moves it by decimetres.
+            let node_m = glam::DMat4::from_cols_array_2d(&node.transform().matrix().map(|c| c.map(f64::from)));
+            let mesh = node.mesh().unwrap();
+            let prim = mesh.primitives().next().unwrap();
+            let buffers: Vec<Vec<u8>> = vec![std::fs::read(dir.join(format!("{name}.bin"))).unwrap()];
+            let reader = prim.reader(|b| buffers.get(b.index()).map(Vec::as_slice));
+            for (p, q) in reader.read_positions().unwrap().zip(&posed) {
+                moved = moved.max((node_m.transform_point3(Vec3::from(p).as_dvec3()) - q.as_dvec3()).length());
+            }
+            assert!(moved > 0.1, "{name}/{mesh_name}: the default pose moves vertices by only {moved} m");
+        }
+    }
+}

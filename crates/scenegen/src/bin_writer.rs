@@ -28,6 +28,7 @@ pub(crate) struct BinWriter {
 const ARRAY_BUFFER: u32 = 34962;
 const ELEMENT_ARRAY_BUFFER: u32 = 34963;
 const FLOAT: u32 = 5126;
+const UNSIGNED_BYTE: u32 = 5121;
 const UNSIGNED_SHORT: u32 = 5123;
 const UNSIGNED_INT: u32 = 5125;
 
@@ -82,6 +83,71 @@ impl BinWriter {
     }
 
     /// Triangle indices as u16 when every vertex index fits, else u32.
+    /// Per-vertex joint indices (JOINTS_0): UNSIGNED_BYTE VEC4.
+    pub(crate) fn joints(&mut self, joints: &[[u8; 4]]) -> usize {
+        let bytes: Vec<u8> = joints.iter().flatten().copied().collect();
+        let view = self.view(&bytes, Some(ARRAY_BUFFER));
+        let lo: Vec<u8> = (0..4).map(|k| joints.iter().map(|j| j[k]).min().unwrap_or(0)).collect();
+        let hi: Vec<u8> = (0..4).map(|k| joints.iter().map(|j| j[k]).max().unwrap_or(0)).collect();
+        self.accessors.push(json!({
+            "bufferView": view,
+            "componentType": UNSIGNED_BYTE,
+            "count": joints.len(),
+            "type": "VEC4",
+            "min": lo,
+            "max": hi,
+        }));
+        self.accessors.len() - 1
+    }
+
+    /// Column-major 4×4 matrices (a skin's inverse bind matrices): FLOAT MAT4.
+    pub(crate) fn matrices(&mut self, matrices: &[[f32; 16]]) -> usize {
+        let bytes: Vec<u8> = matrices.iter().flatten().flat_map(|x| x.to_le_bytes()).collect();
+        let view = self.view(&bytes, None);
+        let lo: Vec<f32> = (0..16).map(|k| matrices.iter().map(|m| m[k]).fold(f32::INFINITY, f32::min)).collect();
+        let hi: Vec<f32> = (0..16).map(|k| matrices.iter().map(|m| m[k]).fold(f32::NEG_INFINITY, f32::max)).collect();
+        self.accessors.push(json!({
+            "bufferView": view,
+            "componentType": FLOAT,
+            "count": matrices.len(),
+            "type": "MAT4",
+            "min": jf_slice(&lo),
+            "max": jf_slice(&hi),
+        }));
+        self.accessors.len() - 1
+    }
+
+    /// A sparse FLOAT VEC3 accessor of `count` elements, zero except at the strictly
+    /// increasing `indices`, where it holds `values` (no dense bufferView), with `min`/`max`
+    /// over all `count` elements (zeros included).
+    pub(crate) fn sparse_vec3(&mut self, count: usize, indices: &[u32], values: &[[f32; 3]]) -> usize {
+        let ibytes: Vec<u8> = indices.iter().flat_map(|i| i.to_le_bytes()).collect();
+        let vbytes: Vec<u8> = values.iter().flatten().flat_map(|x| x.to_le_bytes()).collect();
+        let iview = self.view(&ibytes, None);
+        let vview = self.view(&vbytes, None);
+        let mut lo = [if indices.len() < count { 0.0f32 } else { f32::INFINITY }; 3];
+        let mut hi = [if indices.len() < count { 0.0f32 } else { f32::NEG_INFINITY }; 3];
+        for v in values {
+            for k in 0..3 {
+                lo[k] = lo[k].min(v[k]);
+                hi[k] = hi[k].max(v[k]);
+            }
+        }
+        self.accessors.push(json!({
+            "componentType": FLOAT,
+            "count": count,
+            "type": "VEC3",
+            "min": jf_slice(&lo),
+            "max": jf_slice(&hi),
+            "sparse": {
+                "count": indices.len(),
+                "indices": { "bufferView": iview, "componentType": UNSIGNED_INT },
+                "values": { "bufferView": vview },
+            },
+        }));
+        self.accessors.len() - 1
+    }
+
     pub(crate) fn indices(&mut self, indices: &[u32], vertex_count: usize) -> usize {
         let (bytes, component): (Vec<u8>, u32) = if vertex_count <= u16::MAX as usize {
             (

@@ -4,9 +4,11 @@
 //!
 //! The writer lays out one little-endian buffer: for each geometry, tightly
 //! packed `POSITION`, `NORMAL`, `TEXCOORD_0` (f32), optional `COLOR_0` (f32
-//! VEC3) and `TANGENT` (f32 VEC4), then indices (u16 when every index fits,
-//! else u32), each in its own bufferView starting on a 4-byte boundary. Every
-//! accessor carries exact `min`/`max`. JSON objects are written with sorted
+//! VEC3) and `TANGENT` (f32 VEC4), a skinned geometry's `JOINTS_0` (u8 VEC4)
+//! and `WEIGHTS_0` (f32 VEC4), its morph targets (dense, or sparse with u32
+//! indices), then indices (u16 when every index fits, else u32), each in its
+//! own bufferView starting on a 4-byte boundary; skins' inverse bind matrices
+//! follow. Every accessor carries exact `min`/`max`. JSON objects are written with sorted
 //! keys and floats in their shortest round-trip form, so the output is
 //! byte-identical for identical input.
 
@@ -20,6 +22,7 @@ use serde_json::{Map, Value, json};
 
 use crate::SceneGenError;
 use crate::bin_writer::{BinWriter, canonical_json, jf, jf_slice};
+use crate::deform::{self, MorphTarget, Skin};
 use crate::mesh::Mesh;
 use crate::texture::encode_png;
 
@@ -233,6 +236,8 @@ enum NodeKind {
     Mesh(usize),
     Light(usize),
     Camera(usize),
+    /// A transform only (a skin's joint).
+    Joint,
 }
 
 #[derive(Clone, Debug)]
@@ -240,6 +245,12 @@ struct Node {
     name: String,
     transform: Transform,
     kind: NodeKind,
+    /// The parent node; `None` for a root of the scene.
+    parent: Option<usize>,
+    /// The skin placing this node's mesh.
+    skin: Option<usize>,
+    /// Morph weights overriding the mesh's.
+    weights: Option<Vec<f32>>,
 }
 
 /// Builds one glTF scene in memory and writes it.
@@ -277,6 +288,12 @@ pub struct SceneBuilder {
     lights: Vec<(String, Light)>,
     cameras: Vec<(String, PerspectiveCamera)>,
     nodes: Vec<Node>,
+    /// Skins by index; each geometry's per-vertex influences are in the skin.
+    skins: Vec<Skin>,
+    /// Geometry index → its skin (the skin's vertex influences belong to that geometry).
+    geometry_skin: BTreeMap<usize, usize>,
+    /// Geometry index → its morph targets and default weights.
+    geometry_morph: BTreeMap<usize, (Vec<MorphTarget>, Vec<f32>)>,
 }
 
 fn check_name(name: &str, what: &str) -> Result<(), SceneGenError> {
@@ -307,6 +324,9 @@ impl SceneBuilder {
             lights: Vec::new(),
             cameras: Vec::new(),
             nodes: Vec::new(),
+            skins: Vec::new(),
+            geometry_skin: BTreeMap::new(),
+            geometry_morph: BTreeMap::new(),
         }
     }
 
@@ -406,6 +426,99 @@ impl SceneBuilder {
         self.add_instance(name, g, material, transform)
     }
 
+    /// Add a joint: a node with only a transform, below `parent` (or a root), for a
+    /// [`Skin`]'s `joints`.
+    pub fn add_joint(&mut self, name: &str, transform: Transform, parent: Option<NodeId>) -> Result<NodeId, SceneGenError> {
+        if parent.is_some_and(|p| p.0 >= self.nodes.len()) {
+            return Err(SceneGenError::InvalidName { name: name.to_string(), reason: "parent node id out of range".into() });
+        }
+        let id = self.push_node(name, transform, NodeKind::Joint);
+        self.nodes[id.0].parent = parent.map(|p| p.0);
+        Ok(id)
+    }
+
+    /// Add a mesh posed by `skin` (glTF linear blend skinning; the node's own transform is
+    /// ignored by glTF readers, so the node gets none).
+    pub fn add_skinned_mesh(&mut self, name: &str, mesh: Mesh, material: MaterialId, skin: Skin) -> Result<NodeId, SceneGenError> {
+        deform::check_skin(name, &mesh, &skin)?;
+        if skin.joints.iter().any(|j| !matches!(self.nodes.get(j.0).map(|n| &n.kind), Some(NodeKind::Joint))) {
+            return Err(SceneGenError::InvalidMesh { name: name.to_string(), reason: "skin joints must be nodes from add_joint".into() });
+        }
+        let g = self.add_geometry(name, mesh)?;
+        self.skins.push(skin);
+        self.geometry_skin.insert(g.0, self.skins.len() - 1);
+        let node = self.add_instance(name, g, material, Transform::IDENTITY)?;
+        self.nodes[node.0].skin = Some(self.skins.len() - 1);
+        Ok(node)
+    }
+
+    /// Add a geometry with morph targets and their default weights (`mesh.weights`); place
+    /// instances with [`add_instance`](Self::add_instance), overriding the weights per node
+    /// with [`set_morph_weights`](Self::set_morph_weights).
+    pub fn add_morphed_geometry(&mut self, name: &str, mesh: Mesh, targets: Vec<MorphTarget>, weights: Vec<f32>) -> Result<GeometryId, SceneGenError> {
+        deform::check_morph(name, &mesh, &targets, &weights)?;
+        let g = self.add_geometry(name, mesh)?;
+        self.geometry_morph.insert(g.0, (targets, weights));
+        Ok(g)
+    }
+
+    /// Sets a morphed mesh node's own weights (`node.weights`, overriding the mesh's).
+    pub fn set_morph_weights(&mut self, node: NodeId, weights: Vec<f32>) -> Result<(), SceneGenError> {
+        let n = self.nodes.get(node.0).ok_or_else(|| SceneGenError::InvalidName { name: format!("node {}", node.0), reason: "node id out of range".into() })?;
+        let targets = match n.kind {
+            NodeKind::Mesh(m) => self.geometry_morph.get(&self.meshes[m].0.0).map(|(t, _)| t.len()),
+            _ => None,
+        };
+        if targets != Some(weights.len()) || weights.iter().any(|w| !w.is_finite()) {
+            return Err(SceneGenError::InvalidMesh {
+                name: n.name.clone(),
+                reason: "node weights need a morphed mesh and one finite weight per target".into(),
+            });
+        }
+        self.nodes[node.0].weights = Some(weights);
+        Ok(())
+    }
+
+    /// A node's world transform (its parents' transforms first).
+    fn node_world(&self, mut index: usize) -> Mat4 {
+        let mut m = self.nodes[index].transform.matrix();
+        while let Some(p) = self.nodes[index].parent {
+            m = self.nodes[p].transform.matrix() * m;
+            index = p;
+        }
+        m
+    }
+
+    /// A mesh node's vertices in world space at the default pose (morphed, then skinned or
+    /// placed by the node's world transform), as a glTF reader should place them; `None` for
+    /// a node without a mesh.
+    pub fn world_positions(&self, node: NodeId) -> Option<Vec<Vec3>> {
+        match self.nodes.get(node.0)?.kind {
+            NodeKind::Mesh(m) => Some(self.posed_positions(node.0, m)),
+            _ => None,
+        }
+    }
+
+    fn posed_positions(&self, index: usize, mesh: usize) -> Vec<Vec3> {
+        let g = self.meshes[mesh].0.0;
+        let geometry = &self.geometries[g].1;
+        let positions = match self.geometry_morph.get(&g) {
+            Some((targets, weights)) => deform::morphed_positions(geometry, targets, self.nodes[index].weights.as_deref().unwrap_or(weights)),
+            None => geometry.positions.clone(),
+        };
+        match self.nodes[index].skin {
+            Some(s) => {
+                let skin = &self.skins[s];
+                let joint_world: Vec<Mat4> = skin.joints.iter().map(|j| self.node_world(j.0)).collect();
+                deform::skinned_positions(&positions, skin, &joint_world)
+            }
+            None => {
+                let world = self.node_world(index);
+                positions.iter().map(|&p| world.transform_point3(p)).collect()
+            }
+        }
+    }
+
     /// Add a punctual light at a node.
     pub fn add_light(
         &mut self,
@@ -473,6 +586,9 @@ impl SceneBuilder {
             name: name.to_string(),
             transform,
             kind,
+            parent: None,
+            skin: None,
+            weights: None,
         });
         NodeId(self.nodes.len() - 1)
     }
@@ -481,12 +597,10 @@ impl SceneBuilder {
     /// `None` when the scene has no meshes.
     pub fn bounds(&self) -> Option<(Vec3, Vec3)> {
         let mut out: Option<(Vec3, Vec3)> = None;
-        for node in &self.nodes {
+        for (index, node) in self.nodes.iter().enumerate() {
             if let NodeKind::Mesh(m) = node.kind {
-                let geometry = &self.geometries[self.meshes[m].0.0].1;
-                let world = geometry.transformed(&node.transform.matrix());
-                if let Some((lo, hi)) = world.bounds() {
-                    out = Some(out.map_or((lo, hi), |(a, b)| (a.min(lo), b.max(hi))));
+                for p in self.posed_positions(index, m) {
+                    out = Some(out.map_or((p, p), |(a, b)| (a.min(p), b.max(p))));
                 }
             }
         }
@@ -574,7 +688,7 @@ impl SceneBuilder {
         let mut bin = BinWriter::default();
         // Accessor indices per geometry.
         let mut prims = Vec::new();
-        for (name, mesh) in &self.geometries {
+        for (g, (name, mesh)) in self.geometries.iter().enumerate() {
             let mut attrs = Map::new();
             attrs.insert(
                 "POSITION".into(),
@@ -590,8 +704,30 @@ impl SceneBuilder {
                 let flat: Vec<f32> = t.iter().flat_map(|v| v.to_array()).collect();
                 attrs.insert("TANGENT".into(), bin.floats(&flat, 4).into());
             }
+            if let Some(&s) = self.geometry_skin.get(&g) {
+                let skin = &self.skins[s];
+                attrs.insert("JOINTS_0".into(), bin.joints(&skin.vertex_joints).into());
+                let weights: Vec<f32> = skin.vertex_weights.iter().flatten().copied().collect();
+                attrs.insert("WEIGHTS_0".into(), bin.floats(&weights, 4).into());
+            }
+            let mut targets = Vec::new();
+            for target in self.geometry_morph.get(&g).map(|(t, _)| t.as_slice()).unwrap_or_default() {
+                let mut t = Map::new();
+                let position = match target.sparse_indices() {
+                    Some(moved) => {
+                        let values: Vec<[f32; 3]> = moved.iter().map(|&i| target.positions[i as usize].to_array()).collect();
+                        bin.sparse_vec3(target.positions.len(), &moved, &values)
+                    }
+                    None => bin.floats(&flat3(&target.positions), 3),
+                };
+                t.insert("POSITION".into(), position.into());
+                if let Some(n) = &target.normals {
+                    t.insert("NORMAL".into(), bin.floats(&flat3(n), 3).into());
+                }
+                targets.push(Value::Object(t));
+            }
             let indices = bin.indices(&mesh.indices, mesh.positions.len());
-            prims.push((name, attrs, indices));
+            prims.push((name, attrs, indices, targets));
         }
         let mut image_json = Vec::new();
         for (name, bytes) in embedded {
@@ -607,22 +743,48 @@ impl SceneBuilder {
         doc.insert("scene".into(), json!(0));
         doc.insert(
             "scenes".into(),
-            json!([{ "name": self.name, "nodes": (0..self.nodes.len()).collect::<Vec<_>>() }]),
+            json!([{ "name": self.name, "nodes": (0..self.nodes.len()).filter(|&i| self.nodes[i].parent.is_none()).collect::<Vec<_>>() }]),
         );
         let mut used_ext = Vec::new();
 
-        let nodes: Vec<Value> = self.nodes.iter().map(node_json).collect();
+        let nodes: Vec<Value> = self
+            .nodes
+            .iter()
+            .enumerate()
+            .map(|(i, node)| {
+                let children: Vec<usize> = (0..self.nodes.len()).filter(|&c| self.nodes[c].parent == Some(i)).collect();
+                node_json(node, &children)
+            })
+            .collect();
         doc.insert("nodes".into(), Value::Array(nodes));
+        if !self.skins.is_empty() {
+            let skins: Vec<Value> = self
+                .skins
+                .iter()
+                .map(|skin| {
+                    let ibms: Vec<[f32; 16]> = skin.inverse_bind_matrices.iter().map(|m| m.to_cols_array()).collect();
+                    json!({
+                        "joints": skin.joints.iter().map(|j| j.0).collect::<Vec<_>>(),
+                        "inverseBindMatrices": bin.matrices(&ibms),
+                    })
+                })
+                .collect();
+            doc.insert("skins".into(), Value::Array(skins));
+        }
 
         let meshes: Vec<Value> = self
             .meshes
             .iter()
             .map(|&(g, m)| {
-                let (name, attrs, indices) = &prims[g.0];
-                json!({
-                    "name": name,
-                    "primitives": [{ "attributes": attrs, "indices": indices, "material": m.0, "mode": 4 }],
-                })
+                let (name, attrs, indices, targets) = &prims[g.0];
+                let mut prim = json!({ "attributes": attrs, "indices": indices, "material": m.0, "mode": 4 });
+                let mut mesh = json!({ "name": name });
+                if let Some((_, weights)) = self.geometry_morph.get(&g.0) {
+                    prim["targets"] = Value::Array(targets.clone());
+                    mesh["weights"] = jf_slice(weights);
+                }
+                mesh["primitives"] = json!([prim]);
+                mesh
             })
             .collect();
         if !meshes.is_empty() {
@@ -713,9 +875,18 @@ impl SceneBuilder {
     }
 }
 
-fn node_json(node: &Node) -> Value {
+fn node_json(node: &Node, children: &[usize]) -> Value {
     let mut n = Map::new();
     n.insert("name".into(), json!(node.name));
+    if !children.is_empty() {
+        n.insert("children".into(), json!(children));
+    }
+    if let Some(s) = node.skin {
+        n.insert("skin".into(), json!(s));
+    }
+    if let Some(w) = &node.weights {
+        n.insert("weights".into(), jf_slice(w));
+    }
     let t = &node.transform;
     if t.translation != Vec3::ZERO {
         n.insert("translation".into(), jf_slice(&t.translation.to_array()));
@@ -742,6 +913,7 @@ fn node_json(node: &Node) -> Value {
                 json!({ "KHR_lights_punctual": { "light": l } }),
             );
         }
+        NodeKind::Joint => {}
     }
     Value::Object(n)
 }

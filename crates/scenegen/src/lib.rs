@@ -1,9 +1,9 @@
 //! Procedural glTF 2.0 scene authoring for the project's ground-truth
 //! datasets: a small deterministic glTF writer ([`SceneBuilder`]), mesh
-//! builders with normals and UVs ([`Mesh`]), procedural PNG textures
-//! ([`texture`]), and the committed test scenes (`cornell`, `tabletop`,
-//! `thin`, `deep`, `materials`, `bricks`) that `cargo xtask gen-scenes` regenerates with
-//! [`write_all`].
+//! builders with normals and UVs ([`Mesh`]), skins and morph targets
+//! ([`deform`]), procedural PNG textures ([`texture`]), and the committed test
+//! scenes (`cornell`, `tabletop`, `thin`, `deep`, `materials`, `bricks`,
+//! `skinned`, `morphed`) that `cargo xtask gen-scenes` regenerates with [`write_all`].
 //!
 //! Units are metres in glTF's right-handed, +Y-up world. Lights use
 //! `KHR_lights_punctual` (point and spot intensity in candela, directional in
@@ -24,6 +24,7 @@ use std::path::{Path, PathBuf};
 mod bin_writer;
 mod bricks;
 pub mod builder;
+pub mod deform;
 pub mod mesh;
 pub mod scenes;
 pub mod texture;
@@ -32,6 +33,7 @@ pub use builder::{
     GeometryId, Light, Material, MaterialId, NodeId, PerspectiveCamera, SceneBuilder, TextureId,
     Transform,
 };
+pub use deform::{MorphTarget, Skin};
 pub use mesh::Mesh;
 pub use scenes::{build_scene, scene_description, scene_names, stress};
 

@@ -85,11 +85,32 @@ const SCENES: &[SceneDef] = &[
             beyond the base plate.",
         build: crate::bricks::bricks,
     },
+    SceneDef {
+        name: "skinned",
+        description: "A skinned mesh at its default pose: a tube (radius 0.09 m, 1.2 m tall, 24 rings of 24 \
+            segments, closed top) bound to a chain of three joints 0.4 m apart under an armature node turned 30° \
+            about +Y; the joints bend it by 35° and 40° about their +Z, and the last one squashes it to 70 % \
+            along its Z, so positions, normals and bounds all differ from the bind pose (the straight tube). \
+            Each vertex blends the two nearest joints linearly along the tube (JOINTS_0 / WEIGHTS_0, inverse \
+            bind matrices the inverse bind-pose joint transforms). A grey box stands beside it on a 1.2 m \
+            ground disc. Lights: a 2.5 lux sun and a 4 cd point light. No camera.",
+        build: skinned,
+    },
+    SceneDef {
+        name: "morphed",
+        description: "Morph targets at their default weights: two spheres (radius 0.3 m) share a mesh with two \
+            targets, `stretch` (positions scaled by (1.4, 0.75, 1) about the centre, with normal \
+            displacements) and `bump` (the cap above 53° latitude pushed out along the normal by up to 0.2 m; \
+            no normal displacements, written as a sparse accessor). The left sphere shows the mesh's weights \
+            (0.6, 0.8), the right one its node's (1, 0). On a 1.2 m ground disc; lights: a 2.5 lux sun and a \
+            4 cd point light. No camera.",
+        build: morphed,
+    },
 ];
 
 /// Names of the built-in scenes, in the order [`crate::write_all`] writes them.
 pub fn scene_names() -> &'static [&'static str] {
-    const NAMES: &[&str] = &["cornell", "tabletop", "thin", "deep", "materials", "bricks"];
+    const NAMES: &[&str] = &["cornell", "tabletop", "thin", "deep", "materials", "bricks", "skinned", "morphed"];
     NAMES
 }
 
@@ -691,6 +712,135 @@ fn materials() -> Result<SceneBuilder, SceneGenError> {
             Vec3::Y,
         ),
     )?;
+    Ok(s)
+}
+
+/// The ground disc and lights the `skinned` and `morphed` scenes share.
+fn deform_stage(name: &str) -> Result<SceneBuilder, SceneGenError> {
+    let mut s = SceneBuilder::new(name);
+    let ground = s.add_material(Material::diffuse("ground", [0.55, 0.55, 0.5]))?;
+    s.add_mesh("ground", Mesh::disc(1.2, 48, 1.0), ground, Transform::IDENTITY)?;
+    s.add_light(
+        "sun",
+        Light::Directional { color: [1.0, 0.97, 0.92], illuminance: 2.5 },
+        sun_from(Vec3::new(-1.0, 2.0, 1.5)),
+    )?;
+    s.add_light(
+        "point",
+        Light::Point { color: [1.0; 3], intensity: 4.0 },
+        Transform::from_translation(Vec3::new(1.2, 1.6, 1.0)),
+    )?;
+    Ok(s)
+}
+
+/// An open tube along +Y from 0 to `height` with a flat top cap: `rings` rings of
+/// `segments` vertices (the seam duplicated for UVs), radial normals.
+fn tube(radius: f32, height: f32, segments: u32, rings: u32) -> Mesh {
+    let mut m = Mesh::empty();
+    for r in 0..=rings {
+        let y = height * r as f32 / rings as f32;
+        for k in 0..=segments {
+            let a = 2.0 * std::f64::consts::PI * f64::from(k) / f64::from(segments);
+            let (sin, cos) = (a.sin() as f32, a.cos() as f32);
+            m.positions.push(Vec3::new(radius * cos, y, -radius * sin));
+            m.normals.push(Vec3::new(cos, 0.0, -sin));
+            m.uvs.push(Vec2::new(k as f32 / segments as f32, y / height));
+        }
+    }
+    let row = segments + 1;
+    for r in 0..rings {
+        for k in 0..segments {
+            let (a, b) = (r * row + k, r * row + k + 1);
+            let (c, d) = (a + row, b + row);
+            m.indices.extend([a, b, d, a, d, c]);
+        }
+    }
+    let centre = m.positions.len() as u32;
+    m.positions.push(Vec3::new(0.0, height, 0.0));
+    m.normals.push(Vec3::Y);
+    m.uvs.push(Vec2::new(0.5, 0.5));
+    let top = rings * row;
+    for k in 0..segments {
+        let (a, b) = (top + k, top + k + 1);
+        let (pa, pb) = (m.positions[a as usize], m.positions[b as usize]);
+        // The cap's rim repeats the top ring with an upward normal (flat cap shading).
+        let base = m.positions.len() as u32;
+        m.positions.extend([pa, pb]);
+        m.normals.extend([Vec3::Y, Vec3::Y]);
+        m.uvs.extend([Vec2::new(0.5, 0.5), Vec2::new(0.5, 0.5)]);
+        m.indices.extend([base, base + 1, centre]);
+    }
+    m
+}
+
+fn skinned() -> Result<SceneBuilder, SceneGenError> {
+    let mut s = deform_stage("skinned")?;
+    let grey = s.add_material(Material::diffuse("box", [0.6, 0.6, 0.65]).with_metallic_roughness(0.0, 0.6))?;
+    s.add_mesh("box", Mesh::cuboid(Vec3::splat(0.15)), grey, Transform::from_translation(Vec3::new(-0.6, 0.15, -0.3)))?;
+
+    let (bone, rings, height) = (0.4f32, 24u32, 1.2f32);
+    let mesh = tube(0.09, height, 24, rings);
+    let armature = s.add_joint(
+        "armature",
+        Transform::from_translation_rotation(Vec3::new(0.15, 0.0, 0.1), Quat::from_rotation_y(deg(30.0))),
+        None,
+    )?;
+    let j0 = s.add_joint("bone0", Transform::IDENTITY, Some(armature))?;
+    let j1 = s.add_joint(
+        "bone1",
+        Transform::from_translation_rotation(Vec3::new(0.0, bone, 0.0), Quat::from_rotation_z(deg(35.0))),
+        Some(j0),
+    )?;
+    let j2 = s.add_joint(
+        "bone2",
+        Transform::from_translation_rotation(Vec3::new(0.0, bone, 0.0), Quat::from_rotation_z(deg(40.0)))
+            .with_scale(Vec3::new(1.0, 1.0, 0.7)),
+        Some(j1),
+    )?;
+    // Bind pose: the straight tube, joint k at height k · bone.
+    let inverse_bind_matrices = (0..3).map(|k| glam::Mat4::from_translation(Vec3::new(0.0, -bone * k as f32, 0.0))).collect();
+    let (mut vertex_joints, mut vertex_weights) = (Vec::new(), Vec::new());
+    for p in &mesh.positions {
+        // Joint k owns [k·bone, (k+1)·bone]; blend linearly across each joint's centre.
+        let t = (p.y / bone - 0.5).clamp(0.0, 2.0);
+        let k = (t.floor() as u8).min(1);
+        let f = t - f32::from(k);
+        vertex_joints.push([k, k + 1, 0, 0]);
+        vertex_weights.push([1.0 - f, f, 0.0, 0.0]);
+    }
+    let red = s.add_material(Material::diffuse("tube", [0.75, 0.2, 0.15]).with_metallic_roughness(0.0, 0.45))?;
+    s.add_skinned_mesh(
+        "tube",
+        mesh,
+        red,
+        crate::deform::Skin { joints: vec![j0, j1, j2], inverse_bind_matrices, vertex_joints, vertex_weights },
+    )?;
+    Ok(s)
+}
+
+fn morphed() -> Result<SceneBuilder, SceneGenError> {
+    let mut s = deform_stage("morphed")?;
+    let radius = 0.3f32;
+    let sphere = Mesh::uv_sphere(radius, 48, 24);
+    let scale = Vec3::new(1.4, 0.75, 1.0);
+    let stretch = crate::deform::MorphTarget {
+        positions: sphere.positions.iter().map(|&p| p * scale - p).collect(),
+        normals: Some(sphere.normals.iter().map(|&n| (n / scale).normalize() - n).collect()),
+    };
+    let cap = 0.8f32; // sin 53°
+    let bump = crate::deform::MorphTarget {
+        positions: sphere
+            .normals
+            .iter()
+            .map(|&n| if n.y > cap { n * 0.2 * ((n.y - cap) / (1.0 - cap)).powi(2) } else { Vec3::ZERO })
+            .collect(),
+        normals: None,
+    };
+    let g = s.add_morphed_geometry("blob", sphere, vec![stretch, bump], vec![0.6, 0.8])?;
+    let blue = s.add_material(Material::diffuse("blob", [0.2, 0.35, 0.75]).with_metallic_roughness(0.0, 0.4))?;
+    s.add_instance("blob_mesh_weights", g, blue, Transform::from_translation(Vec3::new(-0.45, 0.28, 0.0)))?;
+    let right = s.add_instance("blob_node_weights", g, blue, Transform::from_translation(Vec3::new(0.45, 0.25, 0.0)))?;
+    s.set_morph_weights(right, vec![1.0, 0.0])?;
     Ok(s)
 }
 

@@ -28,7 +28,26 @@ fn load(path: &Path) -> Loaded {
 /// Read every component of an accessor as f64, element by element.
 fn accessor_values(l: &Loaded, acc: &gltf::Accessor) -> Vec<Vec<f64>> {
     use gltf::accessor::DataType;
-    let view = acc.view().expect("accessor without bufferView");
+    let Some(view) = acc.view() else {
+        // A sparse accessor without a bufferView: zeros with the sparse values substituted.
+        let sparse = acc.sparse().expect("accessor without bufferView or sparse");
+        let dims = acc.dimensions().multiplicity();
+        let mut out = vec![vec![0.0; dims]; acc.count()];
+        let read = |view: gltf::buffer::View<'_>, offset: usize, len: usize| {
+            let buf = &l.buffers[view.buffer().index()].0;
+            buf[view.offset() + offset..view.offset() + offset + len].to_vec()
+        };
+        let idx = read(sparse.indices().view(), sparse.indices().offset(), 4 * sparse.count());
+        let vals = read(sparse.values().view(), sparse.values().offset(), 4 * dims * sparse.count());
+        for j in 0..sparse.count() {
+            let i = u32::from_le_bytes(idx[4 * j..4 * j + 4].try_into().unwrap()) as usize;
+            for k in 0..dims {
+                let at = 4 * (j * dims + k);
+                out[i][k] = f32::from_le_bytes(vals[at..at + 4].try_into().unwrap()) as f64;
+            }
+        }
+        return out;
+    };
     let buf = &l.buffers[view.buffer().index()].0;
     assert_eq!(
         view.offset() % 4,
@@ -522,4 +541,40 @@ fn committed_scenes_are_up_to_date() {
             name.to_string_lossy()
         );
     }
+}
+
+#[test]
+fn bad_skins_and_morph_targets_are_refused_and_sparse_targets_chosen() {
+    let mut s = SceneBuilder::new("rigs");
+    let m = s.add_material(Material::diffuse("m", [0.5; 3])).unwrap();
+    let j = s.add_joint("j", Transform::IDENTITY, None).unwrap();
+    let mesh = Mesh::cuboid(Vec3::splat(0.1));
+    let n = mesh.positions.len();
+    let skin = |joint: u8, w: f32| Skin {
+        joints: vec![j],
+        inverse_bind_matrices: vec![glam::Mat4::IDENTITY],
+        vertex_joints: vec![[joint, 0, 0, 0]; n],
+        vertex_weights: vec![[w, 0.0, 0.0, 0.0]; n],
+    };
+    let e = s.add_skinned_mesh("a", mesh.clone(), m, skin(1, 1.0)).unwrap_err().to_string();
+    assert!(e.contains("vertex 0: joint index beyond the 1 joints"), "{e}");
+    let e = s.add_skinned_mesh("a", mesh.clone(), m, skin(0, -1.0)).unwrap_err().to_string();
+    assert!(e.contains("weights must be finite, non-negative"), "{e}");
+    s.add_skinned_mesh("a", mesh.clone(), m, skin(0, 1.0)).unwrap();
+
+    let short = MorphTarget { positions: vec![Vec3::ZERO; n - 1], normals: None };
+    let e = s.add_morphed_geometry("b", mesh.clone(), vec![short], vec![1.0]).unwrap_err().to_string();
+    assert!(e.contains(&format!("morph target 0: needs {n} finite displacements")), "{e}");
+    let mut one = MorphTarget { positions: vec![Vec3::ZERO; n], normals: None };
+    one.positions[3] = Vec3::X;
+    assert_eq!(one.sparse_indices(), Some(vec![3]));
+    let e = s.add_morphed_geometry("b", mesh.clone(), vec![one.clone()], vec![1.0, 2.0]).unwrap_err().to_string();
+    assert!(e.contains("1 morph targets with 2 weights"), "{e}");
+    let g = s.add_morphed_geometry("b", mesh, vec![one], vec![0.5]).unwrap();
+    let node = s.add_instance("b", g, m, Transform::IDENTITY).unwrap();
+    assert!(s.set_morph_weights(node, vec![1.0, 1.0]).is_err());
+    s.set_morph_weights(node, vec![1.0]).unwrap();
+    // The node's weight (1) displaces vertex 3 by the full delta.
+    let posed = s.world_positions(node).unwrap();
+    assert_eq!(posed[3], Mesh::cuboid(Vec3::splat(0.1)).positions[3] + Vec3::X);
 }

@@ -153,6 +153,9 @@ pub(crate) enum Interpret {
     Attribute,
     /// Raw unsigned integers (indices): only UNSIGNED_BYTE/SHORT/INT SCALAR allowed.
     Indices,
+    /// 4×4 matrices (a skin's inverse bind matrices): only FLOAT MAT4 allowed, read as 16
+    /// column-major values per element.
+    Matrix4,
 }
 
 /// Reads accessor `index` into `f64`s. `max_elements` caps the allocation.
@@ -177,12 +180,17 @@ pub(crate) fn read(
         Type::Vec2 => 2,
         Type::Vec3 => 3,
         Type::Vec4 => 4,
+        Type::Mat4 if interpret == Interpret::Matrix4 => 16,
+        Type::Mat2 | Type::Mat3 if interpret == Interpret::Matrix4 => 0,
         Type::Mat2 | Type::Mat3 | Type::Mat4 => {
             return Err(format!("{what}: matrix accessors are not valid vertex data"));
         }
     };
+    if interpret == Interpret::Matrix4 && (dims != 16 || ct != ComponentType::F32) {
+        return Err(format!("{what}: inverse bind matrices must be FLOAT MAT4, found {ty:?} {}", component_name(ct)));
+    }
     let normalized = match interpret {
-        Interpret::Attribute => acc.normalized,
+        Interpret::Attribute | Interpret::Matrix4 => acc.normalized,
         Interpret::Indices => {
             if dims != 1 || !matches!(ct, ComponentType::U8 | ComponentType::U16 | ComponentType::U32) {
                 return Err(format!(

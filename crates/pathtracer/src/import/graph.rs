@@ -4,7 +4,7 @@
 use std::f64::consts::{FRAC_PI_2, PI};
 use std::rc::Rc;
 
-use glam::{DMat3, DMat4, DQuat, DVec3, DVec4, Vec2, Vec3, Vec4};
+use glam::{DMat4, DQuat, DVec3, DVec4, Vec2, Vec3, Vec4};
 use gltf::camera::Projection;
 use gltf::khr_lights_punctual::Kind;
 use gltf::mesh::Mode;
@@ -12,7 +12,8 @@ use gltf::Semantic;
 use serde_json::Value;
 
 use super::accessor::{self, AccessorData, Interpret};
-use super::{Importer, WorldLight};
+use super::skin::{Frame, Frames, Placement};
+use super::{name_suffix, Importer, WorldLight};
 use crate::error::PathTracerError;
 use crate::scene::{Aabb, Light, Material, Mesh, Scene, SceneCamera};
 
@@ -54,10 +55,6 @@ pub(crate) fn rigid_pose(world: &DMat4) -> Option<DMat4> {
     let y = (y_raw - z * y_raw.dot(z)).try_normalize()?;
     let x = y.cross(z);
     Some(DMat4::from_cols(x.extend(0.0), y.extend(0.0), z.extend(0.0), world.w_axis))
-}
-
-fn name_suffix(name: Option<&str>) -> String {
-    name.map(|n| format!(" ('{n}')")).unwrap_or_default()
 }
 
 impl Importer<'_> {
@@ -129,17 +126,19 @@ impl Importer<'_> {
         Ok(DMat4::from_scale_rotation_translation(DVec3::from(s), q / len, DVec3::from(t)))
     }
 
-    /// Walks the scene's node trees depth-first, baking meshes, cameras and lights.
+    /// Walks the scene's node trees depth-first, computing every node's world transform, then
+    /// bakes meshes (placed rigidly or by their skins), cameras and lights in that order.
     pub(super) fn traverse(&mut self) -> Result<(), PathTracerError> {
         let doc = Rc::clone(&self.doc);
         let nodes: Vec<gltf::Node<'_>> = doc.nodes().collect();
-        let mut visited = vec![false; nodes.len()];
+        let mut world_of: Vec<Option<DMat4>> = vec![None; nodes.len()];
+        let mut order = Vec::new();
         let mut stack: Vec<(usize, DMat4)> = self.root_nodes()?.into_iter().rev().map(|r| (r, DMat4::IDENTITY)).collect();
         while let Some((index, parent)) = stack.pop() {
             let node = nodes.get(index).ok_or_else(|| self.error(format!("node {index} does not exist")))?;
             let what = format!("node {index}{}", name_suffix(node.name()));
-            match visited.get_mut(index) {
-                Some(v) if !*v => *v = true,
+            match world_of.get(index) {
+                Some(None) => {}
                 _ => {
                     return Err(self.error(format!(
                         "{what} is reached twice: the node hierarchy must be a set of disjoint trees (a cycle, two parents, or a root listed twice)"
@@ -150,15 +149,23 @@ impl Importer<'_> {
             if !world.is_finite() {
                 return Err(self.error(format!("{what}: world transform is not finite")));
             }
+            world_of[index] = Some(world);
+            order.push(index);
+            for child in node.children().collect::<Vec<_>>().into_iter().rev() {
+                stack.push((child.index(), world));
+            }
+        }
+        for index in order {
+            let (Some(node), Some(Some(world))) = (nodes.get(index), world_of.get(index).copied()) else { continue };
+            let what = format!("node {index}{}", name_suffix(node.name()));
             if let Some(mesh) = node.mesh() {
-                if node.skin().is_some() {
-                    self.warn(format!("{what}: skinning is not supported; the mesh is placed by the node transform (bind pose)"));
-                }
-                if mesh.weights().is_some_and(|w| w.iter().any(|&x| x != 0.0)) || node.weights().is_some() {
-                    self.warn(format!("{what}: morph targets are not supported; the base mesh is used"));
-                }
+                let weights = self.morph_weights(node, &mesh)?;
+                let placement = match node.skin() {
+                    Some(skin) => self.joint_matrices(node, &skin, &world_of)?,
+                    None => Placement::Rigid(world),
+                };
                 for prim in mesh.primitives() {
-                    self.add_primitive(&mesh, &prim, &world)?;
+                    self.add_primitive(&mesh, &prim, &placement, &weights)?;
                 }
             }
             if let Some(camera) = node.camera() {
@@ -166,9 +173,6 @@ impl Importer<'_> {
             }
             if let Some(light) = node.light() {
                 self.add_light(&what, &light, &world)?;
-            }
-            for child in node.children().collect::<Vec<_>>().into_iter().rev() {
-                stack.push((child.index(), world));
             }
         }
         Ok(())
@@ -194,23 +198,29 @@ impl Importer<'_> {
     // Long by design: one glTF primitive is read attribute by attribute (mode, indices,
     // positions, normals, tangents, UVs, colours, material), each with its own validation
     // message naming the JSON path; the steps share the primitive's counts and transforms.
-    /// Bakes one primitive into world-space triangles.
-    fn add_primitive(&mut self, mesh: &gltf::Mesh<'_>, prim: &gltf::Primitive<'_>, world: &DMat4) -> Result<(), PathTracerError> {
+    /// Bakes one primitive into world-space triangles: morphed by `weights`, then placed.
+    fn add_primitive(
+        &mut self,
+        mesh: &gltf::Mesh<'_>,
+        prim: &gltf::Primitive<'_>,
+        placement: &Placement,
+        weights: &[f64],
+    ) -> Result<(), PathTracerError> {
         let what = format!("mesh {}{} primitive {}", mesh.index(), name_suffix(mesh.name()), prim.index());
         let mode = prim.mode();
         if !matches!(mode, Mode::Triangles | Mode::TriangleStrip | Mode::TriangleFan) {
             self.warn(format!("{what}: mode {mode:?} is not a surface; skipped"));
             return Ok(());
         }
-        let positions = self
+        let mut positions = self
             .read_attribute(prim, Semantic::Positions, &[3], &what)?
             .ok_or_else(|| self.error(format!("{what}: no POSITION attribute")))?;
         let n = positions.len();
         if let Some(i) = positions.values.iter().position(|v| !v.is_finite()) {
             return Err(self.error(format!("{what}: POSITION of vertex {} is not finite (NaN or infinite)", i / 3)));
         }
-        let normals = self.read_attribute(prim, Semantic::Normals, &[3], &what)?;
-        let tangents = self.read_attribute(prim, Semantic::Tangents, &[4], &what)?;
+        let mut normals = self.read_attribute(prim, Semantic::Normals, &[3], &what)?;
+        let mut tangents = self.read_attribute(prim, Semantic::Tangents, &[4], &what)?;
         let uv0 = self.read_attribute(prim, Semantic::TexCoords(0), &[2], &what)?;
         let uv1 = self.read_attribute(prim, Semantic::TexCoords(1), &[2], &what)?;
         let colors = self.read_attribute(prim, Semantic::Colors(0), &[3, 4], &what)?;
@@ -251,13 +261,14 @@ impl Importer<'_> {
             return Err(self.error(format!("{what}: the scene exceeds the import limit of {} triangles", self.options.max_triangles)));
         }
 
-        let m3 = DMat3::from_mat4(*world);
-        let det = m3.determinant();
-        let flip = det < 0.0;
-        // Normal matrix: the inverse transpose, computed as the cofactor matrix (equal up to
-        // the positive factor |det|, and defined even for singular transforms).
-        let cof = DMat3::from_cols(m3.y_axis.cross(m3.z_axis), m3.z_axis.cross(m3.x_axis), m3.x_axis.cross(m3.y_axis));
-        let nmat = if flip { -cof } else { cof };
+        self.apply_morph(prim, &what, weights, &mut positions, normals.as_mut(), tangents.as_mut())?;
+        if let Some(i) = positions.values.iter().position(|v| !v.is_finite()) {
+            return Err(self.error(format!("{what}: the morphed POSITION of vertex {} is not finite", i / 3)));
+        }
+        let frames = match placement {
+            Placement::Rigid(world) => Frames::Rigid(Frame::new(*world)),
+            Placement::Skinned { what: skin_what, joints } => Frames::Skinned(self.skin_frames(prim, &what, skin_what, joints, n)?),
+        };
 
         let material = match prim.material().index() {
             Some(i) => u32::try_from(i).map_err(|_| self.error("too many materials"))?,
@@ -268,19 +279,20 @@ impl Importer<'_> {
         };
 
         // Per-vertex attributes in world space.
-        let wpos: Vec<DVec3> = (0..n).map(|i| world.transform_point3(DVec3::from(positions.get::<3>(i)))).collect();
+        let wpos: Vec<DVec3> = (0..n).map(|i| frames.at(i).m4.transform_point3(DVec3::from(positions.get::<3>(i)))).collect();
         if wpos.iter().any(|p| !p.is_finite()) {
             return Err(self.error(format!("{what}: a world-space position overflows to infinity")));
         }
         let vnormal = |i: usize| -> Option<Vec3> {
-            let nrm = nmat * DVec3::from(normals.as_ref()?.get::<3>(i));
+            let nrm = frames.at(i).nmat * DVec3::from(normals.as_ref()?.get::<3>(i));
             nrm.try_normalize().map(|v| v.as_vec3())
         };
         let vtangent = |i: usize| -> Vec4 {
             let Some(t) = &tangents else { return Vec4::ZERO };
             let [x, y, z, w] = t.get::<4>(i);
-            let dir = (m3 * DVec3::new(x, y, z)).try_normalize().unwrap_or(DVec3::ZERO);
-            let sign = if w < 0.0 { -1.0 } else { 1.0 } * if flip { -1.0 } else { 1.0 };
+            let frame = frames.at(i);
+            let dir = (frame.m3 * DVec3::new(x, y, z)).try_normalize().unwrap_or(DVec3::ZERO);
+            let sign = if w < 0.0 { -1.0 } else { 1.0 } * if frame.flip { -1.0 } else { 1.0 };
             DVec4::new(dir.x, dir.y, dir.z, sign).as_vec4()
         };
         let uv = |a: &Option<AccessorData>, i: usize| -> Vec2 {
@@ -300,7 +312,7 @@ impl Importer<'_> {
             let p = |k: u32| wpos.get(k as usize).copied().unwrap_or(DVec3::ZERO);
             (p(t[1]) - p(t[0])).cross(p(t[2]) - p(t[0]))
         };
-        let oriented: Vec<[u32; 3]> = triangles.iter().map(|&[a, b, c]| if flip { [a, c, b] } else { [a, b, c] }).collect();
+        let oriented: Vec<[u32; 3]> = triangles.iter().map(|&[a, b, c]| if frames.flips([a, b, c]) { [a, c, b] } else { [a, b, c] }).collect();
 
         let new_vertices = if normals.is_some() { n } else { oriented.len() * 3 };
         let total = self.geometry.positions.len().saturating_add(new_vertices);

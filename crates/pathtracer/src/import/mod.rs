@@ -11,6 +11,8 @@
 //!   `KHR_mesh_quantization`), sparse accessors and interleaved buffer views, all read by a
 //!   bounds-checked reader of our own;
 //! - flat normals computed when NORMAL is absent (the spec's requirement);
+//! - morph targets at their default weights, then skins at the default pose (joint world
+//!   transforms × inverse bind matrices, linear blend skinning; module `skin`);
 //! - metallic-roughness materials with their textures (colour textures decoded from sRGB to
 //!   linear), `KHR_materials_emissive_strength`, `KHR_materials_specular`,
 //!   `KHR_materials_ior` and `KHR_texture_transform` on every texture read;
@@ -28,6 +30,7 @@ mod accessor;
 mod glb;
 mod graph;
 mod materials;
+mod skin;
 mod textures;
 mod uri;
 
@@ -343,6 +346,11 @@ pub(crate) struct WorldLight {
     pub direction: DVec3,
 }
 
+/// ` ('name')` for an object with a name, else nothing: appended to `node 3` and the like.
+pub(crate) fn name_suffix(name: Option<&str>) -> String {
+    name.map(|n| format!(" ('{n}')")).unwrap_or_default()
+}
+
 /// State of one import.
 pub(crate) struct Importer<'a> {
     pub path: PathBuf,
@@ -486,3 +494,5 @@ impl Importer<'_> {
 
 #[cfg(test)]
 mod tests;
+#[cfg(test)]
+mod tests_skin;

@@ -8,7 +8,7 @@ use serde_json::{json, Value};
 use super::graph::{assemble, rigid_pose};
 use super::*;
 
-fn b64(bytes: &[u8]) -> String {
+pub(super) fn b64(bytes: &[u8]) -> String {
     const T: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
     let mut s = String::new();
     for c in bytes.chunks(3) {
@@ -21,12 +21,12 @@ fn b64(bytes: &[u8]) -> String {
     s
 }
 
-fn f32_bytes(v: &[f32]) -> Vec<u8> {
+pub(super) fn f32_bytes(v: &[f32]) -> Vec<u8> {
     v.iter().flat_map(|x| x.to_le_bytes()).collect()
 }
 
 /// A glTF file: `body` plus one data-URI buffer holding `bin`.
-fn file(bin: &[u8], mut body: Value) -> Vec<u8> {
+pub(super) fn file(bin: &[u8], mut body: Value) -> Vec<u8> {
     body["asset"] = json!({"version": "2.0"});
     if !bin.is_empty() {
         body["buffers"] = json!([{"byteLength": bin.len(), "uri": format!("data:application/octet-stream;base64,{}", b64(bin))}]);
@@ -34,7 +34,7 @@ fn file(bin: &[u8], mut body: Value) -> Vec<u8> {
     serde_json::to_vec(&body).unwrap()
 }
 
-fn load(bytes: &[u8]) -> Result<Scene, PathTracerError> {
+pub(super) fn load(bytes: &[u8]) -> Result<Scene, PathTracerError> {
     load_gltf_from_slice(bytes, None, "unit.gltf", &ImportOptions::default())
 }
 
