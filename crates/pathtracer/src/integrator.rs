@@ -259,8 +259,9 @@ pub fn vertex_bsdf(scene: &Scene, si: &Interaction, mat: &Material, surf: &Surfa
         }
         None => si.ns_front,
     };
-    let frame = shading_frame(ns, si.n.dot(si.ns_front) < 0.0, wo);
-    let bsdf = surf.bsdf.at(frame.to_local(wo));
+    let back = si.n.dot(si.ns_front) < 0.0;
+    let frame = shading_frame(ns, back, wo);
+    let bsdf = surf.bsdf.seen_from(back).at(frame.to_local(wo));
     (frame, bsdf)
 }
 
@@ -293,6 +294,8 @@ struct Pending {
     origin: Vec3,
     /// Geometric normal facing the incoming ray.
     ng: Vec3,
+    /// Origin of a ray transmitted through the surface (a transmissive BSDF), else `origin`.
+    origin_through: Vec3,
 }
 
 /// A light sample at a path vertex (a punctual light, a point on an emissive triangle, or a
@@ -789,7 +792,8 @@ impl PathIntegrator<'_> {
         {
             lights.push(PendingLight { vertex, ..e });
         }
-        Some(Pending { path: 0, dim, frame, bsdf, origin, ng: si.ng })
+        let origin_through = if bsdf.transmissive().is_some() { offset_ray_origin(si.p, si.p_err, si.ng, -si.ng) } else { origin };
+        Some(Pending { path: 0, dim, frame, bsdf, origin, ng: si.ng, origin_through })
     }
 
     /// Adds a light sample's estimate to `path` where its BSDF value `f` (with density
@@ -891,7 +895,36 @@ impl PathIntegrator<'_> {
     fn continue_path(&self, stack: &mut TraversalStack, path: &mut PathState, sampler: &Sampler, v: &Pending, bs: &Option<BsdfSample>) -> bool {
         let Some(bs) = bs else { return false };
         let wi = v.frame.to_world(bs.wi).normalize();
-        self.continue_along(stack, path, v.origin, v.ng, wi, bs.weight, bs.pdf, || sampler.get_1d(v.dim + DIM_ROULETTE))
+        if v.bsdf.transmissive().is_some() && wi.dot(v.ng) < 0.0 {
+            // Through the surface: no light sample lies on this side (they are all taken
+            // above `ng`), so the emitter this ray finds counts whole (MIS weight 1).
+            let goes_on = self.continue_along(stack, path, v.origin_through, -v.ng, wi, bs.weight, f32::INFINITY, || sampler.get_1d(v.dim + DIM_ROULETTE));
+            if goes_on {
+                self.absorb(path);
+            }
+            return goes_on;
+        }
+        let goes_on = self.continue_along(stack, path, v.origin, v.ng, wi, bs.weight, bs.pdf, || sampler.get_1d(v.dim + DIM_ROULETTE));
+        if goes_on && v.bsdf.transmissive().is_some() {
+            self.absorb(path);
+        }
+        goes_on
+    }
+
+    /// Beer–Lambert absorption along the ray that led to `path.hit` where that ray ran inside
+    /// a volume: it left a transmissive surface and hits the back face of a material with
+    /// `KHR_materials_volume` (`beta ×= exp(−σ_a t)`, [`crate::scene::Volume`]). Media are not
+    /// nested: an opaque object inside a volume ends the absorbing segment unattenuated.
+    #[inline(always)]
+    fn absorb(&self, path: &mut PathState) {
+        if path.hit.front {
+            return;
+        }
+        let scene = self.scene;
+        let volume = scene.mesh.material.get(path.hit.prim as usize).and_then(|&m| scene.materials.get(m as usize)).and_then(|m| m.volume);
+        if let Some(v) = volume {
+            path.beta *= v.transmittance(path.hit.t);
+        }
     }
 
     /// Continues a path from its vertex (rays leave from `origin`, geometric normal `ng`

@@ -59,7 +59,8 @@ pub struct LaneMaterials(Vec<LaneMaterial>);
 
 impl LaneMaterials {
     /// The table for `scene` whose materials resolve to `uniform` once, or `None` where
-    /// some material varies over its surface (`uniform` holds a `None`) or has a normal map:
+    /// some material varies over its surface (`uniform` holds a `None`), has a normal map or
+    /// transmits:
     /// the one-path loop then shades every vertex.
     pub fn new(scene: &Scene, uniform: &[Option<SurfaceMaterial>]) -> Option<Self> {
         let attr = SurfaceAttributes { uv: [Vec2::ZERO; 2], color: Vec4::ONE };
@@ -69,7 +70,8 @@ impl LaneMaterials {
             .zip(uniform)
             .map(|(m, u)| {
                 let surf = (*u)?;
-                if m.normal_texture.is_some() {
+                // A normal map, or a transmissive BSDF (scalar verbs only, rays through the surface).
+                if m.normal_texture.is_some() || matches!(surf.bsdf, crate::material::Bsdf::Transmissive(_)) {
                     return None;
                 }
                 // What `emitter_pending` computes for a light sample on this material, whose
