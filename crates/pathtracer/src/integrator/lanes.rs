@@ -243,7 +243,7 @@ impl PathIntegrator<'_> {
             let g = get3(&ng, k);
             let o = get3(&origin, k);
             if !self.caustic_vertex(path, mat[k] as u32) {
-                self.punctual_samples(p, g, o, &frame, |light| others.push(OtherLight { lane: k, punctual: true, light }));
+                self.punctual_samples(p, g, o, None, &frame, |light| others.push(OtherLight { lane: k, punctual: true, light }));
             }
             if !self.emitters.is_empty()
                 && let Some(es) = self.emitters.sample(Vec2::new(u_emitter[0][k], u_emitter[1][k]), || u_spare[k])
@@ -263,7 +263,7 @@ impl PathIntegrator<'_> {
                 }
             }
             if self.samples_environment()
-                && let Some(light) = self.environment_sample(Vec2::new(u_env[0][k], u_env[1][k]), g, o, &frame)
+                && let Some(light) = self.environment_sample(Vec2::new(u_env[0][k], u_env[1][k]), g, o, None, &frame)
             {
                 others.push(OtherLight { lane: k, punctual: false, light });
             }

@@ -1416,3 +1416,28 @@ fn a_glass_slab_transmits_its_closed_form_fraction_and_ground_truth_stays_on_its
         assert!((Vec3::from_slice(&gt.normal[3 * k..3 * k + 3]) - Vec3::Z).length() < 1e-5);
     }
 }
+
+#[test]
+fn a_rough_glass_sheet_transmits_a_light_behind_it_by_next_event_estimation() {
+    // A thin rough glass sheet (roughness 0.5, no volume) facing the camera, lit only by a
+    // directional light from behind: the radiance through it is the BSDF's transmitted value
+    // towards the light times the illuminance, which only a light sample taken on the sheet's
+    // far side can find (a delta light is never hit by BSDF sampling).
+    let mut b = Builder::new();
+    let mut g = Material::gltf_default();
+    (g.metallic_factor, g.roughness_factor, g.transmission_factor) = (0.0, 0.5, 1.0);
+    b.materials.push(g.clone());
+    b.quad([Vec3::new(-1.0, -1.0, 0.0), Vec3::new(1.0, -1.0, 0.0), Vec3::new(1.0, 1.0, 0.0), Vec3::new(-1.0, 1.0, 0.0)], 1, 0);
+    let travel = Vec3::new(0.3, 0.2, 1.0).normalize();
+    let e = 2.0f32;
+    b.lights.push(Light::Directional { direction: travel, illuminance: Vec3::splat(e) });
+    let r = Renderer::new(b.build(DVec3::ZERO), &AccelParams::fast_build()).unwrap();
+    let ray = Ray::new(Vec3::new(0.1, 0.05, 2.0), -Vec3::Z);
+    let (mean, se) = estimate(&r, &settings(1, 1, 0.0, true), &ray, 4000);
+    let surf = crate::material::resolve(&g, &[], &crate::material::SurfaceAttributes { uv: [Vec2::ZERO; 2], color: Vec4::ONE });
+    let wi = -travel;
+    let local = Vec3::new((1.0 - wi.z * wi.z).sqrt(), 0.0, wi.z);
+    let expect = (surf.bsdf.evaluate(Vec3::Z, local).x * e) as f64;
+    assert!(expect > 0.01, "{expect}");
+    assert!((mean - expect).abs() < 4.0 * se + 1e-4 * expect, "{mean} ± {se} vs {expect}");
+}
