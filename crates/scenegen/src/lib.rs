@@ -2,7 +2,7 @@
 //! datasets: a small deterministic glTF writer ([`SceneBuilder`]), mesh
 //! builders with normals and UVs ([`Mesh`]), procedural PNG textures
 //! ([`texture`]), and the committed test scenes (`cornell`, `tabletop`,
-//! `thin`, `deep`, `materials`) that `cargo xtask gen-scenes` regenerates with
+//! `thin`, `deep`, `materials`, `glass`) that `cargo xtask gen-scenes` regenerates with
 //! [`write_all`].
 //!
 //! Units are metres in glTF's right-handed, +Y-up world. Lights use
@@ -28,7 +28,7 @@ pub mod scenes;
 pub mod texture;
 
 pub use builder::{
-    GeometryId, Light, Material, MaterialId, NodeId, PerspectiveCamera, SceneBuilder, TextureId,
+    GeometryId, Glass, Light, Material, MaterialId, NodeId, PerspectiveCamera, SceneBuilder, TextureId,
     Transform,
 };
 pub use mesh::Mesh;
