@@ -234,3 +234,12 @@ fn the_lane_loops_hand_transmissive_bsdfs_to_their_scalar_verbs() {
         assert_eq!(values[k], bsdfs[k].evaluate_pdf(wi[k]), "evaluate {k}");
     }
 }
+
+#[test]
+fn a_transmissive_material_is_view_dependent_at_any_roughness() {
+    let mut m = crate::scene::Material::gltf_default();
+    (m.metallic_factor, m.roughness_factor) = (0.0, 1.0);
+    assert!(!is_view_dependent(&m));
+    m.transmission_factor = 0.5;
+    assert!(is_view_dependent(&m));
+}

@@ -141,7 +141,7 @@ pub fn uniform_surface(material: &Material, vertex_colors: bool) -> Option<Surfa
 pub const VIEW_DEPENDENT_ROUGHNESS: f32 = 0.6;
 
 /// Whether a glTF material's outgoing radiance depends noticeably on the viewing direction:
-/// true when it can be metallic (metallic factor > 0: the whole reflection is a GGX lobe),
+/// true when it transmits (`KHR_materials_transmission`), when it can be metallic (metallic factor > 0: the whole reflection is a GGX lobe),
 /// or when it has a dielectric specular layer (`specular_factor > 0`) with a roughness that
 /// can fall below [`VIEW_DEPENDENT_ROUGHNESS`] (roughness factor × the smallest G of its
 /// metallic-roughness texture).
@@ -167,6 +167,10 @@ pub fn is_view_dependent(material: &Material) -> bool {
 /// [`is_view_dependent`] refined by the material's metallic-roughness texture (texture
 /// references that `textures` lacks are ignored).
 pub fn is_view_dependent_textured(material: &Material, textures: &[Texture]) -> bool {
+    // What is seen through a transmissive surface moves with the viewer at any roughness.
+    if material.transmits() {
+        return true;
+    }
     if material.metallic_factor > 0.0 {
         let metal_texture_zero = material
             .metallic_roughness_texture
