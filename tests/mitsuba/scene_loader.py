@@ -13,6 +13,15 @@ Mapping (ours -> Mitsuba):
   from the Rust doc comments, evaluated in our shading frame: normal map with the exported
   per-corner tangents, back-facing shading normals bent, directions below the geometric
   surface rejected), with the same base colour and metallic-roughness textures;
+- transmissive material (`transmission` > 0, KHR_materials_transmission): smooth and
+  thin-walled -> `thindielectric`; with a volume -> `dielectric` (roughness 0) or
+  `roughdielectric` (GGX, alpha = max(roughness^2, 1e-3), visible normals), int_ior = ior,
+  specular_transmittance = the base colour; transmission t < 1 or metallic m > 0 ->
+  `blendbsdf` with weight w = (1 - m) t on the dielectric and the `gltf` plugin with metallic
+  m / (1 - w) (material.rs `Transmissive`); a volume's attenuation -> the shape's `interior`
+  `homogeneous` medium with sigma_t = -ln(attenuation_color) / attenuation_distance and
+  albedo 0 (pure absorption), rendered with `volpath`. Rough thin-walled transmission (ours
+  mirrors the reflected lobe below the surface) has no Mitsuba counterpart: `Unsupported`;
 - emissive material -> `area` emitter, radiance = emissive (x emissive texture);
 - point -> `point` (intensity W/sr = candela); directional -> `directional` (irradiance = lux);
   spot -> `gltf_spot` (glTF's smooth falloff, `gltf_lights.py`);
@@ -97,9 +106,50 @@ def lambert_reflectance(mi, mat, textures, has_vertex_colors):
     return rgb(np.clip(factor, 0.0, 1.0))
 
 
+def transmissive_bsdf(mi, mat, textures, has_vertex_colors, glossy_plugin):
+    """The Mitsuba BSDF dict of a transmissive material (see the module docs)."""
+    name = mat["name"]
+    for key, what in [("transmission_texture", "transmission texture"), ("metallic_roughness_texture", "metallic-roughness texture"),
+                      ("normal_texture", "normal map")]:
+        if mat.get(key) is not None:
+            raise Unsupported(f"material {name}: {what} on a transmissive material")
+    ior = float(mat.get("ior", 1.5))
+    r = float(mat["roughness"])
+    tint = lambert_reflectance(mi, mat, textures, has_vertex_colors)
+    if mat.get("volume") is None:
+        if r > 0.0:
+            raise Unsupported(f"material {name}: rough thin-walled transmission (Mitsuba's thindielectric is smooth)")
+        glass = {"type": "thindielectric", "int_ior": ior, "ext_ior": 1.0, "specular_transmittance": tint}
+    elif r > 0.0:
+        glass = {"type": "roughdielectric", "distribution": "ggx", "alpha": max(r * r, 1e-3), "sample_visible": True,
+                 "int_ior": ior, "ext_ior": 1.0, "specular_transmittance": tint}
+    else:
+        glass = {"type": "dielectric", "int_ior": ior, "ext_ior": 1.0, "specular_transmittance": tint}
+    m = min(max(float(mat["metallic"]), 0.0), 1.0)
+    w = (1.0 - m) * min(max(float(mat["transmission"]), 0.0), 1.0)
+    if w >= 1.0:
+        return glass
+    if glossy_plugin is None:
+        raise Unsupported(f"material {name}: partial transmission without the gltf BSDF plugin")
+    base = glossy_plugin(mi, dict(mat, metallic=m / (1.0 - w)), textures, has_vertex_colors)
+    return {"type": "blendbsdf", "weight": w, "bsdf_0": base, "bsdf_1": glass}
+
+
+def absorption(mat):
+    """sigma_a (RGB list) of a material's volume, or None without absorption."""
+    vol = mat.get("volume") if mat.get("transmission", 0.0) > 0.0 else None
+    if vol is None or vol.get("attenuation_distance") is None:
+        return None
+    c = np.clip(np.asarray(vol["attenuation_color"], np.float64), 1e-30, 1.0)
+    sigma = -np.log(c) / float(vol["attenuation_distance"])
+    return None if not np.any(sigma > 0.0) else [float(x) for x in sigma]
+
+
 def material_bsdf(mi, mat, textures, has_vertex_colors, glossy_plugin):
     if mat["alpha_mode"] == "mask":
         raise Unsupported(f"material {mat['name']}: alpha mask")
+    if mat.get("transmission", 0.0) > 0.0:
+        return transmissive_bsdf(mi, mat, textures, has_vertex_colors, glossy_plugin)
     # Ours shades exactly Lambertian only when metallic and the specular weight are both 0
     # (material.rs `resolve`); everything else goes through the glTF BRDF.
     lambertian = mat["metallic"] <= 0.0 and mat.get("specular", 1.0) <= 0.0 and mat["metallic_roughness_texture"] is None
@@ -163,6 +213,12 @@ def build_meshes(mi, man, arrays, glossy_plugin=None):
         em = emitter(mi, mat, arrays["textures"])
         if em is not None:
             props["emitter"] = mi.load_dict(em)
+        sigma = absorption(mat)
+        if sigma is not None:
+            # An `rgb` value must lie in [0, 1]: sigma_t = value x scale.
+            scale = max(sigma)
+            props["interior"] = mi.load_dict({"type": "homogeneous", "sigma_t": {"type": "rgb", "value": [x / scale for x in sigma]},
+                                              "scale": scale, "albedo": 0.0})
         if np.any(np.linalg.norm(nrm[used], axis=1) < 1e-6):
             raise Unsupported(f"material {mat['name']}: vertices without normals")
         mesh = mi.Mesh(f"material_{k}", len(used), len(faces), props, has_vertex_normals=True, has_vertex_texcoords=True)
@@ -310,8 +366,10 @@ def build_scene(mi, man, arrays, view, spp, glossy_plugin=None, spot_plugin=None
     origin = np.asarray(man["origin"], np.float64)
     transparent = bool(man["settings"]["transparent_background"])
     d = {"type": "scene"}
+    # Absorbing volumes need Mitsuba's volumetric path tracer (`path` ignores media).
+    media = any(absorption(m) is not None for m in man["materials"])
     d["integrator"] = {
-        "type": "path",
+        "type": "volpath" if media else "path",
         "max_depth": int(man["settings"]["max_bounces"]) + 1,
         "hide_emitters": transparent,
     }

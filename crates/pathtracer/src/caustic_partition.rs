@@ -9,6 +9,8 @@
 //!   `F0 / α ≥` [`CASTER_F0_PER_ALPHA`] ([`is_caster`]);
 //! - a sharp material is a metallic caster ([`is_sharp`]): its whole reflection is that narrow
 //!   lobe, which the path tracer samples well and a light tracer could not connect through.
+//!   A transmissive material (`KHR_materials_transmission`) is sharp and never a caster:
+//!   the light tracer does not refract, and connects through no glass.
 //!
 //! The path tracer leaves out the punctual lights' next-event estimate at such an `x_n`
 //! ([`CausticVertices::is_caustic_vertex`]); the light tracer estimates exactly that term.
@@ -33,12 +35,14 @@ pub const MAX_CAUSTIC_VERTICES: u32 = 4;
 /// Why the second rule: the path tracer's variance for a caustic grows like `(F0 / α)²`, the
 /// light tracer's cost is the same for every caster (`docs/renderer.md`).
 pub fn is_caster(material: &Material, textures: &[Texture]) -> bool {
-    material.sharpest_specular_lobe(textures).is_some_and(|lobe| lobe.alpha < CASTER_ALPHA && lobe.f0 >= CASTER_F0_PER_ALPHA * lobe.alpha)
+    !material.transmits()
+        && material.sharpest_specular_lobe(textures).is_some_and(|lobe| lobe.alpha < CASTER_ALPHA && lobe.f0 >= CASTER_F0_PER_ALPHA * lobe.alpha)
 }
 
-/// Whether a caster is sharp: metallic, so that its whole reflection is the narrow lobe.
+/// Whether a caster is sharp: metallic, so that its whole reflection is the narrow lobe; or
+/// whether the material transmits.
 pub fn is_sharp(material: &Material, textures: &[Texture]) -> bool {
-    material.metallic_factor > 0.0 && is_caster(material, textures)
+    material.transmits() || (material.metallic_factor > 0.0 && is_caster(material, textures))
 }
 
 /// Which of a scene's materials are casters and which are sharp: the questions the path tracer

@@ -173,6 +173,29 @@ pub struct ExportMaterial {
     /// ([`crate::material::is_view_dependent`]); informative only: every material is shaded
     /// with the glTF BRDF unless metallic and specular are both 0.
     pub view_dependent: bool,
+    /// `KHR_materials_transmission` transmissionFactor (absent: 0, opaque).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub transmission: f32,
+    /// `KHR_materials_transmission` transmissionTexture (its R multiplies `transmission`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub transmission_texture: Option<ExportTextureRef>,
+    /// `KHR_materials_volume` with a thickness > 0 (absent: thin-walled).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub volume: Option<ExportVolume>,
+}
+
+/// A material's interior ([`crate::scene::Volume`]): Beer–Lambert absorption
+/// `σ_a = −ln(attenuation_color) / attenuation_distance`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ExportVolume {
+    /// `attenuationColor` (linear RGB).
+    pub attenuation_color: [f32; 3],
+    /// `attenuationDistance`; `None`: infinite (no absorption).
+    pub attenuation_distance: Option<f32>,
+}
+
+fn is_zero(x: &f32) -> bool {
+    *x == 0.0
 }
 
 fn ones3() -> [f32; 3] {
@@ -348,6 +371,12 @@ pub fn manifest(scene: &Scene, cameras: &[Camera], settings: &RenderSettings) ->
                 alpha_cutoff,
                 double_sided: m.double_sided,
                 view_dependent: crate::material::is_view_dependent(m),
+                transmission: m.transmission_factor,
+                transmission_texture: m.transmission_texture.as_ref().map(Into::into),
+                volume: m.volume.map(|v| ExportVolume {
+                    attenuation_color: v.attenuation_color.to_array(),
+                    attenuation_distance: v.attenuation_distance.is_finite().then_some(v.attenuation_distance),
+                }),
             }
         })
         .collect();

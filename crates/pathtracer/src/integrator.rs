@@ -259,8 +259,9 @@ pub fn vertex_bsdf(scene: &Scene, si: &Interaction, mat: &Material, surf: &Surfa
         }
         None => si.ns_front,
     };
-    let frame = shading_frame(ns, si.n.dot(si.ns_front) < 0.0, wo);
-    let bsdf = surf.bsdf.at(frame.to_local(wo));
+    let back = si.n.dot(si.ns_front) < 0.0;
+    let frame = shading_frame(ns, back, wo);
+    let bsdf = surf.bsdf.seen_from(back).at(frame.to_local(wo));
     (frame, bsdf)
 }
 
@@ -293,6 +294,8 @@ struct Pending {
     origin: Vec3,
     /// Geometric normal facing the incoming ray.
     ng: Vec3,
+    /// Origin of a ray transmitted through the surface (a transmissive BSDF), else `origin`.
+    origin_through: Vec3,
 }
 
 /// A light sample at a path vertex (a punctual light, a point on an emissive triangle, or a
@@ -767,17 +770,23 @@ impl PathIntegrator<'_> {
         // `offset_ray_origin` depends on the direction only through that side: one origin
         // serves them all (bit-identical to offsetting per ray).
         let origin = offset_ray_origin(si.p, si.p_err, si.ng, si.ng);
+        // A rough transmissive surface also takes light samples on its far side, whose shadow
+        // rays leave from there (a smooth one's delta lobes have no value towards any).
+        let through = match bsdf.transmissive() {
+            Some(t) if !t.glass.is_smooth() => Some(offset_ray_origin(si.p, si.p_err, si.ng, -si.ng)),
+            _ => None,
+        };
 
         // Punctual lights: deterministic, all of them, unless this is a caustic vertex
         // whose punctual light the light tracer estimates instead ([`crate::caustics`]).
         if !self.caustic_vertex(path, si.material) {
-            self.punctual_samples(si.p, si.ng, origin, &frame, |e| lights.push(PendingLight { vertex, ..e }));
+            self.punctual_samples(si.p, si.ng, origin, through, &frame, |e| lights.push(PendingLight { vertex, ..e }));
         }
 
         // Emissive triangles: one sample, MIS with BSDF sampling.
         if !self.emitters.is_empty()
             && let Some(es) = self.emitters.sample(sampler.get_2d(dim + DIM_EMITTER_POINT), || sampler.get_1d(dim + DIM_EMITTER_SPARE))
-            && let Some(e) = self.emitter_pending(&si, &frame, origin, es)
+            && let Some(e) = self.emitter_pending(&si, &frame, origin, through, es)
         {
             lights.push(PendingLight { vertex, ..e });
         }
@@ -785,11 +794,12 @@ impl PathIntegrator<'_> {
         // Environment map: one sample, MIS with BSDF sampling. A constant environment is
         // left to BSDF sampling alone (see the module docs).
         if self.samples_environment()
-            && let Some(e) = self.environment_sample(sampler.get_2d(dim + DIM_ENVIRONMENT), si.ng, origin, &frame)
+            && let Some(e) = self.environment_sample(sampler.get_2d(dim + DIM_ENVIRONMENT), si.ng, origin, through, &frame)
         {
             lights.push(PendingLight { vertex, ..e });
         }
-        Some(Pending { path: 0, dim, frame, bsdf, origin, ng: si.ng })
+        let origin_through = if bsdf.transmissive().is_some() { offset_ray_origin(si.p, si.p_err, si.ng, -si.ng) } else { origin };
+        Some(Pending { path: 0, dim, frame, bsdf, origin, ng: si.ng, origin_through })
     }
 
     /// Adds a light sample's estimate to `path` where its BSDF value `f` (with density
@@ -848,16 +858,18 @@ impl PathIntegrator<'_> {
     }
 
     /// Every punctual light's sample at the point `p` (geometric normal `ng` facing the
-    /// incoming ray, rays leaving from `origin`, shading frame `frame`) that lights its side,
-    /// up to the BSDF's value, passed to `push` in the scene's order (its `vertex` is the
-    /// caller's to set).
+    /// incoming ray, rays leaving from `origin`, shading frame `frame`) that lights its side
+    /// (or the far side, with rays leaving from `through`, where that is given), up to the
+    /// BSDF's value, passed to `push` in the scene's order (its `vertex` is the caller's to set).
     #[inline(always)]
-    fn punctual_samples(&self, p: Vec3, ng: Vec3, origin: Vec3, frame: &Frame, mut push: impl FnMut(PendingLight)) {
+    fn punctual_samples(&self, p: Vec3, ng: Vec3, origin: Vec3, through: Option<Vec3>, frame: &Frame, mut push: impl FnMut(PendingLight)) {
         for (index, light) in self.scene.lights.iter().enumerate() {
             let Some(inc) = punctual_incidence(light, p) else { continue };
-            if inc.wi.dot(ng) <= 0.0 {
-                continue;
-            }
+            let origin = match (inc.wi.dot(ng) <= 0.0, through) {
+                (false, _) => origin,
+                (true, Some(o)) => o,
+                (true, None) => continue,
+            };
             let t_max = if inc.distance.is_finite() {
                 match *light {
                     crate::scene::Light::Point { position, .. } | crate::scene::Light::Spot { position, .. } => (position - origin).length() * (1.0 - SHADOW_EPSILON),
@@ -872,15 +884,20 @@ impl PathIntegrator<'_> {
 
     /// The environment map's sample with the numbers `u` at a point (geometric normal `ng`
     /// facing the incoming ray, rays leaving from `origin`, shading frame `frame`), up to the
-    /// BSDF's value; `None` where it lies below the surface or has no radiance (its `vertex`
-    /// is the caller's to set).
+    /// BSDF's value; `None` where it lies below the surface (unless rays can leave from
+    /// `through` there) or has no radiance (its `vertex` is the caller's to set).
     #[inline(always)]
-    fn environment_sample(&self, u: Vec2, ng: Vec3, origin: Vec3, frame: &Frame) -> Option<PendingLight> {
+    fn environment_sample(&self, u: Vec2, ng: Vec3, origin: Vec3, through: Option<Vec3>, frame: &Frame) -> Option<PendingLight> {
         let env = &self.settings.environment;
         let (wi, pdf) = env.sample(u)?;
-        if !(wi.dot(ng) > 0.0) {
+        let side = wi.dot(ng);
+        let origin = if side > 0.0 {
+            origin
+        } else if side < 0.0 {
+            through?
+        } else {
             return None;
-        }
+        };
         let le = env.eval(wi);
         (le.max_element() > 0.0).then(|| PendingLight { vertex: 0, wi_l: frame.to_local(wi), radiance: le, light_pdf: Some(pdf), shadow: Ray::new(origin, wi), t_max: f32::INFINITY, light: LIGHT_ENVIRONMENT })
     }
@@ -891,7 +908,36 @@ impl PathIntegrator<'_> {
     fn continue_path(&self, stack: &mut TraversalStack, path: &mut PathState, sampler: &Sampler, v: &Pending, bs: &Option<BsdfSample>) -> bool {
         let Some(bs) = bs else { return false };
         let wi = v.frame.to_world(bs.wi).normalize();
-        self.continue_along(stack, path, v.origin, v.ng, wi, bs.weight, bs.pdf, || sampler.get_1d(v.dim + DIM_ROULETTE))
+        if v.bsdf.transmissive().is_some() && wi.dot(v.ng) < 0.0 {
+            // Through the surface: MIS against the light samples taken on this side (a smooth
+            // interface's delta sample has `pdf = ∞`: the emitter it finds counts whole).
+            let goes_on = self.continue_along(stack, path, v.origin_through, -v.ng, wi, bs.weight, bs.pdf, || sampler.get_1d(v.dim + DIM_ROULETTE));
+            if goes_on {
+                self.absorb(path);
+            }
+            return goes_on;
+        }
+        let goes_on = self.continue_along(stack, path, v.origin, v.ng, wi, bs.weight, bs.pdf, || sampler.get_1d(v.dim + DIM_ROULETTE));
+        if goes_on && v.bsdf.transmissive().is_some() {
+            self.absorb(path);
+        }
+        goes_on
+    }
+
+    /// Beer–Lambert absorption along the ray that led to `path.hit` where that ray ran inside
+    /// a volume: it left a transmissive surface and hits the back face of a material with
+    /// `KHR_materials_volume` (`beta ×= exp(−σ_a t)`, [`crate::scene::Volume`]). Media are not
+    /// nested: an opaque object inside a volume ends the absorbing segment unattenuated.
+    #[inline(always)]
+    fn absorb(&self, path: &mut PathState) {
+        if path.hit.front {
+            return;
+        }
+        let scene = self.scene;
+        let volume = scene.mesh.material.get(path.hit.prim as usize).and_then(|&m| scene.materials.get(m as usize)).and_then(|m| m.volume);
+        if let Some(v) = volume {
+            path.beta *= v.transmittance(path.hit.t);
+        }
     }
 
     /// Continues a path from its vertex (rays leave from `origin`, geometric normal `ng`
@@ -935,9 +981,10 @@ impl PathIntegrator<'_> {
     /// One light-sampling sample of the emissive triangles at `si`, up to the BSDF's value
     /// ([`PendingLight`]; the bounce's values are computed together, in lanes, and the
     /// estimate is `f · Le · w_light / pdf_light`); `None` where the estimate is zero whatever
-    /// that value (its `vertex` is the caller's to set). `origin` is the shadow ray's start, `offset_ray_origin(si.p, si.p_err, si.ng, si.ng)`.
+    /// that value (its `vertex` is the caller's to set). `origin` is the shadow ray's start, `offset_ray_origin(si.p, si.p_err, si.ng, si.ng)`;
+    /// `through`, where given, its start for a point below the surface.
     #[inline(always)]
-    fn emitter_pending(&self, si: &Interaction, frame: &Frame, origin: Vec3, es: crate::light::EmitterSample) -> Option<PendingLight> {
+    fn emitter_pending(&self, si: &Interaction, frame: &Frame, origin: Vec3, through: Option<Vec3>, es: crate::light::EmitterSample) -> Option<PendingLight> {
         let scene = self.scene;
         let m = &scene.mesh;
         let idx = m.indices[es.prim as usize];
@@ -950,9 +997,7 @@ impl PathIntegrator<'_> {
             return None;
         }
         let wi = d / dist;
-        if wi.dot(si.ng) <= 0.0 {
-            return None;
-        }
+        let origin = if wi.dot(si.ng) <= 0.0 { through? } else { origin };
         let lmat = m.material.get(es.prim as usize).and_then(|&k| scene.materials.get(k as usize))?;
         let cos_l = n_l.dot(-wi);
         if !lmat.double_sided && cos_l <= 0.0 {

@@ -189,6 +189,43 @@ pub struct Material {
     /// `((ior − 1)/(ior + 1))²` (0.04 at 1.5; ior 0 gives F0 = 1). See
     /// [`crate::material::DielectricFresnel`].
     pub ior: f32,
+    /// `KHR_materials_transmission` `transmissionFactor` (default 0): the share of the
+    /// dielectric's refracted light that passes through the surface instead of being
+    /// scattered diffusely ([`crate::material::Dielectric`]).
+    pub transmission_factor: f32,
+    /// `KHR_materials_transmission` `transmissionTexture`: its R channel multiplies
+    /// `transmission_factor`.
+    pub transmission_texture: Option<TextureRef>,
+    /// `KHR_materials_volume` with a thickness factor > 0: the mesh bounds a volume (refraction
+    /// bends rays, Beer–Lambert absorption inside); `None`: thin-walled.
+    pub volume: Option<Volume>,
+}
+
+/// The interior of a `KHR_materials_volume` material: light travelling a distance `d` inside
+/// keeps the fraction `attenuation_color^(d / attenuation_distance)` per channel
+/// (Beer–Lambert, `σ_a = −ln(attenuation_color) / attenuation_distance`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Volume {
+    /// `attenuationColor` (linear RGB in [0, 1], default white: no absorption).
+    pub attenuation_color: Vec3,
+    /// `attenuationDistance` (> 0, default +∞: no absorption).
+    pub attenuation_distance: f32,
+}
+
+impl Volume {
+    /// The absorption coefficient `σ_a = −ln(attenuation_color) / attenuation_distance` per
+    /// channel (0 for a white colour or an infinite distance; +∞ for a black channel).
+    pub fn sigma_a(&self) -> Vec3 {
+        let c = self.attenuation_color.clamp(Vec3::ZERO, Vec3::ONE);
+        let s = Vec3::new(-c.x.ln(), -c.y.ln(), -c.z.ln()) / self.attenuation_distance;
+        Vec3::new(if s.x.is_nan() { 0.0 } else { s.x }, if s.y.is_nan() { 0.0 } else { s.y }, if s.z.is_nan() { 0.0 } else { s.z })
+    }
+
+    /// The fraction `exp(−σ_a d)` per channel that survives a path of length `d` inside.
+    pub fn transmittance(&self, d: f32) -> Vec3 {
+        let s = self.sigma_a() * d;
+        Vec3::new((-s.x).exp(), (-s.y).exp(), (-s.z).exp())
+    }
 }
 
 impl Material {
@@ -212,7 +249,16 @@ impl Material {
             specular_color_factor: Vec3::ONE,
             specular_color_texture: None,
             ior: 1.5,
+            transmission_factor: 0.0,
+            transmission_texture: None,
+            volume: None,
         }
+    }
+
+    /// Whether the material can transmit light (`KHR_materials_transmission` with a factor
+    /// > 0): such surfaces are hit from both sides and refract or pass rays through.
+    pub fn transmits(&self) -> bool {
+        self.transmission_factor > 0.0
     }
     /// Whether the material emits light.
     pub fn is_emissive(&self) -> bool {

@@ -123,6 +123,25 @@ pub struct Material {
     pub emissive_strength: f32,
     /// Whether back faces are rendered too (glTF `doubleSided`).
     pub double_sided: bool,
+    /// Glass: `KHR_materials_transmission`, `_ior` and `_volume` (`None` writes none).
+    pub glass: Option<Glass>,
+}
+
+/// A transmissive material's extensions: `KHR_materials_transmission` (factor),
+/// `KHR_materials_ior` and `KHR_materials_volume` (thickness > 0 bounds a volume; the
+/// attenuation colour and distance give Beer–Lambert absorption inside).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Glass {
+    /// `transmissionFactor` in (0, 1].
+    pub transmission: f32,
+    /// `ior` (≥ 1).
+    pub ior: f32,
+    /// `thicknessFactor` (0: thin-walled, no volume extension written).
+    pub thickness: f32,
+    /// `attenuationColor` (linear RGB in [0, 1]).
+    pub attenuation_color: [f32; 3],
+    /// `attenuationDistance` in metres (`None`: infinite, no absorption).
+    pub attenuation_distance: Option<f32>,
 }
 
 impl Material {
@@ -139,6 +158,7 @@ impl Material {
             emissive: [0.0; 3],
             emissive_strength: 1.0,
             double_sided: false,
+            glass: None,
         }
     }
 
@@ -173,6 +193,14 @@ impl Material {
     pub fn with_normal_map(self, texture: TextureId, scale: f32) -> Self {
         Material {
             normal_texture: Some((texture, scale)),
+            ..self
+        }
+    }
+
+    /// Transmissive (see [`Glass`]).
+    pub fn with_glass(self, glass: Glass) -> Self {
+        Material {
+            glass: Some(glass),
             ..self
         }
     }
@@ -378,6 +406,17 @@ impl SceneBuilder {
         }
         if !(material.emissive_strength.is_finite() && material.emissive_strength >= 0.0) {
             return Err(bad("emissive strength must be finite and non-negative"));
+        }
+        if let Some(g) = &material.glass {
+            let distance_ok = g.attenuation_distance.is_none_or(|d| d.is_finite() && d > 0.0);
+            if !(g.transmission > 0.0 && g.transmission <= 1.0)
+                || !(g.ior.is_finite() && g.ior >= 1.0)
+                || !(g.thickness.is_finite() && g.thickness >= 0.0)
+                || !g.attenuation_color.iter().all(|&c| unit(c))
+                || !distance_ok
+            {
+                return Err(bad("glass needs transmission in (0, 1], ior ≥ 1, thickness ≥ 0, attenuation colour in [0, 1] and distance > 0"));
+            }
         }
         self.materials.push(material);
         Ok(MaterialId(self.materials.len() - 1))
@@ -809,15 +848,37 @@ impl SceneBuilder {
                     json!({ "index": t.0, "scale": jf(scale) }),
                 );
             }
+            let mut extensions = Map::new();
             if m.emissive != [0.0; 3] {
                 mat.insert("emissiveFactor".into(), jf_slice(&m.emissive));
                 if m.emissive_strength != 1.0 {
-                    mat.insert(
-                        "extensions".into(),
-                        json!({ "KHR_materials_emissive_strength": { "emissiveStrength": jf(m.emissive_strength) } }),
+                    extensions.insert(
+                        "KHR_materials_emissive_strength".into(),
+                        json!({ "emissiveStrength": jf(m.emissive_strength) }),
                     );
                     used_ext.push("KHR_materials_emissive_strength");
                 }
+            }
+            if let Some(g) = &m.glass {
+                extensions.insert(
+                    "KHR_materials_transmission".into(),
+                    json!({ "transmissionFactor": jf(g.transmission) }),
+                );
+                extensions.insert("KHR_materials_ior".into(), json!({ "ior": jf(g.ior) }));
+                used_ext.extend(["KHR_materials_transmission", "KHR_materials_ior"]);
+                if g.thickness > 0.0 {
+                    let mut v = Map::new();
+                    v.insert("thicknessFactor".into(), jf(g.thickness));
+                    v.insert("attenuationColor".into(), jf_slice(&g.attenuation_color));
+                    if let Some(d) = g.attenuation_distance {
+                        v.insert("attenuationDistance".into(), jf(d));
+                    }
+                    extensions.insert("KHR_materials_volume".into(), Value::Object(v));
+                    used_ext.push("KHR_materials_volume");
+                }
+            }
+            if !extensions.is_empty() {
+                mat.insert("extensions".into(), Value::Object(extensions));
             }
             if m.double_sided {
                 mat.insert("doubleSided".into(), json!(true));

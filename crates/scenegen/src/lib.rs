@@ -3,7 +3,7 @@
 //! builders with normals and UVs ([`Mesh`]), skins and morph targets
 //! ([`deform`]), procedural PNG textures ([`texture`]), and the committed test
 //! scenes (`cornell`, `tabletop`, `thin`, `deep`, `materials`, `bricks`,
-//! `skinned`, `morphed`) that `cargo xtask gen-scenes` regenerates with [`write_all`].
+//! `skinned`, `morphed`, `glass`) that `cargo xtask gen-scenes` regenerates with [`write_all`].
 //!
 //! Units are metres in glTF's right-handed, +Y-up world. Lights use
 //! `KHR_lights_punctual` (point and spot intensity in candela, directional in
@@ -30,7 +30,7 @@ pub mod scenes;
 pub mod texture;
 
 pub use builder::{
-    GeometryId, Light, Material, MaterialId, NodeId, PerspectiveCamera, SceneBuilder, TextureId,
+    GeometryId, Glass, Light, Material, MaterialId, NodeId, PerspectiveCamera, SceneBuilder, TextureId,
     Transform,
 };
 pub use deform::{MorphTarget, Skin};

@@ -139,7 +139,8 @@ impl Accel {
                 match m {
                     Some(m) => {
                         let mut f = 0;
-                        if !m.double_sided {
+                        // A transmissive surface is seen from inside its volume too.
+                        if !m.double_sided && !m.transmits() {
                             f |= CULL_BACK;
                         }
                         if matches!(m.alpha_mode, AlphaMode::Mask { .. } | AlphaMode::Blend) {

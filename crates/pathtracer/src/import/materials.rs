@@ -1,7 +1,10 @@
 //! glTF materials → [`Material`]: factors, textures with their samplers, emissive strength,
-//! `KHR_materials_specular`, `KHR_materials_ior` and `KHR_texture_transform` (on every texture
-//! read). The three extensions are read from the raw JSON (the gltf crate is built without
-//! them), with an error naming the material and the field for any malformed value.
+//! `KHR_materials_specular`, `KHR_materials_ior`, `KHR_materials_transmission`,
+//! `KHR_materials_volume` and `KHR_texture_transform` (on every texture read). The extensions
+//! are read from the raw JSON (the gltf crate is built without them), with an error naming the
+//! material and the field for any malformed value (an `ior` below 1 with transmission, an
+//! `attenuationDistance` ≤ 0). The volume's `thicknessTexture` is a rasteriser's hint: the
+//! path tracer measures the distance travelled inside, so it is not read (a warning).
 
 use glam::{Vec2, Vec3, Vec4};
 use gltf::texture::{MagFilter, WrappingMode};
@@ -9,7 +12,7 @@ use serde_json::Value;
 
 use super::Importer;
 use crate::error::PathTracerError;
-use crate::scene::{AlphaMode, Filter, Material, TextureRef, UvTransform, Wrap};
+use crate::scene::{AlphaMode, Filter, Material, TextureRef, UvTransform, Volume, Wrap};
 
 fn wrap(mode: WrappingMode) -> Wrap {
     match mode {
@@ -152,6 +155,11 @@ impl Importer<'_> {
             None => 1.5,
             Some(ext) => ior(ext).map_err(|e| self.error(format!("{what}: KHR_materials_ior.{e}")))?,
         };
+        let (transmission_factor, transmission_texture) = self.transmission(&extensions, &what)?;
+        if transmission_factor > 0.0 && ior < 1.0 {
+            return Err(self.error(format!("{what}: KHR_materials_ior.ior {ior} is below 1, which a transmissive material (KHR_materials_transmission) cannot have")));
+        }
+        let volume = self.volume(&extensions, &what)?;
         let strength = material.emissive_strength().unwrap_or(1.0);
         if !(strength.is_finite() && strength >= 0.0) {
             return Err(self.error(format!("{what}: emissiveStrength {strength} must be finite and non-negative")));
@@ -184,7 +192,59 @@ impl Importer<'_> {
             specular_color_factor: specular.color_factor,
             specular_color_texture: specular.color_texture,
             ior,
+            transmission_factor,
+            transmission_texture,
+            volume,
         })
+    }
+
+    /// `KHR_materials_transmission` of a material's raw `extensions` object: the factor
+    /// (default 0) and the texture (its R channel), `(0, None)` without it.
+    fn transmission(&mut self, extensions: &Value, what: &str) -> Result<(f32, Option<TextureRef>), PathTracerError> {
+        const EXT: &str = "KHR_materials_transmission";
+        let Some(ext) = extensions.get(EXT) else { return Ok((0.0, None)) };
+        if !ext.is_object() {
+            return Err(self.error(format!("{what}: {EXT} must be an object")));
+        }
+        let factor = match ext.get("transmissionFactor") {
+            None => 0.0,
+            Some(v) => number(v)
+                .filter(|f| (0.0..=1.0).contains(f))
+                .ok_or_else(|| self.error(format!("{what}: {EXT}.transmissionFactor must be a number in [0, 1], got {v}")))?,
+        };
+        let texture = self.extension_texture_ref(ext, "transmissionTexture", false, what, EXT)?;
+        Ok((factor, texture))
+    }
+
+    /// `KHR_materials_volume` of a material's raw `extensions` object: `Some` where the
+    /// thickness factor is > 0 (0, the default, is thin-walled).
+    fn volume(&mut self, extensions: &Value, what: &str) -> Result<Option<Volume>, PathTracerError> {
+        const EXT: &str = "KHR_materials_volume";
+        let Some(ext) = extensions.get(EXT) else { return Ok(None) };
+        if !ext.is_object() {
+            return Err(self.error(format!("{what}: {EXT} must be an object")));
+        }
+        let thickness = match ext.get("thicknessFactor") {
+            None => 0.0,
+            Some(v) => number(v).filter(|&t| t >= 0.0).ok_or_else(|| self.error(format!("{what}: {EXT}.thicknessFactor must be a finite number ≥ 0, got {v}")))?,
+        };
+        let attenuation_distance = match ext.get("attenuationDistance") {
+            None => f32::INFINITY,
+            Some(v) => number(v).filter(|&d| d > 0.0).ok_or_else(|| {
+                self.error(format!("{what}: {EXT}.attenuationDistance must be a finite number > 0 (omit it for no absorption), got {v}"))
+            })?,
+        };
+        let attenuation_color = match ext.get("attenuationColor") {
+            None => Vec3::ONE,
+            Some(v) => numbers::<3>(v)
+                .filter(|c| c.iter().all(|&x| (0.0..=1.0).contains(&x)))
+                .map(Vec3::from)
+                .ok_or_else(|| self.error(format!("{what}: {EXT}.attenuationColor must be three numbers in [0, 1], got {v}")))?,
+        };
+        if ext.get("thicknessTexture").is_some() {
+            self.warn(format!("{what}: {EXT}.thicknessTexture is not read (the path tracer measures the distance travelled inside)"));
+        }
+        Ok((thickness > 0.0).then_some(Volume { attenuation_color, attenuation_distance }))
     }
 
     /// `KHR_materials_specular` of a material's raw `extensions` object (defaults without it).

@@ -81,7 +81,16 @@ impl Default for ImportOptions {
 
 /// Extensions whose data we import completely.
 const SUPPORTED_EXTENSIONS: &[&str] =
-    &["KHR_lights_punctual", "KHR_materials_emissive_strength", "KHR_materials_ior", "KHR_materials_specular", "KHR_mesh_quantization", "KHR_texture_transform"];
+    &[
+    "KHR_lights_punctual",
+    "KHR_materials_emissive_strength",
+    "KHR_materials_ior",
+    "KHR_materials_specular",
+    "KHR_materials_transmission",
+    "KHR_materials_volume",
+    "KHR_mesh_quantization",
+    "KHR_texture_transform",
+];
 
 /// Extensions that only add optional material data (or metadata): the asset renders correctly,
 /// if less richly, without them, so they are accepted even when listed as required (with a
@@ -89,8 +98,6 @@ const SUPPORTED_EXTENSIONS: &[&str] =
 const IGNORABLE_EXTENSIONS: &[&str] = &[
     "KHR_materials_clearcoat",
     "KHR_materials_sheen",
-    "KHR_materials_transmission",
-    "KHR_materials_volume",
     "KHR_materials_iridescence",
     "KHR_materials_anisotropy",
     "KHR_materials_dispersion",

@@ -398,6 +398,44 @@ fn malformed_extension_values_name_the_file_material_and_field() {
     }
 }
 
+#[test]
+fn transmission_and_volume_are_read_and_their_bad_values_name_the_material() {
+    let body = materials_body(json!([
+        {"name": "glass", "extensions": {
+            "KHR_materials_transmission": {"transmissionFactor": 0.75, "transmissionTexture": {"index": 0}},
+            "KHR_materials_volume": {"thicknessFactor": 0.2, "attenuationColor": [0.5, 0.25, 1], "attenuationDistance": 2}}},
+        {"name": "thin", "extensions": {"KHR_materials_transmission": {"transmissionFactor": 1}, "KHR_materials_volume": {}}},
+        {"name": "hinted", "extensions": {"KHR_materials_transmission": {"transmissionFactor": 1},
+            "KHR_materials_volume": {"thicknessFactor": 1, "thicknessTexture": {"index": 0}}}},
+        {"name": "plain"}
+    ]));
+    let s = load(&body).unwrap();
+    let g = &s.materials[0];
+    assert!(g.transmits() && g.transmission_factor == 0.75 && g.transmission_texture.is_some());
+    let v = g.volume.unwrap();
+    assert_eq!((v.attenuation_color, v.attenuation_distance), (Vec3::new(0.5, 0.25, 1.0), 2.0));
+    assert!((v.transmittance(2.0) - Vec3::new(0.5, 0.25, 1.0)).abs().max_element() < 1e-6, "c^(d/dist) at d = dist");
+    assert!(s.materials[1].transmits() && s.materials[1].volume.is_none(), "thickness 0 is thin-walled");
+    let h = s.materials[2].volume.unwrap();
+    assert_eq!((h.attenuation_color, h.attenuation_distance), (Vec3::ONE, f32::INFINITY));
+    assert_eq!(h.transmittance(5.0), Vec3::ONE);
+    assert!(s.warnings.len() == 1 && s.warnings[0].contains("material 2 ('hinted'): KHR_materials_volume.thicknessTexture is not read"), "{:?}", s.warnings);
+    assert!(!s.materials[3].transmits() && s.materials[3].volume.is_none());
+    let cases = [
+        (json!({"KHR_materials_transmission": {"transmissionFactor": 1}, "KHR_materials_ior": {"ior": 0}}), "ior 0 is below 1, which a transmissive material"),
+        (json!({"KHR_materials_transmission": {"transmissionFactor": 2}}), "KHR_materials_transmission.transmissionFactor must be a number in [0, 1]"),
+        (json!({"KHR_materials_transmission": []}), "KHR_materials_transmission must be an object"),
+        (json!({"KHR_materials_volume": {"thicknessFactor": 1, "attenuationDistance": 0}}), "KHR_materials_volume.attenuationDistance must be a finite number > 0"),
+        (json!({"KHR_materials_volume": {"attenuationDistance": -1}}), "KHR_materials_volume.attenuationDistance"),
+        (json!({"KHR_materials_volume": {"thicknessFactor": -1}}), "KHR_materials_volume.thicknessFactor must be a finite number ≥ 0"),
+        (json!({"KHR_materials_volume": {"attenuationColor": [2, 0, 0]}}), "KHR_materials_volume.attenuationColor must be three numbers in [0, 1]"),
+    ];
+    for (ext, expect) in cases {
+        let e = load(&materials_body(json!([{"name": "m"}, {"name": "bad", "extensions": ext}]))).unwrap_err().to_string();
+        assert!(e.contains("unit.gltf") && e.contains("material 1 ('bad')") && e.contains(expect), "{e}");
+    }
+}
+
 /// Only glTF 2.x is read: another major version in `asset.version` or `asset.minVersion` is
 /// refused, naming the field, rather than read as if it were 2.0.
 #[test]

@@ -59,7 +59,8 @@ pub struct LaneMaterials(Vec<LaneMaterial>);
 
 impl LaneMaterials {
     /// The table for `scene` whose materials resolve to `uniform` once, or `None` where
-    /// some material varies over its surface (`uniform` holds a `None`) or has a normal map:
+    /// some material varies over its surface (`uniform` holds a `None`), has a normal map or
+    /// transmits:
     /// the one-path loop then shades every vertex.
     pub fn new(scene: &Scene, uniform: &[Option<SurfaceMaterial>]) -> Option<Self> {
         let attr = SurfaceAttributes { uv: [Vec2::ZERO; 2], color: Vec4::ONE };
@@ -69,7 +70,8 @@ impl LaneMaterials {
             .zip(uniform)
             .map(|(m, u)| {
                 let surf = (*u)?;
-                if m.normal_texture.is_some() {
+                // A normal map, or a transmissive BSDF (scalar verbs only, rays through the surface).
+                if m.normal_texture.is_some() || matches!(surf.bsdf, crate::material::Bsdf::Transmissive(_)) {
                     return None;
                 }
                 // What `emitter_pending` computes for a light sample on this material, whose
@@ -241,7 +243,7 @@ impl PathIntegrator<'_> {
             let g = get3(&ng, k);
             let o = get3(&origin, k);
             if !self.caustic_vertex(path, mat[k] as u32) {
-                self.punctual_samples(p, g, o, &frame, |light| others.push(OtherLight { lane: k, punctual: true, light }));
+                self.punctual_samples(p, g, o, None, &frame, |light| others.push(OtherLight { lane: k, punctual: true, light }));
             }
             if !self.emitters.is_empty()
                 && let Some(es) = self.emitters.sample(Vec2::new(u_emitter[0][k], u_emitter[1][k]), || u_spare[k])
@@ -261,7 +263,7 @@ impl PathIntegrator<'_> {
                 }
             }
             if self.samples_environment()
-                && let Some(light) = self.environment_sample(Vec2::new(u_env[0][k], u_env[1][k]), g, o, &frame)
+                && let Some(light) = self.environment_sample(Vec2::new(u_env[0][k], u_env[1][k]), g, o, None, &frame)
             {
                 others.push(OtherLight { lane: k, punctual: false, light });
             }

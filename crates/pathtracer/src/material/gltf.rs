@@ -9,7 +9,7 @@
 // Negated comparisons (`!(x > 0.0)`) are deliberate: they also reject NaN.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
-use super::{Bsdf, DIELECTRIC_F0, DielectricFresnel, MetallicRoughness, f0_from_ior};
+use super::{Bsdf, DIELECTRIC_F0, DielectricFresnel, MetallicRoughness, Transmissive, f0_from_ior};
 use crate::scene::{Material, Scene, Texture};
 use crate::texture::sample_ref;
 use glam::{Vec2, Vec3, Vec4};
@@ -85,18 +85,34 @@ pub fn dielectric_fresnel(material: &Material, textures: &[Texture], attr: &Surf
     DielectricFresnel::new(material.ior, color, weight)
 }
 
+/// `KHR_materials_transmission` at a point: `transmissionFactor × transmissionTexture.R`,
+/// clamped to [0, 1].
+#[inline]
+pub fn transmission(material: &Material, textures: &[Texture], attr: &SurfaceAttributes) -> f32 {
+    let mut t = material.transmission_factor;
+    if let Some(r) = &material.transmission_texture {
+        t *= sample_ref(textures, r, attr.uv).x;
+    }
+    if t.is_finite() { t.clamp(0.0, 1.0) } else { 0.0 }
+}
+
 /// Resolves a glTF material at a surface point into its BSDF and emission:
 /// [`Bsdf::MetallicRoughness`] with base colour, metallic, roughness (factors × textures) and
 /// the dielectric's Fresnel endpoints ([`dielectric_fresnel`]), or [`Bsdf::Diffuse`] with the
 /// base colour when metallic and the specular weight (`F90`) are both 0 (where the two are
-/// identical).
+/// identical); [`Bsdf::Transmissive`] where the transmission ([`transmission`]) is > 0,
+/// thin-walled without `KHR_materials_volume`.
 #[inline(always)]
 pub fn resolve(material: &Material, textures: &[Texture], attr: &SurfaceAttributes) -> SurfaceMaterial {
     let albedo = base_color(material, textures, attr).truncate().clamp(Vec3::ZERO, Vec3::ONE);
     let albedo = if albedo.is_finite() { albedo } else { Vec3::ZERO };
     let (metallic, roughness) = metallic_roughness(material, textures, attr);
     let fresnel = dielectric_fresnel(material, textures, attr);
-    let bsdf = if metallic <= 0.0 && fresnel.f90 <= 0.0 {
+    let transmission = if material.transmits() { transmission(material, textures, attr) } else { 0.0 };
+    let bsdf = if transmission > 0.0 {
+        let base = MetallicRoughness::with_fresnel(albedo, metallic, roughness, fresnel);
+        Bsdf::Transmissive(Transmissive::new(base, roughness, material.ior, transmission, material.volume.is_none()))
+    } else if metallic <= 0.0 && fresnel.f90 <= 0.0 {
         Bsdf::Diffuse { albedo }
     } else {
         Bsdf::MetallicRoughness(MetallicRoughness::with_fresnel(albedo, metallic, roughness, fresnel))
@@ -106,7 +122,7 @@ pub fn resolve(material: &Material, textures: &[Texture], attr: &SurfaceAttribut
 
 /// The material resolved once for every point of every triangle that uses it, when nothing
 /// [`resolve`] reads varies over the surface: no base-colour, metallic-roughness, specular,
-/// specular-colour or emissive texture, and (`vertex_colors` false) no COLOR_0, whose
+/// specular-colour, transmission or emissive texture, and (`vertex_colors` false) no COLOR_0, whose
 /// absence [`crate::integrator::surface_attributes`] reports as exactly white. `None` when
 /// something varies. Equal, bit for bit, to `resolve` at any point of such a material.
 pub fn uniform_surface(material: &Material, vertex_colors: bool) -> Option<SurfaceMaterial> {
@@ -115,6 +131,7 @@ pub fn uniform_surface(material: &Material, vertex_colors: bool) -> Option<Surfa
         || material.metallic_roughness_texture.is_some()
         || material.specular_texture.is_some()
         || material.specular_color_texture.is_some()
+        || material.transmission_texture.is_some()
         || material.emissive_texture.is_some();
     (!varies).then(|| resolve(material, &[], &SurfaceAttributes { uv: [Vec2::ZERO; 2], color: Vec4::ONE }))
 }
@@ -124,7 +141,7 @@ pub fn uniform_surface(material: &Material, vertex_colors: bool) -> Option<Surfa
 pub const VIEW_DEPENDENT_ROUGHNESS: f32 = 0.6;
 
 /// Whether a glTF material's outgoing radiance depends noticeably on the viewing direction:
-/// true when it can be metallic (metallic factor > 0: the whole reflection is a GGX lobe),
+/// true when it transmits (`KHR_materials_transmission`), when it can be metallic (metallic factor > 0: the whole reflection is a GGX lobe),
 /// or when it has a dielectric specular layer (`specular_factor > 0`) with a roughness that
 /// can fall below [`VIEW_DEPENDENT_ROUGHNESS`] (roughness factor × the smallest G of its
 /// metallic-roughness texture).
@@ -150,6 +167,10 @@ pub fn is_view_dependent(material: &Material) -> bool {
 /// [`is_view_dependent`] refined by the material's metallic-roughness texture (texture
 /// references that `textures` lacks are ignored).
 pub fn is_view_dependent_textured(material: &Material, textures: &[Texture]) -> bool {
+    // What is seen through a transmissive surface moves with the viewer at any roughness.
+    if material.transmits() {
+        return true;
+    }
     if material.metallic_factor > 0.0 {
         let metal_texture_zero = material
             .metallic_roughness_texture

@@ -117,7 +117,10 @@ pub fn evaluate_many<'a>(bsdfs: impl Fn(usize) -> &'a BsdfAt, wi: &[Vec3], value
         let (mut f, mut pdf) = ([[0.0f32; L]; 3], [0.0f32; L]);
         evaluate_lanes(&x, x.diffuse[..m].iter().all(|&d| d), &x_wi, &mut f, &mut pdf);
         for k in 0..m {
-            values[start + k] = (Vec3::new(f[0][k], f[1][k], f[2][k]), pdf[k]);
+            values[start + k] = match bsdfs(start + k).transmissive() {
+                Some(t) => t.evaluate_pdf(bsdfs(start + k).wo(), wi[start + k]),
+                None => (Vec3::new(f[0][k], f[1][k], f[2][k]), pdf[k]),
+            };
         }
     }
 }
@@ -192,6 +195,10 @@ pub fn sample_many<'a>(bsdfs: impl Fn(usize) -> &'a BsdfAt, u: &[Vec2], out: &mu
         let mut y = SampledLanes::default();
         sample_lanes(&x, x.diffuse[..m].iter().all(|&d| d), &x_u, &mut y);
         for k in 0..m {
+            if let Some(t) = bsdfs(start + k).transmissive() {
+                out[start + k] = t.sample(bsdfs(start + k).wo(), u[start + k]);
+                continue;
+            }
             out[start + k] = y.ok[k].then(|| BsdfSample {
                 wi: Vec3::new(y.wi[0][k], y.wi[1][k], y.wi[2][k]),
                 weight: Vec3::new(y.weight[0][k], y.weight[1][k], y.weight[2][k]),

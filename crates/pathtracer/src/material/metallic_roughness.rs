@@ -270,7 +270,7 @@ fn pow5(x: f32) -> f32 {
 /// [`MetallicRoughness::sample_visible_normal`] without branches on its data (selects only,
 /// so that a loop over lanes vectorises): the normal and whether it is valid.
 #[inline(always)]
-fn visible_normal(a: f32, wo: Vec3, u: Vec2) -> (Vec3, bool) {
+pub(super) fn visible_normal(a: f32, wo: Vec3, u: Vec2) -> (Vec3, bool) {
     let vh = Vec3::new(a * wo.x, a * wo.y, wo.z).normalize_or_zero();
     let lensq = vh.x * vh.x + vh.y * vh.y;
     let t1 = if lensq > 0.0 { Vec3::new(-vh.y, vh.x, 0.0) / lensq.sqrt() } else { Vec3::X };

@@ -5,8 +5,9 @@
 //! glTF's `L`) point away from the surface and are expressed in the local shading [`Frame`](crate::geometry::Frame)
 //! whose `n` (z axis) is the shading normal already flipped to the side the ray came from.
 //! `evaluate` returns `f(wo, wi) · |cos θᵢ|` (the cosine-weighted BSDF), `sample` returns the
-//! weight `f · |cos θᵢ| / pdf`, and `pdf` is per unit solid angle. Every BSDF here is
-//! reflection-only: `f = 0` unless `wo.z > 0` and `wi.z > 0`.
+//! weight `f · |cos θᵢ| / pdf`, and `pdf` is per unit solid angle (`∞` for a delta lobe,
+//! whose `evaluate` is 0). Every BSDF but [`Bsdf::Transmissive`] is reflection-only: `f = 0`
+//! unless `wo.z > 0` and `wi.z > 0`.
 //!
 //! [`Bsdf`] is a closed set of models, one file each, dispatched with `match`:
 //! - `lambert`: [`Bsdf::Diffuse`], `f = ρ/π`, cosine-weighted sampling;
@@ -14,7 +15,10 @@
 //!   of the specification's Appendix B (GGX specular + diffuse, formulas on
 //!   [`MetallicRoughness`], which the Mitsuba cross-check re-implements). `resolve` produces
 //!   [`Bsdf::Diffuse`] only where this BRDF reduces to it exactly (metallic 0 and
-//!   `KHR_materials_specular` `specular` 0).
+//!   `KHR_materials_specular` `specular` 0);
+//! - `dielectric`: [`Bsdf::Transmissive`], `KHR_materials_transmission` (with `_volume`): a
+//!   GGX dielectric that reflects and refracts, mixed with the metallic-roughness BRDF
+//!   (formulas on the module; scalar only, the lane loops hand it to its scalar verbs).
 //!
 //! Each model's file owns its scalar verbs and its *lane* form: the same operations on one
 //! lane of a structure-of-arrays record, with no branch on the data, which `lanes` runs over
@@ -33,11 +37,14 @@
 // Negated comparisons (`!(x > 0.0)`) are deliberate: they also reject NaN.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
+mod dielectric;
 mod gltf;
 mod lambert;
 mod lanes;
 mod metallic_roughness;
 mod shading;
+#[cfg(test)]
+mod dielectric_tests;
 #[cfg(test)]
 mod tests;
 
@@ -48,6 +55,7 @@ pub use gltf::{
 };
 pub(crate) use lanes::{BsdfLanes, SampledLanes, evaluate_lanes, sample_lanes};
 pub use lanes::{evaluate_many, sample_many};
+pub use dielectric::{Dielectric, Transmissive, fresnel_dielectric};
 pub use metallic_roughness::{DIELECTRIC_F0, DielectricFresnel, MIN_ALPHA, MetallicRoughness, SpecularLobe, f0_from_ior};
 pub use shading::{MIN_SHADING_COS, facing_normals, normal_mapped, shading_frame, triangle_tangent};
 
@@ -67,6 +75,9 @@ pub enum Bsdf {
     /// The glTF metallic-roughness BRDF; formulas, sampling and parameters on
     /// [`MetallicRoughness`].
     MetallicRoughness(MetallicRoughness),
+    /// A transmissive glTF material (`KHR_materials_transmission`): formulas, sampling and
+    /// parameters on [`Transmissive`] and [`Dielectric`].
+    Transmissive(Transmissive),
 }
 
 /// A direction drawn from a BSDF.
@@ -102,14 +113,29 @@ impl BsdfAt {
     /// [`Bsdf::evaluate`] and [`Bsdf::pdf`] at `wi` (one lane of [`evaluate_many`]).
     #[inline(always)]
     pub fn evaluate_pdf(&self, wi: Vec3) -> (Vec3, f32) {
+        if let Bsdf::Transmissive(t) = &self.bsdf {
+            return t.evaluate_pdf(self.wo, wi);
+        }
         evaluate_pdf_lane::<false>(&self.lane(Vec2::ZERO), wi)
     }
 
     /// [`Bsdf::sample`] with two uniform numbers (one lane of [`sample_many`]).
     #[inline(always)]
     pub fn sample(&self, u: Vec2) -> Option<BsdfSample> {
+        if let Bsdf::Transmissive(t) = &self.bsdf {
+            return t.sample(self.wo, u);
+        }
         let (wi, weight, pdf, ok) = sample_lane::<false>(self.lane(u));
         ok.then_some(BsdfSample { wi, weight, pdf })
+    }
+
+    /// The transmissive model this is, if it is one (its verbs are scalar only).
+    #[inline(always)]
+    pub(crate) fn transmissive(&self) -> Option<&Transmissive> {
+        match &self.bsdf {
+            Bsdf::Transmissive(t) => Some(t),
+            _ => None,
+        }
     }
 
     /// What [`sample_lane`] and [`evaluate_pdf_lane`] read of this BSDF, with the numbers `u`.
@@ -118,6 +144,8 @@ impl BsdfAt {
         match &self.bsdf {
             Bsdf::Diffuse { albedo } => lambert::lane(*albedo, self.wo, u),
             Bsdf::MetallicRoughness(mr) => metallic_roughness::lane(mr, self.wo, self.ps, self.sd_wo, u),
+            // Never read: the lane loops replace its results by its scalar verbs'.
+            Bsdf::Transmissive(_) => lambert::lane(Vec3::ZERO, self.wo, u),
         }
     }
 }
@@ -126,12 +154,16 @@ impl Bsdf {
     /// `f(wo, wi) · |cos θᵢ|` in the local frame (see the variant docs for `f`).
     #[inline]
     pub fn evaluate(&self, wo: Vec3, wi: Vec3) -> Vec3 {
+        if let Bsdf::Transmissive(t) = self {
+            return t.evaluate_pdf(wo, wi).0;
+        }
         if wo.z <= 0.0 || wi.z <= 0.0 {
             return Vec3::ZERO;
         }
         match self {
             Bsdf::Diffuse { albedo } => lambert::evaluate(*albedo, wi),
             Bsdf::MetallicRoughness(mr) => mr.f(wo, wi) * wi.z,
+            Bsdf::Transmissive(_) => Vec3::ZERO,
         }
     }
 
@@ -162,12 +194,16 @@ impl Bsdf {
     /// Solid-angle density with which [`Bsdf::sample`] draws `wi`.
     #[inline]
     pub fn pdf(&self, wo: Vec3, wi: Vec3) -> f32 {
+        if let Bsdf::Transmissive(t) = self {
+            return t.evaluate_pdf(wo, wi).1;
+        }
         if wo.z <= 0.0 || wi.z <= 0.0 {
             return 0.0;
         }
         match self {
             Bsdf::Diffuse { .. } => lambert::pdf(wi),
             Bsdf::MetallicRoughness(mr) => mr.pdf(wo, wi),
+            Bsdf::Transmissive(_) => 0.0,
         }
     }
 
@@ -184,7 +220,20 @@ impl Bsdf {
     pub fn is_view_dependent(&self) -> bool {
         match self {
             Bsdf::Diffuse { .. } => false,
-            Bsdf::MetallicRoughness(_) => true,
+            Bsdf::MetallicRoughness(_) | Bsdf::Transmissive(_) => true,
+        }
+    }
+
+    /// This BSDF for a viewer on the back of the surface (`back`): a volume's interface then
+    /// sees the inside (`η = 1/ior`); every other model is the same from both sides.
+    #[inline(always)]
+    pub fn seen_from(self, back: bool) -> Self {
+        match self {
+            Bsdf::Transmissive(mut t) if back => {
+                t.glass.inside = true;
+                Bsdf::Transmissive(t)
+            }
+            other => other,
         }
     }
 }

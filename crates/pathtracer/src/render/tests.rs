@@ -1373,3 +1373,71 @@ fn the_light_tracer_and_the_path_tracer_agree_on_a_glossy_scene() {
     eprintln!("caustic pixels ({lit}): mean with the light tracer {on:.5} (SE {:.1e}), without {off:.5} (SE {:.1e})", se2_on.sqrt(), se2_off.sqrt());
     assert!((on - off).abs() < 4.0 * se + 1e-4 * on, "with {on}, without {off}, SE {se}");
 }
+
+/// A glass slab (`KHR_materials_transmission` + `_volume`, ior 1.5, smooth) of thickness
+/// `d` between the camera and a black emitter of radiance 1.
+fn glass_slab(d: f32, attenuation: Option<(f32, f32)>) -> Renderer {
+    let mut b = Builder::new();
+    let mut g = Material::gltf_default();
+    (g.metallic_factor, g.roughness_factor, g.transmission_factor) = (0.0, 0.0, 1.0);
+    g.volume = Some(crate::scene::Volume {
+        attenuation_color: Vec3::splat(attenuation.map_or(1.0, |a| a.0)),
+        attenuation_distance: attenuation.map_or(f32::INFINITY, |a| a.1),
+    });
+    b.materials.push(g);
+    b.aabox(Vec3::new(-1.0, -1.0, -0.5 * d), Vec3::new(1.0, 1.0, 0.5 * d), false, 0);
+    let e = b.material(0.0, 1.0, true);
+    b.quad([Vec3::new(-3.0, -3.0, -1.0), Vec3::new(3.0, -3.0, -1.0), Vec3::new(3.0, 3.0, -1.0), Vec3::new(-3.0, 3.0, -1.0)], 1, e);
+    Renderer::new(b.build(DVec3::ZERO), &AccelParams::fast_build()).unwrap()
+}
+
+#[test]
+fn a_glass_slab_transmits_its_closed_form_fraction_and_ground_truth_stays_on_its_first_surface() {
+    // Normal incidence through two interfaces (F = 0.04 each) and Beer–Lambert absorption
+    // A = c^(d / distance) per crossing, summed over the internal reflections:
+    // T = (1 − F)² A / (1 − F² A²).
+    let f = 0.04f64;
+    for (d, att) in [(0.5f32, None), (0.5, Some((0.5f32, 0.5f32))), (0.3, Some((0.2, 1.0)))] {
+        let r = glass_slab(d, att);
+        let a = att.map_or(1.0, |(c, dist)| (c as f64).powf(d as f64 / dist as f64));
+        let expect = (1.0 - f).powi(2) * a / (1.0 - f * f * a * a);
+        let ray = Ray::new(Vec3::new(0.1, 0.05, 3.0), -Vec3::Z);
+        let (mean, se) = estimate(&r, &settings(1, 64, 0.0, true), &ray, 20_000);
+        assert!((mean - expect).abs() < 4.0 * se + 1e-4, "d {d} {att:?}: {mean} ± {se} vs {expect}");
+    }
+    // Depth, distance, normal and alpha are those of the slab's front face, not of the
+    // emitter seen through it.
+    let r = glass_slab(0.5, Some((0.5, 0.5)));
+    let cam = camera(8, 8, 20.0, DVec3::new(0.0, 0.0, 3.0), DVec3::ZERO);
+    let gt = r.render_view(&cam, 0, &settings(1, 8, 0.0, true)).ground_truth;
+    for k in 0..64 {
+        assert_eq!(gt.alpha[k], 1.0);
+        assert!((gt.depth[k] - 2.75).abs() < 1e-5, "pixel {k}: depth {}", gt.depth[k]);
+        assert!((Vec3::from_slice(&gt.normal[3 * k..3 * k + 3]) - Vec3::Z).length() < 1e-5);
+    }
+}
+
+#[test]
+fn a_rough_glass_sheet_transmits_a_light_behind_it_by_next_event_estimation() {
+    // A thin rough glass sheet (roughness 0.5, no volume) facing the camera, lit only by a
+    // directional light from behind: the radiance through it is the BSDF's transmitted value
+    // towards the light times the illuminance, which only a light sample taken on the sheet's
+    // far side can find (a delta light is never hit by BSDF sampling).
+    let mut b = Builder::new();
+    let mut g = Material::gltf_default();
+    (g.metallic_factor, g.roughness_factor, g.transmission_factor) = (0.0, 0.5, 1.0);
+    b.materials.push(g.clone());
+    b.quad([Vec3::new(-1.0, -1.0, 0.0), Vec3::new(1.0, -1.0, 0.0), Vec3::new(1.0, 1.0, 0.0), Vec3::new(-1.0, 1.0, 0.0)], 1, 0);
+    let travel = Vec3::new(0.3, 0.2, 1.0).normalize();
+    let e = 2.0f32;
+    b.lights.push(Light::Directional { direction: travel, illuminance: Vec3::splat(e) });
+    let r = Renderer::new(b.build(DVec3::ZERO), &AccelParams::fast_build()).unwrap();
+    let ray = Ray::new(Vec3::new(0.1, 0.05, 2.0), -Vec3::Z);
+    let (mean, se) = estimate(&r, &settings(1, 1, 0.0, true), &ray, 4000);
+    let surf = crate::material::resolve(&g, &[], &crate::material::SurfaceAttributes { uv: [Vec2::ZERO; 2], color: Vec4::ONE });
+    let wi = -travel;
+    let local = Vec3::new((1.0 - wi.z * wi.z).sqrt(), 0.0, wi.z);
+    let expect = (surf.bsdf.evaluate(Vec3::Z, local).x * e) as f64;
+    assert!(expect > 0.01, "{expect}");
+    assert!((mean - expect).abs() < 4.0 * se + 1e-4 * expect, "{mean} ± {se} vs {expect}");
+}
