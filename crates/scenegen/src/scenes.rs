@@ -740,76 +740,6 @@ fn deform_stage(name: &str) -> Result<SceneBuilder, SceneGenError> {
         "point",
         Light::Point { color: [1.0; 3], intensity: 4.0 },
         Transform::from_translation(Vec3::new(1.2, 1.6, 1.0)),
-fn glass() -> Result<SceneBuilder, SceneGenError> {
-    let mut s = SceneBuilder::new("glass");
-    let ground_tex = s.add_texture("ground", checker(128, 8, [210, 210, 210], [60, 60, 70]))?;
-    let ground = s.add_material(
-        Material::diffuse("ground", [1.0; 3])
-            .with_texture(ground_tex)
-            .with_metallic_roughness(0.0, 0.9),
-    )?;
-    s.add_mesh(
-        "ground",
-        Mesh::quad(Vec2::new(2.4, 2.4), 1.0).with_planar_uvs(0.6),
-        ground,
-        Transform::IDENTITY,
-    )?;
-    let clear = Glass {
-        transmission: 1.0,
-        ior: 1.5,
-        thickness: 0.5,
-        attenuation_color: [1.0; 3],
-        attenuation_distance: None,
-    };
-    let tinted = s.add_material(
-        Material::diffuse("green_glass", [1.0; 3])
-            .with_metallic_roughness(0.0, 0.0)
-            .with_glass(Glass {
-                attenuation_color: [0.6, 0.9, 0.7],
-                attenuation_distance: Some(0.5),
-                ..clear.clone()
-            }),
-    )?;
-    s.add_mesh(
-        "glass_sphere",
-        Mesh::uv_sphere(0.25, 64, 32),
-        tinted,
-        Transform::from_translation(Vec3::new(-0.3, 0.25, 0.2)),
-    )?;
-    let frosted = s.add_material(
-        Material::diffuse("frosted_glass", [1.0; 3])
-            .with_metallic_roughness(0.0, 0.3)
-            .with_glass(clear),
-    )?;
-    s.add_mesh(
-        "glass_block",
-        Mesh::cuboid(Vec3::new(0.15, 0.2, 0.1)),
-        frosted,
-        Transform::from_translation_rotation(Vec3::new(0.35, 0.2, 0.25), Quat::from_rotation_y(deg(-30.0))),
-    )?;
-    let red = s.add_material(Material::diffuse("red", [0.7, 0.12, 0.1]))?;
-    s.add_mesh(
-        "red_box",
-        Mesh::cuboid(Vec3::splat(0.18)),
-        red,
-        Transform::from_translation_rotation(Vec3::new(0.1, 0.18, -0.45), Quat::from_rotation_y(deg(20.0))),
-    )?;
-    let gold = s.add_material(
-        Material::diffuse("gold", [1.0, 0.77, 0.34]).with_metallic_roughness(1.0, 0.35),
-    )?;
-    s.add_mesh(
-        "gold_sphere",
-        Mesh::uv_sphere(0.2, 48, 24),
-        gold,
-        Transform::from_translation(Vec3::new(-0.55, 0.2, -0.45)),
-    )?;
-    s.add_light(
-        "sun",
-        Light::Directional {
-            color: [1.0, 0.97, 0.92],
-            illuminance: 2.5,
-        },
-        sun_from(Vec3::new(1.0, 2.0, 1.5)),
     )?;
     Ok(s)
 }
@@ -922,6 +852,80 @@ fn morphed() -> Result<SceneBuilder, SceneGenError> {
     s.add_instance("blob_mesh_weights", g, blue, Transform::from_translation(Vec3::new(-0.45, 0.28, 0.0)))?;
     let right = s.add_instance("blob_node_weights", g, blue, Transform::from_translation(Vec3::new(0.45, 0.25, 0.0)))?;
     s.set_morph_weights(right, vec![1.0, 0.0])?;
+    Ok(s)
+}
+
+fn glass() -> Result<SceneBuilder, SceneGenError> {
+    let mut s = SceneBuilder::new("glass");
+    let ground_tex = s.add_texture("ground", checker(128, 8, [210, 210, 210], [60, 60, 70]))?;
+    let ground = s.add_material(
+        Material::diffuse("ground", [1.0; 3])
+            .with_texture(ground_tex)
+            .with_metallic_roughness(0.0, 0.9),
+    )?;
+    s.add_mesh(
+        "ground",
+        Mesh::quad(Vec2::new(2.4, 2.4), 1.0).with_planar_uvs(0.6),
+        ground,
+        Transform::IDENTITY,
+    )?;
+    let clear = Glass {
+        transmission: 1.0,
+        ior: 1.5,
+        thickness: 0.5,
+        attenuation_color: [1.0; 3],
+        attenuation_distance: None,
+    };
+    let tinted = s.add_material(
+        Material::diffuse("green_glass", [1.0; 3])
+            .with_metallic_roughness(0.0, 0.0)
+            .with_glass(Glass {
+                attenuation_color: [0.6, 0.9, 0.7],
+                attenuation_distance: Some(0.5),
+                ..clear.clone()
+            }),
+    )?;
+    s.add_mesh(
+        "glass_sphere",
+        Mesh::uv_sphere(0.25, 64, 32),
+        tinted,
+        Transform::from_translation(Vec3::new(-0.3, 0.25, 0.2)),
+    )?;
+    let frosted = s.add_material(
+        Material::diffuse("frosted_glass", [1.0; 3])
+            .with_metallic_roughness(0.0, 0.3)
+            .with_glass(clear),
+    )?;
+    s.add_mesh(
+        "glass_block",
+        Mesh::cuboid(Vec3::new(0.15, 0.2, 0.1)),
+        frosted,
+        Transform::from_translation_rotation(Vec3::new(0.35, 0.2, 0.25), Quat::from_rotation_y(deg(-30.0))),
+    )?;
+    let red = s.add_material(Material::diffuse("red", [0.7, 0.12, 0.1]))?;
+    s.add_mesh(
+        "red_box",
+        Mesh::cuboid(Vec3::splat(0.18)),
+        red,
+        Transform::from_translation_rotation(Vec3::new(0.1, 0.18, -0.45), Quat::from_rotation_y(deg(20.0))),
+    )?;
+    let gold = s.add_material(
+        Material::diffuse("gold", [1.0, 0.77, 0.34]).with_metallic_roughness(1.0, 0.35),
+    )?;
+    s.add_mesh(
+        "gold_sphere",
+        Mesh::uv_sphere(0.2, 48, 24),
+        gold,
+        Transform::from_translation(Vec3::new(-0.55, 0.2, -0.45)),
+    )?;
+    s.add_light(
+        "sun",
+        Light::Directional {
+            color: [1.0, 0.97, 0.92],
+            illuminance: 2.5,
+        },
+        sun_from(Vec3::new(1.0, 2.0, 1.5)),
+    )?;
     Ok(s)
 }
 
