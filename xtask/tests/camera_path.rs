@@ -59,7 +59,6 @@ fn a_path_through_views_passes_through_their_poses_exactly() {
 }
 
 #[test]
-#[ignore = "bit for bit needs the path's numbers to survive JSON exactly: serde_json's default float parsing can be a unit in the last place off (its float_roundtrip feature would fix it)"]
 fn the_path_tracer_along_a_path_renders_the_dataset_views_bit_for_bit() {
     let tmp = tempfile::tempdir().unwrap();
     let data = tmp.path().join("data");
