@@ -40,12 +40,17 @@ pub struct EvalArgs {
     /// a symbolic link leading out); refused by default.
     #[arg(long)]
     pub allow_outside: bool,
+    /// Also measure the run along a camera path: the folder `render SCENE --camera-path P`
+    /// wrote (the path tracer's frames). Writes path_error.csv and path_error.png and adds a
+    /// `camera_path` summary to eval.json and the report.
+    #[arg(long, value_name = "DIR")]
+    pub camera_path: Option<PathBuf>,
 }
 
 impl EvalArgs {
     /// Every view of `split` at the run's training resolution, with `grids` picture grids.
     pub fn at_training_resolution(run: PathBuf, split: &str, grids: usize, max_views: Option<usize>) -> Self {
-        Self { run, split: split.into(), grids, max_views, downscale: None, scene: None, mesh_resolution: 256, no_mesh: false, allow_outside: false }
+        Self { run, split: split.into(), grids, max_views, downscale: None, scene: None, mesh_resolution: 256, no_mesh: false, allow_outside: false, camera_path: None }
     }
 }
 
@@ -155,6 +160,15 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         eval::mesh_extract::MAX_RESOLUTION,
         args.mesh_resolution
     );
+    let load = dataset::LoadOptions { allow_outside: args.allow_outside };
+    let path_truth = match &args.camera_path {
+        Some(dir) => {
+            let ds = dataset::Dataset::load_with(dir, &load).with_context(|| format!("--camera-path {}", dir.display()))?;
+            anyhow::ensure!(ds.has_ground_truth(), "--camera-path {}: no ground-truth files; give the folder `render SCENE --camera-path P` wrote", dir.display());
+            Some(ds)
+        }
+        None => None,
+    };
     // A missing run is reported by the evaluation, which reads it first.
     let _lock = args.run.is_dir().then(|| crate::lock_folder(&args.run)).transpose()?;
     let bar = indicatif::ProgressBar::new(0);
@@ -168,6 +182,51 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     })?;
     bar.finish_and_clear();
     print_summary(&out);
+    if let Some(truth) = &path_truth {
+        evaluate_path(&args.run, truth, &load)?;
+    }
+    Ok(())
+}
+
+/// The error along a camera path (`eval::path_error`): the CSV, the plot, and the summary added
+/// to eval.json and report.md.
+fn evaluate_path(run: &std::path::Path, truth: &dataset::Dataset, load: &dataset::LoadOptions) -> anyhow::Result<()> {
+    let model = nerf::render::RunModel::load(run).with_context(|| format!("loading {}", run.display()))?;
+    let train: Vec<dataset::Camera> = dataset::Dataset::load_with(model.dataset_dir(), load)?.train.iter().map(|f| f.camera).collect();
+    let bar = crate::path_video::bar(truth.train.len() as u64, "camera path");
+    let rows = eval::path_error::path_errors(&model, truth, &train, &mut |done, _| bar.set_position(done as u64))?;
+    bar.finish_and_clear();
+    eval::path_error::write_csv(&run.join("path_error.csv"), &rows)?;
+    eval::path_error::plot_png(&run.join("path_error.png"), &rows)?;
+    let summary = eval::path_error::PathSummary::of(&rows, &truth.root);
+    let eval_json = run.join("eval.json");
+    let mut value: serde_json::Value = serde_json::from_slice(&dataset::io::read(&eval_json)?).with_context(|| format!("reading {}", eval_json.display()))?;
+    value["camera_path"] = serde_json::to_value(&summary)?;
+    dataset::io::atomic_write_json(&eval_json, &value)?;
+    let report = run.join("report.md");
+    if let Ok(mut text) = std::fs::read_to_string(&report) {
+        text.push_str(&format!(
+            "\n## Along the camera path\n\n{} frames against the path tracer's frames in {}: mean PSNR {:.2} dB (lowest {:.2} dB at frame {}), mean SSIM {}, mean depth MAE {}; the path goes up to {:.3} m and {:.1}° from the nearest training camera. Per frame: `path_error.csv`; PSNR against distance: `path_error.png`.\n\n![error along the path](path_error.png)\n",
+            summary.frames,
+            summary.truth,
+            summary.mean_psnr,
+            summary.min_psnr,
+            summary.min_psnr_frame,
+            summary.mean_ssim.map_or("n/a".into(), |v| format!("{v:.4}")),
+            summary.mean_depth_mae.map_or("n/a".into(), |v| format!("{v:.4} m")),
+            summary.max_position_distance,
+            summary.max_angular_distance,
+        ));
+        dataset::io::atomic_write(&report, text.as_bytes())?;
+    }
+    println!(
+        "camera path: {} frames, mean PSNR {:.2} dB (lowest {:.2} dB at frame {}); path_error.csv and path_error.png in {}",
+        summary.frames,
+        summary.mean_psnr,
+        summary.min_psnr,
+        summary.min_psnr_frame,
+        run.display()
+    );
     Ok(())
 }
 

@@ -6,12 +6,14 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::OnceLock;
 
 mod bench;
+mod camera_path;
 mod crosscheck;
 mod evaluate;
 mod exit;
 mod gen_scenes;
 mod guard;
 mod mesh;
+mod path_video;
 mod render;
 mod score;
 mod train;
@@ -65,6 +67,8 @@ enum Command {
     Train(train::TrainArgs),
     /// Render colour, opacity and depth from a trained run.
     RenderNerf(train::RenderNerfArgs),
+    /// Write a camera path (nerfstudio's camera_path.json) around or through a dataset: an orbit, a spiral, or through chosen views.
+    CameraPath(camera_path::CameraPathArgs),
     /// Evaluate a run against the dataset's ground truth and write its report.
     Eval(evaluate::EvalArgs),
     /// Extract a mesh (binary PLY) from a trained run's density, and measure it against the scene's triangles.
@@ -193,6 +197,7 @@ fn main() -> std::process::ExitCode {
         Command::GenScenes(a) => gen_scenes::run(a),
         Command::Train(a) => train::run(a),
         Command::RenderNerf(a) => train::run_render(a),
+        Command::CameraPath(a) => camera_path::run(a),
         Command::Eval(a) => evaluate::run(a),
         Command::Mesh(a) => mesh::run(a),
         Command::Score(a) => score::run(a),

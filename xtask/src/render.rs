@@ -76,6 +76,11 @@ pub struct RenderArgs {
     /// `../`, a symbolic link leading out); refused by default.
     #[arg(long)]
     pub allow_outside: bool,
+    /// Render the frames of this camera path (nerfstudio's camera_path.json, from
+    /// `cargo xtask camera-path`) as the dataset's train views, at the path's size and field of
+    /// view, instead of a rig's views: the exact ground truth along the path.
+    #[arg(long, value_name = "FILE")]
+    pub camera_path: Option<PathBuf>,
 }
 
 /// Arguments of `merge`.
@@ -135,6 +140,7 @@ impl RenderArgs {
             force: false,
             shard: None,
             allow_outside: false,
+            camera_path: None,
         }
     }
 }
@@ -238,6 +244,17 @@ pub fn build_config(args: &RenderArgs) -> anyhow::Result<DatasetRenderConfig> {
     }
     if let Some(map) = &cfg.environment_map {
         pathtracer::render::check_environment_map_path(map).with_context(|| format!("--environment-map {}", map.display()))?;
+    }
+    if let Some(path) = &args.camera_path {
+        let given = [("--res", args.res.is_some()), ("--train", args.train.is_some()), ("--val", args.val.is_some()), ("--test", args.test.is_some()), ("--rig", args.rig.is_some()), ("--fov-x", args.fov_x.is_some())];
+        if let Some((option, _)) = given.iter().find(|(_, g)| *g) {
+            bail!("{option} with --camera-path: the path's file sets the views, their size and field of view");
+        }
+        let cams = dataset::CameraPathFile::read(path)?.cameras(path)?;
+        (cfg.width, cfg.height) = (cams[0].intrinsics.width, cams[0].intrinsics.height);
+        anyhow::ensure!(cams.len() < 1 << 24, "--camera-path {}: {} frames, at most 16777215", path.display(), cams.len());
+        (cfg.train, cfg.val, cfg.test) = (cams.len() as u32, 0, 0);
+        cfg.camera_path = Some(path.clone());
     }
     cfg.validate()?;
     Ok(cfg)

@@ -168,6 +168,21 @@ pub struct RenderNerfArgs {
     /// Render N views on a circle around the scene instead.
     #[arg(long)]
     pub orbit: Option<usize>,
+    /// Render the frames of this camera path (nerfstudio's camera_path.json) instead, at the
+    /// path's size and field of view: `frame_<k>.png`, `_depth.npy`, `_opacity.npy`.
+    #[arg(long, value_name = "FILE", conflicts_with_all = ["orbit", "split", "downscale"])]
+    pub camera_path: Option<PathBuf>,
+    /// Also write the path's frames as an MP4 video (H.264, yuv420p) at the path's fps.
+    #[arg(long, value_name = "FILE", requires = "camera_path")]
+    pub video: Option<PathBuf>,
+    /// The video's frames: nerf (the NeRF alone) or side-by-side (NeRF | ground truth | colour
+    /// error | depth error, labelled; needs --gt).
+    #[arg(long, default_value = "nerf", requires = "video")]
+    pub layout: eval::path_video::Layout,
+    /// The path tracer's frames of the same path (the folder `render SCENE --camera-path P`
+    /// wrote), for --layout side-by-side.
+    #[arg(long, value_name = "DIR", requires = "video")]
+    pub gt: Option<PathBuf>,
     /// Output folder (default <run>/renders/<split or orbit>).
     #[arg(long)]
     pub out: Option<PathBuf>,
@@ -533,6 +548,11 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
 }
 
 /// Renders views from a run.
+/// The file stem of a camera path's frame `k` in `render-nerf --camera-path`'s output.
+pub fn path_frame_name(k: usize) -> String {
+    format!("frame_{k:05}")
+}
+
 pub fn run_render(args: RenderNerfArgs) -> anyhow::Result<()> {
     anyhow::ensure!(args.orbit != Some(0), "--orbit 0: at least one view is needed");
     const MOST_ORBIT_VIEWS: usize = 100_000;
@@ -550,7 +570,10 @@ pub fn run_render(args: RenderNerfArgs) -> anyhow::Result<()> {
             dataset::check_downscale("--downscale", downscale, &f.camera.intrinsics).map_err(|e| anyhow::anyhow!("{e} ({})", f.image_path.display()))?;
         }
     }
-    let (label, cameras): (String, Vec<(String, dataset::Camera)>) = if let Some(n) = args.orbit {
+    let (label, cameras): (String, Vec<(String, dataset::Camera)>) = if let Some(path) = &args.camera_path {
+        let cams = dataset::CameraPathFile::read(path)?.cameras(path)?;
+        ("camera_path".into(), cams.into_iter().enumerate().map(|(k, c)| (path_frame_name(k), c)).collect())
+    } else if let Some(n) = args.orbit {
         let ds = dataset::Dataset::load_with(model.dataset_dir(), &load)?;
         let first = ds.train.first().context("dataset has no train views")?.camera.downscaled(downscale);
         let b = model.config.bounds.clone().context("run has no bounds")?;
@@ -578,11 +601,18 @@ pub fn run_render(args: RenderNerfArgs) -> anyhow::Result<()> {
         crate::check_out_folder("the output folder", &out)?;
         crate::guard::check_output_folder("the output folder", &out, false)?;
     }
-    let _lock = crate::lock_folder(&out)?;
     let bg = model.eval_background();
-    let bar = indicatif::ProgressBar::new(cameras.len() as u64);
-    for (name, cam) in &cameras {
+    let mut video = match &args.video {
+        Some(path) => Some(crate::path_video::PathVideo::start(path, args.camera_path.as_deref().unwrap_or(path), args.layout, args.gt.as_deref(), &cameras, bg, args.allow_outside)?),
+        None => None,
+    };
+    let _lock = crate::lock_folder(&out)?;
+    let bar = crate::path_video::bar(cameras.len() as u64, "rendering");
+    for (k, (name, cam)) in cameras.iter().enumerate() {
         let v = model.render_view(cam, bg);
+        if let Some(video) = &mut video {
+            video.push(k, &v)?;
+        }
         let mut img = dataset::RgbaImage::new(v.width, v.height);
         for p in 0..(v.width * v.height) as usize {
             img.data[4 * p..4 * p + 3].copy_from_slice(&v.rgb[3 * p..3 * p + 3]);
@@ -594,6 +624,10 @@ pub fn run_render(args: RenderNerfArgs) -> anyhow::Result<()> {
         bar.inc(1);
     }
     bar.finish_and_clear();
+    if let Some(video) = video {
+        let (path, frames) = video.finish()?;
+        eprintln!("video: {} ({frames} frames)", path.display());
+    }
     eprintln!(
         "rendered {} views of {} (step {}) at {}x{} (downscale {downscale}): colour PNG, opacity and z-depth .npy in {}",
         cameras.len(),

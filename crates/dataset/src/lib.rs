@@ -21,16 +21,22 @@
 //! ```
 
 mod camera;
+mod camera_path;
 mod downscale;
 mod error;
 pub mod folder;
 mod images;
+mod path_shapes;
+mod path_spline;
 mod transforms;
 pub mod io;
 pub mod lock;
 pub mod paths;
 pub mod pose;
 
+pub use camera_path::{CameraPathFile, MAX_PATH_SIZE, PathFrame, fov_degrees, matrix_to_row_major};
+pub use path_shapes::{Orbit, OrbitDefaults, orbit_cameras, through_views};
+pub use path_spline::interpolate_poses;
 pub use camera::{Camera, Intrinsics, MAX_TRANSLATION, MIN_FIELD_OF_VIEW, Ray};
 pub use downscale::check_downscale;
 pub use error::{DatasetError, WriteError};

@@ -42,6 +42,8 @@ pub mod mesh_eval;
 pub mod mesh_extract;
 pub mod mesh_metrics;
 pub mod metrics;
+pub mod path_error;
+pub mod path_video;
 pub mod plot;
 pub mod prediction_io;
 pub mod predictions;
@@ -50,6 +52,8 @@ pub mod run;
 pub mod score;
 pub mod session;
 pub mod truth;
+pub mod video;
+pub mod video_probe;
 
 pub use compare::{ParetoAxis, RunSummary, compare_runs, compare_table, pareto_front};
 pub use curve::{MetricsRecord, parse_metrics_jsonl, read_metrics_jsonl, time_to_psnr, value_at};

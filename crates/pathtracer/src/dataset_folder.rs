@@ -16,7 +16,7 @@
 
 use crate::PathTracerError;
 use crate::import::{ImportOptions, ReadFailure};
-use crate::rig::{DEFAULT_FOV_X, RigConfig, RigKind, split_index};
+use crate::rig::{DEFAULT_FOV_X, Rig, RigConfig, RigKind, split_index};
 use dataset::{Camera, GroundTruth, RgbaImage, SceneFacts, SplitKind};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -138,6 +138,11 @@ pub struct DatasetRenderConfig {
     /// part of the dataset's identity ([`RenderRecord::environment_map`]).
     #[serde(default)]
     pub environment_map: Option<PathBuf>,
+    /// A camera path (nerfstudio's `camera_path.json`, [`dataset::CameraPathFile`]) whose
+    /// frames are the train views in place of a rig's (then no val or test views). Its content
+    /// is part of the dataset's identity ([`RenderRecord::camera_path`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub camera_path: Option<PathBuf>,
 }
 
 impl DatasetRenderConfig {
@@ -163,6 +168,7 @@ impl DatasetRenderConfig {
             background: Background::Transparent,
             environment: [0.1; 3],
             environment_map: None,
+            camera_path: None,
         }
     }
 
@@ -178,7 +184,11 @@ impl DatasetRenderConfig {
         if self.train == 0 {
             return bad("--train 0: at least one train view is needed".into());
         }
-        if self.val == 0 || self.test == 0 {
+        if self.camera_path.is_some() {
+            if self.val != 0 || self.test != 0 {
+                return bad(format!("--val {} --test {}: a camera path's frames are the only views", self.val, self.test));
+            }
+        } else if self.val == 0 || self.test == 0 {
             return bad(format!(
                 "--val {} --test {}: val and test need at least one view each",
                 self.val, self.test
@@ -224,13 +234,45 @@ impl DatasetRenderConfig {
     /// These settings with the environment map's path blanked (kept as `Some("")` when there
     /// is a map): what must match on resume besides the map's content.
     fn without_environment_map_path(&self) -> DatasetRenderConfig {
-        DatasetRenderConfig { environment_map: self.environment_map.as_ref().map(|_| PathBuf::new()), ..self.clone() }
+        DatasetRenderConfig {
+            environment_map: self.environment_map.as_ref().map(|_| PathBuf::new()),
+            camera_path: self.camera_path.as_ref().map(|_| PathBuf::new()),
+            ..self.clone()
+        }
     }
 
     /// Number of views in all splits.
     pub fn total_views(&self) -> u64 {
         self.train as u64 + self.val as u64 + self.test as u64
     }
+}
+
+/// The rig of a dataset render: the camera path's frames as the train split when `cfg` names
+/// one (all of one size and field of view: the transforms files hold one intrinsics), else
+/// [`crate::rig::build_rig`]'s.
+pub fn rig_for(scene: &crate::scene::Scene, cfg: &DatasetRenderConfig) -> Result<Rig, PathTracerError> {
+    let Some(path) = &cfg.camera_path else { return crate::rig::build_rig(scene, &cfg.rig_config()) };
+    let cams = dataset::CameraPathFile::read(path)?.cameras(path)?;
+    let intrinsics = cams[0].intrinsics;
+    if let Some(k) = cams.iter().position(|c| c.intrinsics != intrinsics) {
+        return Err(PathTracerError::Config(format!(
+            "{}: camera_path[{k}].fov differs from camera_path[0].fov; a rendered path has one field of view",
+            path.display()
+        )));
+    }
+    if (intrinsics.width, intrinsics.height) != (cfg.width, cfg.height) || cams.len() as u64 != cfg.train as u64 {
+        return Err(PathTracerError::Config(format!(
+            "{}: {} frames of {}x{}, but the settings say {} views of {}x{} (the file changed?)",
+            path.display(),
+            cams.len(),
+            intrinsics.width,
+            intrinsics.height,
+            cfg.train,
+            cfg.width,
+            cfg.height
+        )));
+    }
+    Ok(Rig { kind: RigKind::CameraPath, intrinsics, splits: [cams, Vec::new(), Vec::new()] })
 }
 
 /// How to run (does not change the output).
@@ -388,6 +430,10 @@ pub struct RenderRecord {
     /// use a map with the same content (its path may differ).
     #[serde(default)]
     pub environment_map: Option<SceneSource>,
+    /// The camera path file (path as given, hash of its bytes), if any: a resumed run must use
+    /// a path with the same content.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub camera_path: Option<SceneSource>,
 }
 
 impl RenderRecord {
@@ -400,6 +446,7 @@ impl RenderRecord {
             && self.rig_resolved == other.rig_resolved
             && self.config.without_environment_map_path() == other.config.without_environment_map_path()
             && hash(self) == hash(other)
+            && self.camera_path.as_ref().map(|m| &m.hash) == other.camera_path.as_ref().map(|m| &m.hash)
     }
 }
 
@@ -417,6 +464,10 @@ pub(crate) fn describe_difference(old: &RenderRecord, new: &RenderRecord) -> Str
     if map_hash(old) != map_hash(new) {
         let name = |r: &RenderRecord| r.environment_map.as_ref().map_or("none".to_string(), |m| m.path.clone());
         return format!("environment map {} (now {}) differs", name(old), name(new));
+    }
+    if old.camera_path.as_ref().map(|m| &m.hash) != new.camera_path.as_ref().map(|m| &m.hash) {
+        let name = |r: &RenderRecord| r.camera_path.as_ref().map_or("none".to_string(), |m| m.path.clone());
+        return format!("camera path {} (now {}) differs", name(old), name(new));
     }
     let a = serde_json::to_value(&old.config).unwrap_or_default();
     let b = serde_json::to_value(&new.config).unwrap_or_default();

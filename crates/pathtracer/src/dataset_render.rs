@@ -29,7 +29,8 @@ use crate::PathTracerError;
 use crate::dataset_folder::{
     DatasetSummary, RenderRecord, SceneSource, Shard, ViewImages, ViewRenderer, describe_difference, view_files, view_key, write_manifest,
 };
-use crate::rig::{Rig, build_rig};
+use crate::dataset_folder::rig_for;
+use crate::rig::Rig;
 use crate::scene::Scene;
 use dataset::{Camera, FrameRecord, GroundTruth, SceneFacts, SplitKind};
 use std::path::{Path, PathBuf};
@@ -136,14 +137,16 @@ pub(crate) fn render_dataset_part(
     if opts.threads == Some(0) {
         return Err(PathTracerError::Config("--threads 0: at least one thread is needed".into()));
     }
-    let rig = build_rig(scene, &cfg.rig_config())?;
+    let rig = rig_for(scene, cfg)?;
     let environment_map = cfg.environment_map.as_deref().map(SceneSource::from_file).transpose()?;
+    let camera_path = cfg.camera_path.as_deref().map(SceneSource::from_file).transpose()?;
     let record = RenderRecord {
         scene: source.clone(),
         renderer: crate::version::renderer_version().to_string(),
         rig_resolved: rig.kind,
         config: cfg.clone(),
         environment_map,
+        camera_path,
     };
     let pool = match opts.threads {
         Some(n) => Some(
@@ -364,6 +367,7 @@ fn write_transforms(out: &Path, rig: &Rig, facts: &SceneFacts) -> Result<(), Pat
 mod tests {
     use super::*;
     use crate::dataset_folder::*;
+    use crate::rig::build_rig;
     use dataset::RgbaImage;
     use crate::scene::{Aabb, Material, Mesh};
     use glam::{DVec3, Vec3};

@@ -63,6 +63,9 @@ pub enum RigKind {
     Hemisphere,
     /// Forward-facing views jittered around the scene's glTF cameras.
     Gltf,
+    /// The frames of a camera path file (`render --camera-path`), as the train split.
+    #[serde(rename = "camera-path")]
+    CameraPath,
 }
 
 impl RigKind {
@@ -73,6 +76,7 @@ impl RigKind {
             RigKind::Sphere => "sphere",
             RigKind::Hemisphere => "hemisphere",
             RigKind::Gltf => "gltf",
+            RigKind::CameraPath => "camera-path",
         }
     }
 }
@@ -260,6 +264,7 @@ pub fn build_rig(scene: &Scene, cfg: &RigConfig) -> Result<Rig, PathTracerError>
     }
     let kind = resolve_kind(scene, cfg.kind);
     let (intrinsics, splits) = match kind {
+        RigKind::CameraPath => return Err(PathTracerError::Config("the camera-path rig is placed by a camera path file (render --camera-path)".into())),
         RigKind::Gltf => gltf_rig(scene, cfg)?,
         _ => {
             if !(cfg.fov_x.is_finite() && cfg.fov_x > 0.0 && cfg.fov_x < std::f64::consts::PI) {

@@ -32,7 +32,7 @@ use crate::dataset_folder::{
 };
 use crate::dataset_render::{render_dataset_part, render_dataset_sharded};
 use crate::import::ImportOptions;
-use crate::rig::build_rig;
+use crate::dataset_folder::rig_for;
 use dataset::lock::LOCK_FILE;
 use dataset::{Camera, SplitKind};
 use std::path::{Path, PathBuf};
@@ -184,7 +184,7 @@ pub fn merge_shards_with(shards: &[PathBuf], out: &Path, scene: Option<&Path>, i
     let loaded = crate::import::load_gltf(&scene_path, import)?;
     let renderer = crate::render::Renderer::new(loaded, &crate::accel::AccelParams::medium_build())?;
     // Checked: the views of the rig the recorded settings build are the ones the shards hold.
-    let rig = build_rig(renderer.scene(), &record.config.rig_config())?;
+    let rig = rig_for(renderer.scene(), &record.config)?;
     if rig.kind != record.rig_resolved {
         return Err(err(format!("{}: the scene now places a {} rig, the shards a {} one", scene_path.display(), rig.kind.name(), record.rig_resolved.name())));
     }
