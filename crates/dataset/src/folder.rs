@@ -69,7 +69,7 @@ pub fn check_view(files: &[PathBuf; 6], width: u32, height: u32) -> Result<Groun
 pub fn is_view_file(name: &str) -> bool {
     let Some(rest) = name.strip_prefix("r_") else { return false };
     let digits = rest.chars().take_while(char::is_ascii_digit).count();
-    digits > 0 && matches!(&rest[digits..], ".png" | ".exr" | "_gt.exr" | "_depth.npy" | "_depth_mm.npy" | "_mask.png")
+    digits > 0 && matches!(&rest[digits..], ".png" | ".exr" | "_gt.exr" | "_depth.npy" | "_depth_mm.npy" | "_mask.png" | "_ids.png" | "_material.png" | "_coverage.npy")
 }
 
 /// The files a dataset render writes at the top of the folder (but its identity record).

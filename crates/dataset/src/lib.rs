@@ -30,6 +30,7 @@ mod path_shapes;
 mod path_spline;
 mod transforms;
 pub mod io;
+pub mod labels;
 pub mod lock;
 pub mod paths;
 pub mod pose;
@@ -45,7 +46,7 @@ pub use images::{
     srgb_to_linear, write_exr_rgba, write_ground_truth, write_npy_f32, write_png_mask, write_png_rgba,
 };
 pub use transforms::{
-    Dataset, Frame, FrameRecord, LoadOptions, SceneFacts, SplitKind, TransformsFile, check_transforms, instant_ngp_fit, nerfstudio_files,
+    Dataset, Frame, FrameRecord, LoadOptions, MaterialFacts, ObjectFacts, SceneFacts, SplitKind, TransformsFile, check_transforms, instant_ngp_fit, nerfstudio_files,
     write_nerfstudio_transforms,
     write_split_transforms,
 };

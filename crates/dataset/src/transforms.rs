@@ -55,6 +55,51 @@ pub struct SceneFacts {
     pub render: serde_json::Value,
     /// Renderer name and version.
     pub renderer: String,
+    /// The objects the label files number ([`crate::labels`]): object ID `k + 1` is
+    /// `objects[k]`. Empty (and absent from the file) for a dataset without labels.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub objects: Vec<ObjectFacts>,
+    /// The materials the material label files number: ID `k + 1` is `materials[k]`.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub materials: Vec<MaterialFacts>,
+}
+
+/// One object of a rendered scene: a glTF node instance with triangles.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ObjectFacts {
+    /// Object ID in the label files (index in [`SceneFacts::objects`] + 1).
+    pub id: u32,
+    /// glTF node index.
+    pub node: usize,
+    /// Node name.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub name: Option<String>,
+    /// glTF mesh index.
+    pub mesh: usize,
+    /// Mesh name.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mesh_name: Option<String>,
+    /// Material IDs its triangles use (as in the material label files), ascending.
+    pub materials: Vec<u32>,
+    /// Triangle count.
+    pub triangles: u64,
+    /// Surface area, square metres (world space).
+    pub area: f64,
+    /// World-space bounding box, minimum corner.
+    pub aabb_min: [f64; 3],
+    /// Maximum corner.
+    pub aabb_max: [f64; 3],
+}
+
+/// One material of a rendered scene.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct MaterialFacts {
+    /// Material ID in the label files (glTF material index + 1; the glTF default material,
+    /// when used, is last).
+    pub id: u32,
+    /// Material name.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub name: Option<String>,
 }
 
 /// One frame entry of a `transforms_*.json`.

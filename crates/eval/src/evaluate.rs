@@ -190,6 +190,13 @@ pub struct EvalReport {
     /// The external method whose predictions `score` read (absent for our runs).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub method: Option<MethodInfo>,
+    /// Error per object and per material (absent when the dataset has no label files).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub objects: Option<crate::objects::ObjectsBlock>,
+    /// The errors of the training poses the run learned from, against the exact ones (runs
+    /// trained with `--pose-noise` only).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub train_poses: Option<nerf::poses::PoseErrorSummary>,
 }
 
 /// What `score` measured: another tool's predictions, how they were found and read
@@ -525,6 +532,8 @@ impl EvalReport {
             notes,
             mesh: None,
             method: None,
+            objects: None,
+            train_poses: None,
         })
     }
 }

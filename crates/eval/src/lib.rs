@@ -42,6 +42,7 @@ pub mod mesh_eval;
 pub mod mesh_extract;
 pub mod mesh_metrics;
 pub mod metrics;
+pub mod objects;
 pub mod path_error;
 pub mod path_video;
 pub mod plot;

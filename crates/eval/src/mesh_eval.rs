@@ -25,6 +25,9 @@ pub struct SceneReference {
     pub diagonal: f64,
     /// The cameras that decided visibility (train and test, full resolution).
     pub cameras: Vec<dataset::Camera>,
+    /// The object ID (as in the label files) of each of `mesh`'s triangles; empty when
+    /// unknown.
+    pub labels: Vec<u16>,
 }
 
 /// What the reference is, as written into `eval.json` and the mesh sidecar.
@@ -62,6 +65,11 @@ pub fn scene_reference(
     let cameras: Vec<dataset::Camera> = dataset.train.iter().chain(&dataset.test).map(|f| f.camera).collect();
     let r = pathtracer::reference::visible_surface(&renderer, &cameras);
     let mesh = TriMesh::new(r.positions.iter().map(|p| p.to_array()).collect(), r.visible_mesh());
+    // The visible mesh keeps the scene's triangle order: its k-th triangle is the k-th visible one.
+    let labels = (0..r.triangles.len())
+        .filter(|&t| r.visible[t])
+        .map(|t| renderer.scene().object_of(t as u32).map_or(0, |o| (o + 1).min(dataset::labels::MAX_LABEL) as u16))
+        .collect();
     let diagonal = match &dataset.facts {
         Some(f) => (0..3).map(|k| (f.aabb_max[k] - f.aabb_min[k]).powi(2)).sum::<f64>().sqrt(),
         None => renderer.scene().bounds.diagonal() as f64,
@@ -75,7 +83,7 @@ pub fn scene_reference(
         cameras: cameras.len(),
         rays: r.rays,
     };
-    Ok(Ok(SceneReference { mesh, info, diagonal, cameras }))
+    Ok(Ok(SceneReference { mesh, info, diagonal, cameras, labels }))
 }
 
 /// The `mesh` block of `eval.json` (and of the mesh sidecar): the metrics of the extracted
@@ -207,6 +215,7 @@ fn mesh_renderer(mesh: &TriMesh) -> Result<pathtracer::render::Renderer, EvalErr
         cameras: Vec::new(),
         bounds: positions.iter().fold(Aabb::EMPTY, |b, &p| b.union_point(p)),
         warnings: Vec::new(),
+        objects: vec![],
     };
     pathtracer::render::Renderer::new(scene, &AccelParams::fast_build()).map_err(|e| EvalError::Input(format!("mesh: {e}")))
 }
@@ -308,18 +317,25 @@ pub fn evaluate_run_mesh(
     camera: &dataset::Camera,
     opts: &MeshEvalOptions,
     progress: crate::mesh_extract::Progress<'_>,
-) -> Result<MeshBlock, EvalError> {
+) -> Result<(MeshBlock, Vec<crate::mesh_metrics::LabelDistance>), EvalError> {
     use crate::mesh_extract::{ExtractOptions, extract_mesh, spread_cameras};
     let extract = ExtractOptions::at_resolution(opts.resolution);
     let cameras = spread_cameras(&dataset.train, extract.level_views);
     let m = extract_mesh(model, &cameras, &extract, progress)?;
     m.mesh.write_ply(&run_dir.join("mesh.ply"))?;
-    let (metrics, predicted_visible_area_fraction) = compare_with_reference(&m.mesh, &reference, opts.samples)?;
+    let (visible, predicted_visible_area_fraction) = visible_part(&m.mesh, &reference.cameras)?;
+    let options = metrics_options(&reference, opts.samples);
+    let metrics = mesh_metrics(&visible, &reference.mesh, &options)?;
+    let per_object = if reference.labels.len() == reference.mesh.triangles.len() {
+        crate::mesh_metrics::label_distances(&visible, &reference.mesh, &reference.labels, &options)?
+    } else {
+        Vec::new()
+    };
     let index = crate::mesh_metrics::SurfaceIndex::new(&reference.mesh)?;
     let camera = picture_camera(camera);
     let rgb = error_picture(&m.mesh, &index, &camera, 0.02 * reference.diagonal)?;
     crate::io::write_png_atomic(&run_dir.join("mesh_error.png"), camera.intrinsics.width, camera.intrinsics.height, rgb)?;
-    Ok(MeshBlock {
+    let block = MeshBlock {
         metrics,
         predicted_visible_area_fraction,
         reference: reference.info,
@@ -328,7 +344,8 @@ pub fn evaluate_run_mesh(
         mesh_file: Some("mesh.ply".into()),
         picture: Some("mesh_error.png".into()),
         input: None,
-    })
+    };
+    Ok((block, per_object))
 }
 
 #[cfg(test)]

@@ -212,6 +212,15 @@ impl SurfaceIndex {
             .collect()
     }
 
+    /// Distance of each point to the mesh and the closest triangle (`u32::MAX` on an empty
+    /// mesh).
+    pub fn closest(&self, points: &[Vec3]) -> Vec<(f64, u32)> {
+        points
+            .par_iter()
+            .map(|p| self.set.closest(*p).map_or((f64::INFINITY, u32::MAX), |c| ((c.point.as_dvec3() - p.as_dvec3()).length(), c.triangle)))
+            .collect()
+    }
+
     /// Distance of each point to the mesh.
     pub fn distances(&self, points: &[Vec3]) -> Vec<f64> {
         points.par_iter().map(|p| self.set.closest(*p).map_or(f64::INFINITY, |c| (c.point.as_dvec3() - p.as_dvec3()).length())).collect()
@@ -277,6 +286,52 @@ pub fn point_metrics(points: &[Vec3], normals: Option<&[DVec3]>, reference: &Tri
     let to_pred = index.query(&rs.points, &rs.normals);
     let sides = Sides { to_ref, to_pred, normals: normals.is_some(), predicted_area: 0.0, predicted_triangles: 0 };
     Ok(sides.metrics(reference, opts))
+}
+
+/// Accuracy and completeness restricted to one label of the reference's triangles (an object).
+#[derive(Clone, Debug, PartialEq)]
+pub struct LabelDistance {
+    /// The label.
+    pub label: u16,
+    /// Mean distance to the reference of the predicted samples whose closest reference
+    /// triangle carries the label (`None` when none does).
+    pub accuracy: Option<f64>,
+    /// Mean distance to the prediction of the reference samples on the label's triangles.
+    pub completeness: Option<f64>,
+}
+
+/// [`mesh_metrics`]' accuracy and completeness split by `labels` (one per reference triangle):
+/// a predicted sample counts for the label of its closest reference triangle, a reference
+/// sample for the label of the triangle it lies on. The same samples as [`mesh_metrics`]
+/// (the same seeds), ascending by label.
+pub fn label_distances(predicted: &TriMesh, reference: &TriMesh, labels: &[u16], opts: &MeshMetricsOptions) -> Result<Vec<LabelDistance>, EvalError> {
+    check_options(opts)?;
+    predicted.validate()?;
+    reference.validate()?;
+    if labels.len() != reference.triangles.len() {
+        return Err(EvalError::Input(format!("{} labels for {} reference triangles", labels.len(), reference.triangles.len())));
+    }
+    let ps = sample_surface(predicted, opts.samples, opts.seed).map_err(metric("predicted mesh"))?;
+    let rs = sample_surface(reference, opts.samples, opts.seed ^ REFERENCE_SEED).map_err(metric("reference mesh"))?;
+    let to_ref = SurfaceIndex::new(reference)?.closest(&ps.points);
+    let to_pred = SurfaceIndex::new(predicted)?.distances(&rs.points);
+    let mut sums: std::collections::BTreeMap<u16, [f64; 4]> = std::collections::BTreeMap::new();
+    for (d, t) in to_ref {
+        if let Some(&l) = labels.get(t as usize) {
+            let s = sums.entry(l).or_default();
+            s[0] += d;
+            s[1] += 1.0;
+        }
+    }
+    for (d, t) in to_pred.into_iter().zip(&rs.triangles) {
+        let s = sums.entry(labels[*t as usize]).or_default();
+        s[2] += d;
+        s[3] += 1.0;
+    }
+    Ok(sums
+        .into_iter()
+        .map(|(label, s)| LabelDistance { label, accuracy: (s[1] > 0.0).then(|| s[0] / s[1]), completeness: (s[3] > 0.0).then(|| s[2] / s[3]) })
+        .collect())
 }
 
 /// The reference's samples are drawn with the seed xor this, apart from the prediction's.

@@ -122,6 +122,10 @@ fn geometry_and_notes(s: &mut String, report: &EvalReport) {
     if let Some(m) = &report.mesh {
         s.push_str(&mesh_section(m));
     }
+    if let Some(o) = &report.objects {
+        s.push('\n');
+        s.push_str(&crate::objects::markdown(o, 20));
+    }
     if !report.notes.is_empty() {
         s.push_str("\n## Notes\n\n");
         for n in &report.notes {

@@ -143,6 +143,18 @@ pub fn evaluate_run(
     report.resolution = evaluated.resolution;
     report.notes.extend(note);
     report.notes.extend(gt_note);
+    if let Some(noise) = model.config.pose_noise {
+        let path = run_dir.join(nerf::poses::POSES_FILE);
+        let record: nerf::poses::PoseRecord = crate::io::read_json(&path)?;
+        report.train_poses = record.errors();
+        match &report.train_poses {
+            Some(e) => report.notes.push(format!(
+                "trained on noisy poses ({}° rotation, {} of the scene size): after aligning them to the exact ones, median rotation error {:.3}° (max {:.3}°), median centre error {:.4} ({:.2} % of the scene size, max {:.4}); no camera refinement, so these are the errors the model learned with, and test views are rendered from their exact poses",
+                noise.rotation_deg, noise.translation_rel, e.rotation_median_deg, e.rotation_max_deg, e.translation_median, e.translation_median_pct, e.translation_max
+            )),
+            None => report.notes.push(format!("trained on noisy poses, but {} has too few views to align", path.display())),
+        }
+    }
     if let Some(s) = &model.config.supervision {
         report.notes.push(format!("trained with supervision beyond colour: {}", s.describe()));
     }
@@ -151,12 +163,16 @@ pub fn evaluate_run(
     let metrics_path = run_dir.join("metrics.jsonl");
     let curve = if metrics_path.exists() { read_metrics_jsonl(&metrics_path)? } else { Vec::new() };
     dataset::io::remove_stale_temporaries(run_dir, is_eval_output)?;
+    let mut mesh_by_object = Vec::new();
     if let Some(mesh_opts) = &opts.mesh {
         match crate::mesh_eval::scene_reference(&dataset, opts.scene.as_deref(), &opts.import_options())? {
             Ok(reference) => {
                 let camera = frames[0].camera.downscaled(downscale);
                 match crate::mesh_eval::evaluate_run_mesh(run_dir, &model, &dataset, reference, &camera, mesh_opts, &mut |_, _, _| {}) {
-                    Ok(block) => report.mesh = Some(block),
+                    Ok((block, per_object)) => {
+                        report.mesh = Some(block);
+                        mesh_by_object = per_object;
+                    }
                     // A field without a surface is a finding, not a failed evaluation.
                     Err(EvalError::Input(why)) => report.notes.push(format!("no mesh metrics: {why}")),
                     Err(e) => return Err(e),
@@ -169,6 +185,10 @@ pub fn evaluate_run(
         report.notes.push(format!(
             "{MESH_FILE} in the run folder is not this evaluation's (it measured no mesh): an earlier evaluation or `cargo xtask mesh` wrote it"
         ));
+    }
+    crate::objects::attach(&mut report, &evaluated.objects, dataset.facts.as_ref(), run_dir)?;
+    if let Some(block) = &mut report.objects {
+        block.add_mesh_distances(&mesh_by_object);
     }
     let name = run_name(run_dir);
     let (report_md, summary) = write_outputs(run_dir, &name, &report, &curve, &evaluated.kept)?;

@@ -229,6 +229,7 @@ pub fn score(opts: &ScoreOptions, progress: &mut dyn FnMut(usize, usize)) -> Res
     }
     std::fs::create_dir_all(&opts.out).map_err(|e| EvalError::from(dataset::DatasetError::write(&opts.out, e)))?;
     dataset::io::remove_stale_temporaries(&opts.out, is_eval_output)?;
+    crate::objects::attach(&mut report, &evaluated.objects, dataset.facts.as_ref(), &opts.out)?;
     let (report_md, summary) = write_outputs(&opts.out, &opts.method, &report, &[], &evaluated.kept)?;
     Ok(ScoreOutput { report, summary, report_md, layout })
 }

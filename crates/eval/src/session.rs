@@ -98,6 +98,8 @@ pub struct Evaluated {
     pub kept: Vec<(TruthView, Prediction)>,
     /// The evaluated resolution (`None` without frames).
     pub resolution: Option<EvalResolution>,
+    /// Error per object and per material, or why the views have none.
+    pub objects: Result<crate::objects::ObjectTally, String>,
 }
 
 /// Evaluates `predict(frame)` against each frame's ground truth, one view at a time (a view's
@@ -109,7 +111,7 @@ pub fn evaluate_frames(
     predict: &mut dyn FnMut(&Frame) -> Result<Prediction, EvalError>,
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<Evaluated, EvalError> {
-    let mut out = Evaluated { reports: Vec::with_capacity(frames.len()), kept: Vec::new(), resolution: None };
+    let mut out = Evaluated { reports: Vec::with_capacity(frames.len()), kept: Vec::new(), resolution: None, objects: Ok(Default::default()) };
     for (k, frame) in frames.iter().enumerate() {
         let truth = load_truth(frame, s.background, s.downscale, s.source, s.err)?;
         let pred = predict(frame)?;
@@ -119,7 +121,13 @@ pub fn evaluate_frames(
             downscale: s.downscale,
             train_downscale: s.train_downscale,
         });
-        out.reports.push(evaluate_view(&view_input(&truth, &pred), s.options)?);
+        let input = view_input(&truth, &pred);
+        out.reports.push(evaluate_view(&input, s.options)?);
+        if let Ok(tally) = &mut out.objects {
+            if let Err(why) = crate::objects::view_labels(frame, s.downscale, s.source).and_then(|l| tally.add(&l, &input, s.options.surface_tol)) {
+                out.objects = Err(why);
+            }
+        }
         if k < s.grid_views {
             out.kept.push((truth, pred));
         }
@@ -135,7 +143,7 @@ pub const MESH_PICTURE: &str = "mesh_error.png";
 
 /// Whether `name` is a file an evaluation or a score writes into its folder.
 pub fn is_eval_output(name: &str) -> bool {
-    ["eval.json", "report.json", "report.md", "speed_vs_error.png", MESH_FILE, MESH_PICTURE].contains(&name)
+    ["eval.json", "report.json", "report.md", "speed_vs_error.png", MESH_FILE, MESH_PICTURE, crate::objects::OBJECTS_PICTURE].contains(&name)
         || (name.starts_with("grid_") && name.ends_with(".png"))
 }
 
@@ -152,18 +160,20 @@ pub fn write_outputs(
     let grids: Vec<ViewInput<'_>> = kept.iter().map(|(t, p)| view_input(t, p)).collect();
     let report_md = write_report(out_dir, name, report, curve, &grids)?;
     let written: Vec<String> = kept.iter().map(|(t, _)| crate::grid::grid_file_name(&t.name)).collect();
-    remove_stale_outputs(out_dir, &written, report.mesh.is_some())?;
+    remove_stale_outputs(out_dir, &written, report.mesh.is_some(), report.objects.as_ref().is_some_and(|o| o.picture_psnr.is_some()))?;
     Ok((report_md, RunSummary::from_report(name, report, curve)))
 }
 
 /// Removes what an earlier report wrote and this one did not, so that the folder shows only
 /// this report's pictures: grids (`grid_<view>.png`) other than `grids`, and without a mesh the
 /// mesh's error picture. The mesh itself may be `cargo xtask mesh`'s and is kept.
-fn remove_stale_outputs(dir: &Path, grids: &[String], mesh: bool) -> Result<(), EvalError> {
+fn remove_stale_outputs(dir: &Path, grids: &[String], mesh: bool, objects: bool) -> Result<(), EvalError> {
     let entries = std::fs::read_dir(dir).map_err(|source| EvalError::Io { path: dir.to_path_buf(), source })?;
     for e in entries.flatten() {
         let name = e.file_name().to_string_lossy().into_owned();
-        let stale = (name.starts_with("grid_") && name.ends_with(".png") && !grids.contains(&name)) || (!mesh && name == MESH_PICTURE);
+        let stale = (name.starts_with("grid_") && name.ends_with(".png") && !grids.contains(&name))
+            || (!mesh && name == MESH_PICTURE)
+            || (!objects && name == crate::objects::OBJECTS_PICTURE);
         if stale && e.file_type().is_ok_and(|t| t.is_file()) {
             let p = e.path();
             std::fs::remove_file(&p).map_err(|source| EvalError::Io { path: p.clone(), source })?;

@@ -424,3 +424,67 @@ fn test_files(dir: &Path) -> Vec<(String, Vec<u8>)> {
     out.sort();
     out
 }
+
+/// A real render of a committed scene with several objects, scored with predictions equal to
+/// the ground truth except on one object's pixels (its ID in the label files), where seeded
+/// noise is added: that object alone loses, to the PSNR the formula gives for the noise
+/// written, and every other object stays exact (the cap); interior and edge pixels add up.
+#[test]
+fn noise_on_one_object_is_charged_to_that_object_alone() {
+    use pathtracer::dataset_render::{DatasetRenderConfig, Preset, RunOptions, render_dataset};
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes/tabletop.gltf");
+    let cfg = DatasetRenderConfig { width: 32, height: 24, train: 2, val: 1, test: 2, spp: 4, ..DatasetRenderConfig::preset(Preset::Quick) };
+    let opts = RunOptions { threads: Some(2), force: false, allow_outside: false };
+    render_dataset(&scene, &data, &cfg, &opts, &mut |_| {}, &std::sync::atomic::AtomicBool::new(false)).unwrap();
+    let views = truths(&data, 1);
+    let labels: Vec<dataset::labels::ViewLabels> = views
+        .iter()
+        .map(|(f, t)| {
+            let files = dataset::labels::label_files(SplitKind::Test, f.name.trim_start_matches("r_").parse().unwrap()).map(|x| data.join(x));
+            dataset::labels::read_labels(&files, t.width as u32, t.height as u32).unwrap()
+        })
+        .collect();
+    // The object covering the most pixels of the first view gets the noise.
+    let mut counts = std::collections::BTreeMap::<u16, usize>::new();
+    for &id in labels[0].object.iter().filter(|&&id| id > 0) {
+        *counts.entry(id).or_default() += 1;
+    }
+    let (&target, _) = counts.iter().max_by_key(|&(_, &n)| n).unwrap();
+    assert!(counts.len() >= 2, "tabletop shows several objects: {counts:?}");
+    let pred = tmp.path().join("pred");
+    let (mut sse, mut n) = (0.0f64, 0usize);
+    for (v, ((frame, t), l)) in views.iter().zip(&labels).enumerate() {
+        let noise = gaussians(7 + v as u64, t.gt_rgb.len());
+        let rgb: Vec<f32> = t
+            .gt_rgb
+            .iter()
+            .enumerate()
+            .map(|(k, &g)| if l.object[k / 3] == target { (f64::from(g) + 0.05 * noise[k]) as f32 } else { g })
+            .collect();
+        for (k, (&p, &g)) in rgb.iter().zip(&t.gt_rgb).enumerate() {
+            if l.object[k / 3] == target {
+                sse += (f64::from(p) - f64::from(g)).powi(2);
+                n += 1;
+            }
+        }
+        write_npy(&pred.join(format!("{}.npy", frame.name)), &[t.height, t.width, 3], &rgb);
+    }
+    let out = score(&options(&data, &pred, &tmp.path().join("out")), &mut |_, _| {}).unwrap();
+    let block = out.report.objects.as_ref().expect("the dataset has label files");
+    assert_eq!(block.views, 2);
+    let worst = &block.objects[0];
+    assert_eq!(worst.id, target as u32, "{:?}", block.objects);
+    let want = -10.0 * (sse / n as f64).log10();
+    assert!((worst.psnr - want).abs() < 0.01, "{} dB against the formula's {want}", worst.psnr);
+    assert_eq!(worst.pixels as usize * 3, n);
+    for r in &block.objects[1..] {
+        assert_eq!(r.psnr, eval::objects::PSNR_CAP_DB, "object {} ({}) was left exact", r.id, r.name);
+        assert!(r.edge_pixels <= r.pixels);
+    }
+    let total: u64 = block.objects.iter().map(|r| r.pixels).sum();
+    assert_eq!(total as usize, views.iter().map(|(_, t)| t.width * t.height).sum::<usize>());
+    let md = std::fs::read_to_string(tmp.path().join("out/report.md")).unwrap();
+    assert!(md.contains("## Error per object and per material") && tmp.path().join("out").join(eval::objects::OBJECTS_PICTURE).is_file(), "{md}");
+}

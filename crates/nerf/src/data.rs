@@ -664,6 +664,8 @@ pub mod synthetic {
             view_dependent: gloss > 0.0,
             render: serde_json::json!({"analytic": true}),
             renderer: "nerf::data::synthetic".into(),
+            objects: vec![],
+            materials: vec![],
         };
         for (split, recs) in splits {
             if blender_layout {

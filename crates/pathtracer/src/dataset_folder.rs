@@ -349,6 +349,11 @@ pub trait ViewRenderer: Sync {
     fn render_view(&self, camera: &Camera, view_key: u32) -> Result<ViewImages, PathTracerError>;
     /// Whether any material is view-dependent (non-Lambertian).
     fn is_view_dependent(&self) -> bool;
+    /// The view's object and material labels ([`dataset::labels`]), `None` when this renderer
+    /// has none (then no label files are written).
+    fn labels(&self, _camera: &Camera, _view_key: u32) -> Result<Option<dataset::labels::ViewLabels>, PathTracerError> {
+        Ok(None)
+    }
 }
 
 /// The randomness key of view `index` of `split`: `split_index << 24 | index`, independent of

@@ -101,6 +101,9 @@ impl ViewRenderer for PathTracer<'_> {
     fn is_view_dependent(&self) -> bool {
         self.renderer.is_view_dependent()
     }
+    fn labels(&self, camera: &Camera, view_key: u32) -> Result<Option<dataset::labels::ViewLabels>, PathTracerError> {
+        Ok(Some(self.renderer.labels(camera, view_key, &self.settings)))
+    }
 }
 
 /// [`render_dataset`] with any renderer: `scene` places the cameras and supplies the facts,
@@ -138,6 +141,15 @@ pub(crate) fn render_dataset_part(
         return Err(PathTracerError::Config("--threads 0: at least one thread is needed".into()));
     }
     let rig = rig_for(scene, cfg)?;
+    for (what, count) in [("objects (node instances with triangles)", scene.object_count()), ("materials", scene.materials.len())] {
+        if count > dataset::labels::MAX_LABEL {
+            return Err(PathTracerError::Config(format!(
+                "{}: {count} {what}, more than the {} a view's 16-bit label files can number",
+                scene.name,
+                dataset::labels::MAX_LABEL
+            )));
+        }
+    }
     let environment_map = cfg.environment_map.as_deref().map(SceneSource::from_file).transpose()?;
     let camera_path = cfg.camera_path.as_deref().map(SceneSource::from_file).transpose()?;
     let record = RenderRecord {
@@ -187,6 +199,23 @@ pub(crate) fn render_dataset_part(
         let files = view_files(split, k).map(|f| out.join(f));
         if let Some(gt) = kept.remove(&(split, k)) {
             range.add(&gt);
+            // A kept view without (whole) label files, e.g. one rendered before they existed,
+            // gets them without rendering its images again.
+            let labels = dataset::labels::label_files(split, k).map(|f| out.join(f));
+            let (w, h) = (camera.intrinsics.width, camera.intrinsics.height);
+            if dataset::labels::read_labels(&labels, w, h).is_err() {
+                if cancel.load(Ordering::SeqCst) {
+                    return Err(PathTracerError::Interrupted);
+                }
+                let key = view_key(split, k);
+                let computed = match &pool {
+                    Some(p) => p.install(|| renderer.labels(camera, key))?,
+                    None => renderer.labels(camera, key)?,
+                };
+                if let Some(l) = computed {
+                    dataset::labels::write_labels(&labels, &l)?;
+                }
+            }
             continue;
         }
         if cancel.load(Ordering::SeqCst) {
@@ -198,6 +227,13 @@ pub(crate) fn render_dataset_part(
             None => renderer.render_view(camera, key)?,
         };
         check_view(&view, camera, &files[0])?;
+        let labels = match &pool {
+            Some(p) => p.install(|| renderer.labels(camera, key))?,
+            None => renderer.labels(camera, key)?,
+        };
+        if let Some(l) = labels {
+            dataset::labels::write_labels(&dataset::labels::label_files(split, k).map(|f| out.join(f)), &l)?;
+        }
         write_view(&files, &view, cfg.background)?;
         range.add(&view.ground_truth);
         samples += view.samples;
@@ -331,7 +367,48 @@ fn scene_facts(
         view_dependent,
         render,
         renderer: record.renderer.clone(),
+        objects: object_facts(scene),
+        materials: scene.materials.iter().enumerate().map(|(k, m)| dataset::MaterialFacts { id: k as u32 + 1, name: m.name.clone() }).collect(),
     })
+}
+
+/// The scene's objects as the label files number them ([`crate::scene::Scene::object_of`]):
+/// for a scene without object records, the whole mesh as one.
+fn object_facts(scene: &Scene) -> Vec<dataset::ObjectFacts> {
+    let m = &scene.mesh;
+    let whole = [crate::scene::SceneObject { node: 0, name: None, mesh: 0, mesh_name: None, first_triangle: 0, triangles: m.indices.len() as u32 }];
+    let objects = if scene.objects.is_empty() { &whole[..] } else { &scene.objects[..] };
+    objects
+        .iter()
+        .enumerate()
+        .map(|(k, o)| {
+            let range = o.first_triangle as usize..(o.first_triangle as usize + o.triangles as usize).min(m.indices.len());
+            let (mut lo, mut hi, mut area) = (glam::DVec3::INFINITY, glam::DVec3::NEG_INFINITY, 0.0f64);
+            let mut materials = std::collections::BTreeSet::new();
+            for t in range.clone() {
+                let p = m.indices[t].map(|i| m.positions.get(i as usize).copied().unwrap_or_default().as_dvec3() + scene.origin);
+                for q in p {
+                    lo = lo.min(q);
+                    hi = hi.max(q);
+                }
+                area += 0.5 * (p[1] - p[0]).cross(p[2] - p[0]).length();
+                materials.insert(m.material.get(t).copied().unwrap_or(0) + 1);
+            }
+            let (lo, hi) = if range.is_empty() { (scene.origin, scene.origin) } else { (lo, hi) };
+            dataset::ObjectFacts {
+                id: k as u32 + 1,
+                node: o.node,
+                name: o.name.clone(),
+                mesh: o.mesh,
+                mesh_name: o.mesh_name.clone(),
+                materials: materials.into_iter().collect(),
+                triangles: range.len() as u64,
+                area,
+                aabb_min: lo.to_array(),
+                aabb_max: hi.to_array(),
+            }
+        })
+        .collect()
 }
 
 /// The frame records of one split.
@@ -386,6 +463,7 @@ mod tests {
             cameras: vec![],
             bounds,
             warnings: vec![],
+            objects: vec![],
         }
     }
 

@@ -615,6 +615,7 @@ mod tests {
             cameras: vec![],
             bounds: Aabb { min: Vec3::ZERO, max: Vec3::new(1.0, 1.0, 0.0) },
             warnings: vec![],
+            objects: vec![],
         }
     }
 

@@ -151,6 +151,7 @@ mod tests {
             cameras: Vec::new(),
             bounds,
             warnings: Vec::new(),
+            objects: vec![],
         }
     }
 

@@ -441,6 +441,54 @@ impl Renderer {
         gt
     }
 
+    /// The object and material labels of view `view_index` of `camera`
+    /// ([`dataset::labels`]): the pixel-centre ray's hit (the ray and hit of
+    /// [`Self::ground_truth`]) gives the object ID ([`Scene::object_of`] + 1) and the material
+    /// index + 1; the coverage counts the labels the pixel's `settings.spp` image samples hit:
+    /// the camera rays [`Self::render_view`] traces (the same sampler, sub-pixel positions and
+    /// alpha-tested closest hits), so its background share is 1 − the image's alpha under a
+    /// transparent background. With `spp` 0 the coverage is the centre ray's alone.
+    pub fn labels(&self, camera: &Camera, view_index: u32, settings: &RenderSettings) -> dataset::labels::ViewLabels {
+        let (w, h) = (camera.intrinsics.width, camera.intrinsics.height);
+        let integ = self.integrator_with(RenderSettings::preview(0).integrator_settings(None));
+        let rays = SampleRays::new(camera, self.scene.origin);
+        let object_id = |prim: u32| self.scene.object_of(prim).map_or(0, |o| (o + 1).min(dataset::labels::MAX_LABEL) as u16);
+        let spp = settings.spp;
+        let rows: Vec<Vec<(u16, u16, [f32; 4])>> = (0..h)
+            .into_par_iter()
+            .map(|j| {
+                let mut ids = Vec::with_capacity(spp as usize);
+                (0..w)
+                    .map(|i| {
+                        let centre = self.trace_primary(&camera.pixel_center_ray(i, j));
+                        let (object, material) = centre.map_or((0, 0), |ph| {
+                            let m = self.scene.mesh.material.get(ph.hit.prim as usize).map_or(0, |&m| (m as usize + 1).min(dataset::labels::MAX_LABEL));
+                            (object_id(ph.hit.prim), m as u16)
+                        });
+                        ids.clear();
+                        let pixel_sampler = Sampler::new(settings.seed, view_index, j as u64 * w as u64 + i as u64, 0);
+                        for s in 0..spp {
+                            let u = pixel_sampler.with_sample(s).next_2d();
+                            ids.push(integ.intersect(&rays.ray(i as f32 + u.x, j as f32 + u.y)).map_or(0, |hit| object_id(hit.prim)));
+                        }
+                        if spp == 0 {
+                            ids.push(object);
+                        }
+                        (object, material, dataset::labels::coverage_of(&ids))
+                    })
+                    .collect()
+            })
+            .collect();
+        let px = rows.into_iter().flatten();
+        let (mut object, mut material, mut coverage) = (Vec::new(), Vec::new(), Vec::new());
+        for (o, m, c) in px {
+            object.push(o);
+            material.push(m);
+            coverage.push(c);
+        }
+        dataset::labels::ViewLabels { width: w, height: h, object, material, coverage }
+    }
+
     /// Renders one view (see the module docs). `settings` should have passed
     /// [`RenderSettings::validate`]; out-of-range values are clamped (spp 0 renders no
     /// samples: black, alpha 0; a negative or non-finite environment is treated as 0).

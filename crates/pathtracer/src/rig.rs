@@ -505,6 +505,7 @@ mod tests {
             cameras,
             bounds,
             warnings: vec![],
+            objects: vec![],
         }
     }
 

@@ -349,6 +349,25 @@ pub struct SceneCamera {
     pub zfar: Option<f64>,
 }
 
+/// One object of the scene: a glTF node instance that contributed triangles (one mesh under two
+/// nodes is two objects). Its triangles are `first_triangle .. first_triangle + triangles` of
+/// [`Scene::mesh`], in the order the import met them.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SceneObject {
+    /// glTF node index.
+    pub node: usize,
+    /// Node name.
+    pub name: Option<String>,
+    /// glTF mesh index.
+    pub mesh: usize,
+    /// Mesh name.
+    pub mesh_name: Option<String>,
+    /// First triangle.
+    pub first_triangle: u32,
+    /// Number of triangles.
+    pub triangles: u32,
+}
+
 /// The render scene.
 #[derive(Clone, Debug)]
 pub struct Scene {
@@ -370,4 +389,25 @@ pub struct Scene {
     pub bounds: Aabb,
     /// Warnings collected at import (unsupported optional extensions, dropped primitives, ...).
     pub warnings: Vec<String>,
+    /// The objects, in import order (their triangle ranges follow one another). Empty for a
+    /// scene built by hand: then the whole mesh is one object.
+    pub objects: Vec<SceneObject>,
+}
+
+impl Scene {
+    /// The index of the object triangle `prim` belongs to: 0 for a scene without objects,
+    /// `None` for a triangle no object lists.
+    pub fn object_of(&self, prim: u32) -> Option<usize> {
+        if self.objects.is_empty() {
+            return Some(0);
+        }
+        let k = self.objects.partition_point(|o| o.first_triangle <= prim).checked_sub(1)?;
+        let o = &self.objects[k];
+        (prim - o.first_triangle < o.triangles).then_some(k)
+    }
+
+    /// The number of objects (1 for a scene without object records).
+    pub fn object_count(&self) -> usize {
+        self.objects.len().max(1)
+    }
 }

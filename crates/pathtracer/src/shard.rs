@@ -163,6 +163,11 @@ pub fn merge_shards_with(shards: &[PathBuf], out: &Path, scene: Option<&Path>, i
             let files = view_files(split, k).map(|f| dir.join(f));
             dataset::folder::check_view(&files, record.config.width, record.config.height)
                 .map_err(|e| err(format!("shard {} ({}): {e}; render the shard again", manifest.shard, dir.display())))?;
+            let labels = dataset::labels::label_files(split, k).map(|f| dir.join(f));
+            if labels.iter().any(|f| f.exists()) {
+                dataset::labels::read_labels(&labels, record.config.width, record.config.height)
+                    .map_err(|e| err(format!("shard {} ({}): {e}; render the shard again", manifest.shard, dir.display())))?;
+            }
         }
         records.push((dir.clone(), record, bytes, manifest));
     }
@@ -236,7 +241,10 @@ fn assemble(
     for (dir, _, _, manifest) in records {
         for v in &manifest.views {
             let (split, k) = parse_view(v).ok_or_else(|| err(format!("bad view name {v}")))?;
-            for f in view_files(split, k) {
+            // The view's files, and its label files when the shard has them (checked whole above).
+            let labels = dataset::labels::label_files(split, k);
+            let with_labels = labels.iter().all(|f| dir.join(f).is_file());
+            for f in view_files(split, k).into_iter().chain(labels.into_iter().filter(|_| with_labels)) {
                 let bytes = std::fs::read(dir.join(&f)).map_err(|e| dataset::DatasetError::Io { path: dir.join(&f), source: e })?;
                 dataset::io::atomic_write(&out.join(&f), &bytes)?;
             }

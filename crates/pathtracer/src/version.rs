@@ -62,6 +62,7 @@ fn probe_scene() -> Scene {
         cameras: vec![],
         bounds,
         warnings: vec![],
+        objects: vec![],
     }
 }
 

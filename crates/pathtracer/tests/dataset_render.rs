@@ -68,7 +68,7 @@ fn tiny_dataset_is_complete_exact_deterministic_and_resumable() {
     ];
     for (split, n) in [("train", 3), ("val", 2), ("test", 2)] {
         for k in 0..n {
-            for suffix in [".png", ".exr", "_gt.exr", "_depth.npy", "_depth_mm.npy", "_mask.png"] {
+            for suffix in [".png", ".exr", "_gt.exr", "_depth.npy", "_depth_mm.npy", "_mask.png", "_ids.png", "_material.png", "_coverage.npy"] {
                 expected.push(format!("{split}/r_{k}{suffix}"));
             }
         }
@@ -150,7 +150,10 @@ fn tiny_dataset_is_complete_exact_deterministic_and_resumable() {
     }
 
     // Resume: delete one view's files (and the transforms), re-run: identical to the full run.
-    for f in ["val/r_1.png", "val/r_1.exr", "val/r_1_gt.exr", "val/r_1_depth.npy", "train/r_2.exr", "transforms.json"] {
+    // Views whose label files alone are missing or damaged keep their images and get the
+    // labels back, the same bytes.
+    std::fs::write(b.join("train/r_0_material.png"), b"damaged").unwrap();
+    for f in ["val/r_1.png", "val/r_1.exr", "val/r_1_gt.exr", "val/r_1_depth.npy", "train/r_2.exr", "transforms.json", "test/r_0_ids.png", "test/r_1_coverage.npy"] {
         std::fs::remove_file(b.join(f)).unwrap();
     }
     let sum = render(&scene, &b, &cfg, 2).unwrap();
@@ -222,6 +225,7 @@ fn every_committed_scene_renders() {
         let (lo, hi) = (DVec3::from_array(facts.aabb_min), DVec3::from_array(facts.aabb_max));
         let inside = |p: DVec3| p.cmpgt(lo).all() && p.cmplt(hi).all();
         let scene = load_gltf(&p, &ImportOptions::default()).unwrap();
+        check_labels(&name, &out, &ds.train[0], &gt, &img, &scene, &facts);
         if scene.cameras.iter().all(|c| inside(c.c2w.w_axis.truncate())) && !scene.cameras.is_empty() {
             for f in ds.train.iter().chain(&ds.val).chain(&ds.test) {
                 assert!(inside(f.camera.origin()), "{name}: view {} left the room", f.name);
@@ -274,4 +278,96 @@ fn read_npy_f32(path: &std::path::Path) -> Vec<f32> {
     let header = std::str::from_utf8(&b[10..10 + header_len]).unwrap();
     assert!(header.contains("'<f4'") && header.contains("'fortran_order': False"), "{header}");
     b[10 + header_len..].chunks_exact(4).map(|c| f32::from_le_bytes(c.try_into().unwrap())).collect()
+}
+
+/// The closest point of triangle `t` to `p` (Ericson, Real-Time Collision Detection, 5.1.5),
+/// in `f64`.
+fn closest_on_triangle(p: DVec3, [a, b, c]: [DVec3; 3]) -> DVec3 {
+    let (ab, ac, ap) = (b - a, c - a, p - a);
+    let (d1, d2) = (ab.dot(ap), ac.dot(ap));
+    if d1 <= 0.0 && d2 <= 0.0 {
+        return a;
+    }
+    let bp = p - b;
+    let (d3, d4) = (ab.dot(bp), ac.dot(bp));
+    if d3 >= 0.0 && d4 <= d3 {
+        return b;
+    }
+    let vc = d1 * d4 - d3 * d2;
+    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
+        return a + ab * (d1 / (d1 - d3));
+    }
+    let cp = p - c;
+    let (d5, d6) = (ab.dot(cp), ac.dot(cp));
+    if d6 >= 0.0 && d5 <= d6 {
+        return c;
+    }
+    let vb = d5 * d2 - d1 * d6;
+    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
+        return a + ac * (d2 / (d2 - d6));
+    }
+    let va = d3 * d6 - d5 * d4;
+    if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
+        return b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6)));
+    }
+    let denom = 1.0 / (va + vb + vc);
+    a + ab * (vb * denom) + ac * (vc * denom)
+}
+
+/// The view's label files against its ground truth and image: a pixel whose centre ray hits
+/// the scene names an object one of whose triangles holds the depth file's hit point (found by
+/// brute force over that object's triangles, independent of the renderer's BVH), and a material
+/// that object uses; a pixel that misses names none; the coverage's background share is
+/// 1 − the image's alpha (the same camera samples, transparent background).
+fn check_labels(
+    name: &str,
+    out: &Path,
+    frame: &dataset::Frame,
+    gt: &dataset::GroundTruth,
+    img: &dataset::RgbaImage,
+    scene: &pathtracer::scene::Scene,
+    facts: &dataset::SceneFacts,
+) {
+    let (w, h) = (gt.width, gt.height);
+    let files = dataset::labels::label_files(SplitKind::Train, 0).map(|f| out.join(f));
+    let labels = dataset::labels::read_labels(&files, w, h).unwrap_or_else(|e| panic!("{name}: {e}"));
+    assert_eq!(facts.objects.len(), scene.object_count(), "{name}: scene facts list every object");
+    assert_eq!(facts.materials.len(), scene.materials.len(), "{name}: scene facts list every material");
+    let mut hits = 0;
+    for j in 0..h {
+        for i in 0..w {
+            let p = (j * w + i) as usize;
+            let (id, mat) = (labels.object[p] as usize, labels.material[p] as u32);
+            if gt.alpha[p] == 0.0 {
+                assert_eq!((id, mat), (0, 0), "{name}: pixel {i},{j} misses but is labelled");
+            } else {
+                hits += 1;
+                assert!(id >= 1 && id <= facts.objects.len(), "{name}: pixel {i},{j} hits but has object {id}");
+                let o = &facts.objects[id - 1];
+                assert!(o.materials.contains(&mat), "{name}: pixel {i},{j}: material {mat} is not one of object {id}'s {:?}", o.materials);
+                let ray = frame.camera.pixel_center_ray(i, j);
+                let x = ray.origin + ray.direction * gt.distance[p] as f64 - scene.origin;
+                let range = match scene.objects.get(id - 1) {
+                    Some(so) => so.first_triangle as usize..(so.first_triangle + so.triangles) as usize,
+                    None => 0..scene.mesh.indices.len(),
+                };
+                let d = range
+                    .map(|t| {
+                        let tri = scene.mesh.indices[t].map(|k| scene.mesh.positions[k as usize].as_dvec3());
+                        (closest_on_triangle(x, tri) - x).length()
+                    })
+                    .fold(f64::INFINITY, f64::min);
+                let tol = 1e-4 * (gt.distance[p] as f64).max(1.0);
+                assert!(d <= tol, "{name}: pixel {i},{j}: the depth hit lies {d} m from object {id} ({:?})", o.name);
+            }
+            let c = labels.coverage[p];
+            assert!(c[1] >= c[3] && c[1] + c[3] <= 1.0 + 1e-6, "{name}: pixel {i},{j}: coverage {c:?}");
+            if c[1] + c[3] >= 1.0 - 1e-6 {
+                let background = if c[0] == 0.0 { c[1] } else if c[2] == 0.0 { c[3] } else { 0.0 };
+                let alpha = img.data[4 * p + 3];
+                assert!((1.0 - background - alpha).abs() < 1e-5, "{name}: pixel {i},{j}: coverage {c:?} against alpha {alpha}");
+            }
+        }
+    }
+    assert!(hits > 0);
 }

@@ -184,6 +184,11 @@ fn hierarchy_trs_matrix_and_negative_scale() {
     b.set("scenes", json!([{"nodes": [0, 2]}]));
     let s = b.load().unwrap();
     assert_eq!(s.mesh.indices.len(), 2);
+    // One mesh under two nodes (B and C) is two objects, numbered in traversal order, each
+    // owning its own triangle: the label files give them two IDs.
+    let placed: Vec<(usize, usize, u32, u32)> = s.objects.iter().map(|o| (o.node, o.mesh, o.first_triangle, o.triangles)).collect();
+    assert_eq!(placed, vec![(1, 0, 0, 1), (2, 0, 1, 1)]);
+    assert_eq!((s.object_of(0), s.object_of(1), s.object_of(2)), (Some(0), Some(1), None));
     // Hand-computed: R_y(90°) maps (x, y, z) → (z, y, −x).
     let expected_b = [DVec3::new(10.0, 2.0, 0.0), DVec3::new(10.0, 2.0, -2.0), DVec3::new(10.0, 4.0, 0.0)];
     let expected_c = [DVec3::new(0.0, 0.0, 5.0), DVec3::new(-1.0, 0.0, 5.0), DVec3::new(0.0, 1.0, 5.0)];

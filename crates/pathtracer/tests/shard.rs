@@ -51,6 +51,9 @@ fn three_shards_merge_into_the_unsharded_bytes() {
     assert_eq!(sum.views_total, 9);
     let (a, b) = (files(&whole), files(&merged));
     assert_eq!(a.keys().collect::<Vec<_>>(), b.keys().collect::<Vec<_>>());
+    for suffix in ["_ids.png", "_material.png", "_coverage.npy"] {
+        assert_eq!(a.keys().filter(|n| n.ends_with(suffix)).count(), 9, "every view has its {suffix} file");
+    }
     for (name, bytes) in &a {
         assert!(bytes == &b[name], "{name} differs between the unsharded and the merged dataset");
     }

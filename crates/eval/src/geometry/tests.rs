@@ -48,7 +48,7 @@ fn reference_of(scene: &TriMesh, cameras: Vec<Camera>, diagonal: f64) -> SceneRe
         cameras: cameras.len(),
         rays: 0,
     };
-    SceneReference { mesh, info, diagonal, cameras }
+    SceneReference { mesh, info, diagonal, cameras, labels: vec![] }
 }
 
 fn cube_reference() -> SceneReference {
@@ -185,7 +185,7 @@ fn a_real_scenes_triangles_score_zero() {
     let all = TriMesh::new(r.positions.iter().map(|p| p.to_array()).collect(), r.triangles.clone());
     let visible = TriMesh::new(all.positions.clone(), r.visible_mesh());
     let info = ReferenceInfo { scene: "cornell".into(), triangles: 0, visible_triangles: 0, visible_area_fraction: 0.0, visible_area: 0.0, cameras: 1, rays: 0 };
-    let reference = SceneReference { mesh: visible, info, diagonal: (hi - lo).length(), cameras: vec![camera] };
+    let reference = SceneReference { mesh: visible, info, diagonal: (hi - lo).length(), cameras: vec![camera], labels: vec![] };
     let dir = temp_dir("cornell");
     let file = dir.join("cornell.ply");
     let faces: Vec<Vec<u32>> = all.triangles.iter().map(|t| t.to_vec()).collect();

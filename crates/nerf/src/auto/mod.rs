@@ -728,6 +728,8 @@ mod tests {
             view_dependent,
             render: serde_json::Value::Null,
             renderer: "test".into(),
+            objects: vec![],
+            materials: vec![],
         }
     }
 

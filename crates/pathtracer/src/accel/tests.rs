@@ -51,6 +51,7 @@ fn soup(n: usize) -> Scene {
         cameras: vec![],
         bounds,
         warnings: vec![],
+        objects: vec![],
     }
 }
 

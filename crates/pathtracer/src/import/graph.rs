@@ -164,8 +164,20 @@ impl Importer<'_> {
                     Some(skin) => self.joint_matrices(node, &skin, &world_of)?,
                     None => Placement::Rigid(world),
                 };
+                let first = self.geometry.indices.len();
                 for prim in mesh.primitives() {
                     self.add_primitive(&mesh, &prim, &placement, &weights)?;
+                }
+                let triangles = self.geometry.indices.len() - first;
+                if triangles > 0 {
+                    self.objects.push(crate::scene::SceneObject {
+                        node: index,
+                        name: node.name().map(str::to_string),
+                        mesh: mesh.index(),
+                        mesh_name: mesh.name().map(str::to_string),
+                        first_triangle: first as u32,
+                        triangles: triangles as u32,
+                    });
                 }
             }
             if let Some(camera) = node.camera() {
@@ -526,6 +538,7 @@ impl Importer<'_> {
             cameras: self.cameras,
             bounds,
             warnings: self.warnings,
+            objects: self.objects,
         })
     }
 }

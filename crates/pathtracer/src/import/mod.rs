@@ -239,6 +239,7 @@ pub fn load_gltf_from_slice(
         geometry: Geometry::default(),
         lights: Vec::new(),
         cameras: Vec::new(),
+        objects: Vec::new(),
     };
     for w in warnings {
         importer.warn(w);
@@ -378,6 +379,8 @@ pub(crate) struct Importer<'a> {
     pub geometry: Geometry,
     pub lights: Vec<WorldLight>,
     pub cameras: Vec<SceneCamera>,
+    /// The node instances that contributed triangles ([`Scene::objects`]).
+    pub objects: Vec<crate::scene::SceneObject>,
 }
 
 impl Importer<'_> {

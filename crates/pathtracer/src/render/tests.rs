@@ -111,6 +111,7 @@ impl Builder {
             cameras: Vec::new(),
             bounds,
             warnings: Vec::new(),
+            objects: vec![],
         }
     }
 }
