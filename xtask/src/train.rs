@@ -69,6 +69,16 @@ pub struct TrainArgs {
     pub allow_outside: bool,
     #[command(flatten)]
     pub supervision: SupervisionArgs,
+    /// Noise on the training views' poses, ROT_DEG,TRANS_REL: each pose turned about its
+    /// centre by an angle of that standard deviation (degrees) and its centre moved by that
+    /// fraction of the scene size (RMS), seeded per view; val and test poses stay exact. The
+    /// poses trained on are written to train_poses.json, and `eval` reports their error.
+    #[arg(long, value_parser = parse_pose_noise, allow_hyphen_values = true)]
+    pub pose_noise: Option<nerf::poses::PoseNoise>,
+}
+
+fn parse_pose_noise(s: &str) -> Result<nerf::poses::PoseNoise, String> {
+    s.parse()
 }
 
 /// Supervision beyond colour from the dataset's ground truth (formulas in the `nerf` crate's
@@ -220,6 +230,7 @@ impl TrainArgs {
             mlp_precision: None,
             allow_outside: false,
             supervision: SupervisionArgs::default(),
+            pose_noise: None,
         }
     }
 }
@@ -287,6 +298,9 @@ fn build_config(args: &TrainArgs) -> anyhow::Result<TrainConfig> {
         }
     }
     args.supervision.apply(&mut cfg)?;
+    if let Some(n) = args.pose_noise {
+        cfg.pose_noise = Some(n);
+    }
     if let Err(e) = cfg.check() {
         match &args.config {
             Some(p) => anyhow::bail!("{}: {e}", p.display()),
@@ -314,7 +328,7 @@ fn holds_run(dir: &std::path::Path) -> bool {
 
 /// What a run and the commands that read it (`eval`, `mesh`, `render-nerf`) write into its
 /// folder: what `--force` removes. Other files in the folder are left alone.
-const RUN_OUTPUTS: [&str; 9] = [
+const RUN_OUTPUTS: [&str; 11] = [
     nerf::train::CONFIG_FILE,
     nerf::train::METRICS_FILE,
     "eval.json",
@@ -324,6 +338,8 @@ const RUN_OUTPUTS: [&str; 9] = [
     "mesh.json",
     "mesh_error.png",
     "speed_vs_error.png",
+    eval::objects::OBJECTS_PICTURE,
+    nerf::poses::POSES_FILE,
 ];
 
 /// Whether `name` in a run folder is a file a run, `eval` or `mesh` writes ([`RUN_OUTPUTS`],
@@ -414,6 +430,7 @@ fn resume_trainer(args: &TrainArgs) -> anyhow::Result<Trainer> {
         ("--batch-rays", args.batch_rays.is_some_and(|b| b != cfg.batch_rays)),
         ("--batch-samples", args.batch_samples.is_some_and(|b| Some(b) != cfg.batch_samples)),
         ("--model", args.model.as_deref().is_some_and(|m| m != cfg.model_label())),
+        ("--pose-noise", args.pose_noise.is_some_and(|n| Some(n) != cfg.pose_noise)),
         ("--depth-loss, --depth-weight, --depth-half-life, --depth-source or --empty-loss", {
             let mut c = cfg.clone();
             args.supervision.apply(&mut c).is_err() || serde_json::to_value(&c.supervision).ok() != serde_json::to_value(&cfg.supervision).ok()

@@ -611,6 +611,11 @@ fn supervision_options_are_refused_naming_the_option_or_the_dataset() {
         (vec!["--empty-loss", "nan"], "--empty-loss"),
         (vec!["--depth-loss", "expected", "--depth-half-life", "0"], "--depth-half-life"),
         (vec!["--depth-source", "noisy:0.01"], "--depth-source sets the depth term, which is off"),
+        (vec!["--pose-noise", "50,0"], "--pose-noise"),
+        (vec!["--pose-noise", "1,2"], "100 % of the scene size"),
+        (vec!["--pose-noise", "-1,0"], "--pose-noise"),
+        (vec!["--pose-noise", "nan,0.01"], "the rotation 'nan' is not a finite number ≥ 0"),
+        (vec!["--pose-noise", "1"], "ROT_DEG,TRANS_REL"),
     ] {
         let mut a = vec!["train", ds, "--out", o, "--steps", "2"];
         a.extend(args);

@@ -18,6 +18,7 @@ pub mod kernels;
 pub mod mlp;
 pub mod models;
 pub mod occupancy;
+pub mod poses;
 pub mod render;
 pub mod roofline;
 pub mod sampling;

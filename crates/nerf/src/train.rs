@@ -154,6 +154,9 @@ pub struct TrainConfig {
     /// depth and empty-space terms); `None`: colour only.
     #[config(default = "None")]
     pub supervision: Option<SupervisionConfig>,
+    /// Seeded noise on the training views' poses ([`crate::poses`]); `None`: the exact poses.
+    #[config(default = "None")]
+    pub pose_noise: Option<crate::poses::PoseNoise>,
 }
 
 impl TrainConfig {
@@ -204,6 +207,9 @@ impl TrainConfig {
     /// that is not positive, a zero downscale factor, logging or checkpoint interval, bounds
     /// ([`SceneBounds::check`]) or model settings ([`ModelConfig::check`]) out of range.
     pub fn check(&self) -> Result<(), String> {
+        if let Some(n) = self.pose_noise {
+            format!("{},{}", n.rotation_deg, n.translation_rel).parse::<crate::poses::PoseNoise>().map_err(|e| format!("pose_noise: {e}"))?;
+        }
         if self.steps.is_none() && self.time_budget_s.is_none() {
             return Err("give a step count or a time budget".into());
         }
@@ -512,8 +518,10 @@ impl Trainer {
     pub fn prepare(mut config: TrainConfig, run_dir: &Path, start: Start, load: &dataset::LoadOptions) -> Result<Self, TrainError> {
         let resume = start != Start::Fresh;
         config.check().map_err(TrainError::Invalid)?;
-        let ds = crate::data::load_dataset(&config.dataset, load)?;
+        let mut ds = crate::data::load_dataset(&config.dataset, load)?;
         config.check_image_sizes(&ds).map_err(TrainError::Invalid)?;
+        // Noisy poses replace the training views' before anything reads a camera.
+        let poses = config.pose_noise.map(|n| crate::poses::perturb_training_views(&mut ds, n, config.seed));
         let mut data = TrainData::load(&ds.train, config.downscale, config.background, false)?;
         apply_auto(&mut config, &ds, &mut data).map_err(TrainError::Invalid)?;
         // Mixed-pixel masks, unless a fresh `auto` run's resolve built them already.
@@ -547,7 +555,10 @@ impl Trainer {
         let val = ValSet::load(val_frames, &config)?;
         let model = config.model.init(&bounds, config.seed).map_err(TrainError::Invalid)?;
         std::fs::create_dir_all(run_dir).map_err(|e| dataset::DatasetError::write(run_dir, e))?;
-        checkpoint::remove_stale_temporaries(run_dir, &[CONFIG_FILE, METRICS_FILE])?;
+        checkpoint::remove_stale_temporaries(run_dir, &[CONFIG_FILE, METRICS_FILE, crate::poses::POSES_FILE])?;
+        if let Some(p) = &poses {
+            dataset::io::atomic_write_json(&run_dir.join(crate::poses::POSES_FILE), p)?;
+        }
         let mut t = Self {
             next_val_at: config.val_interval(),
             config,
