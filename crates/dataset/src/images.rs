@@ -251,7 +251,14 @@ pub fn write_npy_f32(path: &Path, width: u32, height: u32, values: &[f32]) -> Re
 /// The bytes before the values of the `.npy` file [`write_npy_f32`] writes for a (`height`,
 /// `width`) array: magic, version, header length and the header, padded to 64 bytes.
 fn npy_f32_prefix(width: u32, height: u32) -> Vec<u8> {
-    let mut header = format!("{{'descr': '<f4', 'fortran_order': False, 'shape': ({height}, {width}), }}");
+    npy_f32_header(&[height as usize, width as usize])
+}
+
+/// The bytes before the values of a little-endian float32 C-order `.npy` file of `shape`:
+/// magic, version 1.0, header length and the header dictionary, padded to 64 bytes.
+pub(crate) fn npy_f32_header(shape: &[usize]) -> Vec<u8> {
+    let dims: Vec<String> = shape.iter().map(usize::to_string).collect();
+    let mut header = format!("{{'descr': '<f4', 'fortran_order': False, 'shape': ({}), }}", dims.join(", "));
     // Magic (6) + version (2) + header length (2) + header + '\n' is padded to 64 bytes.
     while (10 + header.len() + 1) % 64 != 0 {
         header.push(' ');

@@ -126,18 +126,9 @@ pub fn read_labels(files: &[PathBuf; 3], width: u32, height: u32) -> Result<View
     Ok(ViewLabels { width, height, object, material, coverage })
 }
 
-/// The header of the (`height`, `width`, 4) float32 `.npy` file, padded to 64 bytes.
+/// The header of the (`height`, `width`, 4) float32 `.npy` file.
 fn npy_prefix(height: u32, width: u32) -> Vec<u8> {
-    let mut header = format!("{{'descr': '<f4', 'fortran_order': False, 'shape': ({height}, {width}, 4), }}");
-    while (10 + header.len() + 1) % 64 != 0 {
-        header.push(' ');
-    }
-    header.push('\n');
-    let mut out = Vec::with_capacity(10 + header.len());
-    out.extend_from_slice(b"\x93NUMPY\x01\x00");
-    out.extend_from_slice(&(header.len() as u16).to_le_bytes());
-    out.extend_from_slice(header.as_bytes());
-    out
+    crate::images::npy_f32_header(&[height as usize, width as usize, 4])
 }
 
 /// Writes a 16-bit single-channel PNG (the encoder takes native-endian samples and stores

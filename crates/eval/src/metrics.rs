@@ -523,6 +523,26 @@ pub fn off_surface_mass(
     off_surface_split(samples, gt_distance, gt_alpha, tol).map(|s| s.total)
 }
 
+/// One ray's fractions of its rendering weight farther than `tol` from the true surface
+/// distance `g`, and more than `tol` in front of it (samples `t`, weights `w`); `None` when the
+/// ray's total weight is zero or not finite (no rendered mass: excluded, see
+/// [`off_surface_mass`]).
+pub fn ray_off_surface(t: &[f32], w: &[f32], g: f64, tol: f64) -> Option<(f64, f64)> {
+    let (mut total, mut off, mut front) = (0.0, 0.0, 0.0);
+    for (&t, &w) in t.iter().zip(w) {
+        let w = f64::from(w);
+        let d = f64::from(t) - g;
+        total += w;
+        if d.abs() > tol {
+            off += w;
+        }
+        if d < -tol {
+            front += w;
+        }
+    }
+    (total > 0.0 && total.is_finite()).then(|| (off / total, front / total))
+}
+
 /// The off-surface mass ([`off_surface_mass`]) and its part in front of the surface.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct OffSurface {
@@ -561,23 +581,10 @@ pub fn off_surface_split(
         if gt_alpha[pix] < FOREGROUND_ALPHA {
             continue;
         }
-        let g = f64::from(gt_distance[pix]);
         let range = samples.offsets[r]..samples.offsets[r + 1];
-        let (mut total, mut off, mut front) = (0.0, 0.0, 0.0);
-        for (&t, &w) in samples.t[range.clone()].iter().zip(&samples.w[range]) {
-            let w = f64::from(w);
-            let d = f64::from(t) - g;
-            total += w;
-            if d.abs() > tol {
-                off += w;
-            }
-            if d < -tol {
-                front += w;
-            }
-        }
-        if total > 0.0 && total.is_finite() {
-            sum += off / total;
-            sum_front += front / total;
+        if let Some((off, front)) = ray_off_surface(&samples.t[range.clone()], &samples.w[range], f64::from(gt_distance[pix]), tol) {
+            sum += off;
+            sum_front += front;
             rays += 1;
         }
     }

@@ -132,23 +132,11 @@ impl ObjectTally {
                     if pix >= n || alpha[pix] < FOREGROUND_ALPHA || r + 1 >= s.offsets.len() {
                         continue;
                     }
-                    let g = dist[pix] as f64;
                     let range = s.offsets[r]..s.offsets[r + 1].min(s.t.len()).min(s.w.len());
-                    let (mut total, mut off, mut front) = (0.0f64, 0.0f64, 0.0f64);
-                    for (&t, &w) in s.t[range.clone()].iter().zip(&s.w[range]) {
-                        let (w, d) = (w as f64, t as f64 - g);
-                        total += w;
-                        if d.abs() > tol {
-                            off += w;
-                        }
-                        if d < -tol {
-                            front += w;
-                        }
-                    }
-                    if total > 0.0 && total.is_finite() {
+                    if let Some((off, front)) = crate::metrics::ray_off_surface(&s.t[range.clone()], &s.w[range], dist[pix] as f64, tol) {
                         let t = map.entry(ids[pix]).or_default();
-                        t.off += off / total;
-                        t.front += front / total;
+                        t.off += off;
+                        t.front += front;
                         t.rays += 1;
                     }
                 }

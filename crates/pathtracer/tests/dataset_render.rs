@@ -280,43 +280,9 @@ fn read_npy_f32(path: &std::path::Path) -> Vec<f32> {
     b[10 + header_len..].chunks_exact(4).map(|c| f32::from_le_bytes(c.try_into().unwrap())).collect()
 }
 
-/// The closest point of triangle `t` to `p` (Ericson, Real-Time Collision Detection, 5.1.5),
-/// in `f64`.
-fn closest_on_triangle(p: DVec3, [a, b, c]: [DVec3; 3]) -> DVec3 {
-    let (ab, ac, ap) = (b - a, c - a, p - a);
-    let (d1, d2) = (ab.dot(ap), ac.dot(ap));
-    if d1 <= 0.0 && d2 <= 0.0 {
-        return a;
-    }
-    let bp = p - b;
-    let (d3, d4) = (ab.dot(bp), ac.dot(bp));
-    if d3 >= 0.0 && d4 <= d3 {
-        return b;
-    }
-    let vc = d1 * d4 - d3 * d2;
-    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
-        return a + ab * (d1 / (d1 - d3));
-    }
-    let cp = p - c;
-    let (d5, d6) = (ab.dot(cp), ac.dot(cp));
-    if d6 >= 0.0 && d5 <= d6 {
-        return c;
-    }
-    let vb = d5 * d2 - d1 * d6;
-    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
-        return a + ac * (d2 / (d2 - d6));
-    }
-    let va = d3 * d6 - d5 * d4;
-    if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
-        return b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6)));
-    }
-    let denom = 1.0 / (va + vb + vc);
-    a + ab * (vb * denom) + ac * (vc * denom)
-}
-
 /// The view's label files against its ground truth and image: a pixel whose centre ray hits
 /// the scene names an object one of whose triangles holds the depth file's hit point (found by
-/// brute force over that object's triangles, independent of the renderer's BVH), and a material
+/// brute force over that object's triangles, not the renderer's BVH), and a material
 /// that object uses; a pixel that misses names none; the coverage's background share is
 /// 1 − the image's alpha (the same camera samples, transparent background).
 fn check_labels(
@@ -354,7 +320,7 @@ fn check_labels(
                 let d = range
                     .map(|t| {
                         let tri = scene.mesh.indices[t].map(|k| scene.mesh.positions[k as usize].as_dvec3());
-                        (closest_on_triangle(x, tri) - x).length()
+                        (pathtracer::nearest::closest_point_on_triangle(x, tri) - x).length()
                     })
                     .fold(f64::INFINITY, f64::min);
                 let tol = 1e-4 * (gt.distance[p] as f64).max(1.0);
