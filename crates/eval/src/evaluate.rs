@@ -192,7 +192,7 @@ pub struct EvalReport {
     pub method: Option<MethodInfo>,
     /// Error per object and per material (absent when the dataset has no label files).
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub objects: Option<crate::objects::ObjectsBlock>,
+    pub objects: Option<ObjectsBlock>,
     /// The errors of the training poses the run learned from, against the exact ones (runs
     /// trained with `--pose-noise` only).
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -607,6 +607,54 @@ pub mod nonfinite {
             Ok(Option::<Wrap>::deserialize(d)?.map(|w| w.0))
         }
     }
+}
+
+/// One object's or material's error over the evaluated views (`eval.json`'s `objects` block).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct LabelError {
+    /// Object ID (or material ID) as in the label files; 0 = the background.
+    pub id: u32,
+    /// Node (or material) name from the scene facts.
+    pub name: String,
+    /// Pixels whose centre ray hit it.
+    pub pixels: u64,
+    /// Of those, edge pixels (not every image sample hit it).
+    pub edge_pixels: u64,
+    /// PSNR over all its pixels, dB (capped at 100 dB).
+    pub psnr: f64,
+    /// PSNR over its interior pixels.
+    pub psnr_interior: Option<f64>,
+    /// PSNR over its edge pixels.
+    pub psnr_edge: Option<f64>,
+    /// Mean absolute z-depth error over its foreground pixels, scene units.
+    pub depth_mae: Option<f64>,
+    /// Mean off-surface weight fraction over its foreground rays.
+    pub off_surface_mass: Option<f64>,
+    /// The part of it in front of the surface.
+    pub off_surface_front: Option<f64>,
+    /// Mesh accuracy restricted to this object: the mean distance to the true surface of the
+    /// extracted mesh's samples whose closest true triangle is this object's, m (objects only,
+    /// when `eval` measured the mesh).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mesh_accuracy: Option<f64>,
+    /// Mesh completeness restricted to this object: the mean distance to the extracted mesh of
+    /// the samples of this object's visible true surface, m.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mesh_completeness: Option<f64>,
+}
+
+/// Error per object and per material (`eval.json`'s `objects` block).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ObjectsBlock {
+    /// Views the sums run over.
+    pub views: usize,
+    /// Per object, worst PSNR first.
+    pub objects: Vec<LabelError>,
+    /// Per material, worst PSNR first.
+    pub materials: Vec<LabelError>,
+    /// The PSNR range (dB) of the per-object picture's colours, when it was written.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub picture_psnr: Option<[f64; 2]>,
 }
 
 #[cfg(test)]

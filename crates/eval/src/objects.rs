@@ -19,12 +19,12 @@
 //! the label and the block's pixel-centre labels the coverage, at an even one they are cast
 //! through the scene (when it is found), else the section is omitted with the reason.
 
+pub use crate::evaluate::{LabelError, ObjectsBlock};
 use crate::evaluate::ViewInput;
 use crate::metrics::FOREGROUND_ALPHA;
 use crate::truth::GroundTruthSource;
 use dataset::labels::{ViewLabels, coverage_of, read_labels};
 use dataset::{Frame, SceneFacts};
-use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 
 /// Highest PSNR reported (an exact match would be +∞).
@@ -226,62 +226,12 @@ fn rows(map: &BTreeMap<u16, Tally>, name: impl Fn(u16) -> String) -> Vec<LabelEr
     out
 }
 
-/// One object's or material's error over the evaluated views (`eval.json`'s `objects` block).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct LabelError {
-    /// Object ID (or material ID) as in the label files; 0 = the background.
-    pub id: u32,
-    /// Node (or material) name from the scene facts.
-    pub name: String,
-    /// Pixels whose centre ray hit it.
-    pub pixels: u64,
-    /// Of those, edge pixels (not every image sample hit it).
-    pub edge_pixels: u64,
-    /// PSNR over all its pixels, dB (capped at [`PSNR_CAP_DB`]).
-    pub psnr: f64,
-    /// PSNR over its interior pixels.
-    pub psnr_interior: Option<f64>,
-    /// PSNR over its edge pixels.
-    pub psnr_edge: Option<f64>,
-    /// Mean absolute z-depth error over its foreground pixels, scene units.
-    pub depth_mae: Option<f64>,
-    /// Mean off-surface weight fraction over its foreground rays.
-    pub off_surface_mass: Option<f64>,
-    /// The part of it in front of the surface.
-    pub off_surface_front: Option<f64>,
-    /// Mesh accuracy restricted to this object: the mean distance to the true surface of the
-    /// extracted mesh's samples whose closest true triangle is this object's, m (objects only,
-    /// when `eval` measured the mesh).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub mesh_accuracy: Option<f64>,
-    /// Mesh completeness restricted to this object: the mean distance to the extracted mesh of
-    /// the samples of this object's visible true surface, m.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub mesh_completeness: Option<f64>,
-}
-
-/// Error per object and per material (`eval.json`'s `objects` block).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct ObjectsBlock {
-    /// Views the sums run over.
-    pub views: usize,
-    /// Per object, worst PSNR first.
-    pub objects: Vec<LabelError>,
-    /// Per material, worst PSNR first.
-    pub materials: Vec<LabelError>,
-    /// The PSNR range (dB) of [`OBJECTS_PICTURE`]'s colours, when it was written.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub picture_psnr: Option<[f64; 2]>,
-}
-
-impl ObjectsBlock {
-    /// Fills the objects' mesh accuracy and completeness from the mesh metrics split by object
-    /// ([`crate::mesh_metrics::label_distances`]).
-    pub fn add_mesh_distances(&mut self, by_object: &[crate::mesh_metrics::LabelDistance]) {
-        for r in &mut self.objects {
-            if let Some(d) = by_object.iter().find(|d| d.label as u32 == r.id) {
-                (r.mesh_accuracy, r.mesh_completeness) = (d.accuracy, d.completeness);
-            }
+/// Fills the objects' mesh accuracy and completeness from the mesh metrics split by object
+/// ([`crate::mesh_metrics::label_distances`]).
+pub fn add_mesh_distances(block: &mut ObjectsBlock, by_object: &[crate::mesh_metrics::LabelDistance]) {
+    for r in &mut block.objects {
+        if let Some(d) = by_object.iter().find(|d| d.label as u32 == r.id) {
+            (r.mesh_accuracy, r.mesh_completeness) = (d.accuracy, d.completeness);
         }
     }
 }

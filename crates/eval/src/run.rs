@@ -188,7 +188,7 @@ pub fn evaluate_run(
     }
     crate::objects::attach(&mut report, &evaluated.objects, dataset.facts.as_ref(), run_dir)?;
     if let Some(block) = &mut report.objects {
-        block.add_mesh_distances(&mesh_by_object);
+        crate::objects::add_mesh_distances(block, &mesh_by_object);
     }
     let name = run_name(run_dir);
     let (report_md, summary) = write_outputs(run_dir, &name, &report, &curve, &evaluated.kept)?;
