@@ -49,11 +49,14 @@ impl ViewLabels {
     }
 }
 
+/// What a view's file stem (`r_<k>`) is followed by in its label files: object IDs, material
+/// IDs, coverage.
+pub const LABEL_SUFFIXES: [&str; 3] = ["_ids.png", "_material.png", "_coverage.npy"];
+
 /// The label files of view `index` of `split`, relative to the dataset folder: object IDs,
 /// material IDs, coverage.
 pub fn label_files(split: SplitKind, index: u32) -> [String; 3] {
-    let stem = format!("{}/r_{index}", split.name());
-    [format!("{stem}_ids.png"), format!("{stem}_material.png"), format!("{stem}_coverage.npy")]
+    LABEL_SUFFIXES.map(|suffix| format!("{}/r_{index}{suffix}", split.name()))
 }
 
 /// Whether all label files of view `index` of `split` exist in `dir`.

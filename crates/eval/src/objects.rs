@@ -35,7 +35,7 @@ pub fn view_labels(frame: &Frame, downscale: u32, source: &GroundTruthSource) ->
     let full = frame.camera.intrinsics;
     let dir = frame.image_path.parent().unwrap_or(std::path::Path::new("."));
     // The files [`dataset::labels::label_files`] names, beside the frame's image.
-    let files = ["_ids.png", "_material.png", "_coverage.npy"].map(|suffix| dir.join(format!("{}{suffix}", frame.name)));
+    let files = dataset::labels::LABEL_SUFFIXES.map(|suffix| dir.join(format!("{}{suffix}", frame.name)));
     if !files.iter().all(|f| f.is_file()) {
         return Err(format!("the dataset has no object label files ({} is missing: render it again with this version to add them)", files[0].display()));
     }
