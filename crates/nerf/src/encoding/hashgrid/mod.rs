@@ -40,6 +40,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 mod adam;
+mod position;
 #[cfg(target_arch = "x86_64")]
 #[allow(unsafe_code)]
 mod simd;

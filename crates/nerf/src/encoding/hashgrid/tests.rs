@@ -311,6 +311,61 @@ fn backward_is_the_exact_adjoint_and_matches_finite_differences() {
 }
 
 #[test]
+fn point_gradient_matches_finite_differences_of_the_f64_reference() {
+    for c in [cfg(6, 2, 10, 4, 200), cfg(3, 1, 4, 8, 64), cfg(2, 4, 8, 2, 30), cfg(2, 8, 12, 3, 9)] {
+        let g = grid(c.clone(), 11, 1.0);
+        let mut pts = random_points(300, 12);
+        // Clamped axes have derivative 0.
+        pts.extend([[-0.2, 0.3, 0.4], [0.3, 1.7, 0.6], [0.5, 0.5, f32::NAN]]);
+        let (n, d) = (pts.len(), c.output_dim());
+        let d_out: Vec<f32> = (0..n * d).map(|i| rnd(91_000_000 + i as u64) - 0.5).collect();
+        let grad = g.point_gradient(&pts, &g.level_major(&d_out));
+        let p64: Vec<f64> = g.params.iter().map(|&v| v as f64).collect();
+        let loss = |k: usize, p: [f64; 3]| -> f64 { reference(&c, &p64, p.map(|v| v as f32)).iter().enumerate().map(|(j, v)| v * d_out[k * d + j] as f64).sum() };
+        let finest = c.finest_resolution as f64;
+        let mut checked = 0;
+        for (k, p) in pts.iter().enumerate() {
+            for a in 0..3 {
+                if !p[a].is_finite() || !(0.0..=1.0).contains(&p[a]) {
+                    assert_eq!(grad[k][a], 0.0, "point {k} axis {a} is clamped");
+                    continue;
+                }
+                let (mut lo, mut hi) = (p.map(|v| v as f64), p.map(|v| v as f64));
+                let h = 1e-2 / finest;
+                lo[a] -= h;
+                hi[a] += h;
+                // Within one cell of every level the encoding is linear along an axis, so the
+                // central difference is exact: skip points within h of a face of any level
+                // (and points with a NaN, which the reference does not treat as 0).
+                let crosses = (0..c.levels).any(|l| {
+                    let r = c.resolution(l) as f64;
+                    (lo[a] * r).floor() != (hi[a] * r).floor()
+                });
+                if crosses || lo[a] < 0.0 || hi[a] > 1.0 || p.iter().any(|v| !v.is_finite()) {
+                    continue;
+                }
+                // The step the f32 points really take.
+                let (lo32, hi32) = (lo.map(|v| v as f32 as f64), hi.map(|v| v as f32 as f64));
+                let fd = (loss(k, hi32) - loss(k, lo32)) / (hi32[a] - lo32[a]);
+                assert!((grad[k][a] as f64 - fd).abs() < 1e-3 * (1.0 + fd.abs()), "{c:?} point {k} axis {a}: {} vs {fd}", grad[k][a]);
+                checked += 1;
+            }
+        }
+        assert!(checked > 600, "{checked} derivatives checked");
+    }
+}
+
+#[test]
+fn point_gradient_is_deterministic_across_thread_counts() {
+    let c = cfg(5, 2, 12, 4, 128);
+    let g = grid(c.clone(), 8, 1.0);
+    let pts = random_points(9000, 3);
+    let d_lvl: Vec<f32> = (0..pts.len() * c.output_dim()).map(|i| rnd(7 + i as u64) - 0.5).collect();
+    let run = |threads: usize| rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap().install(|| g.point_gradient(&pts, &d_lvl));
+    assert_eq!(run(1), run(3));
+}
+
+#[test]
 fn deterministic_across_thread_counts() {
     let c = cfg(5, 2, 12, 4, 128);
     let g = grid(c.clone(), 8, 1.0);
