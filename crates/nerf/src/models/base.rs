@@ -56,6 +56,14 @@ pub trait NerfModel: Any + std::fmt::Debug + Send {
     fn train_step(&mut self, batch: &RayBatch, step: u64, seed: u64) -> StepStats;
     /// Sets the learning rate of the next steps (the trainer's schedule).
     fn set_lr(&mut self, lr: f64);
+    /// Asks later steps for the rays' gradients ([`RayGradients`]). A model that cannot give
+    /// them refuses anything but `Off`, with the reason.
+    fn set_ray_gradients(&mut self, mode: RayGradients) -> Result<(), String> {
+        match mode {
+            RayGradients::Off => Ok(()),
+            _ => Err("this model does not give the loss's gradient with respect to its rays".to_string()),
+        }
+    }
     /// Renders rays (inference, deterministic).
     fn render_rays(&self, origins: &[[f32; 3]], dirs: &[[f32; 3]], background: [f32; 3]) -> RayOutputs;
     /// Density σ (1/m) at world points.
@@ -189,6 +197,32 @@ pub struct StepStats {
     pub skipped_nonfinite: bool,
     /// Time split.
     pub timings: StepTimings,
+    /// The loss's gradient with respect to the batch's rays, when asked for
+    /// ([`NerfModel::set_ray_gradients`]) and the step was not skipped.
+    pub ray_grads: Option<RayGrads>,
+}
+
+/// The loss's gradient with respect to each ray's origin and unit direction (batch order).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct RayGrads {
+    /// `∂L/∂o` per ray.
+    pub d_origins: Vec<[f32; 3]>,
+    /// `∂L/∂d` per ray.
+    pub d_dirs: Vec<[f32; 3]>,
+}
+
+/// Whether a training step also returns [`RayGrads`] (camera refinement), and whether it
+/// updates the model.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum RayGradients {
+    /// Train only (every model).
+    #[default]
+    Off,
+    /// Train and return the rays' gradients (computed before the update).
+    Also,
+    /// Return the rays' gradients and leave the model unchanged (a frozen model, as when the
+    /// poses of held-out views are optimised).
+    Only,
 }
 
 /// Per-ray rendering results.

@@ -22,7 +22,7 @@ pub mod fast;
 pub mod ops;
 pub mod paper;
 
-pub use base::{Model, ModelKind, NerfModel, PhaseTimings, RayOutputs, StepStats, StepTimings, TrainPreset};
+pub use base::{Model, ModelKind, NerfModel, PhaseTimings, RayGradients, RayGrads, RayOutputs, StepStats, StepTimings, TrainPreset};
 use serde::{Deserialize, Serialize};
 
 /// Which model and its settings (`config.json`'s `model`, tagged by `kind`).

@@ -16,7 +16,7 @@
 //! becomes opaque, and only the samples before it are trained on.
 
 use super::ops::DensityActivation;
-use super::base::{Model, ModelKind, NerfModel, RayOutputs, StepStats, StepTimings, TrainPreset, all_finite, expected_distance, load_adam, load_params, mse_and_grad, save_adam, save_params, squared_error_and_grad};
+use super::base::{Model, ModelKind, NerfModel, RayGradients, RayGrads, RayOutputs, StepStats, StepTimings, TrainPreset, all_finite, expected_distance, load_adam, load_params, mse_and_grad, save_adam, save_params, squared_error_and_grad};
 use crate::backend;
 use crate::checkpoint::StateDict;
 use crate::data::{Background, RayBatch, SceneBounds};
@@ -62,6 +62,9 @@ pub struct FastModel {
     empty_space: Option<(Vec<u64>, OccupancyBlocks)>,
     /// Learning rate used by the next step (set by the trainer).
     pub lr: f64,
+    /// Whether steps also return the loss's gradient with respect to the rays
+    /// ([`NerfModel::set_ray_gradients`]).
+    ray_gradients: RayGradients,
 }
 
 const ACT: DensityActivation = DensityActivation::TruncExp;
@@ -188,6 +191,7 @@ impl FastModel {
             scratch: BackwardScratch::new(),
             empty_space: None,
             lr: 1e-2,
+            ray_gradients: RayGradients::Off,
         })
     }
 
@@ -225,6 +229,34 @@ impl FastModel {
 
     fn hash_encode(&self, unit: &[[f32; 3]]) -> Vec<f32> {
         self.parts().hash_encode(unit)
+    }
+
+    /// The loss's gradient with respect to each ray's origin and direction, through the
+    /// sample points `x = o + t·d` (`t` the interval's midpoint, held fixed) and the hash
+    /// encoding ([`HashGrid::point_gradient`]; `unit = (x − centre) / 2h + ½`). The view
+    /// direction's own input (the colour network's spherical harmonics) is not
+    /// differentiated: see [`crate::camera_opt`]. Each ray sums its samples in order.
+    fn ray_gradients_of(&self, samples: &RaySamples, unit: &[[f32; 3]], d_enc: &[f32]) -> RayGrads {
+        let g_unit = self.grid.point_gradient(unit, d_enc);
+        let inv = 1.0 / (2.0 * self.bounds.half_extent().max(f32::MIN_POSITIVE));
+        let n_rays = samples.n_rays();
+        let (d_origins, d_dirs): (Vec<[f32; 3]>, Vec<[f32; 3]>) = (0..n_rays)
+            .into_par_iter()
+            .with_min_len(64)
+            .map(|r| {
+                let (mut go, mut gd) = ([0f32; 3], [0f32; 3]);
+                for s in samples.offsets[r] as usize..samples.offsets[r + 1] as usize {
+                    let t = 0.5 * (samples.t_start[s] + samples.t_end[s]);
+                    for a in 0..3 {
+                        let gx = g_unit[s][a] * inv;
+                        go[a] += gx;
+                        gd[a] += t * gx;
+                    }
+                }
+                (go, gd)
+            })
+            .unzip();
+        RayGrads { d_origins, d_dirs }
     }
 
     /// Updates the occupancy grid on update steps, with the networks' weights `mlp`.
@@ -293,7 +325,9 @@ impl NerfModel for FastModel {
         // in bf16 where configured (the sweep's products; the density-only passes stay fp32).
         let mlp = self.mlp();
         let mlp = if self.config.bf16_networks().unwrap_or(false) { mlp.with_bf16().expect("bf16 support checked in new") } else { mlp };
-        self.maybe_update_occupancy(step, &mlp);
+        if self.ray_gradients != RayGradients::Only {
+            self.maybe_update_occupancy(step, &mlp);
+        }
         self.refresh_empty_space();
         tm.phases.occupancy = t0.elapsed().as_secs_f64();
         tm.optimizer += tm.phases.occupancy;
@@ -394,9 +428,14 @@ impl NerfModel for FastModel {
         let loss = if batch.supervision.is_some() { loss + parts.iter().map(|p| p.2).sum::<f64>() as f32 } else { loss };
         tm.phases.mlp_sweep = t0.elapsed().as_secs_f64();
         tm.mlp += tm.phases.mlp_sweep;
-        let stats = |skipped, tm, touched| StepStats { loss, mse, samples: n, marched: n_marched, encoded: n_marched, touched, skipped_nonfinite: skipped, timings: tm };
+        let stats = |skipped, tm, touched| StepStats { loss, mse, samples: n, marched: n_marched, encoded: n_marched, touched, skipped_nonfinite: skipped, timings: tm, ray_grads: None };
         if !loss.is_finite() || d_enc.len() != n * dims || !d_enc.par_chunks(1 << 16).all(all_finite) || !grads.is_finite() {
             return stats(true, tm, 0);
+        }
+        // The rays' gradients, from the tables before this step's update.
+        let ray_grads = (self.ray_gradients != RayGradients::Off).then(|| self.ray_gradients_of(&samples, &unit, &d_enc));
+        if self.ray_gradients == RayGradients::Only {
+            return StepStats { ray_grads, ..stats(false, tm, 0) };
         }
         let mut gp = grads.into_params(&self.field);
 
@@ -413,7 +452,12 @@ impl NerfModel for FastModel {
         self.field = self.adam.step(self.lr, self.field.clone(), &mut gp);
         tm.phases.adam_mlp = t0.elapsed().as_secs_f64();
         tm.optimizer += t0.elapsed().as_secs_f64();
-        stats(false, tm, touched)
+        StepStats { ray_grads, ..stats(false, tm, touched) }
+    }
+
+    fn set_ray_gradients(&mut self, mode: RayGradients) -> Result<(), String> {
+        self.ray_gradients = mode;
+        Ok(())
     }
 
     fn set_lr(&mut self, lr: f64) {
