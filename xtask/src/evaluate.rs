@@ -45,12 +45,17 @@ pub struct EvalArgs {
     /// `camera_path` summary to eval.json and the report.
     #[arg(long, value_name = "DIR")]
     pub camera_path: Option<PathBuf>,
+    /// For a run trained on noisy or refined poses (`--pose-noise`, `--camera-opt`): optimise
+    /// each test view's pose for N steps with the model frozen before rendering it (the
+    /// protocol of BARF-style evaluations; named in eval.json's `pose_protocol`).
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..=100_000))]
+    pub test_pose_opt: Option<u64>,
 }
 
 impl EvalArgs {
     /// Every view of `split` at the run's training resolution, with `grids` picture grids.
     pub fn at_training_resolution(run: PathBuf, split: &str, grids: usize, max_views: Option<usize>) -> Self {
-        Self { run, split: split.into(), grids, max_views, downscale: None, scene: None, mesh_resolution: 256, no_mesh: false, allow_outside: false, camera_path: None }
+        Self { run, split: split.into(), grids, max_views, downscale: None, scene: None, mesh_resolution: 256, no_mesh: false, allow_outside: false, camera_path: None, test_pose_opt: None }
     }
 }
 
@@ -153,6 +158,7 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         scene: crate::render::resolve_scene_option(args.scene.as_deref())?,
         mesh: (!args.no_mesh).then_some(eval::mesh_eval::MeshEvalOptions { resolution: args.mesh_resolution, ..eval::mesh_eval::MeshEvalOptions::standard() }),
         allow_outside: args.allow_outside,
+        test_pose_opt: args.test_pose_opt,
     };
     anyhow::ensure!(
         args.no_mesh || (1..=eval::mesh_extract::MAX_RESOLUTION).contains(&args.mesh_resolution),

@@ -75,6 +75,12 @@ pub struct TrainArgs {
     /// poses trained on are written to train_poses.json, and `eval` reports their error.
     #[arg(long, value_parser = parse_pose_noise, allow_hyphen_values = true)]
     pub pose_noise: Option<nerf::poses::PoseNoise>,
+    /// Camera refinement: off (default) or se3, one SE(3) correction per training view learned
+    /// with the field (fast and auto models; settings in config.json's `camera_opt`). The
+    /// refined poses go to train_poses.json and cameras_refined.json; `eval` reports their
+    /// error against the exact poses.
+    #[arg(long, value_parser = ["off", "se3"])]
+    pub camera_opt: Option<String>,
 }
 
 fn parse_pose_noise(s: &str) -> Result<nerf::poses::PoseNoise, String> {
@@ -231,6 +237,7 @@ impl TrainArgs {
             allow_outside: false,
             supervision: SupervisionArgs::default(),
             pose_noise: None,
+            camera_opt: None,
         }
     }
 }
@@ -300,6 +307,9 @@ fn build_config(args: &TrainArgs) -> anyhow::Result<TrainConfig> {
     args.supervision.apply(&mut cfg)?;
     if let Some(n) = args.pose_noise {
         cfg.pose_noise = Some(n);
+    }
+    if let Some(m) = &args.camera_opt {
+        cfg.camera_opt = nerf::camera_opt::parse_mode(m).map_err(|e| anyhow::anyhow!("--camera-opt: {e}"))?;
     }
     if let Err(e) = cfg.check() {
         match &args.config {
@@ -431,6 +441,7 @@ fn resume_trainer(args: &TrainArgs) -> anyhow::Result<Trainer> {
         ("--batch-samples", args.batch_samples.is_some_and(|b| Some(b) != cfg.batch_samples)),
         ("--model", args.model.as_deref().is_some_and(|m| m != cfg.model_label())),
         ("--pose-noise", args.pose_noise.is_some_and(|n| Some(n) != cfg.pose_noise)),
+        ("--camera-opt", args.camera_opt.as_deref().is_some_and(|m| (m == "se3") != cfg.camera_opt.is_some())),
         ("--depth-loss, --depth-weight, --depth-half-life, --depth-source or --empty-loss", {
             let mut c = cfg.clone();
             args.supervision.apply(&mut c).is_err() || serde_json::to_value(&c.supervision).ok() != serde_json::to_value(&cfg.supervision).ok()

@@ -197,6 +197,15 @@ pub struct EvalReport {
     /// trained with `--pose-noise` only).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub train_poses: Option<nerf::poses::PoseErrorSummary>,
+    /// The errors of the refined training poses (runs trained with `--camera-opt se3`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub refined_poses: Option<nerf::poses::PoseErrorSummary>,
+    /// How the test views were posed for the model, for runs whose training poses were noisy
+    /// or refined: `aligned` (the exact poses mapped into the model's frame by the similarity
+    /// that aligns the training centres) or `aligned+test-pose-opt:N` (then refined for N
+    /// steps per view with the model frozen).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pose_protocol: Option<String>,
 }
 
 /// What `score` measured: another tool's predictions, how they were found and read
@@ -534,6 +543,8 @@ impl EvalReport {
             method: None,
             objects: None,
             train_poses: None,
+            refined_poses: None,
+            pose_protocol: None,
         })
     }
 }

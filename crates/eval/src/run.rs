@@ -44,6 +44,9 @@ pub struct EvalRunOptions {
     /// Read the dataset's frame files and the scene's external buffers and images also where
     /// they lie outside their folders (`--allow-outside`); `false`: refused.
     pub allow_outside: bool,
+    /// For runs trained on noisy or refined poses: refine each view's pose for this many steps
+    /// with the model frozen before it is rendered ([`nerf::camera_opt::optimise_view`]).
+    pub test_pose_opt: Option<u64>,
 }
 
 impl EvalRunOptions {
@@ -58,6 +61,7 @@ impl EvalRunOptions {
             scene: None,
             mesh: Some(crate::mesh_eval::MeshEvalOptions::standard()),
             allow_outside: false,
+            test_pose_opt: None,
         }
     }
 
@@ -110,7 +114,7 @@ pub fn evaluate_run(
     opts: &EvalRunOptions,
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<EvalRunOutput, EvalError> {
-    let model = RunModel::load(run_dir).map_err(|e| run_error(run_dir, e))?;
+    let mut model = RunModel::load(run_dir).map_err(|e| run_error(run_dir, e))?;
     let dataset = Dataset::load_with(model.dataset_dir(), &opts.load_options())?;
     let mut frames: Vec<&Frame> = dataset.split(opts.split).iter().collect();
     if frames.is_empty() {
@@ -133,7 +137,41 @@ pub fn evaluate_run(
     let (options, note) = surface_options(&dataset, &frames, downscale, &source, &err)?;
     let background = model.eval_background();
     let settings = FrameSettings { background, downscale, train_downscale, source: &source, options: &options, grid_views: opts.grid_views, err: &err };
-    let evaluated = evaluate_frames(&frames, &settings, &mut |frame| Ok(render(&model, frame, background, downscale)), progress)?;
+    // Runs trained on noisy or refined poses learned in the frame of those poses: test views
+    // are mapped into it by the similarity aligning the training centres to the true ones.
+    let poses: Option<nerf::poses::PoseRecord> = if model.config.pose_noise.is_some() || model.config.camera_opt.is_some() {
+        Some(crate::io::read_json(&run_dir.join(nerf::poses::POSES_FILE))?)
+    } else {
+        None
+    };
+    let align = poses.as_ref().and_then(|p| p.truth_to_model());
+    if opts.test_pose_opt.is_some() && align.is_none() {
+        return Err(err(
+            "--test-pose-opt: the run was trained on its exact poses (no --pose-noise or --camera-opt), so its test views need no pose optimisation".into(),
+        ));
+    }
+    let scene_size = poses.as_ref().map_or(1.0, |p| p.scene_size);
+    let evaluated = evaluate_frames(
+        &frames,
+        &settings,
+        &mut |frame| {
+            let Some(sim) = align else { return Ok(render(&model, frame, background, downscale)) };
+            let mut f = frame.clone();
+            f.camera.c2w = sim.apply_pose(&f.camera.c2w);
+            if let Some(steps) = opts.test_pose_opt {
+                let data = nerf::data::TrainData::load(std::slice::from_ref(&f), downscale, model.config.background, false).map_err(|e| err(e.to_string()))?;
+                let opt = nerf::camera_opt::optimise_view(&mut *model.model, &data, scene_size, steps, model.config.seed).map_err(&err)?;
+                f.camera.c2w = opt.corrected_pose(0, &f.camera.c2w);
+            }
+            let mut p = render(&model, &f, background, downscale);
+            // Distances in the model's frame are the scale's multiple of the true ones.
+            let inv = (1.0 / sim.scale) as f32;
+            p.depth.iter_mut().flatten().for_each(|d| *d *= inv);
+            p.samples.iter_mut().for_each(|s| s.t.iter_mut().for_each(|t| *t *= inv));
+            Ok(p)
+        },
+        progress,
+    )?;
     let info = RunInfo {
         train_wall_s: model.train_wall_s(),
         train_steps: model.train_steps(),
@@ -143,17 +181,33 @@ pub fn evaluate_run(
     report.resolution = evaluated.resolution;
     report.notes.extend(note);
     report.notes.extend(gt_note);
-    if let Some(noise) = model.config.pose_noise {
-        let path = run_dir.join(nerf::poses::POSES_FILE);
-        let record: nerf::poses::PoseRecord = crate::io::read_json(&path)?;
+    if let Some(record) = &poses {
+        let noise = model.config.pose_noise.map_or("exact poses".to_string(), |n| format!("noisy poses ({}° rotation, {} of the scene size)", n.rotation_deg, n.translation_rel));
+        let said = |e: &nerf::poses::PoseErrorSummary| {
+            format!(
+                "median rotation error {:.3}° (max {:.3}°), median centre error {:.4} ({:.2} % of the scene size, max {:.4})",
+                e.rotation_median_deg, e.rotation_max_deg, e.translation_median, e.translation_median_pct, e.translation_max
+            )
+        };
         report.train_poses = record.errors();
-        match &report.train_poses {
-            Some(e) => report.notes.push(format!(
-                "trained on noisy poses ({}° rotation, {} of the scene size): after aligning them to the exact ones, median rotation error {:.3}° (max {:.3}°), median centre error {:.4} ({:.2} % of the scene size, max {:.4}); no camera refinement, so these are the errors the model learned with, and test views are rendered from their exact poses",
-                noise.rotation_deg, noise.translation_rel, e.rotation_median_deg, e.rotation_max_deg, e.translation_median, e.translation_median_pct, e.translation_max
-            )),
-            None => report.notes.push(format!("trained on noisy poses, but {} has too few views to align", path.display())),
+        report.refined_poses = record.refined_errors();
+        match (&report.train_poses, &report.refined_poses) {
+            (Some(e), None) => report.notes.push(format!("trained on {noise} without camera refinement: after aligning them to the exact ones, {}", said(e))),
+            (Some(e), Some(r)) => report.notes.push(format!("trained on {noise} with camera refinement: after aligning to the exact ones, before refinement {}; after, {}", said(e), said(r))),
+            _ => report.notes.push(format!("the training poses of {} are too few or too degenerate to align to the exact ones", run_dir.display())),
         }
+        let protocol = match opts.test_pose_opt {
+            Some(n) => format!("aligned+test-pose-opt:{n}"),
+            None => "aligned".to_string(),
+        };
+        if let Some(sim) = align {
+            report.notes.push(format!(
+                "test views posed by protocol {protocol}: the exact poses mapped into the model's frame by the similarity aligning the training centres (scale {:.5}){}",
+                sim.scale,
+                opts.test_pose_opt.map_or(String::new(), |n| format!(", then {n} steps of pose optimisation per view with the model frozen"))
+            ));
+        }
+        report.pose_protocol = Some(protocol);
     }
     if let Some(s) = &model.config.supervision {
         report.notes.push(format!("trained with supervision beyond colour: {}", s.describe()));

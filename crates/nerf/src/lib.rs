@@ -6,10 +6,12 @@
 //! ([`field`]) → samplers ([`sampling`], [`occupancy`]) and renderers ([`volrend`]) → models
 //! ([`models`]) → trainer ([`train`]); [`backend`] chooses the burn device in one place;
 //! [`auto`] sizes the fast model from the scene and its cameras (`--model auto`); [`kernels`]
-//! holds the small helpers every layer shares (random streams, tensor and parameter plumbing).
+//! holds the small helpers every layer shares (random streams, tensor and parameter plumbing);
+//! [`poses`] perturbs training poses on purpose and [`camera_opt`] refines them.
 
 pub mod auto;
 pub mod backend;
+pub mod camera_opt;
 pub mod checkpoint;
 pub mod data;
 pub mod encoding;

@@ -16,6 +16,10 @@ use serde::{Deserialize, Serialize};
 
 /// The run folder's record of the training poses ([`PoseRecord`]).
 pub const POSES_FILE: &str = "train_poses.json";
+/// The refined training poses as nerfstudio's `ns-export cameras` writes them: a list of
+/// `{"file_path", "transform"}` with the 3 × 4 camera-to-world rows (the dataset's frame and
+/// OpenGL camera axes).
+pub const CAMERA_OPT_EXPORT: &str = "cameras_refined.json";
 
 /// The largest rotation noise accepted, degrees (beyond it the poses are not "noisy", they
 /// are wrong).
@@ -80,6 +84,12 @@ pub struct PoseView {
     pub trained: [[f64; 4]; 4],
     /// The dataset's exact pose.
     pub truth: [[f64; 4]; 4],
+    /// The pose after camera refinement ([`crate::camera_opt`]), when the run refines.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub refined: Option<[[f64; 4]; 4]>,
+    /// The refinement's correction `[ω (radians), τ (scene sizes)]`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub correction: Option<[f32; 6]>,
 }
 
 /// The contents of [`POSES_FILE`].
@@ -114,7 +124,7 @@ pub fn perturb_training_views(ds: &mut Dataset, noise: PoseNoise, seed: u64) -> 
         .map(|(k, f): (usize, &mut Frame)| {
             let truth = f.camera.c2w;
             f.camera.c2w = dataset::pose::perturb(&truth, seed, k as u64, noise.rotation_deg, noise.translation_rel * size);
-            PoseView { name: f.name.clone(), trained: rows(&f.camera.c2w), truth: rows(&truth) }
+            PoseView { name: f.name.clone(), trained: rows(&f.camera.c2w), truth: rows(&truth), refined: None, correction: None }
         })
         .collect();
     PoseRecord { noise, scene_size: size, views }
@@ -139,10 +149,60 @@ pub struct PoseErrorSummary {
 }
 
 impl PoseRecord {
+    /// The record with each view's refined pose `refine(view, trained pose)` and correction.
+    pub fn with_refined(&self, refine: impl Fn(usize, &DMat4) -> DMat4, corrections: Vec<[f32; 6]>) -> Self {
+        let mut r = self.clone();
+        for (k, v) in r.views.iter_mut().enumerate() {
+            v.refined = Some(rows(&refine(k, &from_rows(&v.trained))));
+            v.correction = corrections.get(k).copied();
+        }
+        r
+    }
+
+    /// The refined poses (else the trained ones) in nerfstudio's camera export layout
+    /// ([`CAMERA_OPT_EXPORT`]).
+    pub fn nerfstudio_export(&self) -> serde_json::Value {
+        serde_json::Value::Array(
+            self.views
+                .iter()
+                .map(|v| {
+                    let m = v.refined.unwrap_or(v.trained);
+                    serde_json::json!({ "file_path": v.name, "transform": [m[0], m[1], m[2]] })
+                })
+                .collect(),
+        )
+    }
+
+    /// Whether the record holds refined poses.
+    pub fn is_refined(&self) -> bool {
+        self.views.iter().all(|v| v.refined.is_some()) && !self.views.is_empty()
+    }
+
     /// The errors of the poses trained on (`None` with fewer than 3 views, where no similarity
     /// is determined).
     pub fn errors(&self) -> Option<PoseErrorSummary> {
-        let trained: Vec<DMat4> = self.views.iter().map(|v| from_rows(&v.trained)).collect();
+        self.errors_of(|v| v.trained)
+    }
+
+    /// The errors of the refined poses (`None` when the run did not refine, or with fewer than
+    /// 3 views).
+    pub fn refined_errors(&self) -> Option<PoseErrorSummary> {
+        if !self.is_refined() {
+            return None;
+        }
+        self.errors_of(|v| v.refined.unwrap_or(v.trained))
+    }
+
+    /// The similarity taking the dataset's frame to the frame the model learned in: the inverse
+    /// of the one aligning the refined (else trained) centres to the true ones.
+    pub fn truth_to_model(&self) -> Option<dataset::pose::Similarity> {
+        let est: Vec<glam::DVec3> = self.views.iter().map(|v| from_rows(&v.refined.unwrap_or(v.trained)).w_axis.truncate()).collect();
+        let truth: Vec<glam::DVec3> = self.views.iter().map(|v| from_rows(&v.truth).w_axis.truncate()).collect();
+        dataset::pose::align_similarity(&truth, &est).ok()
+    }
+
+    fn errors_of(&self, pose: impl Fn(&PoseView) -> [[f64; 4]; 4]) -> Option<PoseErrorSummary> {
+        let trained: Vec<DMat4> = self.views.iter().map(|v| from_rows(&pose(v))).collect();
         let truth: Vec<DMat4> = self.views.iter().map(|v| from_rows(&v.truth)).collect();
         let e = dataset::pose::pose_errors(&trained, &truth).ok()?;
         let max = |v: &[f64]| v.iter().copied().fold(0.0, f64::max);

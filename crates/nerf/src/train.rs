@@ -157,6 +157,10 @@ pub struct TrainConfig {
     /// Seeded noise on the training views' poses ([`crate::poses`]); `None`: the exact poses.
     #[config(default = "None")]
     pub pose_noise: Option<crate::poses::PoseNoise>,
+    /// Camera refinement: one SE(3) correction per training view learned with the field
+    /// ([`crate::camera_opt`]); `None`: the poses as given.
+    #[config(default = "None")]
+    pub camera_opt: Option<crate::camera_opt::CameraOptConfig>,
 }
 
 impl TrainConfig {
@@ -209,6 +213,9 @@ impl TrainConfig {
     pub fn check(&self) -> Result<(), String> {
         if let Some(n) = self.pose_noise {
             format!("{},{}", n.rotation_deg, n.translation_rel).parse::<crate::poses::PoseNoise>().map_err(|e| format!("pose_noise: {e}"))?;
+        }
+        if let Some(c) = &self.camera_opt {
+            c.check()?;
         }
         if self.steps.is_none() && self.time_budget_s.is_none() {
             return Err("give a step count or a time budget".into());
@@ -429,6 +436,10 @@ pub struct Trainer {
     pending: Pending,
     /// The damaged checkpoints a fallback resume skipped, each with why it did not load.
     pub skipped_checkpoints: Vec<(PathBuf, String)>,
+    /// Camera refinement's corrections, when the run refines its cameras.
+    pub camera: Option<crate::camera_opt::CameraOpt>,
+    /// The training poses' record ([`crate::poses::POSES_FILE`]), with noise or refinement.
+    poses: Option<crate::poses::PoseRecord>,
 }
 
 /// How [`Trainer::prepare`] starts: a new run, or continuing the run in the folder.
@@ -520,8 +531,17 @@ impl Trainer {
         config.check().map_err(TrainError::Invalid)?;
         let mut ds = crate::data::load_dataset(&config.dataset, load)?;
         config.check_image_sizes(&ds).map_err(TrainError::Invalid)?;
-        // Noisy poses replace the training views' before anything reads a camera.
-        let poses = config.pose_noise.map(|n| crate::poses::perturb_training_views(&mut ds, n, config.seed));
+        // Noisy poses replace the training views' before anything reads a camera. Refined runs
+        // record the poses too (the given ones, when there is no noise).
+        let noise = config.pose_noise.or(config.camera_opt.map(|_| crate::poses::PoseNoise { rotation_deg: 0.0, translation_rel: 0.0 }));
+        let poses = noise.map(|n| crate::poses::perturb_training_views(&mut ds, n, config.seed));
+        if config.camera_opt.is_some() && ds.train.len() < 3 {
+            return Err(TrainError::Invalid(format!(
+                "{}: camera refinement (--camera-opt se3) needs at least 3 training views and the dataset has {}: with fewer, the refined poses' errors against the true ones are not defined (no similarity aligns them)",
+                config.dataset.display(),
+                ds.train.len()
+            )));
+        }
         let mut data = TrainData::load(&ds.train, config.downscale, config.background, false)?;
         apply_auto(&mut config, &ds, &mut data).map_err(TrainError::Invalid)?;
         // Mixed-pixel masks, unless a fresh `auto` run's resolve built them already.
@@ -553,9 +573,18 @@ impl Trainer {
         }
         let val_frames = if ds.val.is_empty() { &ds.test } else { &ds.val };
         let val = ValSet::load(val_frames, &config)?;
-        let model = config.model.init(&bounds, config.seed).map_err(TrainError::Invalid)?;
+        let mut model = config.model.init(&bounds, config.seed).map_err(TrainError::Invalid)?;
+        let camera = match (&config.camera_opt, &poses) {
+            (Some(c), Some(p)) => {
+                model.set_ray_gradients(crate::models::RayGradients::Also).map_err(|e| {
+                    TrainError::Invalid(format!("camera refinement (--camera-opt se3) needs the fast or auto model: {e} (the {} model)", config.model_label()))
+                })?;
+                Some(crate::camera_opt::CameraOpt::new(*c, ds.train.len(), p.scene_size))
+            }
+            _ => None,
+        };
         std::fs::create_dir_all(run_dir).map_err(|e| dataset::DatasetError::write(run_dir, e))?;
-        checkpoint::remove_stale_temporaries(run_dir, &[CONFIG_FILE, METRICS_FILE, crate::poses::POSES_FILE])?;
+        checkpoint::remove_stale_temporaries(run_dir, &[CONFIG_FILE, METRICS_FILE, crate::poses::POSES_FILE, crate::poses::CAMERA_OPT_EXPORT])?;
         if let Some(p) = &poses {
             dataset::io::atomic_write_json(&run_dir.join(crate::poses::POSES_FILE), p)?;
         }
@@ -576,6 +605,8 @@ impl Trainer {
             timings: StepTimings::default(),
             pending: Pending::default(),
             skipped_checkpoints: Vec::new(),
+            camera,
+            poses,
         };
         let have_ckpt = checkpoint::latest(run_dir).is_some();
         let hash = dataset_hash(&ds, val_frames)?;
@@ -672,10 +703,18 @@ impl Trainer {
         let lr = self.config.lr(self.step);
         self.model.set_lr(lr);
         let rays = self.config.rays_for(self.samples_per_ray);
-        let batch = self.data.batch(self.config.seed, self.step, rays);
+        let mut batch = self.data.batch(self.config.seed, self.step, rays);
+        if let Some(c) = &self.camera {
+            c.apply(&mut batch);
+        }
         let batch_s = t0.elapsed().as_secs_f64();
         let mut stats = self.model.train_step(&batch, self.step, self.config.seed);
         stats.timings.phases.batch = batch_s;
+        if let (Some(c), Some(g)) = (&mut self.camera, stats.ray_grads.take()) {
+            let grads = c.gradients(&batch, &g);
+            let lr = c.lr(self.step, lr / self.config.lr_init);
+            c.step(&grads, lr);
+        }
         if stats.samples > 0 {
             let spr = stats.samples as f64 / rays as f64;
             self.samples_per_ray = if self.samples_per_ray > 0.0 { 0.8 * self.samples_per_ray + 0.2 * spr } else { spr };
@@ -815,11 +854,30 @@ impl Trainer {
         ] {
             s.scalars.insert(format!("trainer.window.{k}"), v);
         }
-        Ok(checkpoint::save(&self.run_dir, self.step, &s, self.config.checkpoints_kept)?)
+        if let Some(c) = &self.camera {
+            c.save(&mut s);
+        }
+        let path = checkpoint::save(&self.run_dir, self.step, &s, self.config.checkpoints_kept)?;
+        self.write_refined_poses()?;
+        Ok(path)
+    }
+
+    /// The refined poses so far, into the run folder's pose record (and the nerfstudio-style
+    /// export next to it), when the run refines its cameras.
+    pub fn write_refined_poses(&self) -> Result<(), TrainError> {
+        let (Some(c), Some(p)) = (&self.camera, &self.poses) else { return Ok(()) };
+        let record = p.with_refined(|k, pose| c.corrected_pose(k, pose), c.params.clone());
+        dataset::io::atomic_write_json(&self.run_dir.join(crate::poses::POSES_FILE), &record)?;
+        let ns = record.nerfstudio_export();
+        dataset::io::atomic_write_json(&self.run_dir.join(crate::poses::CAMERA_OPT_EXPORT), &ns)?;
+        Ok(())
     }
 
     fn load_state(&mut self, s: &StateDict) -> Result<(), TrainError> {
         self.model.load_state(s).map_err(TrainError::Invalid)?;
+        if let Some(c) = &mut self.camera {
+            c.load(s).map_err(TrainError::Invalid)?;
+        }
         let g = |k: &str| s.scalar(k).map_err(TrainError::Invalid);
         let n = |k: &str| s.count(k).map_err(TrainError::Invalid);
         self.step = n("trainer.step")?;

@@ -214,3 +214,70 @@ fn pose_noise_moves_training_poses_and_records_them() {
     let err = bad.check().unwrap_err();
     assert!(err.contains("pose_noise") && err.contains("45"), "{err}");
 }
+
+/// Camera refinement records what it learned and stays within its bounds: on noisy poses with
+/// one view turned a further 90° (beyond repair), every step stays finite, the wrecked view's
+/// correction stops at the bound, the refined poses go to `train_poses.json` and to the
+/// nerfstudio-style export, and a resumed run restores the corrections exactly.
+#[test]
+fn camera_refinement_is_recorded_bounded_and_resumable() {
+    let (tmp, data) = synthetic_dataset(16, [8, 1, 1]);
+    // Turn view 0 by 90° about its own centre.
+    let path = data.join("transforms_train.json");
+    let mut t: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+    let m = &mut t["frames"][0]["transform_matrix"];
+    let rows: Vec<Vec<f64>> = serde_json::from_value(m.clone()).unwrap();
+    let pose = glam::DMat4::from_cols_array_2d(&std::array::from_fn(|c| std::array::from_fn(|r| rows[r][c])));
+    let turned = glam::DMat4::from_translation(pose.w_axis.truncate()) * glam::DMat4::from_rotation_x(std::f64::consts::FRAC_PI_2) * glam::DMat4::from_mat3(glam::DMat3::from_mat4(pose));
+    *m = serde_json::json!((0..4).map(|r| (0..4).map(|c| turned.col(c)[r]).collect::<Vec<f64>>()).collect::<Vec<_>>());
+    std::fs::write(&path, serde_json::to_string(&t).unwrap()).unwrap();
+    let cfg = |steps: u64| {
+        TrainConfig::new(data.clone(), ModelConfig::Fast(small_fast(4, 4)), 256, 1e-2, 1e-3, 100)
+            .with_steps(Some(steps))
+            .with_checkpoint_interval_steps(20)
+            .with_pose_noise(Some(nerf::poses::PoseNoise { rotation_deg: 2.0, translation_rel: 0.01 }))
+            .with_camera_opt(Some(nerf::camera_opt::CameraOptConfig { lr: 0.05, warmup_steps: 5, ..Default::default() }))
+    };
+    let run = tmp.path().join("run");
+    let mut trainer = Trainer::new(cfg(60), &run, false).unwrap();
+    let summary = run_to_end(&mut trainer);
+    assert_eq!(trainer.skipped_nonfinite, 0, "a step was not finite");
+    let cam = trainer.camera.clone().expect("the run refines its cameras");
+    let angle = |p: [f32; 6]| (p[0] as f64).hypot(p[1] as f64).hypot(p[2] as f64).to_degrees();
+    assert!(angle(cam.params[0]) <= 15.0 + 1e-3, "the wrecked view's correction ran to {}°", angle(cam.params[0]));
+    assert!(cam.params.iter().all(|p| p.iter().all(|x| x.is_finite())) && cam.params.iter().any(|p| angle(*p) > 0.0), "{:?}", cam.params);
+    let record: nerf::poses::PoseRecord = serde_json::from_str(&std::fs::read_to_string(run.join(nerf::poses::POSES_FILE)).unwrap()).unwrap();
+    assert!(record.is_refined() && record.refined_errors().is_some());
+    for (k, v) in record.views.iter().enumerate() {
+        let want = cam.corrected_pose(k, &nerf::poses::from_rows(&v.trained));
+        assert!(nerf::poses::from_rows(&v.refined.unwrap()).abs_diff_eq(want, 1e-12), "{}: the recorded refined pose", v.name);
+        assert_eq!(v.correction, Some(cam.params[k]));
+    }
+    let export: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(run.join(nerf::poses::CAMERA_OPT_EXPORT)).unwrap()).unwrap();
+    let first = &export.as_array().unwrap()[0];
+    assert_eq!(first["file_path"], record.views[0].name);
+    assert_eq!(serde_json::from_value::<Vec<[f64; 4]>>(first["transform"].clone()).unwrap(), record.views[0].refined.unwrap()[..3].to_vec());
+    // Resume from step 60 to 80 and compare with a run of 80 steps from scratch.
+    let mut resumed = Trainer::new(cfg(80), &run, true).unwrap();
+    assert_eq!(resumed.camera.as_ref().unwrap().params, cam.params, "the checkpoint restores the corrections");
+    run_to_end(&mut resumed);
+    let straight = tmp.path().join("straight");
+    let mut t80 = Trainer::new(cfg(80), &straight, false).unwrap();
+    run_to_end(&mut t80);
+    assert_eq!(resumed.camera.unwrap().params, t80.camera.unwrap().params, "resumed and uninterrupted runs differ");
+    assert!(summary.steps == 60);
+}
+
+/// Camera refinement is refused with its reason on the paper model and on fewer than 3 views.
+#[test]
+fn camera_refinement_refuses_what_it_cannot_do() {
+    let (tmp, data) = synthetic_dataset(16, [2, 1, 1]);
+    let se3 = Some(nerf::camera_opt::CameraOptConfig::default());
+    let few = TrainConfig::new(data.clone(), ModelConfig::Fast(small_fast(4, 4)), 64, 1e-2, 1e-3, 100).with_steps(Some(1)).with_camera_opt(se3);
+    let e = Trainer::new(few, &tmp.path().join("few"), false).unwrap_err().to_string();
+    assert!(e.contains("at least 3 training views") && e.contains("has 2"), "{e}");
+    let (tmp3, data3) = synthetic_dataset(16, [4, 1, 1]);
+    let paper = TrainConfig::preset("paper", data3).unwrap().with_steps(Some(1)).with_camera_opt(se3);
+    let e = Trainer::new(paper, &tmp3.path().join("paper"), false).unwrap_err().to_string();
+    assert!(e.contains("fast or auto model") && e.contains("paper"), "{e}");
+}
