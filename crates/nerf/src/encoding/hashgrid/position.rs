@@ -12,8 +12,10 @@
 //! for `L = Σ_l d_l · enc_l(p)`. The encoding is continuous across cell faces but its
 //! derivative is not; at a face the cell the forward chose (`c = min(floor(x), N − 1)`) gives
 //! the one-sided derivative. An axis clamped to `[0, 1]` (or NaN, treated as 0) has derivative
-//! 0. Each point's gradient is summed over levels in order in f64, so results do not depend on
-//! the thread count.
+//! 0. Each level's share is computed in f32 and each point's gradient summed over the levels
+//! in order in f64, so results do not depend on the thread count. Level-outer (as the
+//! forward) and f32 inside a level: about 3× the forward's time (60 ms for 32k points and 16
+//! levels of 2^19 entries on 2 cores, against 8× point-outer in f64).
 
 use super::{HashGrid, Level, POINT_CHUNK, clamp01, corners, levels};
 use rayon::prelude::*;
@@ -35,78 +37,63 @@ impl HashGrid {
         }
     }
 
-    fn point_gradient_f<const F: usize>(
-        &self,
-        points: &[[f32; 3]],
-        d_lvl: &[f32],
-    ) -> Vec<[f32; 3]> {
+    fn point_gradient_f<const F: usize>(&self, points: &[[f32; 3]], d_lvl: &[f32]) -> Vec<[f32; 3]> {
         let n = points.len();
-        assert_eq!(
-            d_lvl.len(),
-            n * self.output_dim(),
-            "d_lvl must hold L · N · F floats"
-        );
+        assert_eq!(d_lvl.len(), n * self.output_dim(), "d_lvl must hold L · N · F floats");
         let lvs = levels(&self.config);
         let tf = self.config.table_size() * F;
-        let mut out = vec![[0f32; 3]; n];
-        out.par_chunks_mut(POINT_CHUNK)
-            .enumerate()
-            .for_each(|(chunk, o)| {
-                for (k, g) in o.iter_mut().enumerate() {
+        let mut acc = vec![[0f64; 3]; n];
+        // Level-outer, as the forward: one level's table stays in cache while every point
+        // reads it (point-outer, each point's 8 corners in all L tables miss the cache).
+        for (l, lv) in lvs.iter().enumerate() {
+            let table = &self.params[l * tf..(l + 1) * tf];
+            let d_l = &d_lvl[l * n * F..(l + 1) * n * F];
+            acc.par_chunks_mut(POINT_CHUNK).enumerate().for_each(|(chunk, a)| {
+                for (k, g) in a.iter_mut().enumerate() {
                     let i = chunk * POINT_CHUNK + k;
-                    let mut acc = [0f64; 3];
-                    for (l, lv) in lvs.iter().enumerate() {
-                        let d = &d_lvl[(l * n + i) * F..(l * n + i + 1) * F];
-                        if d.iter().all(|v| *v == 0.0) {
-                            continue;
-                        }
-                        let table = &self.params[l * tf..(l + 1) * tf];
-                        let dl = if lv.dense {
-                            level_gradient::<F, true>(points[i], lv, table, d)
-                        } else {
-                            level_gradient::<F, false>(points[i], lv, table, d)
-                        };
-                        for a in 0..3 {
-                            acc[a] += dl[a];
-                        }
+                    let d = &d_l[i * F..(i + 1) * F];
+                    if d.iter().all(|v| *v == 0.0) {
+                        continue;
                     }
-                    *g = acc.map(|v| v as f32);
+                    let dl = if lv.dense { level_gradient::<F, true>(points[i], lv, table, d) } else { level_gradient::<F, false>(points[i], lv, table, d) };
+                    for ax in 0..3 {
+                        g[ax] += dl[ax];
+                    }
                 }
             });
-        out
+        }
+        acc.into_iter().map(|g| g.map(|v| v as f32)).collect()
     }
 }
 
 /// One level's `∂(d · enc_l(p))/∂p`.
 #[inline(always)]
-fn level_gradient<const F: usize, const DENSE: bool>(
-    p: [f32; 3],
-    lv: &Level,
-    table: &[f32],
-    d: &[f32],
-) -> [f64; 3] {
+fn level_gradient<const F: usize, const DENSE: bool>(p: [f32; 3], lv: &Level, table: &[f32], d: &[f32]) -> [f64; 3] {
     let (idx, _) = corners::<DENSE>(p, lv);
-    let mut f = [0f64; 3];
-    let mut inside = [false; 3];
+    let mut f = [0f32; 3];
+    let mut scale = [0f32; 3];
     for a in 0..3 {
-        // The fraction exactly as `corners` computes it.
+        // The fraction exactly as `corners` computes it; clamped axes have derivative 0.
         let x = clamp01(p[a]) as f64 * lv.res_f;
         let c = (x as u32).min(lv.res - 1);
-        f[a] = (x - c as f64) as f32 as f64;
-        inside[a] = (0.0..=1.0).contains(&p[a]);
+        f[a] = (x - c as f64) as f32;
+        scale[a] = if (0.0..=1.0).contains(&p[a]) { lv.res as f32 } else { 0.0 };
     }
-    let w = |a: usize, bit: usize| if bit == 1 { f[a] } else { 1.0 - f[a] };
-    let mut g = [0f64; 3];
+    let wx = [1.0 - f[0], f[0]];
+    let wy = [1.0 - f[1], f[1]];
+    let wz = [1.0 - f[2], f[2]];
+    const SIGN: [f32; 2] = [-1.0, 1.0];
+    let mut g = [0f32; 3];
     for (c, &e) in idx.iter().enumerate() {
-        let bits = [c & 1, (c >> 1) & 1, c >> 2];
-        let s: f64 = (0..F)
-            .map(|j| d[j] as f64 * table[e as usize * F + j] as f64)
-            .sum();
-        for a in 0..3 {
-            let sign = if bits[a] == 1 { 1.0 } else { -1.0 };
-            let others: f64 = (0..3).filter(|b| *b != a).map(|b| w(b, bits[b])).product();
-            g[a] += sign * others * s;
+        let (i, j, k) = (c & 1, (c >> 1) & 1, c >> 2);
+        let entry = &table[e as usize * F..e as usize * F + F];
+        let mut s = 0f32;
+        for q in 0..F {
+            s += d[q] * entry[q];
         }
+        g[0] += SIGN[i] * wy[j] * wz[k] * s;
+        g[1] += wx[i] * SIGN[j] * wz[k] * s;
+        g[2] += wx[i] * wy[j] * SIGN[k] * s;
     }
-    std::array::from_fn(|a| if inside[a] { g[a] * lv.res_f } else { 0.0 })
+    std::array::from_fn(|a| (g[a] * scale[a]) as f64)
 }

@@ -433,7 +433,11 @@ impl NerfModel for FastModel {
             return stats(true, tm, 0);
         }
         // The rays' gradients, from the tables before this step's update.
+        let t0 = Instant::now();
         let ray_grads = (self.ray_gradients != RayGradients::Off).then(|| self.ray_gradients_of(&samples, &unit, &d_enc));
+        // (Counted with the hash backward: it is the encoding's gradient for the points.)
+        tm.phases.hash_backward += t0.elapsed().as_secs_f64();
+        tm.encoding += t0.elapsed().as_secs_f64();
         if self.ray_gradients == RayGradients::Only {
             return StepStats { ray_grads, ..stats(false, tm, 0) };
         }
@@ -442,7 +446,7 @@ impl NerfModel for FastModel {
         // The hash tables' backward and their sparse Adam, fused per level (independent of the
         // networks' Adam, which follows).
         let hb = self.grid.backward_adam(&unit, &d_enc, &mut self.grid_adam, self.lr as f32, &mut self.scratch);
-        tm.phases.hash_backward = hb.backward_seconds;
+        tm.phases.hash_backward += hb.backward_seconds;
         tm.encoding += hb.backward_seconds;
         tm.phases.adam_hash = hb.adam_seconds;
         tm.optimizer += hb.adam_seconds;
