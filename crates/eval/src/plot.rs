@@ -1,5 +1,6 @@
 //! Charts drawn with plotters into an RGB buffer and written as PNG atomically:
-//! the speed-versus-error chart of one run and the PSNR curves of several runs.
+//! the speed-versus-error chart of one run, the PSNR curves of several runs, and panels of
+//! benchmark figures with error bars.
 //!
 //! Text uses DejaVu Sans, shipped in `assets/` (Bitstream Vera licence, see
 //! `assets/DejaVuSans-LICENSE.txt`) and registered with plotters on first use, so no system
@@ -269,6 +270,84 @@ pub fn compare_png(path: &Path, runs: &[Curve]) -> Result<(), EvalError> {
             .map(|(i, c)| (c.clone(), PALETTE[i % PALETTE.len()].stroke_width(2), true))
             .collect();
         psnr_panel(&root, &curves, &[], "validation PSNR against training time", x_max).map_err(&err)?;
+        root.present().map_err(&err)?;
+    }
+    write_png_atomic(path, w, h, buf)
+}
+
+/// One series of [`panels_png`]: `(x, mean, half-width of the error bar)` points.
+#[derive(Debug, Clone)]
+pub struct ErrorSeries {
+    /// Legend label.
+    pub label: String,
+    /// Points in drawing order.
+    pub points: Vec<(f64, f64, f64)>,
+}
+
+/// One panel of [`panels_png`].
+#[derive(Debug, Clone)]
+pub struct Panel {
+    /// Caption.
+    pub caption: String,
+    /// Description of the x axis.
+    pub x_desc: String,
+    /// Description of the y axis.
+    pub y_desc: String,
+    /// Series, coloured in order.
+    pub series: Vec<ErrorSeries>,
+}
+
+/// Draw panels side by side, each with its series as lines through the means and vertical
+/// error bars (a benchmark's figure against a setting, e.g. pose error against noise level).
+pub fn panels_png(path: &Path, panels: &[Panel]) -> Result<(), EvalError> {
+    ensure_font(path)?;
+    let err = plot_err(path);
+    let (w, h) = (620 * panels.len().max(1) as u32, 480);
+    let mut buf = vec![0u8; (w * h * 3) as usize];
+    {
+        let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
+        root.fill(&WHITE).map_err(&err)?;
+        let areas = root.split_evenly((1, panels.len().max(1)));
+        for (panel, area) in panels.iter().zip(&areas) {
+            let pts = || panel.series.iter().flat_map(|s| &s.points);
+            let (x0, x1) = range_with_margin(pts().map(|p| p.0), &[]);
+            let (y0, y1) = range_with_margin(pts().flat_map(|p| [p.1 - p.2, p.1 + p.2]), &[]);
+            let mut chart = ChartBuilder::on(area)
+                .caption(&panel.caption, (FONT, 20))
+                .margin(12)
+                .x_label_area_size(45)
+                .y_label_area_size(60)
+                .build_cartesian_2d(x0..x1, y0..y1)
+                .map_err(&err)?;
+            chart
+                .configure_mesh()
+                .x_desc(panel.x_desc.as_str())
+                .y_desc(panel.y_desc.as_str())
+                .label_style((FONT, 14))
+                .axis_desc_style((FONT, 15))
+                .light_line_style(RGBColor(246, 246, 246))
+                .draw()
+                .map_err(&err)?;
+            for (i, s) in panel.series.iter().enumerate() {
+                let c = PALETTE[i % PALETTE.len()];
+                chart
+                    .draw_series(LineSeries::new(s.points.iter().map(|p| (p.0, p.1)), c.stroke_width(2)))
+                    .map_err(&err)?
+                    .label(s.label.as_str())
+                    .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(2)));
+                chart.draw_series(s.points.iter().map(|p| Circle::new((p.0, p.1), 3, c.filled()))).map_err(&err)?;
+                chart
+                    .draw_series(s.points.iter().filter(|p| p.2 > 0.0).map(|p| PathElement::new(vec![(p.0, p.1 - p.2), (p.0, p.1 + p.2)], c.stroke_width(1))))
+                    .map_err(&err)?;
+            }
+            chart
+                .configure_series_labels()
+                .background_style(WHITE.mix(0.8))
+                .border_style(BLACK)
+                .label_font((FONT, 14))
+                .draw()
+                .map_err(&err)?;
+        }
         root.present().map_err(&err)?;
     }
     write_png_atomic(path, w, h, buf)

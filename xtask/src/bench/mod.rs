@@ -1,6 +1,6 @@
 //! `cargo xtask bench`: performance figures, one benchmark per file. `render`, `scaling` and
 //! `nerf` measure in the release profile (a dev build re-runs itself there); `auto`,
-//! `auto-diff` and `supervision` measure quality at equal time. `cpu` names the machine and build a figure came
+//! `auto-diff`, `supervision` and `poses` measure quality at equal time. `cpu` names the machine and build a figure came
 //! from; `figures` holds the spread of repeated figures and the printed report beside the JSON.
 
 mod auto;
@@ -9,6 +9,7 @@ mod cpu;
 mod figures;
 mod mitsuba;
 mod nerf;
+mod poses;
 mod render;
 mod scaling;
 mod supervision;
@@ -39,6 +40,8 @@ pub enum BenchWhat {
     AutoDiff(auto_diff::AutoDiffArgs),
     /// Depth and empty-space supervision against colour only, at equal time on every scene (train, eval with the mesh, tables of means ± 2 SE over seeds).
     Supervision(supervision::SupervisionBenchArgs),
+    /// Noisy training poses with and without camera refinement, at equal time (pose error against the exact poses, test PSNR, depth, mesh; means ± 2 SE over seeds; a plot against the noise level).
+    Poses(poses::PosesBenchArgs),
 }
 
 /// Runs a benchmark.
@@ -66,6 +69,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         BenchWhat::Auto(a) => auto::run(a),
         BenchWhat::AutoDiff(a) => auto_diff::run(a),
         BenchWhat::Supervision(a) => supervision::run(a),
+        BenchWhat::Poses(a) => poses::run(a),
     }
 }
 
@@ -79,6 +83,7 @@ fn check_outputs(what: &BenchWhat) -> anyhow::Result<()> {
         BenchWhat::Nerf(a) => folder(&a.out),
         BenchWhat::Auto(a) => folder(&a.out),
         BenchWhat::Supervision(a) => folder(&a.out),
+        BenchWhat::Poses(a) => folder(&a.out),
         BenchWhat::AutoDiff(a) => {
             let path = auto_diff::report_path(a);
             crate::guard::check_output_files("--out", &path, std::slice::from_ref(&path), &[])

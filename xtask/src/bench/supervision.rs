@@ -86,18 +86,18 @@ fn supervision_of(name: &str, depth_weight: f32, empty_weight: f32) -> anyhow::R
 
 /// One run's figures (`None`: not measured on this dataset).
 #[derive(Clone, Debug, Default, serde::Serialize)]
-struct Figures {
-    config: String,
-    seed: u64,
-    psnr: f64,
-    ssim: f64,
-    depth_mae: Option<f64>,
-    delta_1_25: Option<f64>,
-    off_surface_mass: Option<f64>,
-    chamfer_l1: Option<f64>,
-    f_score_1pct: Option<f64>,
-    time_to_30db_s: Option<f64>,
-    steps: u64,
+pub(super) struct Figures {
+    pub(super) config: String,
+    pub(super) seed: u64,
+    pub(super) psnr: f64,
+    pub(super) ssim: f64,
+    pub(super) depth_mae: Option<f64>,
+    pub(super) delta_1_25: Option<f64>,
+    pub(super) off_surface_mass: Option<f64>,
+    pub(super) chamfer_l1: Option<f64>,
+    pub(super) f_score_1pct: Option<f64>,
+    pub(super) time_to_30db_s: Option<f64>,
+    pub(super) steps: u64,
 }
 
 /// The columns of the table: (header, figure, decimals).
@@ -115,7 +115,7 @@ const COLUMNS: [Column; 8] = [
 
 /// Mean and two standard errors of the mean (`None` for the spread with one value; the
 /// figure only when every seed has it).
-fn mean_2se(v: &[Option<f64>]) -> Option<(f64, Option<f64>)> {
+pub(super) fn mean_2se(v: &[Option<f64>]) -> Option<(f64, Option<f64>)> {
     let v: Vec<f64> = v.iter().copied().collect::<Option<Vec<f64>>>()?;
     if v.is_empty() {
         return None;
@@ -165,7 +165,7 @@ fn scene_table(runs: &[(String, Vec<Figures>)]) -> String {
 }
 
 /// A run's figures from its `report.json` and `eval.json`.
-fn figures(run: &Path, config: &str, seed: u64) -> anyhow::Result<Figures> {
+pub(super) fn figures(run: &Path, config: &str, seed: u64) -> anyhow::Result<Figures> {
     let r = eval::summarise_run(run)?;
     let ev: serde_json::Value = serde_json::from_slice(&std::fs::read(run.join("eval.json")).with_context(|| format!("reading {}", run.join("eval.json").display()))?)
         .with_context(|| format!("{}: not JSON", run.join("eval.json").display()))?;
@@ -184,14 +184,24 @@ fn figures(run: &Path, config: &str, seed: u64) -> anyhow::Result<Figures> {
     })
 }
 
-/// Trains (unless a finished, evaluated run of the same config is there) and evaluates one run.
-fn train_and_eval(cfg: &TrainConfig, run: &Path, budget: &str, max_views: Option<usize>) -> anyhow::Result<()> {
+/// Trains (unless a finished, evaluated run of the same config is there) and evaluates one run
+/// (`eval --test-pose-opt N` with `test_pose_opt`).
+pub(super) fn train_and_eval(cfg: &TrainConfig, run: &Path, budget: &str, max_views: Option<usize>, test_pose_opt: Option<u64>) -> anyhow::Result<()> {
     let cfg_path = run.with_extension("config.json");
     let want = serde_json::to_value(cfg)?;
     let recorded = std::fs::read(&cfg_path).ok().and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok());
+    let eval = crate::evaluate::EvalArgs { test_pose_opt, ..crate::evaluate::EvalArgs::at_training_resolution(run.to_path_buf(), "test", 1, max_views) };
     if run.join("report.json").is_file() && recorded.as_ref() == Some(&want) {
-        eprintln!("{} is evaluated already; kept", run.display());
-        return Ok(());
+        // The test views' pose protocol of the evaluation on record.
+        let protocol = std::fs::read(run.join("eval.json")).ok().and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok()).and_then(|v| v["pose_protocol"].as_str().map(String::from));
+        if protocol.as_deref().is_some_and(|p| p.contains("test-pose-opt")) == test_pose_opt.is_some()
+            && test_pose_opt.is_none_or(|n| protocol.as_deref() == Some(&format!("aligned+test-pose-opt:{n}")))
+        {
+            eprintln!("{} is evaluated already; kept", run.display());
+            return Ok(());
+        }
+        eprintln!("{} is trained; evaluating it again for another test-pose protocol", run.display());
+        return crate::evaluate::run(eval);
     }
     if run.exists() {
         std::fs::remove_dir_all(run).with_context(|| format!("removing the stale run {}", run.display()))?;
@@ -205,7 +215,7 @@ fn train_and_eval(cfg: &TrainConfig, run: &Path, budget: &str, max_views: Option
     if crate::stop_flag().load(std::sync::atomic::Ordering::SeqCst) {
         return Err(crate::exit::Stopped("interrupted; re-run the same command to resume".into()).into());
     }
-    crate::evaluate::run(crate::evaluate::EvalArgs::at_training_resolution(run.to_path_buf(), "test", 1, max_views))
+    crate::evaluate::run(eval)
 }
 
 /// Runs the benchmark.
@@ -255,7 +265,7 @@ pub fn run(args: SupervisionBenchArgs) -> anyhow::Result<()> {
                 cfg.val_interval_s = Some(budget_s / 20.0);
                 cfg.supervision = supervision_of(c, args.depth_weight, args.empty_weight)?;
                 let run = dir.join(format!("{c}-seed{seed}"));
-                train_and_eval(&cfg, &run, &args.budget, args.max_views)?;
+                train_and_eval(&cfg, &run, &args.budget, args.max_views, None)?;
                 per_seed.push(figures(&run, c, seed)?);
                 summaries.push(eval::summarise_run(&run)?);
             }
