@@ -87,9 +87,10 @@ fn pose_figures(run: &Path, level: f64, refine: bool, seed: u64) -> anyhow::Resu
         level,
         refine,
         base,
-        rotation_before_deg: get("train_poses", "rotation_median_deg"),
+        // Runs on the exact poses have no pose record: their error is 0.
+        rotation_before_deg: get("train_poses", "rotation_median_deg").or((level == 0.0).then_some(0.0)),
         rotation_after_deg: get("refined_poses", "rotation_median_deg"),
-        centre_before_pct: get("train_poses", "translation_median_pct"),
+        centre_before_pct: get("train_poses", "translation_median_pct").or((level == 0.0).then_some(0.0)),
         centre_after_pct: get("refined_poses", "translation_median_pct"),
     })
 }
