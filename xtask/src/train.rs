@@ -76,7 +76,7 @@ pub struct TrainArgs {
     #[arg(long, value_parser = parse_pose_noise, allow_hyphen_values = true)]
     pub pose_noise: Option<nerf::poses::PoseNoise>,
     /// Camera refinement: off (default) or se3, one SE(3) correction per training view learned
-    /// with the field (fast and auto models; settings in config.json's `camera_opt`). The
+    /// with the field (settings in config.json's `camera_opt`). The
     /// refined poses go to train_poses.json and cameras_refined.json; `eval` reports their
     /// error against the exact poses.
     #[arg(long, value_parser = ["off", "se3"])]

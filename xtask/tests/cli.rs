@@ -616,6 +616,7 @@ fn supervision_options_are_refused_naming_the_option_or_the_dataset() {
         (vec!["--pose-noise", "-1,0"], "--pose-noise"),
         (vec!["--pose-noise", "nan,0.01"], "the rotation 'nan' is not a finite number ≥ 0"),
         (vec!["--pose-noise", "1"], "ROT_DEG,TRANS_REL"),
+        (vec!["--camera-opt", "so3"], "--camera-opt"),
     ] {
         let mut a = vec!["train", ds, "--out", o, "--steps", "2"];
         a.extend(args);

@@ -577,7 +577,7 @@ impl Trainer {
         let camera = match (&config.camera_opt, &poses) {
             (Some(c), Some(p)) => {
                 model.set_ray_gradients(crate::models::RayGradients::Also).map_err(|e| {
-                    TrainError::Invalid(format!("camera refinement (--camera-opt se3) needs the fast or auto model: {e} (the {} model)", config.model_label()))
+                    TrainError::Invalid(format!("camera refinement (--camera-opt se3): {e} (the {} model)", config.model_label()))
                 })?;
                 Some(crate::camera_opt::CameraOpt::new(*c, ds.train.len(), p.scene_size))
             }

@@ -35,7 +35,7 @@ pub struct PosesBenchArgs {
     /// Training budget of every run (wall-clock training time: 90s, 2m, 5m).
     #[arg(long, default_value = "5m")]
     pub budget: String,
-    /// Model: fast or auto (camera refinement needs one of them).
+    /// Model: fast, auto or paper.
     #[arg(long, default_value = "fast")]
     pub model: String,
     /// Noise levels L, comma-separated: rotation L degrees and translation L % of the scene
@@ -217,7 +217,7 @@ pub fn run(args: PosesBenchArgs) -> anyhow::Result<()> {
         .map(|m| nerf::camera_opt::parse_mode(m).map(|c| c.is_some()).map_err(|e| anyhow::anyhow!("--camera-opt: {e}")))
         .collect::<anyhow::Result<_>>()?;
     anyhow::ensure!(!modes.is_empty(), "--camera-opt is empty");
-    anyhow::ensure!(args.model == "fast" || args.model == "auto", "--model {}: camera refinement needs the fast or auto model", args.model);
+    TrainConfig::preset(&args.model, PathBuf::new()).map_err(|e| anyhow::anyhow!("--model {}: {e}", args.model))?;
     anyhow::ensure!(args.max_views != Some(0), "--max-views 0 evaluates nothing");
     anyhow::ensure!(args.test_pose_opt != Some(0), "--test-pose-opt 0 optimises nothing");
     let seeds = parse_seeds(&args.seeds)?;

@@ -9,7 +9,7 @@ pub mod frequency;
 pub mod hashgrid;
 pub mod sh;
 
-pub use frequency::{frequency_encode, frequency_output_dim};
+pub use frequency::{frequency_encode, frequency_output_dim, frequency_point_gradient};
 pub use hashgrid::{Adam, AdamConfig, HashGrid, HashGridConfig};
 pub use sh::{sh_encode, sh_encode_batch};
 
