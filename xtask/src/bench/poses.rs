@@ -35,6 +35,10 @@ pub struct PosesBenchArgs {
     /// Training budget of every run (wall-clock training time: 90s, 2m, 5m).
     #[arg(long, default_value = "5m")]
     pub budget: String,
+    /// Train every run for this many steps instead of `--budget` (quality at equal steps: for
+    /// a machine whose load would make equal time unfair; the table lists each run's time).
+    #[arg(long)]
+    pub steps: Option<u64>,
     /// Model: fast, auto or paper.
     #[arg(long, default_value = "fast")]
     pub model: String,
@@ -130,8 +134,8 @@ fn scene_table(rows: &[(f64, bool, Vec<PoseFigures>)]) -> String {
     for (h, _, _) in COLUMNS {
         s.push_str(&format!(" {h} |"));
     }
-    s.push_str(" ΔPSNR vs exact poses (dB) | steps |\n|---:|---|---:|");
-    s.push_str(&"---:|".repeat(COLUMNS.len() + 2));
+    s.push_str(" ΔPSNR vs exact poses (dB) | steps | training s |\n|---:|---|---:|");
+    s.push_str(&"---:|".repeat(COLUMNS.len() + 3));
     s.push('\n');
     let exact = rows.iter().find(|r| r.0 == 0.0 && !r.1).and_then(|r| mean(&r.2, |f| Some(f.base.psnr)));
     for (level, refine, figs) in rows {
@@ -143,7 +147,8 @@ fn scene_table(rows: &[(f64, bool, Vec<PoseFigures>)]) -> String {
             (Some(e), Some(m)) => format!("{:+.2}", m - e),
             _ => "n/a".into(),
         };
-        s.push_str(&format!(" {delta} | {} |\n", figs.iter().map(|f| f.base.steps.to_string()).collect::<Vec<_>>().join("/")));
+        let join = |v: Vec<String>| v.join("/");
+        s.push_str(&format!(" {delta} | {} | {} |\n", join(figs.iter().map(|f| f.base.steps.to_string()).collect()), join(figs.iter().map(|f| format!("{:.0}", f.base.train_s)).collect())));
     }
     s
 }
@@ -220,13 +225,14 @@ pub fn run(args: PosesBenchArgs) -> anyhow::Result<()> {
     TrainConfig::preset(&args.model, PathBuf::new()).map_err(|e| anyhow::anyhow!("--model {}: {e}", args.model))?;
     anyhow::ensure!(args.max_views != Some(0), "--max-views 0 evaluates nothing");
     anyhow::ensure!(args.test_pose_opt != Some(0), "--test-pose-opt 0 optimises nothing");
+    anyhow::ensure!(args.steps != Some(0), "--steps 0 trains nothing");
     let seeds = parse_seeds(&args.seeds)?;
     let scenes = scene_names(args.scenes.as_deref())?;
     let mut md = format!(
         "# bench poses\n\nmodel {}, preset {}, budget {} per run, seeds {}, test views {}\n\nNoise level L: each training pose turned by N(0, L°) about a random axis and its centre moved by L % of the scene size (RMS), seeded per view. Errors of the training poses are medians over the views after the similarity aligning their centres to the exact ones. Cells: mean ± two standard errors over the seeds.\n\n",
         args.model,
         args.preset.name(),
-        args.budget,
+        args.steps.map_or(args.budget.clone(), |n| format!("{n} steps")),
         seeds.iter().map(u64::to_string).collect::<Vec<_>>().join(", "),
         args.test_pose_opt.map_or("posed through the alignment".to_string(), |n| format!("posed through the alignment, then {n} steps of per-view pose optimisation with the model frozen"))
     );
@@ -248,8 +254,16 @@ pub fn run(args: PosesBenchArgs) -> anyhow::Result<()> {
                 for &seed in &seeds {
                     let mut cfg = TrainConfig::preset(&args.model, ds.clone()).map_err(anyhow::Error::msg)?;
                     cfg.seed = seed;
-                    cfg.time_budget_s = Some(budget_s);
-                    cfg.val_interval_s = Some(budget_s / 20.0);
+                    match args.steps {
+                        Some(n) => {
+                            cfg.steps = Some(n);
+                            cfg.time_budget_s = None;
+                        }
+                        None => {
+                            cfg.time_budget_s = Some(budget_s);
+                            cfg.val_interval_s = Some(budget_s / 20.0);
+                        }
+                    }
                     cfg.pose_noise = (level > 0.0).then_some(PoseNoise { rotation_deg: level, translation_rel: level / 100.0 });
                     cfg.camera_opt = refine.then(CameraOptConfig::default);
                     let run = dir.join(format!("{}-seed{seed}", run_label(level, refine)));

@@ -98,6 +98,7 @@ pub(super) struct Figures {
     pub(super) f_score_1pct: Option<f64>,
     pub(super) time_to_30db_s: Option<f64>,
     pub(super) steps: u64,
+    pub(super) train_s: f64,
 }
 
 /// The columns of the table: (header, figure, decimals).
@@ -181,6 +182,7 @@ pub(super) fn figures(run: &Path, config: &str, seed: u64) -> anyhow::Result<Fig
         f_score_1pct: r.f_score_1pct,
         time_to_30db_s: r.time_to_30db_s,
         steps: r.train_steps,
+        train_s: r.train_wall_s,
     })
 }
 
@@ -210,6 +212,10 @@ pub(super) fn train_and_eval(cfg: &TrainConfig, run: &Path, budget: &str, max_vi
     let mut args = crate::train::TrainArgs::for_demo(&cfg.dataset, run, "fast", budget, false);
     args.model = None;
     args.config = Some(cfg_path);
+    if cfg.time_budget_s.is_none() {
+        // A step budget, from the config file.
+        args.time = None;
+    }
     eprintln!("== training {}", run.display());
     crate::train::run(args)?;
     if crate::stop_flag().load(std::sync::atomic::Ordering::SeqCst) {
