@@ -12,6 +12,7 @@ mod nerf;
 mod render;
 mod scaling;
 mod supervision;
+mod viewer;
 
 use anyhow::Context;
 use std::path::PathBuf;
@@ -39,6 +40,8 @@ pub enum BenchWhat {
     AutoDiff(auto_diff::AutoDiffArgs),
     /// Depth and empty-space supervision against colour only, at equal time on every scene (train, eval with the mesh, tables of means ± 2 SE over seeds).
     Supervision(supervision::SupervisionBenchArgs),
+    /// The live viewer (release profile): a 256x256 preview's time, and a trainer's steps/s alone and with a viewer rendering continuously.
+    Viewer(viewer::ViewerBenchArgs),
 }
 
 /// Runs a benchmark.
@@ -66,6 +69,12 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         BenchWhat::Auto(a) => auto::run(a),
         BenchWhat::AutoDiff(a) => auto_diff::run(a),
         BenchWhat::Supervision(a) => supervision::run(a),
+        BenchWhat::Viewer(a) => {
+            if a.no_release || !rerun_in_release()? {
+                viewer::run(&a)?;
+            }
+            Ok(())
+        }
     }
 }
 
@@ -79,6 +88,7 @@ fn check_outputs(what: &BenchWhat) -> anyhow::Result<()> {
         BenchWhat::Nerf(a) => folder(&a.out),
         BenchWhat::Auto(a) => folder(&a.out),
         BenchWhat::Supervision(a) => folder(&a.out),
+        BenchWhat::Viewer(_) => Ok(()),
         BenchWhat::AutoDiff(a) => {
             let path = auto_diff::report_path(a);
             crate::guard::check_output_files("--out", &path, std::slice::from_ref(&path), &[])
