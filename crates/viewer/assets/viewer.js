@@ -73,6 +73,9 @@ function send(full) {
       const bmp = await createImageBitmap(await r.blob());
       if (me.seq !== seq) return; // a newer frame was asked for meanwhile
       draw(bmp);
+      // for tests and scripts: frames drawn, whether the last was full size, its step
+      const d = document.body.dataset;
+      d.frames = (+d.frames || 0) + 1; d.full = full; d.step = r.headers.get('X-Step');
       $('overlay').textContent = '';
       $('info').textContent = `${w}×${h} ${full ? 'full' : 'preview'} · render ${r.headers.get('X-Render-Ms')} ms · frame ${(performance.now() - t0).toFixed(0)} ms · step ${r.headers.get('X-Step')}`;
     })

@@ -76,12 +76,31 @@ pub struct App {
     /// The run.
     pub watch: RunWatch,
     newest: Mutex<HashMap<String, u64>>,
+    pool: Option<rayon::ThreadPool>,
 }
 
 impl App {
-    /// An app viewing `run_dir` (nothing loaded until its watch polls).
-    pub fn new(run_dir: PathBuf) -> Self {
-        Self { watch: RunWatch::new(run_dir), newest: Mutex::new(HashMap::new()) }
+    /// An app viewing `run_dir` (nothing loaded until its watch polls) that renders on `pool`
+    /// (the global one when `None`). The request handlers must not be jobs of that pool: a
+    /// worker waiting inside a render could pick up another request's job and wait for the
+    /// model's lock it holds itself.
+    pub fn new(run_dir: PathBuf, pool: Option<rayon::ThreadPool>) -> Self {
+        Self { watch: RunWatch::new(run_dir), newest: Mutex::new(HashMap::new()), pool }
+    }
+
+    /// Renders `camera` with the loaded model on the render pool; `order` (the page and its
+    /// counter) is checked again once the model's lock is held, since a newer request may have
+    /// arrived while this one waited.
+    fn render_view(&self, l: &crate::watch::Loaded, camera: &dataset::Camera, order: Option<&(String, u64)>) -> Result<nerf::render::RenderedView, ViewerError> {
+        l.render(self.pool.as_ref(), camera, || order.map_or(Ok(()), |o| self.check_order(o)))
+    }
+
+    fn check_order(&self, (client, seq): &(String, u64)) -> Result<(), ViewerError> {
+        let newest = self.newest.lock().unwrap_or_else(|p| p.into_inner()).get(client).copied().unwrap_or(0);
+        if *seq < newest {
+            return Err(ViewerError::Stale(format!("render {seq} replaced by {newest}")));
+        }
+        Ok(())
     }
 
     /// Records a render request's counter when it arrives, so that older requests of the same
@@ -151,16 +170,13 @@ impl App {
     /// Renders a checked request with the model in use, as a PNG; a request older than its
     /// page's newest is dropped (409) before rendering.
     pub fn render(&self, req: &RenderRequest) -> Result<Rendered, ViewerError> {
-        if let Some((client, seq)) = &req.order {
-            let newest = self.newest.lock().unwrap_or_else(|p| p.into_inner()).get(client).copied().unwrap_or(0);
-            if *seq < newest {
-                return Err(ViewerError::Stale(format!("render {seq} replaced by {newest}")));
-            }
+        if let Some(o) = &req.order {
+            self.check_order(o)?;
         }
         let l = self.loaded()?;
         let t0 = Instant::now();
         let cam = &req.camera;
-        let v = l.with_model(|m| m.render_view(cam, m.eval_background()));
+        let v = self.render_view(&l, cam, req.order.as_ref())?;
         let rgb = match req.mode {
             Mode::Rgb => imaging::colour(&v.rgb),
             Mode::Opacity => imaging::opacity(&v.opacity),
@@ -202,7 +218,7 @@ impl App {
         let f = views::frame(&ds, k)?;
         let bg = l.config.background.eval_color();
         let truth = views::truth(f, bg)?;
-        let v = l.with_model(|m| m.render_view(&f.camera, bg));
+        let v = self.render_view(&l, &f.camera, None)?;
         let mse = v.rgb.iter().zip(&truth.gt_rgb).map(|(a, b)| f64::from(a - b).powi(2)).sum::<f64>() / v.rgb.len().max(1) as f64;
         let mut reply = Reply::png(imaging::png(v.width, v.height, &imaging::error_heat(&v.rgb, &truth.gt_rgb)));
         reply.headers = vec![("X-PSNR", format!("{:.2}", -10.0 * mse.max(1e-12).log10())), ("X-Step", l.key.step.to_string())];

@@ -2,9 +2,9 @@
 //! low-priority threads, and a watcher thread that reloads the run's newest checkpoint.
 //!
 //! Threads: the acceptor (receives requests, records each render's counter on arrival so stale
-//! ones are dropped, hands them on), the pool of [`ViewerConfig::threads`] rayon threads that
-//! answer them (a render's pixels are shared among the same threads), and the watcher (polls
-//! the checkpoint folder every [`ViewerConfig::poll`]). The pool and the watcher run at
+//! ones are dropped, hands them on), a few handler threads that answer them, a pool of
+//! [`ViewerConfig::threads`] rayon threads that renders (only renders: a handler waits outside
+//! it), and the watcher (polls the checkpoint folder every [`ViewerConfig::poll`]). All run at
 //! `nice` [`ViewerConfig::nice`] (Linux: per thread), so a trainer on the same machine keeps
 //! the cores while the viewer takes what is left (figures in `docs/viewer.md`).
 
@@ -16,6 +16,10 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::thread::JoinHandle;
 use std::time::Duration;
+
+/// Threads that answer requests (renders wait for the model's lock one at a time, while the
+/// others answer the status, curves and ground truth).
+const HANDLERS: usize = 4;
 
 /// How the viewer is served.
 #[derive(Clone, Debug)]
@@ -97,16 +101,32 @@ impl Viewer {
         let addr = format!("{}:{}", cfg.host, cfg.port);
         let server = Arc::new(tiny_http::Server::http(&addr).map_err(|e| ViewerError::Bind { addr: addr.clone(), message: e.to_string() })?);
         let local = server.server_addr().to_ip().ok_or_else(|| ViewerError::Bind { addr, message: "not an IP address".into() })?;
-        let app = Arc::new(App::new(cfg.run_dir.clone()));
-        app.watch.poll();
         let nice = cfg.nice;
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(cfg.threads.max(1))
-            .thread_name(|i| format!("viewer-{i}"))
+            .thread_name(|i| format!("viewer-render-{i}"))
             .start_handler(move |_| lower_priority(nice))
             .build()
             .map_err(|e| ViewerError::Internal(format!("cannot start the viewer's threads: {e}")))?;
+        let app = Arc::new(App::new(cfg.run_dir.clone(), Some(pool)));
+        app.watch.poll();
         let stop = Arc::new(AtomicBool::new(false));
+        let (tx, rx) = std::sync::mpsc::channel::<tiny_http::Request>();
+        let rx = Arc::new(std::sync::Mutex::new(rx));
+        let mut spawned = Vec::new();
+        for k in 0..HANDLERS {
+            let (app, rx) = (app.clone(), rx.clone());
+            spawned.push(std::thread::Builder::new().name(format!("viewer-http-{k}")).spawn(move || {
+                lower_priority(nice);
+                loop {
+                    let next = rx.lock().unwrap_or_else(|p| p.into_inner()).recv();
+                    match next {
+                        Ok(req) => respond(&app, req),
+                        Err(_) => break, // the acceptor stopped
+                    }
+                }
+            }));
+        }
         let acceptor = {
             let (server, app, stop) = (server.clone(), app.clone(), stop.clone());
             std::thread::Builder::new().name("viewer-accept".into()).spawn(move || {
@@ -114,8 +134,9 @@ impl Viewer {
                     match server.recv_timeout(Duration::from_millis(100)) {
                         Ok(Some(req)) => {
                             app.note_arrival(req.url());
-                            let app = app.clone();
-                            pool.spawn(move || respond(&app, req));
+                            if tx.send(req).is_err() {
+                                break;
+                            }
                         }
                         Ok(None) => {}
                         Err(e) => tracing::debug!("viewer: {e}"),
@@ -135,8 +156,9 @@ impl Viewer {
                 }
             })
         };
-        let threads = [acceptor, watcher]
+        let threads = spawned
             .into_iter()
+            .chain([acceptor, watcher])
             .collect::<Result<Vec<_>, _>>()
             .map_err(|e| ViewerError::Internal(format!("cannot start the viewer's threads: {e}")))?;
         Ok(Self { addr: local, app, stop, server, threads })

@@ -9,7 +9,8 @@
 
 use crate::error::ViewerError;
 use dataset::{Dataset, LoadOptions};
-use nerf::render::RunModel;
+use dataset::Camera;
+use nerf::render::{RenderedView, RunModel};
 use nerf::train::{CONFIG_FILE, TrainConfig};
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex, RwLock};
@@ -41,8 +42,8 @@ impl CheckpointKey {
 /// `Send` but not `Sync`); one render at a time already has every viewer thread.
 #[derive(Debug)]
 pub struct Loaded {
-    /// The run, ready to render.
-    pub model: Mutex<RunModel>,
+    /// The run, ready to render (moved out while a render pool uses it).
+    model: Mutex<Option<RunModel>>,
     /// The run's config (read without the lock).
     pub config: TrainConfig,
     /// Its checkpoint.
@@ -50,9 +51,32 @@ pub struct Loaded {
 }
 
 impl Loaded {
-    /// Runs `f` with the model.
-    pub fn with_model<R>(&self, f: impl FnOnce(&RunModel) -> R) -> R {
-        f(&self.model.lock().unwrap_or_else(|p| p.into_inner()))
+    /// Renders `camera` on `pool` (the calling thread's pool when `None`) once the model's lock
+    /// is held and `ready` agrees. The lock is taken on the calling thread, outside the pool,
+    /// and the model moved into the pool and back: a pool worker waiting inside a render never
+    /// waits for the lock itself.
+    pub fn render(
+        &self,
+        pool: Option<&rayon::ThreadPool>,
+        camera: &Camera,
+        ready: impl FnOnce() -> Result<(), ViewerError>,
+    ) -> Result<RenderedView, ViewerError> {
+        let mut slot = self.model.lock().unwrap_or_else(|p| p.into_inner());
+        ready()?;
+        let model = slot.take().ok_or_else(|| ViewerError::Internal("the model was lost by a failed render; the next checkpoint reloads it".into()))?;
+        let bg = self.config.background.eval_color();
+        let (model, view) = match pool {
+            Some(p) => p.install(move || {
+                let v = model.render_view(camera, bg);
+                (model, v)
+            }),
+            None => {
+                let v = model.render_view(camera, bg);
+                (model, v)
+            }
+        };
+        *slot = Some(model);
+        Ok(view)
     }
 }
 
@@ -101,7 +125,7 @@ impl RunWatch {
                 // The key of the file actually read: a newer one may have appeared meanwhile.
                 let key = CheckpointKey::newest(&self.run_dir).filter(|k| k.path == model.checkpoint).unwrap_or(newest);
                 let config = model.config.clone();
-                let loaded = Arc::new(Loaded { model: Mutex::new(model), config, key });
+                let loaded = Arc::new(Loaded { model: Mutex::new(Some(model)), config, key });
                 *self.current.write().unwrap_or_else(|p| p.into_inner()) = Some(loaded);
                 *self.failed.lock().unwrap_or_else(|p| p.into_inner()) = None;
                 true

@@ -258,3 +258,30 @@ fn camera_path_export_is_read_back_by_the_render_commands_reader() {
     }
     assert_eq!(http(v.addr(), "POST", "/api/camera_path", b"{").status, 400);
 }
+
+/// Many pages asking at once (a dragged camera's previews, several tabs): every request is
+/// answered, a render or a 409 for one replaced by its page's newer request. A handler that
+/// waited for the model inside the render pool could be handed another request by that pool
+/// and wait for itself.
+#[test]
+fn concurrent_requests_are_all_answered() {
+    let v = start(trained_run());
+    let addr = v.addr();
+    let clients: Vec<_> = (0..6)
+        .map(|c| {
+            std::thread::spawn(move || {
+                (0..4)
+                    .map(|k| {
+                        let t = format!("{}&client=c{}&seq={k}", render_target(96 + k, 64, "rgb"), c % 3);
+                        get(addr, &t).status
+                    })
+                    .collect::<Vec<u16>>()
+            })
+        })
+        .collect();
+    for c in clients {
+        for status in c.join().unwrap() {
+            assert!(status == 200 || status == 409, "{status}");
+        }
+    }
+}
