@@ -32,10 +32,14 @@ pub fn run(args: ViewArgs) -> anyhow::Result<()> {
     if let Some(t) = args.threads {
         cfg.threads = t;
     }
-    let v = viewer::Viewer::start(cfg)?;
+    let v = viewer::Viewer::start(cfg).map_err(|e| match e {
+        viewer::ViewerError::Bind { .. } => anyhow::anyhow!("{e} (--port 0 picks a free port)"),
+        e => e.into(),
+    })?;
     let state = v.app().status();
     println!("viewer of {}: {}", args.run.display(), v.url());
     eprintln!("{} (Ctrl-C stops)", state["message"].as_str().unwrap_or(""));
+    // Stopping is how a viewer ends: a signal is a success here, not an interrupted job.
     v.run_until(crate::stop_flag());
     Ok(())
 }

@@ -162,11 +162,18 @@ async function blobUrl(url) {
   if (!r.ok) throw new Error((await r.text()).trim());
   return [URL.createObjectURL(await r.blob()), r.headers];
 }
-async function compare() {
-  const k = +$('views').value, v = S.views[k];
+function snap() {
+  const v = S.views[+$('views').value];
   if (!v) return;
-  S.exact = v.c2w; S.fov = v.fov;
+  S.exact = v.c2w; S.fov = v.fov; S.compared = +$('views').value;
   update(true);
+  compare();
+}
+// The chosen view's NeRF, ground truth and error, side by side (again when a newer checkpoint
+// is loaded, without moving the camera).
+async function compare() {
+  const k = S.compared, v = S.views[k];
+  if (!v) return;
   $('compare').hidden = false;
   const depth = S.mode === 'depth';
   try {
@@ -269,7 +276,7 @@ function start() {
   $('mode').onchange = () => { S.mode = $('mode').value; update(true); };
   $('res').onchange = () => { S.res = +$('res').value; update(true); };
   $('reset').onclick = () => { S.exact = null; if (S.home) fromPose(S.home); update(true); };
-  $('snap').onclick = compare;
+  $('snap').onclick = snap;
   $('addkey').onclick = () => { S.keys.push({ c2w: c2w().slice(), fov: S.fov }); showKeys(); };
   $('export').onclick = exportPath;
   poll();
