@@ -45,12 +45,13 @@ mkdir -p "$OUT/live"
 python3 - "$OUT/run/config.json" "$OUT/live.json" <<'PYEOF'
 import json, sys
 c = json.load(open(sys.argv[1]))
-c["checkpoint_interval_steps"] = 50
+c["checkpoint_interval_steps"] = 25
 c["log_interval_steps"] = 10
 json.dump(c, open(sys.argv[2], "w"))
 PYEOF
 url=$(start_viewer "$OUT/live" "$OUT/view2.log")
 "$XTASK" train --config "$OUT/live.json" --out "$OUT/live" --time 30s 2>/dev/null &
-pids+=($!)
-"$PY" tests/viewer/e2e.py live "$url" "$OUT" "${SCREENSHOT:-}"
+trainer=$!
+pids+=($trainer)
+"$PY" tests/viewer/e2e.py live "$url" "$OUT" "$OUT/live" "$trainer" "${SCREENSHOT:-}"
 echo "viewer e2e: passed"
