@@ -25,6 +25,10 @@ pub struct ViewerBenchArgs {
     /// Only the preview times (no trainer runs).
     #[arg(long)]
     pub preview_only: bool,
+    /// Niceness of the viewer's threads (as `view --nice`); 0 times previews on a busy machine
+    /// as if it were idle.
+    #[arg(long, default_value_t = 19, value_parser = clap::value_parser!(i32).range(0..=19))]
+    pub nice: i32,
     /// Use the release build (the default re-runs a dev build's command line there).
     #[arg(long, hide = true)]
     pub no_release: bool,
@@ -49,6 +53,19 @@ fn preview(center: [f32; 3], radius: f32, a: f64) -> String {
     let m = dataset::matrix_to_row_major(&dataset::Camera::look_at(eye, c, glam::DVec3::Y));
     let m: Vec<String> = m.iter().map(|v| v.to_string()).collect();
     format!("/api/render?w=256&h=256&fov=45&mode=rgb&c2w={}", m.join(","))
+}
+
+/// CPU seconds this process has used (user and system, every thread).
+#[allow(unsafe_code)]
+fn cpu_seconds() -> f64 {
+    // SAFETY: `getrusage` fills the zeroed plain C struct it is given.
+    let u = unsafe {
+        let mut u: libc::rusage = std::mem::zeroed();
+        libc::getrusage(libc::RUSAGE_SELF, &mut u);
+        u
+    };
+    let t = |v: libc::timeval| v.tv_sec as f64 + v.tv_usec as f64 * 1e-6;
+    t(u.ru_utime) + t(u.ru_stime)
 }
 
 fn median(mut v: Vec<f64>) -> f64 {
@@ -78,14 +95,18 @@ fn train(dataset: &Path, out: &Path, time: &str) -> anyhow::Result<f64> {
 /// Runs the benchmark (in the build it was started from).
 pub fn run(a: &ViewerBenchArgs) -> anyhow::Result<()> {
     let mut cfg = viewer::ViewerConfig::new(a.run.clone());
-    cfg.port = 0;
+    (cfg.port, cfg.nice) = (0, a.nice);
     let threads = cfg.threads;
     let v = viewer::Viewer::start(cfg)?;
     let loaded = v.app().watch.current().with_context(|| format!("{}: no checkpoint loads", a.run.display()))?;
     let bounds = loaded.config.bounds.clone().context("the run has no bounds")?;
     let (center, radius) = (bounds.center(), bounds.half_extent() * 3f32.sqrt());
     let (mut server, mut client) = (Vec::new(), Vec::new());
+    let mut cpu0 = 0.0;
     for k in 0..21 {
+        if k == 1 {
+            cpu0 = cpu_seconds();
+        }
         let t0 = std::time::Instant::now();
         let (status, ms, _) = get(v.addr(), &preview(center, radius, k as f64 * 0.1))?;
         anyhow::ensure!(status == 200, "preview request answered {status}");
@@ -94,12 +115,15 @@ pub fn run(a: &ViewerBenchArgs) -> anyhow::Result<()> {
             client.push(t0.elapsed().as_secs_f64() * 1e3);
         }
     }
+    let cpu_ms = (cpu_seconds() - cpu0) * 1e3 / 20.0;
     println!(
-        "256x256 preview of {} (step {}), {threads} viewer threads at nice 19: median {:.1} ms rendering and encoding, {:.1} ms answered (20 requests)",
+        "256x256 preview of {} (step {}), {threads} viewer threads at nice {}: median {:.1} ms rendering and encoding, {:.1} ms answered (20 requests); {cpu_ms:.0} ms of CPU each, {:.0} ms on {threads} idle cores if it all ran in parallel",
         a.run.display(),
         loaded.key.step,
+        a.nice,
         median(server),
-        median(client)
+        median(client),
+        cpu_ms / threads as f64
     );
     if a.preview_only {
         return Ok(());
