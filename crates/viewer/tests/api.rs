@@ -285,3 +285,16 @@ fn concurrent_requests_are_all_answered() {
         }
     }
 }
+
+/// An IPv6 host (`--host ::1`) is bracketed in the address listened on and in the URL.
+#[test]
+fn an_ipv6_host_is_served() {
+    if std::net::TcpListener::bind("[::1]:0").is_err() {
+        return; // no IPv6 loopback on this machine
+    }
+    let mut cfg = ViewerConfig::new(trained_run().into());
+    cfg.host = "::1".into();
+    let v = Viewer::start(cfg).unwrap();
+    assert!(v.url().starts_with("http://[::1]:"), "{}", v.url());
+    assert_eq!(get(v.addr(), "/api/status").status, 200);
+}
