@@ -17,6 +17,7 @@ mod path_video;
 mod render;
 mod score;
 mod train;
+mod view;
 
 /// mimalloc instead of the system allocator: the burn MLP allocates and frees tensors of
 /// megabytes every step, and glibc's malloc hands those pages back to the kernel and faults
@@ -67,6 +68,8 @@ enum Command {
     Train(train::TrainArgs),
     /// Render colour, opacity and depth from a trained run.
     RenderNerf(train::RenderNerfArgs),
+    /// A live web viewer of a run: orbit the field, compare with the exact ground truth, watch training.
+    View(view::ViewArgs),
     /// Write a camera path (nerfstudio's camera_path.json) around or through a dataset: an orbit, a spiral, or through chosen views.
     CameraPath(camera_path::CameraPathArgs),
     /// Evaluate a run against the dataset's ground truth and write its report.
@@ -197,6 +200,7 @@ fn main() -> std::process::ExitCode {
         Command::GenScenes(a) => gen_scenes::run(a),
         Command::Train(a) => train::run(a),
         Command::RenderNerf(a) => train::run_render(a),
+        Command::View(a) => view::run(a),
         Command::CameraPath(a) => camera_path::run(a),
         Command::Eval(a) => evaluate::run(a),
         Command::Mesh(a) => mesh::run(a),

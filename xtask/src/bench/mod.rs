@@ -13,6 +13,7 @@ mod poses;
 mod render;
 mod scaling;
 mod supervision;
+mod viewer;
 
 use anyhow::Context;
 use std::path::PathBuf;
@@ -42,6 +43,8 @@ pub enum BenchWhat {
     Supervision(supervision::SupervisionBenchArgs),
     /// Noisy training poses with and without camera refinement, at equal time (pose error against the exact poses, test PSNR, depth, mesh; means ± 2 SE over seeds; a plot against the noise level).
     Poses(poses::PosesBenchArgs),
+    /// The live viewer (release profile): a 256x256 preview's time, and a trainer's steps/s alone and with a viewer rendering continuously.
+    Viewer(viewer::ViewerBenchArgs),
 }
 
 /// Runs a benchmark.
@@ -70,6 +73,12 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         BenchWhat::AutoDiff(a) => auto_diff::run(a),
         BenchWhat::Supervision(a) => supervision::run(a),
         BenchWhat::Poses(a) => poses::run(a),
+        BenchWhat::Viewer(a) => {
+            if a.no_release || !rerun_in_release()? {
+                viewer::run(&a)?;
+            }
+            Ok(())
+        }
     }
 }
 
@@ -84,6 +93,7 @@ fn check_outputs(what: &BenchWhat) -> anyhow::Result<()> {
         BenchWhat::Auto(a) => folder(&a.out),
         BenchWhat::Supervision(a) => folder(&a.out),
         BenchWhat::Poses(a) => folder(&a.out),
+        BenchWhat::Viewer(_) => Ok(()),
         BenchWhat::AutoDiff(a) => {
             let path = auto_diff::report_path(a);
             crate::guard::check_output_files("--out", &path, std::slice::from_ref(&path), &[])
