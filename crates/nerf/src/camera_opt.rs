@@ -58,7 +58,7 @@ pub struct CameraOptConfig {
 
 impl Default for CameraOptConfig {
     fn default() -> Self {
-        Self { lr: 1e-3, warmup_steps: 200, max_rotation_deg: 15.0, max_translation_rel: 0.2 }
+        Self { lr: 2e-4, warmup_steps: 500, max_rotation_deg: 15.0, max_translation_rel: 0.2 }
     }
 }
 
