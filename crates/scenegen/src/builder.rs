@@ -125,6 +125,12 @@ pub struct Material {
     pub double_sided: bool,
     /// Glass: `KHR_materials_transmission`, `_ior` and `_volume` (`None` writes none).
     pub glass: Option<Glass>,
+    /// `KHR_materials_clearcoat`: (clearcoatFactor, clearcoatRoughnessFactor), each in [0, 1]
+    /// (`None` writes none).
+    pub clearcoat: Option<[f32; 2]>,
+    /// `KHR_materials_sheen`: (sheenColorFactor, sheenRoughnessFactor), in [0, 1] (`None`
+    /// writes none).
+    pub sheen: Option<([f32; 3], f32)>,
 }
 
 /// A transmissive material's extensions: `KHR_materials_transmission` (factor),
@@ -159,6 +165,8 @@ impl Material {
             emissive_strength: 1.0,
             double_sided: false,
             glass: None,
+            clearcoat: None,
+            sheen: None,
         }
     }
 
@@ -201,6 +209,22 @@ impl Material {
     pub fn with_glass(self, glass: Glass) -> Self {
         Material {
             glass: Some(glass),
+            ..self
+        }
+    }
+
+    /// With a clear coat of weight `factor` and `roughness` (`KHR_materials_clearcoat`).
+    pub fn with_clearcoat(self, factor: f32, roughness: f32) -> Self {
+        Material {
+            clearcoat: Some([factor, roughness]),
+            ..self
+        }
+    }
+
+    /// With a sheen of linear `color` and `roughness` (`KHR_materials_sheen`).
+    pub fn with_sheen(self, color: [f32; 3], roughness: f32) -> Self {
+        Material {
+            sheen: Some((color, roughness)),
             ..self
         }
     }
@@ -406,6 +430,11 @@ impl SceneBuilder {
         }
         if !(material.emissive_strength.is_finite() && material.emissive_strength >= 0.0) {
             return Err(bad("emissive strength must be finite and non-negative"));
+        }
+        let layers_ok = material.clearcoat.is_none_or(|c| c.iter().all(|&x| unit(x)))
+            && material.sheen.is_none_or(|(c, r)| c.iter().all(|&x| unit(x)) && unit(r));
+        if !layers_ok {
+            return Err(bad("clearcoat and sheen factors must lie in [0, 1]"));
         }
         if let Some(g) = &material.glass {
             let distance_ok = g.attenuation_distance.is_none_or(|d| d.is_finite() && d > 0.0);
@@ -876,6 +905,20 @@ impl SceneBuilder {
                     extensions.insert("KHR_materials_volume".into(), Value::Object(v));
                     used_ext.push("KHR_materials_volume");
                 }
+            }
+            if let Some([factor, roughness]) = m.clearcoat {
+                extensions.insert(
+                    "KHR_materials_clearcoat".into(),
+                    json!({ "clearcoatFactor": jf(factor), "clearcoatRoughnessFactor": jf(roughness) }),
+                );
+                used_ext.push("KHR_materials_clearcoat");
+            }
+            if let Some((color, roughness)) = &m.sheen {
+                extensions.insert(
+                    "KHR_materials_sheen".into(),
+                    json!({ "sheenColorFactor": jf_slice(color), "sheenRoughnessFactor": jf(*roughness) }),
+                );
+                used_ext.push("KHR_materials_sheen");
             }
             if !extensions.is_empty() {
                 mat.insert("extensions".into(), Value::Object(extensions));
