@@ -122,9 +122,9 @@ const SCENES: &[SceneDef] = &[
         description: "Clear coats and sheens (KHR_materials_clearcoat, KHR_materials_sheen) on coloured bases: on a \
             grey 2.4 m square ground, a back row of three spheres (radius 0.2 m) with a full clear coat — a red \
             rough plastic under a smooth coat (roughness 0.05), a blue one under a rough coat (0.4) and a gold \
-            metal under a half coat (0.5, roughness 0.1) — and a front row of three sheen spheres — a dark red \
-            velvet (sheen (1, 0.6, 0.6), roughness 0.3), a white base with a blue sheen (0.3, 0.5, 1) at \
-            roughness 0.8, and a green plastic with both a white sheen (0.5) and a clear coat (0.6, roughness \
+            metal under a half coat (0.5, roughness 0.1) — and a front row of three sheen spheres — a \
+            velvet (base (0.05, 0.01, 0.015), sheen (1, 0.6, 0.6), roughness 0.3), a near-black base with a blue \
+            sheen (0.3, 0.5, 1) at roughness 0.6, and a green plastic with both a white sheen (0.5) and a clear coat (0.6, roughness \
             0.2). Lights: a 2.5 lux sun and a 4 cd point light. No camera.",
         build: coated,
     },
@@ -994,8 +994,8 @@ fn coated() -> Result<SceneBuilder, SceneGenError> {
         Material::diffuse("coated_red", [0.7, 0.1, 0.08]).with_metallic_roughness(0.0, 0.7).with_clearcoat(1.0, 0.05),
         Material::diffuse("coated_blue", [0.1, 0.2, 0.7]).with_metallic_roughness(0.0, 0.6).with_clearcoat(1.0, 0.4),
         Material::diffuse("coated_gold", [1.0, 0.77, 0.34]).with_metallic_roughness(1.0, 0.5).with_clearcoat(0.5, 0.1),
-        Material::diffuse("velvet", [0.3, 0.02, 0.04]).with_metallic_roughness(0.0, 0.9).with_sheen([1.0, 0.6, 0.6], 0.3),
-        Material::diffuse("blue_sheen", [0.8, 0.8, 0.8]).with_metallic_roughness(0.0, 0.9).with_sheen([0.3, 0.5, 1.0], 0.8),
+        Material::diffuse("velvet", [0.05, 0.01, 0.015]).with_metallic_roughness(0.0, 0.9).with_sheen([1.0, 0.6, 0.6], 0.3),
+        Material::diffuse("blue_sheen", [0.02, 0.02, 0.02]).with_metallic_roughness(0.0, 0.9).with_sheen([0.3, 0.5, 1.0], 0.6),
         Material::diffuse("sheen_and_coat", [0.1, 0.5, 0.15]).with_metallic_roughness(0.0, 0.5).with_sheen([0.5; 3], 0.5).with_clearcoat(0.6, 0.2),
     ];
     for (k, m) in spheres.into_iter().enumerate() {
