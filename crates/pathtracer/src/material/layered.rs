@@ -39,14 +39,12 @@
 // Negated comparisons (`!(x > 0.0)`) are deliberate: they also reject NaN.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
-use super::{BsdfSample, MIN_ALPHA, MetallicRoughness, metallic_roughness::visible_normal};
+use super::metallic_roughness::{CLEARCOAT_F0, visible_normal};
+use super::{BsdfSample, MIN_ALPHA, MetallicRoughness};
 use crate::geometry::Frame;
 use glam::{Vec2, Vec3};
 use std::f64::consts::PI;
 use std::sync::OnceLock;
-
-/// Normal-incidence reflectance of the clear coat (ior 1.5).
-pub const CLEARCOAT_F0: f32 = 0.04;
 
 /// Smallest sheen roughness used: below it the Charlie lobe is narrower than the albedo table
 /// resolves (the README leaves the clamp to implementations).

@@ -24,6 +24,10 @@ pub const MIN_ALPHA: f32 = 1e-3;
 /// Normal-incidence reflectance of glTF's dielectric, `((1 − ior)/(1 + ior))²` with ior 1.5.
 pub const DIELECTRIC_F0: f32 = 0.04;
 
+/// Normal-incidence reflectance of `KHR_materials_clearcoat`'s coat (ior 1.5; see
+/// [`super::Layered`]).
+pub const CLEARCOAT_F0: f32 = 0.04;
+
 /// The dielectric layer's Fresnel endpoints (`KHR_materials_specular` with
 /// `KHR_materials_ior`, as the extensions' READMEs write them):
 ///
@@ -384,7 +388,7 @@ impl Material {
                 .filter(|g| g.is_finite())
                 .unwrap_or(1.0);
             let r = (c.roughness_factor * min_g).clamp(0.0, 1.0);
-            SpecularLobe { f0: super::CLEARCOAT_F0 * c.factor, alpha: (r * r).max(MIN_ALPHA) }
+            SpecularLobe { f0: CLEARCOAT_F0 * c.factor, alpha: (r * r).max(MIN_ALPHA) }
         });
         match (base, coat) {
             (Some(b), Some(c)) => Some(SpecularLobe { f0: b.f0.max(c.f0), alpha: b.alpha.min(c.alpha) }),

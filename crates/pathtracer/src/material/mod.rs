@@ -61,8 +61,8 @@ pub use gltf::{
 pub(crate) use lanes::{BsdfLanes, SampledLanes, evaluate_lanes, sample_lanes};
 pub use lanes::{evaluate_many, sample_many};
 pub use dielectric::{Dielectric, Transmissive, fresnel_dielectric};
-pub use layered::{CLEARCOAT_F0, Layered, SHEEN_MIN_ROUGHNESS, charlie_d, charlie_vis, sheen_albedo, sheen_albedo_integral};
-pub use metallic_roughness::{DIELECTRIC_F0, DielectricFresnel, MIN_ALPHA, MetallicRoughness, SpecularLobe, f0_from_ior};
+pub use layered::{Layered, SHEEN_MIN_ROUGHNESS, charlie_d, charlie_vis, sheen_albedo, sheen_albedo_integral};
+pub use metallic_roughness::{CLEARCOAT_F0, DIELECTRIC_F0, DielectricFresnel, MIN_ALPHA, MetallicRoughness, SpecularLobe, f0_from_ior};
 pub use shading::{MIN_SHADING_COS, facing_normals, normal_mapped, normal_mapped_by, shading_frame, triangle_tangent};
 
 use glam::{Vec2, Vec3};
