@@ -119,6 +119,11 @@ impl BsdfAt {
         self.wo
     }
 
+    /// The BSDF this was prepared from.
+    pub fn bsdf(&self) -> &Bsdf {
+        &self.bsdf
+    }
+
     /// [`Bsdf::evaluate`] and [`Bsdf::pdf`] at `wi` (one lane of [`evaluate_many`]).
     #[inline(always)]
     pub fn evaluate_pdf(&self, wi: Vec3) -> (Vec3, f32) {
