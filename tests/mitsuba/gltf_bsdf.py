@@ -39,8 +39,9 @@ READMEs and the formulas in crates/pathtracer/src/material/layered.rs's docs:
            in cos(theta_L) x uniform phi, bilinear lookup), Ê = min(E, 1),
            under = S D_s V_s Ê/E + f (1 - max(S) Ê)   (E and Ê at N.V)
     coat:  Fc = 0.04 + 0.96 (1 - Nc.V)^5, coat = D(a_c, Nc.H) Vis(a_c, Nc.L, Nc.V) (GGX, F = 1),
-           a_c = max(clearcoat_roughness^2, 1e-3), Nc = the interpolated normal (flipped, bent as
-           N) when the base is normal-mapped, else N
+           a_c = max(clearcoat_roughness^2, 1e-3), Nc = the interpolated normal mapped by the
+           clearcoat normal texture if any, else unmapped when the base is normal-mapped, else N
+           (flipped and bent as N)
     eval = (1 - c Fc) under N.L + c Fc coat Nc.L
 
 Their sampling here is this plugin's own: coat visible normals with probability c Fc, uniform
@@ -101,6 +102,8 @@ class GltfBSDF(mi.BSDF):
         self.sheen_roughness = float(opt("sheen_roughness", 0.0))
         self.sheen_color_texture = opt("sheen_color_texture", None)
         self.sheen_roughness_texture = opt("sheen_roughness_texture", None)
+        self.clearcoat_normal_texture = opt("clearcoat_normal_texture", None)
+        self.clearcoat_normal_scale = float(opt("clearcoat_normal_scale", 1.0))
         self.has_coat = self.clearcoat > 0.0
         self.has_sheen = max(self.sheen_color) > 0.0
         if self.has_sheen:
@@ -143,21 +146,7 @@ class GltfBSDF(mi.BSDF):
         flipped = dr.dot(ns_front, ng_f) < 0
         ns = ns_front
         if self.normal_texture is not None:
-            t = si.shape.eval_attribute_3("vertex_tangent", si, active)
-            w = si.shape.eval_attribute_1("vertex_tangent_w", si, active)
-            t = t - ns * dr.dot(ns, t)
-            tl = dr.norm(t)
-            t_ok = (tl > 0) & dr.isfinite(tl)
-            t = t / dr.select(t_ok, tl, 1.0)
-            b = dr.cross(ns, t) * dr.select(w < 0, -1.0, 1.0)
-            c = mi.Vector3f(self.normal_texture.eval(si, active)) * 2.0 - 1.0
-            c = mi.Vector3f(c.x * self.normal_scale, c.y * self.normal_scale, c.z)
-            cl = dr.norm(c)
-            c = c / dr.select(cl > 0, cl, 1.0)
-            m = t * c.x + b * c.y + ns * c.z
-            ml = dr.norm(m)
-            ok = t_ok & (cl > 0) & (ml > 0) & dr.isfinite(ml)
-            ns = dr.select(ok, m / dr.select(ml > 0, ml, 1.0), ns)
+            ns = self.mapped(si, active, ns, self.normal_texture, self.normal_scale)
         n = dr.select(flipped, -ns, ns)
         cv = dr.dot(n, v)
         bent = n + (MIN_SHADING_COS - cv) * v
@@ -165,6 +154,25 @@ class GltfBSDF(mi.BSDF):
         bent = dr.select(bl > 0, bent / dr.select(bl > 0, bl, 1.0), v)
         n = dr.select(cv >= MIN_SHADING_COS, n, bent)
         return mi.Frame3f(n), ng_f, v
+
+    @staticmethod
+    def mapped(si, active, ns, texture, scale):
+        """ns normal-mapped by `texture` with `scale`, in the exported corner tangents' frame."""
+        t = si.shape.eval_attribute_3("vertex_tangent", si, active)
+        w = si.shape.eval_attribute_1("vertex_tangent_w", si, active)
+        t = t - ns * dr.dot(ns, t)
+        tl = dr.norm(t)
+        t_ok = (tl > 0) & dr.isfinite(tl)
+        t = t / dr.select(t_ok, tl, 1.0)
+        b = dr.cross(ns, t) * dr.select(w < 0, -1.0, 1.0)
+        c = mi.Vector3f(texture.eval(si, active)) * 2.0 - 1.0
+        c = mi.Vector3f(c.x * scale, c.y * scale, c.z)
+        cl = dr.norm(c)
+        c = c / dr.select(cl > 0, cl, 1.0)
+        m = t * c.x + b * c.y + ns * c.z
+        ml = dr.norm(m)
+        ok = t_ok & (cl > 0) & (ml > 0) & dr.isfinite(ml)
+        return dr.select(ok, m / dr.select(ml > 0, ml, 1.0), ns)
 
     # --- the model -----------------------------------------------------------------------
     @staticmethod
@@ -248,15 +256,19 @@ class GltfBSDF(mi.BSDF):
             sr = sr * self.sheen_roughness_texture.eval(si, active)[0]
         return dr.clip(c, 0.0, 1.0), dr.maximum(cr * cr, MIN_ALPHA), dr.clip(s, 0.0, 1.0), dr.clip(sr, 0.0, 1.0)
 
-    def coat_normal(self, si, fr, v_w):
-        """The coat's normal (world): the frame's, or the unmapped interpolated one, flipped
-        and bent like the frame's, where the base is normal-mapped."""
-        if self.normal_texture is None:
+    def coat_normal(self, si, fr, v_w, active=True):
+        """The coat's normal (world): its own normal map's, else the unmapped interpolated
+        one where the base is normal-mapped, else the frame's; flipped and bent like the
+        frame's."""
+        if self.normal_texture is None and self.clearcoat_normal_texture is None:
             return fr.n
         ng = mi.Vector3f(si.n)
         ng_f = dr.select(dr.dot(ng, v_w) < 0, -ng, ng)
-        ns = mi.Vector3f(si.sh_frame.n)
-        n = dr.select(dr.dot(ns, ng_f) < 0, -ns, ns)
+        ns_front = mi.Vector3f(si.sh_frame.n)
+        ns = ns_front
+        if self.clearcoat_normal_texture is not None:
+            ns = self.mapped(si, active, ns, self.clearcoat_normal_texture, self.clearcoat_normal_scale)
+        n = dr.select(dr.dot(ns_front, ng_f) < 0, -ns, ns)
         cv = dr.dot(n, v_w)
         bent = n + (MIN_SHADING_COS - cv) * v_w
         bl = dr.norm(bent)
@@ -285,7 +297,7 @@ class GltfBSDF(mi.BSDF):
         val = under * l.z
         pdf = 0.0
         if self.has_coat:
-            nc = self.coat_normal(si, fr, v_w)
+            nc = self.coat_normal(si, fr, v_w, active)
             cv, cl = dr.dot(nc, v_w), dr.dot(nc, l_w)
             cf = dr.select(cv > 0, c * (0.04 + 0.96 * dr.power(1.0 - dr.minimum(cv, 1.0), 5.0)), 0.0)
             hc = dr.normalize(v_w + l_w)
@@ -311,7 +323,7 @@ class GltfBSDF(mi.BSDF):
         c, ac, s, sr = self.layers(si, active)
         p_coat = 0.0
         if self.has_coat:
-            nc = self.coat_normal(si, fr, v_w)
+            nc = self.coat_normal(si, fr, v_w, active)
             cv = dr.dot(nc, v_w)
             p_coat = dr.select(cv > 0, c * (0.04 + 0.96 * dr.power(1.0 - dr.minimum(cv, 1.0), 5.0)), 0.0)
         p_sheen = 0.0
@@ -524,8 +536,13 @@ def bsdf_dict(mi_module, mat, textures, has_vertex_colors):
         d["metallic_roughness"] = scene_loader.bitmap_texture(mi_module, textures[mr["texture"]], mr, [1.0, 1.0, 1.0])
     cc = mat.get("clearcoat")
     if cc is not None:
-        if cc.get("normal_texture") is not None:
-            raise scene_loader.Unsupported(f"material {mat['name']}: clearcoat normal map")
+        cn = cc.get("normal_texture")
+        if cn is not None:
+            base_map = mat["normal_texture"]
+            if base_map is not None and base_map["tex_coord"] != cn["tex_coord"]:
+                raise scene_loader.Unsupported(f"material {mat['name']}: base and clearcoat normal maps on different UV sets")
+            d["clearcoat_normal_texture"] = scene_loader.bitmap_texture(mi_module, textures[cn["texture"]], cn, [1.0, 1.0, 1.0])
+            d["clearcoat_normal_scale"] = float(cc["normal_scale"])
         d["clearcoat"] = float(cc["factor"])
         d["clearcoat_roughness"] = float(cc["roughness"])
         if cc.get("texture") is not None:

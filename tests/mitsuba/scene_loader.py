@@ -13,8 +13,8 @@ Mapping (ours -> Mitsuba):
   from the Rust doc comments, evaluated in our shading frame: normal map with the exported
   per-corner tangents, back-facing shading normals bent, directions below the geometric
   surface rejected), with the same base colour and metallic-roughness textures; the
-  KHR_materials_clearcoat and _sheen layers are the plugin's too (a clearcoat normal map is
-  `Unsupported`);
+  KHR_materials_clearcoat and _sheen layers are the plugin's too (a clearcoat normal map on
+  another UV set than the base's is `Unsupported`);
 - transmissive material (`transmission` > 0, KHR_materials_transmission): smooth and
   thin-walled -> `thindielectric`; with a volume -> `dielectric` (roughness 0) or
   `roughdielectric` (GGX, alpha = max(roughness^2, 1e-3), visible normals), int_ior = ior,
@@ -197,7 +197,7 @@ def build_meshes(mi, man, arrays, glossy_plugin=None):
         tris = idx[sel]
         if len(tris) == 0:
             continue
-        normal_mapped = mat["normal_texture"] is not None
+        normal_mapped = mat["normal_texture"] is not None or (mat.get("clearcoat") or {}).get("normal_texture") is not None
         if normal_mapped:
             # One vertex per triangle corner, carrying the tangent ours uses there
             # (corner_tangents.npy; linear over the triangle, so Mitsuba's interpolation of the

@@ -16,7 +16,7 @@
 //!   normal-mapping tangent (xyz, handedness w) the renderer uses there
 //!   ([`crate::integrator::tangent_at`]: the asset's TANGENT, or the per-triangle tangent from
 //!   the UVs; linear over the triangle, so interpolating the corners reproduces it), zero for
-//!   triangles whose material has no normal map;
+//!   triangles whose material has no normal map (the base's, else the clear coat's);
 //!   `environment_map.npy` `<f4 (H, W, 3)` (only with an environment map): the equirectangular
 //!   map's linear texels as the renderer loaded them (row 0 the top row = +Y; see
 //!   [`crate::light::EnvironmentMap::direction`]), sampled nearest, scaled by `environment`.
@@ -508,7 +508,9 @@ pub fn export_scene(scene: &Scene, cameras: &[Camera], settings: &RenderSettings
     let mut corners = vec![0.0f32; nt * 12];
     for (k, tri) in m.indices.iter().enumerate() {
         let mat = m.material.get(k).and_then(|&i| scene.materials.get(i as usize));
-        let Some((r, _)) = mat.and_then(|mat| mat.normal_texture.as_ref()) else { continue };
+        // The base's normal map, else the clear coat's (which the Mitsuba side refuses where
+        // both exist on different UV sets).
+        let Some((r, _)) = mat.and_then(|mat| mat.normal_texture.or(mat.clearcoat.and_then(|c| c.normal_texture))) else { continue };
         let p = tri.map(|i| m.positions[i as usize]);
         let ng_front = (p[1] - p[0]).cross(p[2] - p[0]).normalize_or_zero();
         for c in 0..3 {

@@ -128,6 +128,9 @@ pub struct Material {
     /// `KHR_materials_clearcoat`: (clearcoatFactor, clearcoatRoughnessFactor), each in [0, 1]
     /// (`None` writes none).
     pub clearcoat: Option<[f32; 2]>,
+    /// The clear coat's own normal map and its scale (`clearcoatNormalTexture`; written only
+    /// with a clear coat; the mesh should carry tangents).
+    pub clearcoat_normal_texture: Option<(TextureId, f32)>,
     /// `KHR_materials_sheen`: (sheenColorFactor, sheenRoughnessFactor), in [0, 1] (`None`
     /// writes none).
     pub sheen: Option<([f32; 3], f32)>,
@@ -166,6 +169,7 @@ impl Material {
             double_sided: false,
             glass: None,
             clearcoat: None,
+            clearcoat_normal_texture: None,
             sheen: None,
         }
     }
@@ -217,6 +221,14 @@ impl Material {
     pub fn with_clearcoat(self, factor: f32, roughness: f32) -> Self {
         Material {
             clearcoat: Some([factor, roughness]),
+            ..self
+        }
+    }
+
+    /// With a normal map of the given scale on the clear coat alone.
+    pub fn with_clearcoat_normal_map(self, texture: TextureId, scale: f32) -> Self {
+        Material {
+            clearcoat_normal_texture: Some((texture, scale)),
             ..self
         }
     }
@@ -412,7 +424,8 @@ impl SceneBuilder {
         let textures = material
             .base_color_texture
             .into_iter()
-            .chain(material.normal_texture.map(|t| t.0));
+            .chain(material.normal_texture.map(|t| t.0))
+            .chain(material.clearcoat_normal_texture.map(|t| t.0));
         for t in textures {
             if t.0 >= self.textures.len() {
                 return Err(bad("texture id out of range"));
@@ -907,10 +920,11 @@ impl SceneBuilder {
                 }
             }
             if let Some([factor, roughness]) = m.clearcoat {
-                extensions.insert(
-                    "KHR_materials_clearcoat".into(),
-                    json!({ "clearcoatFactor": jf(factor), "clearcoatRoughnessFactor": jf(roughness) }),
-                );
+                let mut c = json!({ "clearcoatFactor": jf(factor), "clearcoatRoughnessFactor": jf(roughness) });
+                if let Some((t, scale)) = m.clearcoat_normal_texture {
+                    c["clearcoatNormalTexture"] = json!({ "index": t.0, "scale": jf(scale) });
+                }
+                extensions.insert("KHR_materials_clearcoat".into(), c);
                 used_ext.push("KHR_materials_clearcoat");
             }
             if let Some((color, roughness)) = &m.sheen {
