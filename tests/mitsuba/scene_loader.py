@@ -12,7 +12,9 @@ Mapping (ours -> Mitsuba):
 - every other material -> the `gltf` BSDF plugin of `gltf_bsdf.py` (our glTF BRDF, written
   from the Rust doc comments, evaluated in our shading frame: normal map with the exported
   per-corner tangents, back-facing shading normals bent, directions below the geometric
-  surface rejected), with the same base colour and metallic-roughness textures;
+  surface rejected), with the same base colour and metallic-roughness textures; the
+  KHR_materials_clearcoat and _sheen layers are the plugin's too (a clearcoat normal map on
+  another UV set than the base's is `Unsupported`);
 - transmissive material (`transmission` > 0, KHR_materials_transmission): smooth and
   thin-walled -> `thindielectric`; with a volume -> `dielectric` (roughness 0) or
   `roughdielectric` (GGX, alpha = max(roughness^2, 1e-3), visible normals), int_ior = ior,
@@ -153,6 +155,8 @@ def material_bsdf(mi, mat, textures, has_vertex_colors, glossy_plugin):
     # Ours shades exactly Lambertian only when metallic and the specular weight are both 0
     # (material.rs `resolve`); everything else goes through the glTF BRDF.
     lambertian = mat["metallic"] <= 0.0 and mat.get("specular", 1.0) <= 0.0 and mat["metallic_roughness_texture"] is None
+    # Clearcoat and sheen layers (KHR_materials_clearcoat, _sheen) are the plugin's.
+    lambertian = lambertian and mat.get("clearcoat") is None and mat.get("sheen") is None
     if not lambertian:
         if glossy_plugin is None:
             raise Unsupported(f"material {mat['name']}: glTF BRDF without the gltf BSDF plugin")
@@ -193,7 +197,7 @@ def build_meshes(mi, man, arrays, glossy_plugin=None):
         tris = idx[sel]
         if len(tris) == 0:
             continue
-        normal_mapped = mat["normal_texture"] is not None
+        normal_mapped = mat["normal_texture"] is not None or (mat.get("clearcoat") or {}).get("normal_texture") is not None
         if normal_mapped:
             # One vertex per triangle corner, carrying the tangent ours uses there
             # (corner_tangents.npy; linear over the triangle, so Mitsuba's interpolation of the

@@ -16,7 +16,7 @@
 //!   normal-mapping tangent (xyz, handedness w) the renderer uses there
 //!   ([`crate::integrator::tangent_at`]: the asset's TANGENT, or the per-triangle tangent from
 //!   the UVs; linear over the triangle, so interpolating the corners reproduces it), zero for
-//!   triangles whose material has no normal map;
+//!   triangles whose material has no normal map (the base's, else the clear coat's);
 //!   `environment_map.npy` `<f4 (H, W, 3)` (only with an environment map): the equirectangular
 //!   map's linear texels as the renderer loaded them (row 0 the top row = +Y; see
 //!   [`crate::light::EnvironmentMap::direction`]), sampled nearest, scaled by `environment`.
@@ -182,6 +182,42 @@ pub struct ExportMaterial {
     /// `KHR_materials_volume` with a thickness > 0 (absent: thin-walled).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub volume: Option<ExportVolume>,
+    /// `KHR_materials_clearcoat` (absent: no coat).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub clearcoat: Option<ExportClearcoat>,
+    /// `KHR_materials_sheen` (absent: no sheen).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sheen: Option<ExportSheen>,
+}
+
+/// A material's clear coat ([`crate::scene::Clearcoat`], [`crate::material::Layered`]).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ExportClearcoat {
+    /// `clearcoatFactor`.
+    pub factor: f32,
+    /// `clearcoatTexture` (its R multiplies `factor`).
+    pub texture: Option<ExportTextureRef>,
+    /// `clearcoatRoughnessFactor`.
+    pub roughness: f32,
+    /// `clearcoatRoughnessTexture` (its G multiplies `roughness`).
+    pub roughness_texture: Option<ExportTextureRef>,
+    /// `clearcoatNormalTexture`.
+    pub normal_texture: Option<ExportTextureRef>,
+    /// Its scale.
+    pub normal_scale: f32,
+}
+
+/// A material's sheen ([`crate::scene::Sheen`], [`crate::material::Layered`]).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ExportSheen {
+    /// `sheenColorFactor` (linear RGB).
+    pub color: [f32; 3],
+    /// `sheenColorTexture` (linear texels; RGB multiplies `color`).
+    pub color_texture: Option<ExportTextureRef>,
+    /// `sheenRoughnessFactor`.
+    pub roughness: f32,
+    /// `sheenRoughnessTexture` (its A multiplies `roughness`).
+    pub roughness_texture: Option<ExportTextureRef>,
 }
 
 /// A material's interior ([`crate::scene::Volume`]): Beer–Lambert absorption
@@ -377,6 +413,20 @@ pub fn manifest(scene: &Scene, cameras: &[Camera], settings: &RenderSettings) ->
                     attenuation_color: v.attenuation_color.to_array(),
                     attenuation_distance: v.attenuation_distance.is_finite().then_some(v.attenuation_distance),
                 }),
+                clearcoat: m.clearcoat.map(|c| ExportClearcoat {
+                    factor: c.factor,
+                    texture: c.texture.as_ref().map(Into::into),
+                    roughness: c.roughness_factor,
+                    roughness_texture: c.roughness_texture.as_ref().map(Into::into),
+                    normal_texture: c.normal_texture.as_ref().map(|(r, _)| r.into()),
+                    normal_scale: c.normal_texture.map(|(_, s)| s).unwrap_or(1.0),
+                }),
+                sheen: m.sheen.map(|h| ExportSheen {
+                    color: h.color_factor.to_array(),
+                    color_texture: h.color_texture.as_ref().map(Into::into),
+                    roughness: h.roughness_factor,
+                    roughness_texture: h.roughness_texture.as_ref().map(Into::into),
+                }),
             }
         })
         .collect();
@@ -458,7 +508,9 @@ pub fn export_scene(scene: &Scene, cameras: &[Camera], settings: &RenderSettings
     let mut corners = vec![0.0f32; nt * 12];
     for (k, tri) in m.indices.iter().enumerate() {
         let mat = m.material.get(k).and_then(|&i| scene.materials.get(i as usize));
-        let Some((r, _)) = mat.and_then(|mat| mat.normal_texture.as_ref()) else { continue };
+        // The base's normal map, else the clear coat's (which the Mitsuba side refuses where
+        // both exist on different UV sets).
+        let Some((r, _)) = mat.and_then(|mat| mat.normal_texture.or(mat.clearcoat.and_then(|c| c.normal_texture))) else { continue };
         let p = tri.map(|i| m.positions[i as usize]);
         let ng_front = (p[1] - p[0]).cross(p[2] - p[0]).normalize_or_zero();
         for c in 0..3 {

@@ -47,7 +47,7 @@ use crate::accel::{Accel, Hit, TraversalStack};
 use crate::caustic_partition::CausticVertices;
 use crate::geometry::{Frame, Ray, hit_point_error, offset_ray_origin};
 use crate::light::{EmissiveTriangles, Environment, punctual_incidence};
-use crate::material::{BsdfAt, BsdfSample, SurfaceAttributes, evaluate_many, sample_many, SurfaceMaterial, base_color, emission, facing_normals, normal_mapped, resolve, shading_frame, triangle_tangent};
+use crate::material::{Bsdf, BsdfAt, BsdfSample, SurfaceAttributes, evaluate_many, sample_many, SurfaceMaterial, base_color, emission, facing_normals, normal_mapped, normal_mapped_by, resolve, shading_frame, triangle_tangent};
 use crate::sampler::{Sampler, power_heuristic, splitmix64};
 use crate::scene::{AlphaMode, Material, Scene};
 use glam::{Vec2, Vec3, Vec4};
@@ -261,8 +261,23 @@ pub fn vertex_bsdf(scene: &Scene, si: &Interaction, mat: &Material, surf: &Surfa
     };
     let back = si.n.dot(si.ns_front) < 0.0;
     let frame = shading_frame(ns, back, wo);
-    let bsdf = surf.bsdf.seen_from(back).at(frame.to_local(wo));
-    (frame, bsdf)
+    let mut bsdf = surf.bsdf.seen_from(back);
+    if let (Bsdf::Layered(l), Some(c)) = (&mut bsdf, mat.clearcoat) {
+        // The coat's own normal: its normal map, else the unmapped interpolated normal where
+        // the base's is mapped (else the frame's own), flipped and bent like the base's.
+        let coat = match &c.normal_texture {
+            Some((r, scale)) => {
+                let tangent = tangent_at(scene, si.prim, si.b, r.tex_coord, si.ng_front);
+                Some(normal_mapped_by(r, *scale, &scene.textures, &si.attr, si.ns_front, tangent))
+            }
+            None => mat.normal_texture.is_some().then_some(si.ns_front),
+        };
+        if let Some(nc) = coat {
+            let n = frame.to_local(shading_frame(nc, back, wo).n).normalize_or_zero();
+            l.coat_normal = if n == Vec3::ZERO { Vec3::Z } else { n };
+        }
+    }
+    (frame, bsdf.at(frame.to_local(wo)))
 }
 
 /// A path of [`PathIntegrator::radiance_batch`] in flight: at the vertex `hit` of `ray`.

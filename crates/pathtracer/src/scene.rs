@@ -199,6 +199,44 @@ pub struct Material {
     /// `KHR_materials_volume` with a thickness factor > 0: the mesh bounds a volume (refraction
     /// bends rays, Beer–Lambert absorption inside); `None`: thin-walled.
     pub volume: Option<Volume>,
+    /// `KHR_materials_clearcoat` with a `clearcoatFactor` > 0; `None`: no coat.
+    pub clearcoat: Option<Clearcoat>,
+    /// `KHR_materials_sheen` with a `sheenColorFactor` other than black; `None`: no sheen.
+    pub sheen: Option<Sheen>,
+}
+
+/// `KHR_materials_clearcoat`: a GGX specular layer over the material
+/// ([`crate::material::Layered`]). At a point: clearcoat = `factor × texture.R`, roughness =
+/// `roughness_factor × roughness_texture.G`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Clearcoat {
+    /// `clearcoatFactor`, in (0, 1].
+    pub factor: f32,
+    /// `clearcoatTexture` (its R channel).
+    pub texture: Option<TextureRef>,
+    /// `clearcoatRoughnessFactor`, in [0, 1].
+    pub roughness_factor: f32,
+    /// `clearcoatRoughnessTexture` (its G channel).
+    pub roughness_texture: Option<TextureRef>,
+    /// `clearcoatNormalTexture` and its scale; without it the coat is not normal-mapped, even
+    /// where the base is.
+    pub normal_texture: Option<(TextureRef, f32)>,
+}
+
+/// `KHR_materials_sheen`: a Charlie sheen layer over the material
+/// ([`crate::material::Layered`]). At a point: sheen colour = `color_factor ×
+/// color_texture.RGB` (sRGB decoded at import), roughness = `roughness_factor ×
+/// roughness_texture.A`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Sheen {
+    /// `sheenColorFactor` (linear RGB in [0, 1], not all 0).
+    pub color_factor: Vec3,
+    /// `sheenColorTexture` (its RGB).
+    pub color_texture: Option<TextureRef>,
+    /// `sheenRoughnessFactor`, in [0, 1].
+    pub roughness_factor: f32,
+    /// `sheenRoughnessTexture` (its A channel).
+    pub roughness_texture: Option<TextureRef>,
 }
 
 /// The interior of a `KHR_materials_volume` material: light travelling a distance `d` inside
@@ -252,6 +290,8 @@ impl Material {
             transmission_factor: 0.0,
             transmission_texture: None,
             volume: None,
+            clearcoat: None,
+            sheen: None,
         }
     }
 

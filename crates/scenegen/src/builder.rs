@@ -125,6 +125,15 @@ pub struct Material {
     pub double_sided: bool,
     /// Glass: `KHR_materials_transmission`, `_ior` and `_volume` (`None` writes none).
     pub glass: Option<Glass>,
+    /// `KHR_materials_clearcoat`: (clearcoatFactor, clearcoatRoughnessFactor), each in [0, 1]
+    /// (`None` writes none).
+    pub clearcoat: Option<[f32; 2]>,
+    /// The clear coat's own normal map and its scale (`clearcoatNormalTexture`; written only
+    /// with a clear coat; the mesh should carry tangents).
+    pub clearcoat_normal_texture: Option<(TextureId, f32)>,
+    /// `KHR_materials_sheen`: (sheenColorFactor, sheenRoughnessFactor), in [0, 1] (`None`
+    /// writes none).
+    pub sheen: Option<([f32; 3], f32)>,
 }
 
 /// A transmissive material's extensions: `KHR_materials_transmission` (factor),
@@ -159,6 +168,9 @@ impl Material {
             emissive_strength: 1.0,
             double_sided: false,
             glass: None,
+            clearcoat: None,
+            clearcoat_normal_texture: None,
+            sheen: None,
         }
     }
 
@@ -201,6 +213,30 @@ impl Material {
     pub fn with_glass(self, glass: Glass) -> Self {
         Material {
             glass: Some(glass),
+            ..self
+        }
+    }
+
+    /// With a clear coat of weight `factor` and `roughness` (`KHR_materials_clearcoat`).
+    pub fn with_clearcoat(self, factor: f32, roughness: f32) -> Self {
+        Material {
+            clearcoat: Some([factor, roughness]),
+            ..self
+        }
+    }
+
+    /// With a normal map of the given scale on the clear coat alone.
+    pub fn with_clearcoat_normal_map(self, texture: TextureId, scale: f32) -> Self {
+        Material {
+            clearcoat_normal_texture: Some((texture, scale)),
+            ..self
+        }
+    }
+
+    /// With a sheen of linear `color` and `roughness` (`KHR_materials_sheen`).
+    pub fn with_sheen(self, color: [f32; 3], roughness: f32) -> Self {
+        Material {
+            sheen: Some((color, roughness)),
             ..self
         }
     }
@@ -388,7 +424,8 @@ impl SceneBuilder {
         let textures = material
             .base_color_texture
             .into_iter()
-            .chain(material.normal_texture.map(|t| t.0));
+            .chain(material.normal_texture.map(|t| t.0))
+            .chain(material.clearcoat_normal_texture.map(|t| t.0));
         for t in textures {
             if t.0 >= self.textures.len() {
                 return Err(bad("texture id out of range"));
@@ -406,6 +443,11 @@ impl SceneBuilder {
         }
         if !(material.emissive_strength.is_finite() && material.emissive_strength >= 0.0) {
             return Err(bad("emissive strength must be finite and non-negative"));
+        }
+        let layers_ok = material.clearcoat.is_none_or(|c| c.iter().all(|&x| unit(x)))
+            && material.sheen.is_none_or(|(c, r)| c.iter().all(|&x| unit(x)) && unit(r));
+        if !layers_ok {
+            return Err(bad("clearcoat and sheen factors must lie in [0, 1]"));
         }
         if let Some(g) = &material.glass {
             let distance_ok = g.attenuation_distance.is_none_or(|d| d.is_finite() && d > 0.0);
@@ -876,6 +918,21 @@ impl SceneBuilder {
                     extensions.insert("KHR_materials_volume".into(), Value::Object(v));
                     used_ext.push("KHR_materials_volume");
                 }
+            }
+            if let Some([factor, roughness]) = m.clearcoat {
+                let mut c = json!({ "clearcoatFactor": jf(factor), "clearcoatRoughnessFactor": jf(roughness) });
+                if let Some((t, scale)) = m.clearcoat_normal_texture {
+                    c["clearcoatNormalTexture"] = json!({ "index": t.0, "scale": jf(scale) });
+                }
+                extensions.insert("KHR_materials_clearcoat".into(), c);
+                used_ext.push("KHR_materials_clearcoat");
+            }
+            if let Some((color, roughness)) = &m.sheen {
+                extensions.insert(
+                    "KHR_materials_sheen".into(),
+                    json!({ "sheenColorFactor": jf_slice(color), "sheenRoughnessFactor": jf(*roughness) }),
+                );
+                used_ext.push("KHR_materials_sheen");
             }
             if !extensions.is_empty() {
                 mat.insert("extensions".into(), Value::Object(extensions));

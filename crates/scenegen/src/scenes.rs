@@ -117,11 +117,23 @@ const SCENES: &[SceneDef] = &[
             render's, found by BSDF sampling). No camera.",
         build: glass,
     },
+    SceneDef {
+        name: "coated",
+        description: "Clear coats and sheens (KHR_materials_clearcoat, KHR_materials_sheen) on coloured bases: on a \
+            grey 2.4 m square ground, a back row of three spheres (radius 0.2 m) with a full clear coat — a red \
+            rough plastic under a smooth bumpy coat (roughness 0.05, a clearcoatNormalTexture of round bumps \
+            over the unmapped base; the sphere carries TANGENT), a blue one under a rough coat (0.4) and a gold \
+            metal under a half coat (0.5, roughness 0.1) — and a front row of three sheen spheres — a \
+            velvet (base (0.05, 0.01, 0.015), sheen (1, 0.6, 0.6), roughness 0.3), a near-black base with a blue \
+            sheen (0.3, 0.5, 1) at roughness 0.6, and a green plastic with both a white sheen (0.5) and a clear coat (0.6, roughness \
+            0.2). Lights: a 2.5 lux sun and a 4 cd point light. No camera.",
+        build: coated,
+    },
 ];
 
 /// Names of the built-in scenes, in the order [`crate::write_all`] writes them.
 pub fn scene_names() -> &'static [&'static str] {
-    const NAMES: &[&str] = &["cornell", "tabletop", "thin", "deep", "materials", "bricks", "skinned", "morphed", "glass"];
+    const NAMES: &[&str] = &["cornell", "tabletop", "thin", "deep", "materials", "bricks", "skinned", "morphed", "glass", "coated"];
     NAMES
 }
 
@@ -972,4 +984,49 @@ mod tests {
             Err(SceneGenError::UnknownScene { .. })
         ));
     }
+}
+
+fn coated() -> Result<SceneBuilder, SceneGenError> {
+    let mut s = SceneBuilder::new("coated");
+    let ground = s.add_material(Material::diffuse("ground", [0.5, 0.5, 0.5]).with_metallic_roughness(0.0, 0.9))?;
+    s.add_mesh("ground", Mesh::quad(Vec2::new(2.4, 2.4), 1.0).with_planar_uvs(0.6), ground, Transform::IDENTITY)?;
+    let sphere = s.add_geometry("sphere", Mesh::uv_sphere(0.2, 48, 24))?;
+    let tangent_sphere = s.add_geometry("tangent_sphere", Mesh::uv_sphere(0.2, 48, 24).with_tangents())?;
+    let bumps = Bumps { cells: 8, radius: 0.4, height: 0.02 };
+    let coat_bumps = s.add_texture("coat_bumps_normal", bump_normal_map(128, &bumps))?;
+    let spheres = [
+        Material::diffuse("coated_red", [0.7, 0.1, 0.08])
+            .with_metallic_roughness(0.0, 0.7)
+            .with_clearcoat(1.0, 0.05)
+            .with_clearcoat_normal_map(coat_bumps, 1.0),
+        Material::diffuse("coated_blue", [0.1, 0.2, 0.7]).with_metallic_roughness(0.0, 0.6).with_clearcoat(1.0, 0.4),
+        Material::diffuse("coated_gold", [1.0, 0.77, 0.34]).with_metallic_roughness(1.0, 0.5).with_clearcoat(0.5, 0.1),
+        Material::diffuse("velvet", [0.05, 0.01, 0.015]).with_metallic_roughness(0.0, 0.9).with_sheen([1.0, 0.6, 0.6], 0.3),
+        Material::diffuse("blue_sheen", [0.02, 0.02, 0.02]).with_metallic_roughness(0.0, 0.9).with_sheen([0.3, 0.5, 1.0], 0.6),
+        Material::diffuse("sheen_and_coat", [0.1, 0.5, 0.15]).with_metallic_roughness(0.0, 0.5).with_sheen([0.5; 3], 0.5).with_clearcoat(0.6, 0.2),
+    ];
+    for (k, m) in spheres.into_iter().enumerate() {
+        let name = format!("{}_sphere", m.name);
+        let id = s.add_material(m)?;
+        let (x, z) = (-0.5 + 0.5 * (k % 3) as f32, if k < 3 { -0.25 } else { 0.3 });
+        let g = if k == 0 { tangent_sphere } else { sphere };
+        s.add_instance(&name, g, id, Transform::from_translation(Vec3::new(x, 0.2, z)))?;
+    }
+    s.add_light(
+        "sun",
+        Light::Directional {
+            color: [1.0, 0.97, 0.92],
+            illuminance: 2.5,
+        },
+        sun_from(Vec3::new(1.0, 2.0, 1.5)),
+    )?;
+    s.add_light(
+        "lamp",
+        Light::Point {
+            color: [1.0, 1.0, 1.0],
+            intensity: 4.0,
+        },
+        Transform::from_translation(Vec3::new(-0.8, 1.2, 0.9)),
+    )?;
+    Ok(s)
 }

@@ -1,6 +1,7 @@
 //! glTF materials → [`Material`]: factors, textures with their samplers, emissive strength,
 //! `KHR_materials_specular`, `KHR_materials_ior`, `KHR_materials_transmission`,
-//! `KHR_materials_volume` and `KHR_texture_transform` (on every texture read). The extensions
+//! `KHR_materials_volume`, `KHR_materials_clearcoat`, `KHR_materials_sheen` and
+//! `KHR_texture_transform` (on every texture read). The extensions
 //! are read from the raw JSON (the gltf crate is built without them), with an error naming the
 //! material and the field for any malformed value (an `ior` below 1 with transmission, an
 //! `attenuationDistance` ≤ 0). The volume's `thicknessTexture` is a rasteriser's hint: the
@@ -12,7 +13,7 @@ use serde_json::Value;
 
 use super::Importer;
 use crate::error::PathTracerError;
-use crate::scene::{AlphaMode, Filter, Material, TextureRef, UvTransform, Volume, Wrap};
+use crate::scene::{AlphaMode, Clearcoat, Filter, Material, Sheen, TextureRef, UvTransform, Volume, Wrap};
 
 fn wrap(mode: WrappingMode) -> Wrap {
     match mode {
@@ -160,6 +161,11 @@ impl Importer<'_> {
             return Err(self.error(format!("{what}: KHR_materials_ior.ior {ior} is below 1, which a transmissive material (KHR_materials_transmission) cannot have")));
         }
         let volume = self.volume(&extensions, &what)?;
+        let clearcoat = self.clearcoat(&extensions, &what)?;
+        let sheen = self.sheen(&extensions, &what)?;
+        if transmission_factor > 0.0 && (clearcoat.is_some() || sheen.is_some()) {
+            self.warn(format!("{what}: KHR_materials_clearcoat and _sheen are not rendered over a transmissive material (KHR_materials_transmission)"));
+        }
         let strength = material.emissive_strength().unwrap_or(1.0);
         if !(strength.is_finite() && strength >= 0.0) {
             return Err(self.error(format!("{what}: emissiveStrength {strength} must be finite and non-negative")));
@@ -195,7 +201,67 @@ impl Importer<'_> {
             transmission_factor,
             transmission_texture,
             volume,
+            clearcoat,
+            sheen,
         })
+    }
+
+    /// `KHR_materials_clearcoat` of a material's raw `extensions` object: `Some` where
+    /// `clearcoatFactor` is > 0 (0, the default, disables the layer).
+    fn clearcoat(&mut self, extensions: &Value, what: &str) -> Result<Option<Clearcoat>, PathTracerError> {
+        const EXT: &str = "KHR_materials_clearcoat";
+        let Some(ext) = extensions.get(EXT) else { return Ok(None) };
+        if !ext.is_object() {
+            return Err(self.error(format!("{what}: {EXT} must be an object")));
+        }
+        let factor = self.unit_number(ext, "clearcoatFactor", 0.0, what, EXT)?;
+        let roughness_factor = self.unit_number(ext, "clearcoatRoughnessFactor", 0.0, what, EXT)?;
+        let texture = self.extension_texture_ref(ext, "clearcoatTexture", false, what, EXT)?;
+        let roughness_texture = self.extension_texture_ref(ext, "clearcoatRoughnessTexture", false, what, EXT)?;
+        let normal_texture = match self.extension_texture_ref(ext, "clearcoatNormalTexture", false, what, EXT)? {
+            None => None,
+            Some(r) => {
+                let scale = match ext.get("clearcoatNormalTexture").and_then(|t| t.get("scale")) {
+                    None => 1.0,
+                    Some(v) => number(v).ok_or_else(|| self.error(format!("{what}: {EXT}.clearcoatNormalTexture.scale must be a finite number, got {v}")))?,
+                };
+                Some((r, scale))
+            }
+        };
+        Ok((factor > 0.0).then_some(Clearcoat { factor, texture, roughness_factor, roughness_texture, normal_texture }))
+    }
+
+    /// `KHR_materials_sheen` of a material's raw `extensions` object: `Some` where
+    /// `sheenColorFactor` is not black (black, the default, disables the layer).
+    fn sheen(&mut self, extensions: &Value, what: &str) -> Result<Option<Sheen>, PathTracerError> {
+        const EXT: &str = "KHR_materials_sheen";
+        let Some(ext) = extensions.get(EXT) else { return Ok(None) };
+        if !ext.is_object() {
+            return Err(self.error(format!("{what}: {EXT} must be an object")));
+        }
+        let color_factor = match ext.get("sheenColorFactor") {
+            None => Vec3::ZERO,
+            Some(v) => numbers::<3>(v)
+                .filter(|c| c.iter().all(|x| (0.0..=1.0).contains(x)))
+                .map(Vec3::from)
+                .ok_or_else(|| self.error(format!("{what}: {EXT}.sheenColorFactor must be three numbers in [0, 1], got {v}")))?,
+        };
+        let roughness_factor = self.unit_number(ext, "sheenRoughnessFactor", 0.0, what, EXT)?;
+        // sheenColorTexture: sRGB colour (its RGB); sheenRoughnessTexture: data (its A channel).
+        let color_texture = self.extension_texture_ref(ext, "sheenColorTexture", true, what, EXT)?;
+        let roughness_texture = self.extension_texture_ref(ext, "sheenRoughnessTexture", false, what, EXT)?;
+        Ok((color_factor.max_element() > 0.0).then_some(Sheen { color_factor, color_texture, roughness_factor, roughness_texture }))
+    }
+
+    /// The number at `key` of an extension object (`default` without it), which must be
+    /// finite and in [0, 1]: the error names the material, the extension and the field.
+    fn unit_number(&mut self, ext: &Value, key: &str, default: f32, what: &str, ext_name: &str) -> Result<f32, PathTracerError> {
+        match ext.get(key) {
+            None => Ok(default),
+            Some(v) => number(v)
+                .filter(|f| (0.0..=1.0).contains(f))
+                .ok_or_else(|| self.error(format!("{what}: {ext_name}.{key} must be a number in [0, 1], got {v}"))),
+        }
     }
 
     /// `KHR_materials_transmission` of a material's raw `extensions` object: the factor

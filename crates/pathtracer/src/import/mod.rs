@@ -83,8 +83,10 @@ impl Default for ImportOptions {
 const SUPPORTED_EXTENSIONS: &[&str] =
     &[
     "KHR_lights_punctual",
+    "KHR_materials_clearcoat",
     "KHR_materials_emissive_strength",
     "KHR_materials_ior",
+    "KHR_materials_sheen",
     "KHR_materials_specular",
     "KHR_materials_transmission",
     "KHR_materials_volume",
@@ -96,8 +98,6 @@ const SUPPORTED_EXTENSIONS: &[&str] =
 /// if less richly, without them, so they are accepted even when listed as required (with a
 /// warning that they are ignored).
 const IGNORABLE_EXTENSIONS: &[&str] = &[
-    "KHR_materials_clearcoat",
-    "KHR_materials_sheen",
     "KHR_materials_iridescence",
     "KHR_materials_anisotropy",
     "KHR_materials_dispersion",

@@ -84,15 +84,15 @@ fn rigid_pose_removes_scale_and_shear() {
 #[test]
 fn extension_policy() {
     let mut root: gltf::json::Root = gltf::json::deserialize::from_str(r#"{"asset":{"version":"2.0"},
-        "extensionsUsed":["KHR_materials_ior","KHR_materials_specular","KHR_texture_transform","KHR_materials_sheen","EXT_texture_webp","KHR_lights_punctual"],
-        "extensionsRequired":["KHR_materials_ior","KHR_materials_specular","KHR_texture_transform","KHR_materials_sheen","KHR_lights_punctual"]}"#)
+        "extensionsUsed":["KHR_materials_ior","KHR_materials_specular","KHR_texture_transform","KHR_materials_iridescence","EXT_texture_webp","KHR_lights_punctual"],
+        "extensionsRequired":["KHR_materials_ior","KHR_materials_specular","KHR_texture_transform","KHR_materials_iridescence","KHR_lights_punctual"]}"#)
     .unwrap();
     let mut w = Vec::new();
     check_extensions(&root, &mut w).unwrap();
     // Supported ones (required or not) say nothing; an ignorable required one and an unknown
     // optional one are warnings naming them.
     assert_eq!(w.len(), 2, "{w:?}");
-    assert!(w[0].contains("required extension KHR_materials_sheen only adds optional material data"), "{w:?}");
+    assert!(w[0].contains("required extension KHR_materials_iridescence only adds optional material data"), "{w:?}");
     assert!(w[1].contains("extension EXT_texture_webp is used but not supported"), "{w:?}");
     root.extensions_required.push("EXT_texture_webp".into());
     let e = check_extensions(&root, &mut w).unwrap_err();
@@ -429,6 +429,51 @@ fn transmission_and_volume_are_read_and_their_bad_values_name_the_material() {
         (json!({"KHR_materials_volume": {"attenuationDistance": -1}}), "KHR_materials_volume.attenuationDistance"),
         (json!({"KHR_materials_volume": {"thicknessFactor": -1}}), "KHR_materials_volume.thicknessFactor must be a finite number ≥ 0"),
         (json!({"KHR_materials_volume": {"attenuationColor": [2, 0, 0]}}), "KHR_materials_volume.attenuationColor must be three numbers in [0, 1]"),
+    ];
+    for (ext, expect) in cases {
+        let e = load(&materials_body(json!([{"name": "m"}, {"name": "bad", "extensions": ext}]))).unwrap_err().to_string();
+        assert!(e.contains("unit.gltf") && e.contains("material 1 ('bad')") && e.contains(expect), "{e}");
+    }
+}
+
+#[test]
+fn clearcoat_and_sheen_are_read_and_their_bad_values_name_the_material() {
+    let body = materials_body(json!([
+        {"name": "coated", "extensions": {"KHR_materials_clearcoat": {
+            "clearcoatFactor": 0.75, "clearcoatTexture": {"index": 0},
+            "clearcoatRoughnessFactor": 0.25, "clearcoatRoughnessTexture": {"index": 0, "extensions": {"KHR_texture_transform": {"scale": [2, 2]}}},
+            "clearcoatNormalTexture": {"index": 0, "scale": 0.5}}}},
+        {"name": "velvet", "extensions": {"KHR_materials_sheen": {
+            "sheenColorFactor": [0.5, 0.25, 1], "sheenColorTexture": {"index": 0},
+            "sheenRoughnessFactor": 0.3, "sheenRoughnessTexture": {"index": 0}}}},
+        {"name": "off", "extensions": {"KHR_materials_clearcoat": {"clearcoatRoughnessFactor": 0.5}, "KHR_materials_sheen": {"sheenRoughnessFactor": 1}}},
+        {"name": "plain"}
+    ]));
+    let s = load(&body).unwrap();
+    assert!(s.warnings.is_empty(), "{:?}", s.warnings);
+    let c = s.materials[0].clearcoat.unwrap();
+    assert_eq!((c.factor, c.roughness_factor), (0.75, 0.25));
+    assert!(c.texture.is_some() && c.roughness_texture.unwrap().transform.is_some());
+    assert_eq!(c.normal_texture.map(|(_, k)| k), Some(0.5));
+    let h = s.materials[1].sheen.unwrap();
+    assert_eq!((h.color_factor, h.roughness_factor), (Vec3::new(0.5, 0.25, 1.0), 0.3));
+    assert!(h.color_texture.is_some() && h.roughness_texture.is_some());
+    // The sheen colour texture is sRGB, the roughness one data: two decodings of the image.
+    assert_ne!(h.color_texture.unwrap().texture, h.roughness_texture.unwrap().texture);
+    // A zero clearcoat factor or a black sheen colour (the defaults) disables the layer.
+    assert!(s.materials[2].clearcoat.is_none() && s.materials[2].sheen.is_none());
+    assert!(s.materials[3].clearcoat.is_none() && s.materials[3].sheen.is_none());
+    let cases = [
+        (json!({"KHR_materials_clearcoat": {"clearcoatFactor": 1.5}}), "KHR_materials_clearcoat.clearcoatFactor must be a number in [0, 1]"),
+        (json!({"KHR_materials_clearcoat": {"clearcoatFactor": 1, "clearcoatRoughnessFactor": -0.1}}), "KHR_materials_clearcoat.clearcoatRoughnessFactor must be a number in [0, 1]"),
+        (json!({"KHR_materials_clearcoat": {"clearcoatFactor": "1"}}), "KHR_materials_clearcoat.clearcoatFactor"),
+        (json!({"KHR_materials_clearcoat": {"clearcoatFactor": 1, "clearcoatNormalTexture": {"index": 0, "scale": "x"}}}), "KHR_materials_clearcoat.clearcoatNormalTexture.scale must be a finite number"),
+        (json!({"KHR_materials_clearcoat": {"clearcoatFactor": 1, "clearcoatTexture": {"index": 9}}}), "KHR_materials_clearcoat.clearcoatTexture.index: texture 9 does not exist"),
+        (json!({"KHR_materials_clearcoat": 1}), "KHR_materials_clearcoat must be an object"),
+        (json!({"KHR_materials_sheen": {"sheenColorFactor": [1, 2, 0]}}), "KHR_materials_sheen.sheenColorFactor must be three numbers in [0, 1]"),
+        (json!({"KHR_materials_sheen": {"sheenColorFactor": [1, 1]}}), "KHR_materials_sheen.sheenColorFactor must be three numbers in [0, 1]"),
+        (json!({"KHR_materials_sheen": {"sheenColorFactor": [1, 1, 1], "sheenRoughnessFactor": 2}}), "KHR_materials_sheen.sheenRoughnessFactor must be a number in [0, 1]"),
+        (json!({"KHR_materials_sheen": {"sheenColorFactor": [1, 1, 1], "sheenRoughnessTexture": 3}}), "KHR_materials_sheen.sheenRoughnessTexture must be a textureInfo object"),
     ];
     for (ext, expect) in cases {
         let e = load(&materials_body(json!([{"name": "m"}, {"name": "bad", "extensions": ext}]))).unwrap_err().to_string();

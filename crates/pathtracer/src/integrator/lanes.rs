@@ -59,8 +59,8 @@ pub struct LaneMaterials(Vec<LaneMaterial>);
 
 impl LaneMaterials {
     /// The table for `scene` whose materials resolve to `uniform` once, or `None` where
-    /// some material varies over its surface (`uniform` holds a `None`), has a normal map or
-    /// transmits:
+    /// some material varies over its surface (`uniform` holds a `None`), has a normal map,
+    /// transmits or is layered:
     /// the one-path loop then shades every vertex.
     pub fn new(scene: &Scene, uniform: &[Option<SurfaceMaterial>]) -> Option<Self> {
         let attr = SurfaceAttributes { uv: [Vec2::ZERO; 2], color: Vec4::ONE };
@@ -70,8 +70,9 @@ impl LaneMaterials {
             .zip(uniform)
             .map(|(m, u)| {
                 let surf = (*u)?;
-                // A normal map, or a transmissive BSDF (scalar verbs only, rays through the surface).
-                if m.normal_texture.is_some() || matches!(surf.bsdf, crate::material::Bsdf::Transmissive(_)) {
+                // A normal map, or a BSDF with scalar verbs only (transmissive: rays through
+                // the surface; layered: the coat's normal is set per vertex).
+                if m.normal_texture.is_some() || matches!(surf.bsdf, crate::material::Bsdf::Transmissive(_) | crate::material::Bsdf::Layered(_)) {
                     return None;
                 }
                 // What `emitter_pending` computes for a light sample on this material, whose

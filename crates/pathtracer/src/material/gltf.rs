@@ -2,14 +2,15 @@
 //! texture × COLOR_0; metallic = factor × texture B, roughness = factor × texture G (glTF
 //! §3.9.2); specular weight = factor × texture A, specular colour = factor × texture RGB
 //! (`KHR_materials_specular`), each lookup through the reference's UV set and
-//! `KHR_texture_transform` ([`crate::texture::sample_ref`]); [`resolve`] turns them into the
-//! [`Bsdf`] and emission. As a whole: whether a material is view-dependent, its smoothest
+//! `KHR_texture_transform` ([`crate::texture::sample_ref`]); clearcoat = factor × texture R,
+//! its roughness = factor × texture G; sheen colour = factor × texture RGB, its roughness =
+//! factor × texture A ([`layers`]); [`resolve`] turns them into the [`Bsdf`] and emission. As a whole: whether a material is view-dependent, its smoothest
 //! texel and brightest dielectric layer.
 
 // Negated comparisons (`!(x > 0.0)`) are deliberate: they also reject NaN.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
-use super::{Bsdf, DIELECTRIC_F0, DielectricFresnel, MetallicRoughness, Transmissive, f0_from_ior};
+use super::{Bsdf, DIELECTRIC_F0, DielectricFresnel, Layered, MetallicRoughness, Transmissive, f0_from_ior};
 use crate::scene::{Material, Scene, Texture};
 use crate::texture::sample_ref;
 use glam::{Vec2, Vec3, Vec4};
@@ -96,12 +97,44 @@ pub fn transmission(material: &Material, textures: &[Texture], attr: &SurfaceAtt
     if t.is_finite() { t.clamp(0.0, 1.0) } else { 0.0 }
 }
 
+/// `KHR_materials_clearcoat` and `_sheen` at a point: `(clearcoat, clearcoat roughness, sheen
+/// colour, sheen roughness)`, each factor × its texture's channel (clearcoat R, its roughness
+/// G, sheen colour RGB, its roughness A), clamped to [0, 1]; zeros for an absent layer.
+#[inline]
+pub fn layers(material: &Material, textures: &[Texture], attr: &SurfaceAttributes) -> (f32, f32, Vec3, f32) {
+    let unit = |x: f32| if x.is_finite() { x.clamp(0.0, 1.0) } else { 0.0 };
+    let (mut c, mut cr) = (0.0, 0.0);
+    if let Some(k) = &material.clearcoat {
+        (c, cr) = (k.factor, k.roughness_factor);
+        if let Some(r) = &k.texture {
+            c *= sample_ref(textures, r, attr.uv).x;
+        }
+        if let Some(r) = &k.roughness_texture {
+            cr *= sample_ref(textures, r, attr.uv).y;
+        }
+    }
+    let (mut s, mut sr) = (Vec3::ZERO, 0.0);
+    if let Some(k) = &material.sheen {
+        (s, sr) = (k.color_factor, k.roughness_factor);
+        if let Some(r) = &k.color_texture {
+            s *= sample_ref(textures, r, attr.uv).truncate();
+        }
+        if let Some(r) = &k.roughness_texture {
+            sr *= sample_ref(textures, r, attr.uv).w;
+        }
+    }
+    let s = if s.is_finite() { s.clamp(Vec3::ZERO, Vec3::ONE) } else { Vec3::ZERO };
+    (unit(c), unit(cr), s, unit(sr))
+}
+
 /// Resolves a glTF material at a surface point into its BSDF and emission:
 /// [`Bsdf::MetallicRoughness`] with base colour, metallic, roughness (factors × textures) and
 /// the dielectric's Fresnel endpoints ([`dielectric_fresnel`]), or [`Bsdf::Diffuse`] with the
 /// base colour when metallic and the specular weight (`F90`) are both 0 (where the two are
 /// identical); [`Bsdf::Transmissive`] where the transmission ([`transmission`]) is > 0,
-/// thin-walled without `KHR_materials_volume`.
+/// thin-walled without `KHR_materials_volume`; [`Bsdf::Layered`] over the opaque ones where
+/// a clearcoat or sheen layer ([`layers`]) is non-zero (the importer warns that layers over
+/// transmission are not rendered).
 #[inline(always)]
 pub fn resolve(material: &Material, textures: &[Texture], attr: &SurfaceAttributes) -> SurfaceMaterial {
     let albedo = base_color(material, textures, attr).truncate().clamp(Vec3::ZERO, Vec3::ONE);
@@ -117,12 +150,24 @@ pub fn resolve(material: &Material, textures: &[Texture], attr: &SurfaceAttribut
     } else {
         Bsdf::MetallicRoughness(MetallicRoughness::with_fresnel(albedo, metallic, roughness, fresnel))
     };
+    let bsdf = if transmission <= 0.0 && (material.clearcoat.is_some() || material.sheen.is_some()) {
+        let (c, cr, s, sr) = layers(material, textures, attr);
+        match bsdf {
+            Bsdf::Diffuse { .. } | Bsdf::MetallicRoughness(_) if c > 0.0 || s.max_element() > 0.0 => {
+                Bsdf::Layered(Layered::new(MetallicRoughness::with_fresnel(albedo, metallic, roughness, fresnel), c, cr, s, sr))
+            }
+            other => other,
+        }
+    } else {
+        bsdf
+    };
     SurfaceMaterial { bsdf, emission: emission(material, textures, attr) }
 }
 
 /// The material resolved once for every point of every triangle that uses it, when nothing
 /// [`resolve`] reads varies over the surface: no base-colour, metallic-roughness, specular,
-/// specular-colour, transmission or emissive texture, and (`vertex_colors` false) no COLOR_0, whose
+/// specular-colour, transmission, clearcoat, sheen or emissive texture, and (`vertex_colors`
+/// false) no COLOR_0, whose
 /// absence [`crate::integrator::surface_attributes`] reports as exactly white. `None` when
 /// something varies. Equal, bit for bit, to `resolve` at any point of such a material.
 pub fn uniform_surface(material: &Material, vertex_colors: bool) -> Option<SurfaceMaterial> {
@@ -132,6 +177,8 @@ pub fn uniform_surface(material: &Material, vertex_colors: bool) -> Option<Surfa
         || material.specular_texture.is_some()
         || material.specular_color_texture.is_some()
         || material.transmission_texture.is_some()
+        || material.clearcoat.is_some_and(|c| c.texture.is_some() || c.roughness_texture.is_some())
+        || material.sheen.is_some_and(|s| s.color_texture.is_some() || s.roughness_texture.is_some())
         || material.emissive_texture.is_some();
     (!varies).then(|| resolve(material, &[], &SurfaceAttributes { uv: [Vec2::ZERO; 2], color: Vec4::ONE }))
 }
@@ -141,7 +188,7 @@ pub fn uniform_surface(material: &Material, vertex_colors: bool) -> Option<Surfa
 pub const VIEW_DEPENDENT_ROUGHNESS: f32 = 0.6;
 
 /// Whether a glTF material's outgoing radiance depends noticeably on the viewing direction:
-/// true when it transmits (`KHR_materials_transmission`), when it can be metallic (metallic factor > 0: the whole reflection is a GGX lobe),
+/// true when it transmits (`KHR_materials_transmission`), has a clear coat or a sheen, when it can be metallic (metallic factor > 0: the whole reflection is a GGX lobe),
 /// or when it has a dielectric specular layer (`specular_factor > 0`) with a roughness that
 /// can fall below [`VIEW_DEPENDENT_ROUGHNESS`] (roughness factor × the smallest G of its
 /// metallic-roughness texture).
@@ -167,8 +214,9 @@ pub fn is_view_dependent(material: &Material) -> bool {
 /// [`is_view_dependent`] refined by the material's metallic-roughness texture (texture
 /// references that `textures` lacks are ignored).
 pub fn is_view_dependent_textured(material: &Material, textures: &[Texture]) -> bool {
-    // What is seen through a transmissive surface moves with the viewer at any roughness.
-    if material.transmits() {
+    // What is seen through a transmissive surface moves with the viewer at any roughness; a
+    // clear coat and a sheen are view-dependent lobes at any roughness.
+    if material.transmits() || material.clearcoat.is_some() || material.sheen.is_some() {
         return true;
     }
     if material.metallic_factor > 0.0 {

@@ -117,10 +117,8 @@ pub fn evaluate_many<'a>(bsdfs: impl Fn(usize) -> &'a BsdfAt, wi: &[Vec3], value
         let (mut f, mut pdf) = ([[0.0f32; L]; 3], [0.0f32; L]);
         evaluate_lanes(&x, x.diffuse[..m].iter().all(|&d| d), &x_wi, &mut f, &mut pdf);
         for k in 0..m {
-            values[start + k] = match bsdfs(start + k).transmissive() {
-                Some(t) => t.evaluate_pdf(bsdfs(start + k).wo(), wi[start + k]),
-                None => (Vec3::new(f[0][k], f[1][k], f[2][k]), pdf[k]),
-            };
+            let b = bsdfs(start + k);
+            values[start + k] = if b.is_scalar_only() { b.evaluate_pdf(wi[start + k]) } else { (Vec3::new(f[0][k], f[1][k], f[2][k]), pdf[k]) };
         }
     }
 }
@@ -195,8 +193,8 @@ pub fn sample_many<'a>(bsdfs: impl Fn(usize) -> &'a BsdfAt, u: &[Vec2], out: &mu
         let mut y = SampledLanes::default();
         sample_lanes(&x, x.diffuse[..m].iter().all(|&d| d), &x_u, &mut y);
         for k in 0..m {
-            if let Some(t) = bsdfs(start + k).transmissive() {
-                out[start + k] = t.sample(bsdfs(start + k).wo(), u[start + k]);
+            if bsdfs(start + k).is_scalar_only() {
+                out[start + k] = bsdfs(start + k).sample(u[start + k]);
                 continue;
             }
             out[start + k] = y.ok[k].then(|| BsdfSample {

@@ -24,6 +24,10 @@ pub const MIN_ALPHA: f32 = 1e-3;
 /// Normal-incidence reflectance of glTF's dielectric, `((1 − ior)/(1 + ior))²` with ior 1.5.
 pub const DIELECTRIC_F0: f32 = 0.04;
 
+/// Normal-incidence reflectance of `KHR_materials_clearcoat`'s coat (ior 1.5; see
+/// [`super::Layered`]).
+pub const CLEARCOAT_F0: f32 = 0.04;
+
 /// The dielectric layer's Fresnel endpoints (`KHR_materials_specular` with
 /// `KHR_materials_ior`, as the extensions' READMEs write them):
 ///
@@ -233,6 +237,17 @@ impl MetallicRoughness {
         }
     }
 
+    /// The Fresnel-weighted albedo estimate `E_s + E_d` at `wo` that `P_s` is made of (see the
+    /// type docs): what a mixture of this BRDF with other lobes weighs it by.
+    pub fn albedo_estimate(&self, wo: Vec3) -> f32 {
+        let (m, rho) = (self.metallic, self.base_color);
+        let w5 = pow5(1.0 - wo.z.clamp(0.0, 1.0));
+        let fd = self.fresnel_dielectric(w5).max_element();
+        let es = (1.0 - m) * fd + m * luminance(rho + (Vec3::ONE - rho) * w5);
+        let ed = (1.0 - m) * (1.0 - fd) * luminance(rho);
+        es + ed
+    }
+
     /// Solid-angle density with which the model samples `wi` (for `wo`, `wi` above the
     /// surface): `P_s p_s + (1 − P_s) p_d` (see the type docs).
     #[inline]
@@ -347,10 +362,11 @@ pub(super) fn sample_lane(x: &SampleLane, wi_d: Vec3) -> (Vec3, Vec3, f32, bool)
 pub struct SpecularLobe {
     /// The largest normal-incidence reflectance: the base colour factor's largest channel
     /// where the material can be metallic (or the dielectric layer's, if larger), else the
-    /// dielectric layer's ([`max_dielectric_f0`] × the specular factor).
+    /// dielectric layer's ([`max_dielectric_f0`] × the specular factor); a clear coat's
+    /// `0.04 × clearcoat` where larger.
     pub f0: f32,
     /// The smallest GGX `α`: `max((roughness factor × the smallest G of its
-    /// metallic-roughness texture)², MIN_ALPHA)`.
+    /// metallic-roughness texture)², MIN_ALPHA)`, or a clear coat's where smaller.
     pub alpha: f32,
 }
 
@@ -360,10 +376,23 @@ impl Material {
     pub fn sharpest_specular_lobe(&self, textures: &[Texture]) -> Option<SpecularLobe> {
         let dielectric = max_dielectric_f0(self) * self.specular_factor.max(0.0);
         let f0 = if self.metallic_factor > 0.0 { self.base_color_factor.truncate().max_element().max(dielectric) } else { dielectric };
-        if !(f0 > 0.0) {
-            return None;
-        }
         let r = (self.roughness_factor * min_roughness_texel(self, textures)).clamp(0.0, 1.0);
-        Some(SpecularLobe { f0, alpha: (r * r).max(MIN_ALPHA) })
+        let base = (f0 > 0.0).then(|| SpecularLobe { f0, alpha: (r * r).max(MIN_ALPHA) });
+        // A clear coat is a lobe of its own: `F0 = 0.04 × clearcoat`, α from its roughness
+        // factor × the smallest G of its roughness texture.
+        let coat = self.clearcoat.map(|c| {
+            let min_g = c
+                .roughness_texture
+                .and_then(|t| textures.get(t.texture as usize))
+                .map(|t| t.texels.iter().map(|x| x.y).fold(f32::INFINITY, f32::min))
+                .filter(|g| g.is_finite())
+                .unwrap_or(1.0);
+            let r = (c.roughness_factor * min_g).clamp(0.0, 1.0);
+            SpecularLobe { f0: CLEARCOAT_F0 * c.factor, alpha: (r * r).max(MIN_ALPHA) }
+        });
+        match (base, coat) {
+            (Some(b), Some(c)) => Some(SpecularLobe { f0: b.f0.max(c.f0), alpha: b.alpha.min(c.alpha) }),
+            (b, c) => b.or(c),
+        }
     }
 }

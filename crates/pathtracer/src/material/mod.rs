@@ -18,7 +18,9 @@
 //!   `KHR_materials_specular` `specular` 0);
 //! - `dielectric`: [`Bsdf::Transmissive`], `KHR_materials_transmission` (with `_volume`): a
 //!   GGX dielectric that reflects and refracts, mixed with the metallic-roughness BRDF
-//!   (formulas on the module; scalar only, the lane loops hand it to its scalar verbs).
+//!   (formulas on the module; scalar only, the lane loops hand it to its scalar verbs);
+//! - `layered`: [`Bsdf::Layered`], `KHR_materials_sheen` and `_clearcoat` over the
+//!   metallic-roughness BRDF (formulas on the module; scalar only, like the dielectric).
 //!
 //! Each model's file owns its scalar verbs and its *lane* form: the same operations on one
 //! lane of a structure-of-arrays record, with no branch on the data, which `lanes` runs over
@@ -41,23 +43,27 @@ mod dielectric;
 mod gltf;
 mod lambert;
 mod lanes;
+mod layered;
 mod metallic_roughness;
 mod shading;
 #[cfg(test)]
 mod dielectric_tests;
 #[cfg(test)]
+mod layered_tests;
+#[cfg(test)]
 mod tests;
 
 pub use gltf::{
-    SurfaceAttributes, SurfaceMaterial, VIEW_DEPENDENT_ROUGHNESS, base_color, dielectric_fresnel, emission, is_view_dependent,
+    SurfaceAttributes, SurfaceMaterial, VIEW_DEPENDENT_ROUGHNESS, base_color, layers, dielectric_fresnel, emission, is_view_dependent,
     is_view_dependent_textured, max_dielectric_f0, metallic_roughness, min_roughness_texel, resolve, scene_is_view_dependent,
     uniform_surface,
 };
 pub(crate) use lanes::{BsdfLanes, SampledLanes, evaluate_lanes, sample_lanes};
 pub use lanes::{evaluate_many, sample_many};
 pub use dielectric::{Dielectric, Transmissive, fresnel_dielectric};
-pub use metallic_roughness::{DIELECTRIC_F0, DielectricFresnel, MIN_ALPHA, MetallicRoughness, SpecularLobe, f0_from_ior};
-pub use shading::{MIN_SHADING_COS, facing_normals, normal_mapped, shading_frame, triangle_tangent};
+pub use layered::{Layered, SHEEN_MIN_ROUGHNESS, charlie_d, charlie_vis, sheen_albedo, sheen_albedo_integral};
+pub use metallic_roughness::{CLEARCOAT_F0, DIELECTRIC_F0, DielectricFresnel, MIN_ALPHA, MetallicRoughness, SpecularLobe, f0_from_ior};
+pub use shading::{MIN_SHADING_COS, facing_normals, normal_mapped, normal_mapped_by, shading_frame, triangle_tangent};
 
 use glam::{Vec2, Vec3};
 use lanes::{evaluate_pdf_lane, sample_lane};
@@ -78,6 +84,9 @@ pub enum Bsdf {
     /// A transmissive glTF material (`KHR_materials_transmission`): formulas, sampling and
     /// parameters on [`Transmissive`] and [`Dielectric`].
     Transmissive(Transmissive),
+    /// The metallic-roughness BRDF under `KHR_materials_sheen` and `_clearcoat` layers:
+    /// formulas, sampling and parameters on [`Layered`].
+    Layered(Layered),
 }
 
 /// A direction drawn from a BSDF.
@@ -110,11 +119,18 @@ impl BsdfAt {
         self.wo
     }
 
+    /// The BSDF this was prepared from.
+    pub fn bsdf(&self) -> &Bsdf {
+        &self.bsdf
+    }
+
     /// [`Bsdf::evaluate`] and [`Bsdf::pdf`] at `wi` (one lane of [`evaluate_many`]).
     #[inline(always)]
     pub fn evaluate_pdf(&self, wi: Vec3) -> (Vec3, f32) {
-        if let Bsdf::Transmissive(t) = &self.bsdf {
-            return t.evaluate_pdf(self.wo, wi);
+        match &self.bsdf {
+            Bsdf::Transmissive(t) => return t.evaluate_pdf(self.wo, wi),
+            Bsdf::Layered(l) => return l.evaluate_pdf(self.wo, wi),
+            _ => {}
         }
         evaluate_pdf_lane::<false>(&self.lane(Vec2::ZERO), wi)
     }
@@ -122,11 +138,20 @@ impl BsdfAt {
     /// [`Bsdf::sample`] with two uniform numbers (one lane of [`sample_many`]).
     #[inline(always)]
     pub fn sample(&self, u: Vec2) -> Option<BsdfSample> {
-        if let Bsdf::Transmissive(t) = &self.bsdf {
-            return t.sample(self.wo, u);
+        match &self.bsdf {
+            Bsdf::Transmissive(t) => return t.sample(self.wo, u),
+            Bsdf::Layered(l) => return l.sample(self.wo, u),
+            _ => {}
         }
         let (wi, weight, pdf, ok) = sample_lane::<false>(self.lane(u));
         ok.then_some(BsdfSample { wi, weight, pdf })
+    }
+
+    /// Whether this model's verbs are scalar only ([`Bsdf::Transmissive`], [`Bsdf::Layered`]):
+    /// the lane loops replace their results by the scalar verbs'.
+    #[inline(always)]
+    pub(crate) fn is_scalar_only(&self) -> bool {
+        matches!(self.bsdf, Bsdf::Transmissive(_) | Bsdf::Layered(_))
     }
 
     /// The transmissive model this is, if it is one (its verbs are scalar only).
@@ -144,8 +169,8 @@ impl BsdfAt {
         match &self.bsdf {
             Bsdf::Diffuse { albedo } => lambert::lane(*albedo, self.wo, u),
             Bsdf::MetallicRoughness(mr) => metallic_roughness::lane(mr, self.wo, self.ps, self.sd_wo, u),
-            // Never read: the lane loops replace its results by its scalar verbs'.
-            Bsdf::Transmissive(_) => lambert::lane(Vec3::ZERO, self.wo, u),
+            // Never read: the lane loops replace their results by their scalar verbs'.
+            Bsdf::Transmissive(_) | Bsdf::Layered(_) => lambert::lane(Vec3::ZERO, self.wo, u),
         }
     }
 }
@@ -154,8 +179,10 @@ impl Bsdf {
     /// `f(wo, wi) · |cos θᵢ|` in the local frame (see the variant docs for `f`).
     #[inline]
     pub fn evaluate(&self, wo: Vec3, wi: Vec3) -> Vec3 {
-        if let Bsdf::Transmissive(t) = self {
-            return t.evaluate_pdf(wo, wi).0;
+        match self {
+            Bsdf::Transmissive(t) => return t.evaluate_pdf(wo, wi).0,
+            Bsdf::Layered(l) => return l.evaluate_pdf(wo, wi).0,
+            _ => {}
         }
         if wo.z <= 0.0 || wi.z <= 0.0 {
             return Vec3::ZERO;
@@ -163,7 +190,7 @@ impl Bsdf {
         match self {
             Bsdf::Diffuse { albedo } => lambert::evaluate(*albedo, wi),
             Bsdf::MetallicRoughness(mr) => mr.f(wo, wi) * wi.z,
-            Bsdf::Transmissive(_) => Vec3::ZERO,
+            Bsdf::Transmissive(_) | Bsdf::Layered(_) => Vec3::ZERO,
         }
     }
 
@@ -194,8 +221,10 @@ impl Bsdf {
     /// Solid-angle density with which [`Bsdf::sample`] draws `wi`.
     #[inline]
     pub fn pdf(&self, wo: Vec3, wi: Vec3) -> f32 {
-        if let Bsdf::Transmissive(t) = self {
-            return t.evaluate_pdf(wo, wi).1;
+        match self {
+            Bsdf::Transmissive(t) => return t.evaluate_pdf(wo, wi).1,
+            Bsdf::Layered(l) => return l.evaluate_pdf(wo, wi).1,
+            _ => {}
         }
         if wo.z <= 0.0 || wi.z <= 0.0 {
             return 0.0;
@@ -203,7 +232,7 @@ impl Bsdf {
         match self {
             Bsdf::Diffuse { .. } => lambert::pdf(wi),
             Bsdf::MetallicRoughness(mr) => mr.pdf(wo, wi),
-            Bsdf::Transmissive(_) => 0.0,
+            Bsdf::Transmissive(_) | Bsdf::Layered(_) => 0.0,
         }
     }
 
@@ -220,7 +249,7 @@ impl Bsdf {
     pub fn is_view_dependent(&self) -> bool {
         match self {
             Bsdf::Diffuse { .. } => false,
-            Bsdf::MetallicRoughness(_) | Bsdf::Transmissive(_) => true,
+            Bsdf::MetallicRoughness(_) | Bsdf::Transmissive(_) | Bsdf::Layered(_) => true,
         }
     }
 

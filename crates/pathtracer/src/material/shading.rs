@@ -9,7 +9,7 @@
 
 use super::SurfaceAttributes;
 use crate::geometry::Frame;
-use crate::scene::{Material, Texture};
+use crate::scene::{Material, Texture, TextureRef};
 use crate::texture::sample_ref;
 use glam::{Vec2, Vec3, Vec4};
 
@@ -62,6 +62,11 @@ pub fn triangle_tangent(p: [Vec3; 3], uv: [Vec2; 3], n: Vec3) -> Option<Vec4> {
 /// degenerate.
 pub fn normal_mapped(material: &Material, textures: &[Texture], attr: &SurfaceAttributes, n: Vec3, tangent: Vec4) -> Vec3 {
     let Some((r, scale)) = &material.normal_texture else { return n };
+    normal_mapped_by(r, *scale, textures, attr, n, tangent)
+}
+
+/// [`normal_mapped`] with the normal texture `r` and its `scale` (e.g. a clearcoat's).
+pub fn normal_mapped_by(r: &TextureRef, scale: f32, textures: &[Texture], attr: &SurfaceAttributes, n: Vec3, tangent: Vec4) -> Vec3 {
     let t = tangent.truncate();
     let t = (t - n * n.dot(t)).normalize_or_zero();
     if t == Vec3::ZERO || !t.is_finite() {
@@ -70,7 +75,7 @@ pub fn normal_mapped(material: &Material, textures: &[Texture], attr: &SurfaceAt
     let w = if tangent.w < 0.0 { -1.0 } else { 1.0 };
     let b = n.cross(t) * w;
     let c = sample_ref(textures, r, attr.uv).truncate() * 2.0 - Vec3::ONE;
-    let c = (c * Vec3::new(*scale, *scale, 1.0)).normalize_or_zero();
+    let c = (c * Vec3::new(scale, scale, 1.0)).normalize_or_zero();
     let m = (t * c.x + b * c.y + n * c.z).normalize_or_zero();
     if m == Vec3::ZERO || !m.is_finite() { n } else { m }
 }

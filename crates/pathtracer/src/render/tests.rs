@@ -1442,3 +1442,42 @@ fn a_rough_glass_sheet_transmits_a_light_behind_it_by_next_event_estimation() {
     assert!(expect > 0.01, "{expect}");
     assert!((mean - expect).abs() < 4.0 * se + 1e-4 * expect, "{mean} ± {se} vs {expect}");
 }
+
+/// The clear coat's normal at a path vertex: the frame's own without normal maps; the
+/// interpolated normal, unmapped, where only the base is normal-mapped (the extension: no
+/// clearcoatNormalTexture, no normal mapping on the coat); its own map where it has one.
+#[test]
+fn the_clear_coat_takes_its_own_normal_at_a_vertex() {
+    use crate::material::{Bsdf, resolve};
+    use crate::scene::{Clearcoat, Filter, Texture, TextureRef, Wrap};
+    let mut b = Builder::new();
+    b.tri([Vec3::new(-1.0, 0.0, 1.0), Vec3::new(1.0, 0.0, 1.0), Vec3::new(0.0, 0.0, -1.0)], 0);
+    b.mesh.tangents = vec![Vec4::new(1.0, 0.0, 0.0, 1.0); 3];
+    b.mesh.uv0 = vec![Vec2::new(0.0, 0.0), Vec2::new(1.0, 0.0), Vec2::new(0.5, 1.0)];
+    b.materials.push(Material { metallic_factor: 0.0, ..Material::gltf_default() });
+    let mut scene = b.build(DVec3::ZERO);
+    // A normal map tilting the normal towards the tangent (+X): c = (0.6, 0, 0.8).
+    scene.textures.push(Texture { width: 1, height: 1, texels: vec![Vec4::new(0.8, 0.5, 0.9, 1.0)] });
+    let map = TextureRef { texture: 0, tex_coord: 0, wrap_s: Wrap::Repeat, wrap_t: Wrap::Repeat, filter: Filter::Nearest, transform: None };
+    let tilted = Vec3::new(0.6, 0.8, 0.0);
+    let ray = Ray::new(Vec3::new(0.1, 1.0, 0.2), Vec3::new(0.0, -1.0, 0.05).normalize());
+    let hit = crate::accel::Hit { prim: 0, t: 1.0, b: [0.3, 0.3, 0.4], front: true };
+    let si = crate::integrator::interaction(&scene, &ray, &hit);
+    let coat = |m: &Material| {
+        let surf = resolve(m, &scene.textures, &si.attr);
+        let (frame, at) = crate::integrator::vertex_bsdf(&scene, &si, m, &surf, -ray.direction);
+        let Bsdf::Layered(l) = at.bsdf() else { panic!("a clear coat gives a layered BSDF") };
+        (frame.n, frame.to_world(l.coat_normal))
+    };
+    let mut m = Material { metallic_factor: 0.0, ..Material::gltf_default() };
+    m.clearcoat = Some(Clearcoat { factor: 1.0, texture: None, roughness_factor: 0.2, roughness_texture: None, normal_texture: None });
+    let (n, nc) = coat(&m);
+    assert!((n - Vec3::Y).length() < 1e-6 && (nc - Vec3::Y).length() < 1e-6, "no maps: {n} {nc}");
+    m.normal_texture = Some((map, 1.0));
+    let (n, nc) = coat(&m);
+    assert!((n - tilted).length() < 1e-2, "the base is mapped: {n}");
+    assert!((nc - Vec3::Y).length() < 1e-5, "the coat is not: {nc}");
+    m.clearcoat.as_mut().unwrap().normal_texture = Some((map, 1.0));
+    let (n, nc) = coat(&m);
+    assert!((nc - tilted).length() < 1e-2 && (nc - n).length() < 1e-5, "the coat's own map: {n} {nc}");
+}
