@@ -14,8 +14,8 @@
 //! config are kept, so a re-run resumes. A benchmark, not a test: its figures depend on the
 //! machine and its load.
 
-use super::auto::{comma_list, older_dataset, parse_seeds, scene_names};
-use super::supervision::{Figures, figures, mean_2se, train_and_eval};
+use super::auto::{comma_list, parse_seeds, scene_names};
+use super::supervision::{Figures, figures, mean_2se, scene_dataset, train_and_eval, write_report};
 use anyhow::Context;
 use nerf::camera_opt::CameraOptConfig;
 use nerf::poses::PoseNoise;
@@ -240,13 +240,7 @@ pub fn run(args: PosesBenchArgs) -> anyhow::Result<()> {
     for scene in &scenes {
         let dir = args.out.join(scene);
         let ds = dir.join("dataset");
-        match older_dataset(&ds) {
-            Some(old) => md.push_str(&format!("{scene}: dataset rendered by {old} (kept with its runs)\n\n")),
-            None => {
-                eprintln!("==== {scene}: render ({} preset) into {}", args.preset.name(), ds.display());
-                crate::render::run(crate::render::RenderArgs::for_demo(scene, &ds, args.preset))?;
-            }
-        }
+        scene_dataset(scene, &ds, args.preset, &mut md)?;
         let mut rows = Vec::new();
         for &level in &levels {
             for &refine in &modes {
@@ -284,12 +278,7 @@ pub fn run(args: PosesBenchArgs) -> anyhow::Result<()> {
         }
         md.push_str(&format!("\nplot: {}\n\n", png.display()));
     }
-    dataset::io::atomic_write_json(&args.out.join("bench-poses.json"), &all)?;
-    let path = args.out.join("bench-poses.md");
-    dataset::io::atomic_write(&path, md.as_bytes())?;
-    println!("{md}");
-    println!("report: {}", path.display());
-    Ok(())
+    write_report(&args.out, "bench-poses", &md, &all)
 }
 
 #[cfg(test)]

@@ -253,13 +253,7 @@ pub fn run(args: SupervisionBenchArgs) -> anyhow::Result<()> {
     for scene in &scenes {
         let dir = args.out.join(scene);
         let ds = dir.join("dataset");
-        match older_dataset(&ds) {
-            Some(old) => md.push_str(&format!("{scene}: dataset rendered by {old} (kept with its runs)\n\n")),
-            None => {
-                eprintln!("==== {scene}: render ({} preset) into {}", args.preset.name(), ds.display());
-                crate::render::run(crate::render::RenderArgs::for_demo(scene, &ds, args.preset))?;
-            }
-        }
+        scene_dataset(scene, &ds, args.preset, &mut md)?;
         let mut runs: Vec<(String, Vec<Figures>)> = Vec::new();
         let mut summaries = Vec::new();
         for c in &configs {
@@ -282,8 +276,27 @@ pub fn run(args: SupervisionBenchArgs) -> anyhow::Result<()> {
         let steps: Vec<String> = runs.iter().map(|(n, f)| format!("{n} {}", f.iter().map(|f| f.steps.to_string()).collect::<Vec<_>>().join("/"))).collect();
         md.push_str(&format!("## {scene}\n\n{}\nsteps at the budget per seed: {}\n\ncurves: {}\n\n", scene_table(&runs), steps.join(", "), dir.join("compare.png").display()));
     }
-    dataset::io::atomic_write_json(&args.out.join("bench-supervision.json"), &all)?;
-    let path = args.out.join("bench-supervision.md");
+    write_report(&args.out, "bench-supervision", &md, &all)
+}
+
+/// Renders `scene`'s dataset into `ds` at `preset` (resumed when it is there), or keeps one an
+/// older build rendered (said in `md`).
+pub(super) fn scene_dataset(scene: &str, ds: &Path, preset: Preset, md: &mut String) -> anyhow::Result<()> {
+    match older_dataset(ds) {
+        Some(old) => md.push_str(&format!("{scene}: dataset rendered by {old} (kept with its runs)\n\n")),
+        None => {
+            eprintln!("==== {scene}: render ({} preset) into {}", preset.name(), ds.display());
+            crate::render::run(crate::render::RenderArgs::for_demo(scene, ds, preset))?;
+        }
+    }
+    Ok(())
+}
+
+/// Writes `<out>/<stem>.json` (every run's figures) and `<out>/<stem>.md`, prints the report and
+/// says where it went.
+pub(super) fn write_report(out: &Path, stem: &str, md: &str, all: &impl serde::Serialize) -> anyhow::Result<()> {
+    dataset::io::atomic_write_json(&out.join(format!("{stem}.json")), all)?;
+    let path = out.join(format!("{stem}.md"));
     dataset::io::atomic_write(&path, md.as_bytes())?;
     println!("{md}");
     println!("report: {}", path.display());
