@@ -56,15 +56,25 @@ pub struct Viewer {
     threads: Vec<JoinHandle<()>>,
 }
 
-/// Lowers the calling thread's priority to `nice` (Linux's `setpriority` acts on one thread).
+/// Lowers the calling thread's priority to `nice` (Linux's `setpriority` acts on one thread);
+/// at 19 the thread also takes the `SCHED_IDLE` policy, which runs it only on a core nothing
+/// else wants and lets a waking trainer thread preempt it at once (nice 19 alone still takes
+/// its time slices: a trainer whose steps fork and join many times a second waited for them).
 #[allow(unsafe_code)]
 fn lower_priority(nice: i32) {
     #[cfg(target_os = "linux")]
-    // SAFETY: `gettid` and `setpriority` take and return plain integers.
+    // SAFETY: `gettid`, `setpriority` and `sched_setscheduler` take plain integers and a
+    // pointer to a local `sched_param` that outlives the call.
     unsafe {
         let tid = libc::gettid();
         if libc::setpriority(libc::PRIO_PROCESS, tid as libc::id_t, nice) != 0 {
             tracing::debug!("cannot set the viewer thread's nice value to {nice}");
+        }
+        if nice >= 19 {
+            let param = libc::sched_param { sched_priority: 0 };
+            if libc::sched_setscheduler(tid, libc::SCHED_IDLE, &param) != 0 {
+                tracing::debug!("cannot give the viewer thread the idle scheduling policy");
+            }
         }
     }
 }
