@@ -148,7 +148,7 @@ fn rough_interface_samples_follow_its_pdf_and_its_albedo_is_the_integral_of_eval
             let pj = ((phi / (2.0 * PI) * np as f32) as usize).min(np - 1);
             counts[zi * np + pj] += 1;
         }
-        let (mut chi2, mut dof, mut pool_o, mut pool_e, mut total_pdf, mut total_f) = (0.0f64, 0usize, 0.0f64, 0.0f64, 0.0f64, 0.0f64);
+        let (mut cells, mut total_pdf, mut total_f) = (Vec::with_capacity(nz * np), 0.0f64, 0.0f64);
         for i in 0..nz {
             for j in 0..np {
                 let (z0, z1) = (-1.0 + 2.0 * i as f32 / nz as f32, -1.0 + 2.0 * (i + 1) as f32 / nz as f32);
@@ -156,23 +156,10 @@ fn rough_interface_samples_follow_its_pdf_and_its_albedo_is_the_integral_of_eval
                 let (cp, cf) = cell(&b, wo, z0, z1, p0, p1, 12);
                 total_pdf += cp;
                 total_f += cf;
-                let (e, o) = (n as f64 * cp, counts[i * np + j] as f64);
-                if e < 5.0 {
-                    pool_o += o;
-                    pool_e += e;
-                } else {
-                    chi2 += (o - e).powi(2) / e;
-                    dof += 1;
-                }
+                cells.push((n as f64 * cp, counts[i * np + j] as f64));
             }
         }
-        if pool_e >= 5.0 {
-            chi2 += (pool_o - pool_e).powi(2) / pool_e;
-            dof += 1;
-        }
-        let kdof = (dof - 1) as f64;
-        let c = 2.0 / (9.0 * kdof);
-        let z = ((chi2 / kdof).powf(1.0 / 3.0) - (1.0 - c)) / c.sqrt();
+        let (chi2, dof, z) = super::tests::pooled_chi_square(cells);
         assert!(dof > 20 && z < 4.0, "config {k}: χ² = {chi2:.1} with {dof} cells, z = {z:.2}");
         let p_ok = ok as f64 / n as f64;
         assert!((total_pdf - p_ok).abs() < 0.01, "config {k}: ∫pdf = {total_pdf}, P(Some) = {p_ok}");

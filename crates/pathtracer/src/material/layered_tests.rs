@@ -176,30 +176,17 @@ fn sampled_directions_follow_the_pdf_and_weights_are_f_over_pdf() {
             let phi = s.wi.y.atan2(s.wi.x).rem_euclid(2.0 * PI);
             counts[zi * np + ((phi / (2.0 * PI) * np as f32) as usize).min(np - 1)] += 1;
         }
-        let (mut chi2, mut dof, mut pool_o, mut pool_e, mut total) = (0.0f64, 0usize, 0.0f64, 0.0f64, 0.0f64);
+        let (mut cells, mut total) = (Vec::with_capacity(nz * np), 0.0f64);
         for i in 0..nz {
             for j in 0..np {
                 let (z0, z1) = (i as f32 / nz as f32, (i + 1) as f32 / nz as f32);
                 let (p0, p1) = (2.0 * PI * j as f32 / np as f32, 2.0 * PI * (j + 1) as f32 / np as f32);
                 let cp = cell_pdf(&b, wo, z0, z1, p0, p1, 12);
                 total += cp;
-                let (e, o) = (n as f64 * cp, counts[i * np + j] as f64);
-                if e < 5.0 {
-                    pool_o += o;
-                    pool_e += e;
-                } else {
-                    chi2 += (o - e).powi(2) / e;
-                    dof += 1;
-                }
+                cells.push((n as f64 * cp, counts[i * np + j] as f64));
             }
         }
-        if pool_e >= 5.0 {
-            chi2 += (pool_o - pool_e).powi(2) / pool_e;
-            dof += 1;
-        }
-        let kdof = (dof - 1) as f64;
-        let c = 2.0 / (9.0 * kdof);
-        let z = ((chi2 / kdof).powf(1.0 / 3.0) - (1.0 - c)) / c.sqrt();
+        let (chi2, dof, z) = super::tests::pooled_chi_square(cells);
         assert!(dof > 20 && z < 4.0, "config {k}: χ² = {chi2:.1} with {dof} cells, z = {z:.2}");
         let p_ok = ok as f64 / n as f64;
         assert!((total - p_ok).abs() < 0.01, "config {k}: ∫pdf = {total}, P(Some) = {p_ok}");

@@ -200,6 +200,26 @@ fn chi2_z(x: f64, k: f64) -> f64 {
     ((x / k).powf(1.0 / 3.0) - (1.0 - c)) / c.sqrt()
 }
 
+/// Mitsuba's pooled χ² of `(expected, observed)` cell counts: cells expecting fewer than 5 are
+/// pooled into one. Returns the statistic, the cells counted and the upper tail's z-score.
+pub(super) fn pooled_chi_square(cells: impl IntoIterator<Item = (f64, f64)>) -> (f64, usize, f64) {
+    let (mut chi2, mut dof, mut pool_o, mut pool_e) = (0.0f64, 0usize, 0.0f64, 0.0f64);
+    for (e, o) in cells {
+        if e < 5.0 {
+            pool_o += o;
+            pool_e += e;
+        } else {
+            chi2 += (o - e).powi(2) / e;
+            dof += 1;
+        }
+    }
+    if pool_e >= 5.0 {
+        chi2 += (pool_o - pool_e).powi(2) / pool_e;
+        dof += 1;
+    }
+    (chi2, dof, chi2_z(chi2, dof.saturating_sub(1).max(1) as f64))
+}
+
 #[test]
 fn sampled_directions_follow_the_pdf_chi_square() {
     // Mitsuba's χ² test for BSDFs: histogram of sampled directions on a (cos θ, φ) grid
@@ -217,28 +237,15 @@ fn sampled_directions_follow_the_pdf_chi_square() {
             let pj = ((phi / (2.0 * PI) * np as f32) as usize).min(np - 1);
             counts[zi * np + pj] += 1;
         }
-        let (mut chi2, mut dof) = (0.0f64, 0usize);
-        let (mut pool_obs, mut pool_exp) = (0.0f64, 0.0f64);
+        let mut cells = Vec::with_capacity(nz * np);
         for i in 0..nz {
             for j in 0..np {
                 let (z0, z1) = (i as f32 / nz as f32, (i + 1) as f32 / nz as f32);
                 let (p0, p1) = (2.0 * PI * j as f32 / np as f32, 2.0 * PI * (j + 1) as f32 / np as f32);
-                let e = n as f64 * cell_integral(&b, wo, z0, z1, p0, p1, 16);
-                let o = counts[i * np + j] as f64;
-                if e < 5.0 {
-                    pool_obs += o;
-                    pool_exp += e;
-                } else {
-                    chi2 += (o - e).powi(2) / e;
-                    dof += 1;
-                }
+                cells.push((n as f64 * cell_integral(&b, wo, z0, z1, p0, p1, 16), counts[i * np + j] as f64));
             }
         }
-        if pool_exp >= 5.0 {
-            chi2 += (pool_obs - pool_exp).powi(2) / pool_exp;
-            dof += 1;
-        }
-        let z = chi2_z(chi2, (dof - 1) as f64);
+        let (chi2, dof, z) = pooled_chi_square(cells);
         assert!(dof > 20 && z < 4.0, "config {k}: χ² = {chi2:.1} with {dof} cells, z = {z:.2}");
     }
 }
