@@ -134,20 +134,6 @@ fn white_furnace_is_at_most_one_for_coat_and_sheen_over_every_base() {
     }
 }
 
-/// `∫ pdf` over a (cos θ, φ) cell of the upper hemisphere by the midpoint rule.
-fn cell_pdf(b: &Bsdf, wo: Vec3, z0: f32, z1: f32, p0: f32, p1: f32, sub: u32) -> f64 {
-    let mut sp = 0.0f64;
-    for i in 0..sub {
-        for j in 0..sub {
-            let z = z0 + (z1 - z0) * (i as f32 + 0.5) / sub as f32;
-            let phi = p0 + (p1 - p0) * (j as f32 + 0.5) / sub as f32;
-            let r = (1.0 - z * z).max(0.0).sqrt();
-            sp += b.pdf(wo, Vec3::new(r * phi.cos(), r * phi.sin(), z)) as f64;
-        }
-    }
-    sp * ((z1 - z0) * (p1 - p0)) as f64 / (sub * sub) as f64
-}
-
 #[test]
 fn sampled_directions_follow_the_pdf_and_weights_are_f_over_pdf() {
     let plastic = MetallicRoughness::new(Vec3::new(0.8, 0.3, 0.2), 0.0, 0.6, 1.0);
@@ -181,7 +167,7 @@ fn sampled_directions_follow_the_pdf_and_weights_are_f_over_pdf() {
             for j in 0..np {
                 let (z0, z1) = (i as f32 / nz as f32, (i + 1) as f32 / nz as f32);
                 let (p0, p1) = (2.0 * PI * j as f32 / np as f32, 2.0 * PI * (j + 1) as f32 / np as f32);
-                let cp = cell_pdf(&b, wo, z0, z1, p0, p1, 12);
+                let cp = super::tests::cell_integral(&b, wo, z0, z1, p0, p1, 12);
                 total += cp;
                 cells.push((n as f64 * cp, counts[i * np + j] as f64));
             }

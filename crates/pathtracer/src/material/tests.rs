@@ -152,7 +152,7 @@ const CONFIGS: [(f32, f32, f32, f32); 6] =
     [(0.8, 0.0, 0.5, 30.0), (0.5, 0.0, 0.3, 70.0), (0.9, 1.0, 0.4, 45.0), (0.3, 0.5, 0.7, 10.0), (1.0, 1.0, 1.0, 60.0), (0.6, 0.2, 0.9, 85.0)];
 
 /// ∫ pdf over a (cos θ, φ) cell by the midpoint rule on `sub × sub` points.
-fn cell_integral(b: &Bsdf, wo: Vec3, z0: f32, z1: f32, p0: f32, p1: f32, sub: u32) -> f64 {
+pub(super) fn cell_integral(b: &Bsdf, wo: Vec3, z0: f32, z1: f32, p0: f32, p1: f32, sub: u32) -> f64 {
     let mut s = 0.0f64;
     for i in 0..sub {
         for j in 0..sub {
