@@ -111,6 +111,10 @@ pub struct SupervisionArgs {
     /// 0 is penalised (default off).
     #[arg(long, value_parser = parse_weight, allow_hyphen_values = true)]
     pub empty_loss: Option<f32>,
+    /// Weight of the normal term: the normal implied by the density's gradient at each pixel's
+    /// depth target against the dataset's normal (default off; fast and auto models).
+    #[arg(long, value_parser = parse_weight, allow_hyphen_values = true)]
+    pub normal_loss: Option<f32>,
 }
 
 fn parse_depth_loss(s: &str) -> Result<nerf::supervision::DepthLoss, String> {
@@ -138,7 +142,7 @@ fn parse_half_life(s: &str) -> Result<u64, String> {
 impl SupervisionArgs {
     /// Whether any supervision option is given.
     fn any(&self) -> bool {
-        self.depth_loss.is_some() || self.depth_weight.is_some() || self.depth_half_life.is_some() || self.depth_source.is_some() || self.empty_loss.is_some()
+        self.depth_loss.is_some() || self.depth_weight.is_some() || self.depth_half_life.is_some() || self.depth_source.is_some() || self.empty_loss.is_some() || self.normal_loss.is_some()
     }
 
     /// The options applied to `cfg`'s supervision (created when an option is given; a run
@@ -163,6 +167,9 @@ impl SupervisionArgs {
         }
         if let Some(e) = self.empty_loss {
             s.empty_weight = e;
+        }
+        if let Some(w) = self.normal_loss {
+            s.normal_weight = w;
         }
         if !s.uses_depth() {
             for (given, name) in [(self.depth_weight.is_some(), "--depth-weight"), (self.depth_half_life.is_some(), "--depth-half-life"), (self.depth_source.is_some(), "--depth-source")] {
@@ -442,7 +449,7 @@ fn resume_trainer(args: &TrainArgs) -> anyhow::Result<Trainer> {
         ("--model", args.model.as_deref().is_some_and(|m| m != cfg.model_label())),
         ("--pose-noise", args.pose_noise.is_some_and(|n| Some(n) != cfg.pose_noise)),
         ("--camera-opt", args.camera_opt.as_deref().is_some_and(|m| (m == "se3") != cfg.camera_opt.is_some())),
-        ("--depth-loss, --depth-weight, --depth-half-life, --depth-source or --empty-loss", {
+        ("--depth-loss, --depth-weight, --depth-half-life, --depth-source, --empty-loss or --normal-loss", {
             let mut c = cfg.clone();
             args.supervision.apply(&mut c).is_err() || serde_json::to_value(&c.supervision).ok() != serde_json::to_value(&cfg.supervision).ok()
         }),

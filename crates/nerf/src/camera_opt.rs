@@ -22,8 +22,13 @@
 //! moves 17 mm, while the view-dependent colour of most surfaces changes little).
 //!
 //! # Optimiser
-//! Adam per view on `(ω, τ)` (β = 0.9, 0.999, ε = 1e-15 as nerfacto), only for views with rays
-//! in the step's batch, with its own step count. The learning rate ramps linearly from 0 over
+//! Adam per view on `(ω, τ)` (β = 0.9, 0.999, ε = 1e-15 as nerfacto), with its own step count.
+//! A step's batch holds few rays of any one view (a batch of 4096 rays over 100 views gives
+//! each about 40), so one step's per-view gradient is mostly noise, and Adam, which divides
+//! by the gradient's running RMS, turns noise into steps of the learning rate's size: a
+//! random walk away from the right pose. Each view therefore sums its rays' gradients over
+//! steps and takes one Adam step with their mean once `rays_per_update` rays have been
+//! summed (0 or 1: every step with rays of the view, as nerfacto does with its large batches). The learning rate ramps linearly from 0 over
 //! `warmup_steps` (the field first needs coarse geometry for the gradient to point anywhere)
 //! and follows the field's decay (`lr_camera · lr_field(step) / lr_field(0)`). After every
 //! update `|ω|` is clamped to `max_rotation_deg` and `|τ|` to `max_translation_rel`, so one
@@ -54,11 +59,15 @@ pub struct CameraOptConfig {
     pub max_rotation_deg: f64,
     /// Largest centre correction, as a fraction of the scene size.
     pub max_translation_rel: f64,
+    /// Rays whose gradients a view sums before its Adam step (module doc); configs written
+    /// without the field update every step.
+    #[serde(default)]
+    pub rays_per_update: u32,
 }
 
 impl Default for CameraOptConfig {
     fn default() -> Self {
-        Self { lr: 2e-4, warmup_steps: 500, max_rotation_deg: 15.0, max_translation_rel: 0.2 }
+        Self { lr: 2e-4, warmup_steps: 500, max_rotation_deg: 15.0, max_translation_rel: 0.2, rays_per_update: 0 }
     }
 }
 
@@ -103,12 +112,15 @@ pub struct CameraOpt {
     m: Vec<[f32; 6]>,
     v: Vec<[f32; 6]>,
     steps: Vec<u32>,
+    /// Per view: the summed gradient not yet applied, and its ray count.
+    acc: Vec<[f32; 6]>,
+    acc_rays: Vec<u32>,
 }
 
 impl CameraOpt {
     /// Zero corrections for `views` views.
     pub fn new(config: CameraOptConfig, views: usize, scene_size: f64) -> Self {
-        Self { config, scene_size, params: vec![[0.0; 6]; views], m: vec![[0.0; 6]; views], v: vec![[0.0; 6]; views], steps: vec![0; views] }
+        Self { config, scene_size, params: vec![[0.0; 6]; views], m: vec![[0.0; 6]; views], v: vec![[0.0; 6]; views], steps: vec![0; views], acc: vec![[0.0; 6]; views], acc_rays: vec![0; views] }
     }
 
     fn rotation(&self, view: usize) -> DMat3 {
@@ -142,29 +154,61 @@ impl CameraOpt {
     /// Per view with rays in the batch: `∂L/∂(ω, τ)` (module doc), from the corrected batch
     /// and its rays' gradients; summed in batch order.
     pub fn gradients(&self, batch: &RayBatch, g: &RayGrads) -> Vec<Option<[f64; 6]>> {
-        let mut acc: Vec<Option<([f64; 3], [f64; 3])>> = vec![None; self.params.len()];
+        self.gradients_and_rays(batch, g).into_iter().map(|e| e.map(|(g, _)| g)).collect()
+    }
+
+    /// [`Self::gradients`] with each view's ray count.
+    pub fn gradients_and_rays(&self, batch: &RayBatch, g: &RayGrads) -> Vec<Option<([f64; 6], u32)>> {
+        let mut acc: Vec<Option<([f64; 3], [f64; 3], u32)>> = vec![None; self.params.len()];
         for (k, id) in batch.ids.iter().enumerate() {
             let Some(slot) = acc.get_mut((id >> 32) as usize) else { continue };
             let (go, gd, d) = (g.d_origins[k], g.d_dirs[k], batch.dirs[k]);
             let (d, gd) = (DVec3::new(d[0] as f64, d[1] as f64, d[2] as f64), DVec3::new(gd[0] as f64, gd[1] as f64, gd[2] as f64));
             let cross = d.cross(gd);
-            let e = slot.get_or_insert(([0.0; 3], [0.0; 3]));
+            let e = slot.get_or_insert(([0.0; 3], [0.0; 3], 0));
             for a in 0..3 {
                 e.0[a] += cross[a];
                 e.1[a] += go[a] as f64;
             }
+            e.2 += 1;
         }
         acc.iter()
             .enumerate()
             .map(|(v, e)| {
-                e.map(|(rot, org)| {
+                e.map(|(rot, org, n)| {
                     let p = &self.params[v];
                     let j = so3_left_jacobian(DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64));
                     let gw = j.transpose() * DVec3::from(rot);
-                    [gw.x, gw.y, gw.z, org[0] * self.scene_size, org[1] * self.scene_size, org[2] * self.scene_size]
+                    ([gw.x, gw.y, gw.z, org[0] * self.scene_size, org[1] * self.scene_size, org[2] * self.scene_size], n)
                 })
             })
             .collect()
+    }
+
+    /// Adds a step's per-view gradients and ray counts ([`Self::gradients_and_rays`]) to the
+    /// views' sums; views whose sum holds `rays_per_update` rays take their Adam step with the
+    /// mean, and their sums restart. Non-finite gradients are dropped.
+    pub fn accumulate_and_step(&mut self, grads: &[Option<([f64; 6], u32)>], lr: f64) {
+        if self.config.rays_per_update <= 1 {
+            let sums: Vec<Option<[f64; 6]>> = grads.iter().map(|g| g.map(|(g, _)| g)).collect();
+            return self.step(&sums, lr);
+        }
+        let need = self.config.rays_per_update;
+        let mut ready: Vec<Option<[f64; 6]>> = vec![None; self.params.len()];
+        for (v, g) in grads.iter().enumerate() {
+            let Some((g, n)) = g.filter(|(g, _)| g.iter().all(|x| x.is_finite())) else { continue };
+            for k in 0..6 {
+                self.acc[v][k] += g[k] as f32;
+            }
+            self.acc_rays[v] += n;
+            if self.acc_rays[v] >= need {
+                let inv = 1.0 / self.acc_rays[v] as f64;
+                ready[v] = Some(self.acc[v].map(|x| x as f64 * inv));
+                self.acc[v] = [0.0; 6];
+                self.acc_rays[v] = 0;
+            }
+        }
+        self.step(&ready, lr);
     }
 
     /// The learning rate at `step`, given the field's decay factor `lr_field(step) / lr_field(0)`.
@@ -208,6 +252,10 @@ impl CameraOpt {
         s.arrays.insert("camera_opt.m".into(), flat(&self.m));
         s.arrays.insert("camera_opt.v".into(), flat(&self.v));
         s.arrays.insert("camera_opt.steps".into(), self.steps.iter().map(|&n| n as f32).collect());
+        if self.config.rays_per_update > 1 {
+            s.arrays.insert("camera_opt.acc".into(), flat(&self.acc));
+            s.arrays.insert("camera_opt.acc_rays".into(), self.acc_rays.iter().map(|&n| n as f32).collect());
+        }
     }
 
     /// Restores [`Self::save`]'s state (refused when the view count differs).
@@ -225,6 +273,10 @@ impl CameraOpt {
         self.m = rows(get("camera_opt.m", 6 * n)?);
         self.v = rows(get("camera_opt.v", 6 * n)?);
         self.steps = get("camera_opt.steps", n)?.iter().map(|&x| x as u32).collect();
+        if self.config.rays_per_update > 1 {
+            self.acc = rows(get("camera_opt.acc", 6 * n)?);
+            self.acc_rays = get("camera_opt.acc_rays", n)?.iter().map(|&x| x as u32).collect();
+        }
         Ok(())
     }
 }
@@ -333,7 +385,7 @@ mod tests {
     /// gradient and non-finite gradients change nothing; state survives a checkpoint.
     #[test]
     fn corrections_stay_bounded_and_round_trip() {
-        let cfg = CameraOptConfig { lr: 0.05, warmup_steps: 0, max_rotation_deg: 15.0, max_translation_rel: 0.2 };
+        let cfg = CameraOptConfig { lr: 0.05, warmup_steps: 0, max_rotation_deg: 15.0, max_translation_rel: 0.2, rays_per_update: 0 };
         let mut opt = CameraOpt::new(cfg, 3, 1.0);
         for _ in 0..2000 {
             opt.step(&[Some([-1.0, 0.0, 0.0, 0.0, -3.0, 0.0]), None, Some([f64::NAN; 6])], 0.05);
@@ -351,6 +403,40 @@ mod tests {
         assert_eq!(back, opt);
         let e = CameraOpt::new(cfg, 4, 1.0).load(&s).unwrap_err();
         assert!(e.contains("4 training views"), "{e}");
+    }
+
+    /// With `rays_per_update` a view waits until its summed gradients cover that many rays,
+    /// then steps once with their mean (as one Adam step given the mean directly); the sums
+    /// survive a checkpoint; with 0 every step applies its sums as [`CameraOpt::step`] does.
+    #[test]
+    fn views_accumulate_their_rays_before_stepping() {
+        let cfg = CameraOptConfig { lr: 0.01, warmup_steps: 0, rays_per_update: 10, ..Default::default() };
+        let mut opt = CameraOpt::new(cfg, 2, 1.0);
+        let g = [0.5, -0.25, 0.125, 1.0, 2.0, -3.0];
+        for _ in 0..2 {
+            opt.accumulate_and_step(&[Some((g, 4)), Some((g, 30))], 0.01);
+        }
+        assert_eq!(opt.params[0], [0.0; 6], "8 rays of 10: no step yet");
+        assert_ne!(opt.params[1], [0.0; 6]);
+        let mut s = StateDict::default();
+        opt.save(&mut s);
+        let mut back = CameraOpt::new(cfg, 2, 1.0);
+        back.load(&s).unwrap();
+        assert_eq!(back, opt, "the sums survive a checkpoint");
+        back.accumulate_and_step(&[Some((g, 4)), None], 0.01);
+        let mut direct = CameraOpt::new(cfg, 1, 1.0);
+        direct.step(&[Some(g.map(|x| x * 3.0 / 12.0))], 0.01);
+        for k in 0..6 {
+            assert!((back.params[0][k] - direct.params[0][k]).abs() < 1e-7, "{:?} vs {:?}", back.params[0], direct.params[0]);
+        }
+        let every = CameraOptConfig { rays_per_update: 0, ..cfg };
+        let (mut a, mut b) = (CameraOpt::new(every, 1, 1.0), CameraOpt::new(every, 1, 1.0));
+        for k in 0..5 {
+            let gk = g.map(|x| x * (k as f64 - 1.7));
+            a.accumulate_and_step(&[Some((gk, 3))], 0.01);
+            b.step(&[Some(gk)], 0.01);
+        }
+        assert_eq!(a, b);
     }
 
     #[test]

@@ -112,6 +112,17 @@ impl ViewPixels {
         Ok(Some((depth, alpha)))
     }
 
+    /// The ground truth's world-space unit normals at `downscale` (as
+    /// [`Self::load_ground_truth`]); `None` without a ground-truth file.
+    pub fn load_ground_truth_normals(frame: &Frame, downscale: u32) -> Result<Option<Vec<[f32; 3]>>, DataError> {
+        let Some(p) = &frame.gt_path else { return Ok(None) };
+        let g = dataset::read_ground_truth(p)?.nearest_at_downscale(downscale.max(1));
+        if g.normal.len() != 3 * g.alpha.len() {
+            return Err(DataError::Invalid(format!("{}: {} normal values for {} pixels", p.display(), g.normal.len(), g.alpha.len())));
+        }
+        Ok(Some(g.normal.chunks_exact(3).map(|n| [n[0], n[1], n[2]]).collect()))
+    }
+
     /// The alpha channel.
     pub fn alpha(&self) -> Vec<f32> {
         self.rgba.iter().map(|p| p[3]).collect()
@@ -258,8 +269,9 @@ pub struct TrainData {
     /// Per view, which pixels are mixed ([`Self::set_mixed`]); empty: none known.
     mixed: Vec<Vec<bool>>,
     /// The supervision settings and, per view and pixel, the target distance along the
-    /// pixel-centre ray (NaN: none) and whether the exact alpha is 0.
-    supervision: Option<(SupervisionConfig, Vec<Vec<f32>>, Vec<Vec<bool>>)>,
+    /// pixel-centre ray (NaN: none), whether the exact alpha is 0 and, with the normal term,
+    /// the target normal (NaN where there is no depth target).
+    supervision: Option<(SupervisionConfig, Vec<Vec<f32>>, Vec<Vec<bool>>, Vec<Vec<[f32; 3]>>)>,
 }
 
 impl TrainData {
@@ -313,13 +325,14 @@ impl TrainData {
     /// Supervises the batches beyond colour ([`crate::supervision`]): reads each frame's ground
     /// truth (`frames` are the views' frames, in order) at `downscale`, degrades its z-depth by
     /// `cfg.depth_source` keyed by (seed, view, pixel), converts it to the distance along the
-    /// pixel-centre ray and clamps it into `near..far`. Refused when a frame has no ground-truth
+    /// pixel-centre ray and clamps it into `near..far`; with the normal term, keeps the unit
+    /// normal of every pixel with a depth target. Refused when a frame has no ground-truth
     /// file.
     pub fn set_supervision(&mut self, cfg: &SupervisionConfig, frames: &[Frame], downscale: u32, seed: u64, near: f32, far: f32) -> Result<(), DataError> {
         if frames.len() != self.views.len() {
             return Err(DataError::Invalid("supervision: the frames do not match the train views".into()));
         }
-        let (mut depths, mut empties) = (Vec::with_capacity(frames.len()), Vec::with_capacity(frames.len()));
+        let (mut depths, mut empties, mut normals) = (Vec::with_capacity(frames.len()), Vec::with_capacity(frames.len()), Vec::new());
         for (v, (f, view)) in frames.iter().zip(&self.views).enumerate() {
             let Some((z, alpha)) = ViewPixels::load_ground_truth(f, downscale)? else {
                 return Err(DataError::Invalid(format!("train view {} has no ground-truth depth and alpha (gt_file_path)", f.name)));
@@ -334,11 +347,26 @@ impl TrainData {
                     let d = view.camera.distance_from_z_depth((p % w) as f64 + 0.5, (p / w) as f64 + 0.5, zd as f64);
                     clamp_target(d, near, far)
                 })
-                .collect();
+                .collect::<Vec<f32>>();
+            if cfg.uses_normals() {
+                let n = ViewPixels::load_ground_truth_normals(f, downscale)?.unwrap_or_default();
+                if n.len() != depth.len() {
+                    return Err(DataError::Invalid(format!("train view {}: {} ground-truth normals for {} pixels", f.name, n.len(), depth.len())));
+                }
+                normals.push(
+                    n.iter()
+                        .zip(&depth)
+                        .map(|(n, d)| {
+                            let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+                            if d.is_finite() && len.is_finite() && len > 0.5 { n.map(|x| x / len) } else { [f32::NAN; 3] }
+                        })
+                        .collect(),
+                );
+            }
             depths.push(depth);
             empties.push(alpha.iter().map(|&a| a == 0.0).collect());
         }
-        self.supervision = Some((cfg.clone(), depths, empties));
+        self.supervision = Some((cfg.clone(), depths, empties, normals));
         Ok(())
     }
 
@@ -398,7 +426,7 @@ impl TrainData {
         if self.has_mixed() {
             b.mixed = b.ids.iter().map(|id| self.mixed[(id >> 32) as usize][(id & 0xffff_ffff) as usize]).collect();
         }
-        if let Some((cfg, depths, empties)) = &self.supervision {
+        if let Some((cfg, depths, empties, normals)) = &self.supervision {
             let at = |id: &u64| ((id >> 32) as usize, (id & 0xffff_ffff) as usize);
             b.supervision = Some(RaySupervision {
                 depth_loss: cfg.depth_loss,
@@ -406,6 +434,8 @@ impl TrainData {
                 empty_weight: cfg.empty_weight,
                 depth: b.ids.iter().map(|id| at(id)).map(|(v, p)| depths[v][p]).collect(),
                 empty: b.ids.iter().map(|id| at(id)).map(|(v, p)| empties[v][p]).collect(),
+                normal_weight: cfg.normal_weight,
+                normal: if normals.is_empty() { Vec::new() } else { b.ids.iter().map(|id| at(id)).map(|(v, p)| normals[v][p]).collect() },
             });
         }
         b
@@ -535,7 +565,7 @@ pub fn load_dataset(dir: &Path, options: &dataset::LoadOptions) -> Result<Datase
 
 /// A small analytic scene written as a dataset, for tests and benchmarks that need no prior
 /// rendering step: three diffuse spheres lit by a fixed directional light, seen from cameras
-/// on a sphere of radius 4 (Blender's field of view), transparent background, exact depth.
+/// on a sphere of radius 4 (Blender's field of view), transparent background, exact depth and normals.
 pub mod synthetic {
     use dataset::{Camera, FrameRecord, GroundTruth, Intrinsics, RgbaImage, SceneFacts, SplitKind};
     use glam::DVec3;
@@ -549,10 +579,11 @@ pub mod synthetic {
 
     /// Nearest hit along the ray and its colour: diffuse shading under one distant light,
     /// plus, with `gloss` > 0, a white Fresnel-like sheen `gloss (1 − n·v)²` that brightens
-    /// towards grazing views, so every point's colour changes with the view.
-    fn trace(o: DVec3, d: DVec3, gloss: f64) -> Option<(f64, [f64; 3])> {
+    /// towards grazing views, so every point's colour changes with the view; and the sphere's
+    /// outward unit normal there.
+    fn trace(o: DVec3, d: DVec3, gloss: f64) -> Option<(f64, [f64; 3], DVec3)> {
         let light = DVec3::new(0.5, 0.8, 0.3).normalize();
-        let mut best: Option<(f64, [f64; 3])> = None;
+        let mut best: Option<(f64, [f64; 3], DVec3)> = None;
         for (c, r, albedo) in SPHERES {
             let oc = o - DVec3::from(c);
             let b = oc.dot(d);
@@ -561,11 +592,11 @@ pub mod synthetic {
                 continue;
             }
             let t = -b - disc.sqrt();
-            if t > 1e-6 && best.is_none_or(|(bt, _)| t < bt) {
+            if t > 1e-6 && best.is_none_or(|(bt, _, _)| t < bt) {
                 let n = (o + d * t - DVec3::from(c)) / r;
                 let shade = 0.35 + 0.65 * n.dot(light).max(0.0);
                 let spec = gloss * (1.0 - n.dot(-d).clamp(0.0, 1.0)).powi(2);
-                best = Some((t, albedo.map(|a| (a * shade + spec).min(1.0))));
+                best = Some((t, albedo.map(|a| (a * shade + spec).min(1.0)), n));
             }
         }
         best
@@ -617,7 +648,7 @@ pub mod synthetic {
                         let mut acc = [0.0f64; 4];
                         for (sx, sy) in [(0.25, 0.25), (0.75, 0.25), (0.25, 0.75), (0.75, 0.75)] {
                             let ray = cam.pixel_ray(i as f64 + sx, j as f64 + sy);
-                            if let Some((_, c)) = trace(ray.origin, ray.direction, gloss) {
+                            if let Some((_, c, _)) = trace(ray.origin, ray.direction, gloss) {
                                 for ch in 0..3 {
                                     acc[ch] += c[ch];
                                 }
@@ -630,8 +661,9 @@ pub mod synthetic {
                         }
                         img.data[4 * p + 3] = a as f32;
                         let ray = cam.pixel_center_ray(i, j);
-                        if let Some((t, _)) = trace(ray.origin, ray.direction, gloss) {
+                        if let Some((t, _, nrm)) = trace(ray.origin, ray.direction, gloss) {
                             gt.distance[p] = t as f32;
+                            gt.normal[3 * p..3 * p + 3].copy_from_slice(&[nrm.x as f32, nrm.y as f32, nrm.z as f32]);
                             gt.depth[p] = cam.z_depth_from_distance(i as f64 + 0.5, j as f64 + 0.5, t) as f32;
                             gt.alpha[p] = 1.0;
                             near = near.min(t);

@@ -12,7 +12,10 @@
 //! termination:  L_r = Σ_{t1_i ≤ d − ε} w_i²  +  Σ_{[t0_i, t1_i] ∩ [d − ε, d + ε] ≠ ∅} (w_i − K_i)²
 //!               K_i = Φ((t1_i − d)/(ε/2)) − Φ((t0_i − d)/(ε/2)),  ε = BAND · d
 //! empty:        L_r = O                                      (rays whose exact alpha is 0)
-//! total:        λ_d(k) · (1/N) Σ_{r with d} L_r  +  λ_e · (1/N) Σ_{r empty} O_r
+//! normal:       L_r = 1 − n̂·n*,  n̂ = −g/|g|,  g_a = σ(x + h·e_a) − σ(x − h·e_a)
+//!               x = o + d·dir (the target's surface point), h one finest cell, n* the
+//!               dataset's normal; rays with |g| < G_MIN (no surface there yet) are left out
+//! total:        λ_d(k) · (1/N) Σ_{r with d} L_r  +  λ_e · (1/N) Σ_{r empty} O_r  +  λ_n · (1/N) Σ_{r with d, n*} L_r
 //! λ_d(k) = λ_d · 2^(−k / half_life)   (step k; no decay without a half-life)
 //! ```
 //! `expected` is a robust loss on the relative error of the expected depth (scale-free: the
@@ -21,6 +24,10 @@
 //! (Rematas et al. 2022) in mass form: the weight in front of the surface is pushed to 0 and
 //! the weight in a band of ±ε around it toward the mass of a normal distribution of standard
 //! deviation ε/2 over each interval; intervals behind the band are occluded and free.
+//! `normal` compares the normal implied by the density field (its gradient by central
+//! differences, six density evaluations per ray, [`normal_loss_and_grads`]) with the dataset's
+//! shading normal at the pixel's surface point; it needs no second derivatives, only the
+//! density network's backward at the six points. Built for the hash-grid models (fast, auto).
 //!
 //! Depth sources ([`DepthSource`]): `exact`; `noisy:S`, `d · (1 + S·n)` with `n` standard
 //! normal (a stereo or time-of-flight camera); `sparse:F`, a fraction `F` of the pixels keep
@@ -44,6 +51,8 @@ pub const O_MIN: f32 = 0.1;
 pub const CHARBONNIER_C: f64 = 0.01;
 /// Half-width of the termination band, as a fraction of the target distance.
 pub const BAND: f32 = 0.02;
+/// Smallest central-difference density gradient `|g|` the normal term trains on.
+pub const G_MIN: f64 = 1e-2;
 
 /// Which depth term is trained.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -177,12 +186,15 @@ pub struct SupervisionConfig {
     /// Weight λ_e of the empty-space term (0: off).
     #[config(default = 0.0)]
     pub empty_weight: f32,
+    /// Weight λ_n of the normal term (0: off).
+    #[config(default = 0.0)]
+    pub normal_weight: f32,
 }
 
 impl SupervisionConfig {
     /// Refuses settings no run can use, naming the field.
     pub fn check(&self) -> Result<(), String> {
-        for (name, v) in [("supervision.depth_weight", self.depth_weight), ("supervision.empty_weight", self.empty_weight)] {
+        for (name, v) in [("supervision.depth_weight", self.depth_weight), ("supervision.empty_weight", self.empty_weight), ("supervision.normal_weight", self.normal_weight)] {
             if !(v.is_finite() && v >= 0.0) {
                 return Err(format!("{name} must be a finite weight ≥ 0, not {v}"));
             }
@@ -200,6 +212,11 @@ impl SupervisionConfig {
         self.depth_loss != DepthLoss::Off
     }
 
+    /// Whether the normal term is on.
+    pub fn uses_normals(&self) -> bool {
+        self.normal_weight > 0.0
+    }
+
     /// λ_d at step `step`.
     pub fn depth_weight_at(&self, step: u64) -> f32 {
         match self.depth_half_life_steps {
@@ -211,8 +228,9 @@ impl SupervisionConfig {
     /// One line for reports.
     pub fn describe(&self) -> String {
         let decay = self.depth_half_life_steps.map_or("constant".to_string(), |h| format!("half-life {h} steps"));
+        let normal = if self.uses_normals() { format!(", normal loss weight {}", self.normal_weight) } else { String::new() };
         format!(
-            "depth loss {} (weight {}, {decay}, source {}), empty-space loss weight {}",
+            "depth loss {} (weight {}, {decay}, source {}), empty-space loss weight {}{normal}",
             self.depth_loss.name(),
             self.depth_weight,
             self.depth_source,
@@ -237,6 +255,11 @@ pub struct RaySupervision {
     pub depth: Vec<f32>,
     /// Whether the pixel's exact alpha is 0.
     pub empty: Vec<bool>,
+    /// λ_n.
+    pub normal_weight: f32,
+    /// The dataset's unit normal (world) where the ray has a depth target and the normal term
+    /// is on (NaN: none); empty when the term is off.
+    pub normal: Vec<[f32; 3]>,
 }
 
 /// What [`loss_and_grads`] returns for a group of rays.
@@ -316,6 +339,26 @@ pub fn loss_and_grads(sup: &RaySupervision, first: usize, n_batch: usize, offset
     g
 }
 
+/// The normal term of one ray ([module doc](self)) from the densities at its six offset points
+/// `[x + h·e_x, x − h·e_x, x + h·e_y, x − h·e_y, x + h·e_z, x − h·e_z]`, the target unit
+/// normal `target` and the weight `lw = λ_n / N`: the loss and its gradient with respect to the
+/// six densities; `None` where `|g| < G_MIN` or an input is not finite.
+pub fn normal_loss_and_grads(sigma: &[f32; 6], target: [f32; 3], lw: f64) -> Option<(f64, [f32; 6])> {
+    let g = [0, 1, 2].map(|a| sigma[2 * a] as f64 - sigma[2 * a + 1] as f64);
+    let len = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt();
+    if !(len.is_finite() && len >= G_MIN) || !target.iter().all(|x| x.is_finite()) {
+        return None;
+    }
+    let gh = g.map(|x| x / len);
+    let t = target.map(|x| x as f64);
+    let cos = -(gh[0] * t[0] + gh[1] * t[1] + gh[2] * t[2]);
+    // ∂(1 − n̂·n*)/∂g = (I − ĝĝᵀ) n* / |g|, with n̂ = −ĝ.
+    let along = gh[0] * t[0] + gh[1] * t[1] + gh[2] * t[2];
+    let dg = [0, 1, 2].map(|a| lw * (t[a] - along * gh[a]) / len);
+    let d = std::array::from_fn(|i| if i % 2 == 0 { dg[i / 2] as f32 } else { -dg[i / 2] as f32 });
+    Some((lw * (1.0 - cos), d))
+}
+
 /// Clamps a target distance into what the model can reach (see the module doc); NaN when it
 /// is no target.
 pub fn clamp_target(d: f64, near: f32, far: f32) -> f32 {
@@ -355,7 +398,7 @@ mod tests {
     }
 
     fn sup(kind: DepthLoss, depth: Vec<f32>, empty: Vec<bool>, empty_weight: f32) -> RaySupervision {
-        RaySupervision { depth_loss: kind, depth_weight: 0.7, empty_weight, depth, empty }
+        RaySupervision { depth_loss: kind, depth_weight: 0.7, empty_weight, depth, empty, normal_weight: 0.0, normal: Vec::new() }
     }
 
     /// The supervision loss written directly from the module doc's formulas, in f64, from the
@@ -450,6 +493,41 @@ mod tests {
                 assert!((g[i] as f64 - fd).abs() < 1e-3 * (1.0 + fd.abs()), "{kind:?}: dL/dσ[{i}] {} vs {fd}", g[i]);
             }
         }
+    }
+
+    /// The normal term against central differences of its formula in f64, its values at the
+    /// target normal and its opposite, and no term where the density is flat or an input is
+    /// not finite.
+    #[test]
+    fn normal_term_matches_finite_differences() {
+        let t = [0.36f32, -0.48, 0.8];
+        let reference = |s: &[f64; 6]| {
+            let g = [s[0] - s[1], s[2] - s[3], s[4] - s[5]];
+            let l = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt();
+            0.3 * (1.0 + (0..3).map(|a| g[a] / l * t[a] as f64).sum::<f64>())
+        };
+        for sigma in [[5.0f32, 1.0, 0.5, 2.0, 40.0, 80.0], [0.0, 0.03, 10.0, 10.0, 0.0, 0.0], [1e4, 2e4, 3e3, 1e3, 7e3, 1e2]] {
+            let (loss, d) = normal_loss_and_grads(&sigma, t, 0.3).unwrap();
+            let s64 = sigma.map(|x| x as f64);
+            assert!((loss - reference(&s64)).abs() < 1e-9, "{loss} vs {}", reference(&s64));
+            for i in 0..6 {
+                let h = 1e-6 * (1.0 + s64[i].abs());
+                let (mut p, mut m) = (s64, s64);
+                p[i] += h;
+                m[i] -= h;
+                let fd = (reference(&p) - reference(&m)) / (2.0 * h);
+                assert!((d[i] as f64 - fd).abs() < 1e-4 * (1.0 + fd.abs()), "σ {sigma:?}: ∂L/∂σ[{i}] {} vs {fd}", d[i]);
+            }
+        }
+        // Density rising against n* (n̂ = n*): no loss; rising along it: the largest, 2·λ.
+        let along = [0.0, 3.6, 0.0, -4.8, 0.0, 8.0].map(|x: f32| x);
+        assert!(normal_loss_and_grads(&along, t, 1.0).unwrap().0.abs() < 1e-6);
+        let against = along.map(|x| -x);
+        assert!((normal_loss_and_grads(&against, t, 1.0).unwrap().0 - 2.0).abs() < 1e-6);
+        assert!(normal_loss_and_grads(&[1.0; 6], t, 1.0).is_none(), "flat density");
+        assert!(normal_loss_and_grads(&[f32::NAN, 0.0, 1.0, 0.0, 1.0, 0.0], t, 1.0).is_none());
+        assert!(normal_loss_and_grads(&[f32::INFINITY, 0.0, 1.0, 0.0, 1.0, 0.0], t, 1.0).is_none());
+        assert!(normal_loss_and_grads(&along, [f32::NAN; 3], 1.0).is_none());
     }
 
     /// Rays without samples, without weight, with targets at, beyond or far outside the

@@ -563,11 +563,20 @@ impl Trainer {
         let bounds = config.bounds.clone().unwrap_or_else(|| unreachable!());
         if let Some(sup) = &config.supervision {
             if ds.train.iter().any(|f| f.gt_path.is_none()) {
-                let what = if sup.uses_depth() { "--depth-loss" } else { "--empty-loss" };
+                let what = if sup.uses_depth() {
+                    "--depth-loss"
+                } else if sup.uses_normals() {
+                    "--normal-loss"
+                } else {
+                    "--empty-loss"
+                };
                 return Err(TrainError::Invalid(format!(
                     "{}: the dataset has no ground-truth depth and alpha files (gt_file_path, r_<k>_gt.exr) for its train views, which {what} needs: train on a dataset rendered by `cargo xtask render`, or without {what}",
                     config.dataset.display()
                 )));
+            }
+            if sup.uses_normals() && matches!(config.model, ModelConfig::Paper(_)) {
+                return Err(TrainError::Invalid("the normal loss (--normal-loss) is built for the hash-grid models (fast, auto), not the paper model".into()));
             }
             data.set_supervision(sup, &ds.train, config.downscale, config.seed, bounds.near, bounds.far)?;
         }
@@ -711,9 +720,9 @@ impl Trainer {
         let mut stats = self.model.train_step(&batch, self.step, self.config.seed);
         stats.timings.phases.batch = batch_s;
         if let (Some(c), Some(g)) = (&mut self.camera, stats.ray_grads.take()) {
-            let grads = c.gradients(&batch, &g);
+            let grads = c.gradients_and_rays(&batch, &g);
             let lr = c.lr(self.step, lr / self.config.lr_init);
-            c.step(&grads, lr);
+            c.accumulate_and_step(&grads, lr);
         }
         if stats.samples > 0 {
             let spr = stats.samples as f64 / rays as f64;

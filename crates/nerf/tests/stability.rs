@@ -95,7 +95,7 @@ fn a_nan_target_pixel_skips_exactly_its_steps_and_training_continues() {
 }
 
 /// Depth targets planted with huge values, infinities and NaN (past the trainer's clamping)
-/// leave every step of both models finite: no step is skipped, the loss is finite, and the
+/// leave every step of both models finite, the fast model's with the normal term too: no step is skipped, the loss is finite, and the
 /// parameters stay finite and move.
 #[test]
 fn huge_and_nan_depth_targets_keep_every_step_finite() {
@@ -104,9 +104,10 @@ fn huge_and_nan_depth_targets_keep_every_step_finite() {
         let field = nerf::field::NerfFieldConfig::new().with_width(32).with_depth(2).with_skip(1).with_color_width(16);
         ModelConfig::Paper(nerf::models::paper::PaperConfig::new().with_field(field).with_coarse_samples(16).with_fine_samples(16))
     };
-    for (model, kind) in [(ModelConfig::Fast(tiny_fast(8, 4)), DepthLoss::Expected), (ModelConfig::Fast(tiny_fast(8, 4)), DepthLoss::Termination), (paper, DepthLoss::Expected)] {
+    let fast = || ModelConfig::Fast(tiny_fast(8, 4));
+    for (model, kind, normal) in [(fast(), DepthLoss::Expected, 0.0), (fast(), DepthLoss::Termination, 0.0), (fast(), DepthLoss::Expected, 1.0), (paper, DepthLoss::Expected, 0.0)] {
         let (tmp, data) = synthetic_dataset(16, [3, 1, 0]);
-        let sup = SupervisionConfig::new().with_depth_loss(kind).with_depth_weight(1.0).with_empty_weight(1.0);
+        let sup = SupervisionConfig::new().with_depth_loss(kind).with_depth_weight(1.0).with_empty_weight(1.0).with_normal_weight(normal);
         let cfg = TrainConfig::new(data, model, RAYS, 1e-2, 1e-3, 100).with_seed(3).with_steps(Some(20)).with_val_max_pixels(64).with_supervision(Some(sup));
         let mut t = Trainer::new(cfg, &tmp.path().join("run"), false).unwrap();
         let planted = [1e30f32, f32::MAX, f32::NAN, f32::INFINITY, -1e30, 0.0, 1e-3];

@@ -49,6 +49,12 @@ pub struct PosesBenchArgs {
     /// Camera refinement modes, comma-separated (off, se3).
     #[arg(long, default_value = "off,se3")]
     pub camera_opt: String,
+    /// Camera refinement's learning rate (default: `CameraOptConfig`'s).
+    #[arg(long)]
+    pub camera_lr: Option<f64>,
+    /// Rays a view's gradient sums before its update (default: `CameraOptConfig`'s).
+    #[arg(long)]
+    pub camera_rays: Option<u32>,
     /// Training seeds, comma-separated.
     #[arg(long, default_value = "0,1,2")]
     pub seeds: String,
@@ -226,6 +232,9 @@ pub fn run(args: PosesBenchArgs) -> anyhow::Result<()> {
     anyhow::ensure!(args.max_views != Some(0), "--max-views 0 evaluates nothing");
     anyhow::ensure!(args.test_pose_opt != Some(0), "--test-pose-opt 0 optimises nothing");
     anyhow::ensure!(args.steps != Some(0), "--steps 0 trains nothing");
+    if let Some(lr) = args.camera_lr {
+        CameraOptConfig { lr, ..Default::default() }.check().map_err(|e| anyhow::anyhow!("--camera-lr: {e}"))?;
+    }
     let seeds = parse_seeds(&args.seeds)?;
     let scenes = scene_names(args.scenes.as_deref())?;
     let mut md = format!(
@@ -259,7 +268,10 @@ pub fn run(args: PosesBenchArgs) -> anyhow::Result<()> {
                         }
                     }
                     cfg.pose_noise = (level > 0.0).then_some(PoseNoise { rotation_deg: level, translation_rel: level / 100.0 });
-                    cfg.camera_opt = refine.then(CameraOptConfig::default);
+                    cfg.camera_opt = refine.then(|| {
+                        let d = CameraOptConfig::default();
+                        CameraOptConfig { lr: args.camera_lr.unwrap_or(d.lr), rays_per_update: args.camera_rays.unwrap_or(d.rays_per_update), ..d }
+                    });
                     let run = dir.join(format!("{}-seed{seed}", run_label(level, refine)));
                     // Runs on the exact poses without refinement have no pose protocol.
                     let test_pose_opt = args.test_pose_opt.filter(|_| level > 0.0 || refine);

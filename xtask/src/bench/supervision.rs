@@ -10,8 +10,8 @@
 //! figures) and per scene `compare.png` (the validation curves overlaid). Configurations (the
 //! options of `train`, formulas in the `nerf` crate's `supervision` module):
 //! `off`, `expected` and `termination` on exact depth, `noisy1` (`noisy:0.01`), `sparse1`
-//! (`sparse:0.01`), `holes30` (`holes:0.3`), each with the `expected` term, and `empty`
-//! (`--empty-loss` alone). Finished runs with the same config are kept, so a re-run resumes.
+//! (`sparse:0.01`), `holes30` (`holes:0.3`), each with the `expected` term, `empty`
+//! (`--empty-loss` alone), `normal` (`--normal-loss` alone) and `expected+normal`. Finished runs with the same config are kept, so a re-run resumes.
 //! A benchmark, not a test: its figures depend on the machine and its load.
 
 use super::auto::{comma_list, older_dataset, parse_seeds, scene_names};
@@ -37,7 +37,7 @@ pub struct SupervisionBenchArgs {
     #[arg(long, default_value = "fast")]
     pub model: String,
     /// Configurations, comma-separated (of off, expected, termination, noisy1, sparse1,
-    /// holes30, empty).
+    /// holes30, empty, normal, expected+normal).
     #[arg(long, default_value = "off,expected,termination,noisy1,sparse1,holes30")]
     pub configs: String,
     /// Training seeds, comma-separated.
@@ -49,6 +49,9 @@ pub struct SupervisionBenchArgs {
     /// Weight of the `empty` configuration's empty-space term (`--empty-loss`).
     #[arg(long, default_value_t = 0.05)]
     pub empty_weight: f32,
+    /// Weight of the `normal` configurations' normal term (`--normal-loss`).
+    #[arg(long, default_value_t = 0.01)]
+    pub normal_weight: f32,
     /// Evaluate the first N test views of every run (default all).
     #[arg(long)]
     pub max_views: Option<usize>,
@@ -59,7 +62,7 @@ pub struct SupervisionBenchArgs {
 }
 
 /// Every configuration, with what it sets.
-const CONFIGS: [(&str, &str); 7] = [
+const CONFIGS: [(&str, &str); 9] = [
     ("off", "colour only"),
     ("expected", "--depth-loss expected, exact depth"),
     ("termination", "--depth-loss termination, exact depth"),
@@ -67,11 +70,21 @@ const CONFIGS: [(&str, &str); 7] = [
     ("sparse1", "--depth-loss expected --depth-source sparse:0.01"),
     ("holes30", "--depth-loss expected --depth-source holes:0.3"),
     ("empty", "--empty-loss alone"),
+    ("normal", "--normal-loss alone, exact depth and normals"),
+    ("expected+normal", "--depth-loss expected --normal-loss, exact depth and normals"),
 ];
 
+/// The weights of the configurations' terms.
+#[derive(Clone, Copy, Debug)]
+struct Weights {
+    depth: f32,
+    empty: f32,
+    normal: f32,
+}
+
 /// The supervision of a configuration (`None`: colour only).
-fn supervision_of(name: &str, depth_weight: f32, empty_weight: f32) -> anyhow::Result<Option<SupervisionConfig>> {
-    let depth = |l: DepthLoss, s: DepthSource| Some(SupervisionConfig::new().with_depth_loss(l).with_depth_weight(depth_weight).with_depth_source(s));
+fn supervision_of(name: &str, w: Weights) -> anyhow::Result<Option<SupervisionConfig>> {
+    let depth = |l: DepthLoss, s: DepthSource| Some(SupervisionConfig::new().with_depth_loss(l).with_depth_weight(w.depth).with_depth_source(s));
     Ok(match name {
         "off" => None,
         "expected" => depth(DepthLoss::Expected, DepthSource::Exact),
@@ -79,7 +92,9 @@ fn supervision_of(name: &str, depth_weight: f32, empty_weight: f32) -> anyhow::R
         "noisy1" => depth(DepthLoss::Expected, DepthSource::Noisy(0.01)),
         "sparse1" => depth(DepthLoss::Expected, DepthSource::Sparse(0.01)),
         "holes30" => depth(DepthLoss::Expected, DepthSource::Holes(0.3)),
-        "empty" => Some(SupervisionConfig::new().with_empty_weight(empty_weight)),
+        "empty" => Some(SupervisionConfig::new().with_empty_weight(w.empty)),
+        "normal" => Some(SupervisionConfig::new().with_normal_weight(w.normal)),
+        "expected+normal" => depth(DepthLoss::Expected, DepthSource::Exact).map(|s| s.with_normal_weight(w.normal)),
         other => anyhow::bail!("--configs: unknown configuration '{other}' ({})", CONFIGS.map(|c| c.0).join(", ")),
     })
 }
@@ -229,10 +244,11 @@ pub fn run(args: SupervisionBenchArgs) -> anyhow::Result<()> {
     let budget_s = crate::train::parse_duration("--budget", &args.budget)?;
     let configs = comma_list(&args.configs);
     anyhow::ensure!(!configs.is_empty(), "--configs is empty");
+    let weights = Weights { depth: args.depth_weight, empty: args.empty_weight, normal: args.normal_weight };
     for c in &configs {
-        supervision_of(c, args.depth_weight, args.empty_weight)?;
+        supervision_of(c, weights)?;
     }
-    for (name, w) in [("--depth-weight", args.depth_weight), ("--empty-weight", args.empty_weight)] {
+    for (name, w) in [("--depth-weight", args.depth_weight), ("--empty-weight", args.empty_weight), ("--normal-weight", args.normal_weight)] {
         anyhow::ensure!(w.is_finite() && w >= 0.0, "{name} {w}: a weight must be a finite number ≥ 0");
     }
     TrainConfig::preset(&args.model, PathBuf::new()).map_err(|e| anyhow::anyhow!("--model {}: {e}", args.model))?;
@@ -240,13 +256,14 @@ pub fn run(args: SupervisionBenchArgs) -> anyhow::Result<()> {
     let seeds = parse_seeds(&args.seeds)?;
     let scenes = scene_names(args.scenes.as_deref())?;
     let mut md = format!(
-        "# bench supervision\n\nmodel {}, preset {}, budget {} per run, seeds {}, depth weight {}, empty weight {}\n\nconfigurations: {}\n\nCells: mean ± two standard errors over the seeds, then the difference from `off` (`~`: inside the seeds' noise, under two standard errors of the difference).\n\n",
+        "# bench supervision\n\nmodel {}, preset {}, budget {} per run, seeds {}, depth weight {}, empty weight {}, normal weight {}\n\nconfigurations: {}\n\nCells: mean ± two standard errors over the seeds, then the difference from `off` (`~`: inside the seeds' noise, under two standard errors of the difference).\n\n",
         args.model,
         args.preset.name(),
         args.budget,
         seeds.iter().map(u64::to_string).collect::<Vec<_>>().join(", "),
         args.depth_weight,
         args.empty_weight,
+        args.normal_weight,
         CONFIGS.iter().filter(|c| configs.iter().any(|n| n == c.0)).map(|(n, d)| format!("{n} = {d}")).collect::<Vec<_>>().join("; ")
     );
     let mut all = Vec::new();
@@ -263,7 +280,7 @@ pub fn run(args: SupervisionBenchArgs) -> anyhow::Result<()> {
                 cfg.seed = seed;
                 cfg.time_budget_s = Some(budget_s);
                 cfg.val_interval_s = Some(budget_s / 20.0);
-                cfg.supervision = supervision_of(c, args.depth_weight, args.empty_weight)?;
+                cfg.supervision = supervision_of(c, weights)?;
                 let run = dir.join(format!("{c}-seed{seed}"));
                 train_and_eval(&cfg, &run, &args.budget, args.max_views, None)?;
                 per_seed.push(figures(&run, c, seed)?);
@@ -313,12 +330,17 @@ mod tests {
 
     #[test]
     fn configurations_set_their_options() {
-        assert!(supervision_of("off", 0.05, 0.05).unwrap().is_none());
-        let n = supervision_of("noisy1", 0.2, 0.05).unwrap().unwrap();
-        assert_eq!((n.depth_loss, n.depth_source, n.depth_weight), (DepthLoss::Expected, DepthSource::Noisy(0.01), 0.2));
-        let e = supervision_of("empty", 0.2, 0.3).unwrap().unwrap();
+        let w = |depth, empty| Weights { depth, empty, normal: 0.02 };
+        assert!(supervision_of("off", w(0.05, 0.05)).unwrap().is_none());
+        let n = supervision_of("noisy1", w(0.2, 0.05)).unwrap().unwrap();
+        assert_eq!((n.depth_loss, n.depth_source, n.depth_weight, n.normal_weight), (DepthLoss::Expected, DepthSource::Noisy(0.01), 0.2, 0.0));
+        let e = supervision_of("empty", w(0.2, 0.3)).unwrap().unwrap();
         assert_eq!((e.depth_loss, e.empty_weight), (DepthLoss::Off, 0.3));
-        assert!(supervision_of("lidar", 0.1, 0.1).unwrap_err().to_string().contains("unknown configuration 'lidar'"));
+        let m = supervision_of("expected+normal", w(0.2, 0.3)).unwrap().unwrap();
+        assert_eq!((m.depth_loss, m.depth_weight, m.normal_weight, m.empty_weight), (DepthLoss::Expected, 0.2, 0.02, 0.0));
+        let m = supervision_of("normal", w(0.2, 0.3)).unwrap().unwrap();
+        assert_eq!((m.depth_loss, m.normal_weight), (DepthLoss::Off, 0.02));
+        assert!(supervision_of("lidar", w(0.1, 0.1)).unwrap_err().to_string().contains("unknown configuration 'lidar'"));
     }
 
     #[test]

@@ -259,6 +259,30 @@ impl FastModel {
         RayGrads { d_origins, d_dirs }
     }
 
+    /// The normal term's rays and points ([`crate::supervision`]): per ray of `batch` with a
+    /// depth and a normal target, its index and the unit-cube points one finest cell either
+    /// side of its target surface point along each axis; rays whose points leave the unit cube
+    /// are left out. Empty without the term.
+    fn normal_points(&self, batch: &RayBatch) -> Vec<(usize, [[f32; 3]; 6])> {
+        let Some(sup) = batch.supervision.as_ref().filter(|s| s.normal_weight > 0.0 && !s.normal.is_empty()) else { return Vec::new() };
+        let h = 1.0 / self.config.finest_resolution.max(1) as f32;
+        (0..batch.origins.len())
+            .filter_map(|r| {
+                let d = sup.depth[r];
+                if !(d.is_finite() && d > 0.0 && sup.normal[r][0].is_finite()) {
+                    return None;
+                }
+                let c = self.parts().unit_at(batch.origins[r], batch.dirs[r], d, d);
+                let pts: [[f32; 3]; 6] = std::array::from_fn(|i| {
+                    let mut p = c;
+                    p[i / 2] += if i % 2 == 0 { h } else { -h };
+                    p
+                });
+                pts.iter().flatten().all(|x| (0.0..=1.0).contains(x)).then_some((r, pts))
+            })
+            .collect()
+    }
+
     /// Updates the occupancy grid on update steps, with the networks' weights `mlp`.
     fn maybe_update_occupancy(&mut self, step: u64, mlp: &HashMlp) {
         let interval = self.config.grid_update_interval.max(1);
@@ -339,7 +363,7 @@ impl NerfModel for FastModel {
         // before that are trained on. Marching, encoding and that pass go in rounds along the
         // rays ([`Parts::march_until_opaque`]), so samples behind that point are mostly never
         // marched or encoded.
-        let (samples, unit, enc, n_marched) = if self.config.train_min_transmittance > 0.0 {
+        let (samples, mut unit, mut enc, n_marched) = if self.config.train_min_transmittance > 0.0 {
             let tau_stop = -self.config.train_min_transmittance.ln();
             self.parts().march_until_opaque(&mlp, &batch.origins, &batch.dirs, jitter, tau_stop, &mut tm)
         } else {
@@ -356,7 +380,7 @@ impl NerfModel for FastModel {
         };
         let t0 = Instant::now();
         let n = samples.len();
-        let sh = self.parts().sh_for(&samples.ray_index, &batch.dirs);
+        let mut sh = self.parts().sh_for(&samples.ray_index, &batch.dirs);
         tm.phases.gather += t0.elapsed().as_secs_f64();
         tm.encoding += t0.elapsed().as_secs_f64();
         if n == 0 {
@@ -372,7 +396,25 @@ impl NerfModel for FastModel {
         // rendering is inside it.)
         let t0 = Instant::now();
         let groups = ray_groups(&samples.offsets, crate::mlp::TILE);
-        let sample_ranges: Vec<std::ops::Range<usize>> = groups.iter().map(|g| g.1.clone()).collect();
+        let mut sample_ranges: Vec<std::ops::Range<usize>> = groups.iter().map(|g| g.1.clone()).collect();
+        // The normal term's six points per ray ([`crate::supervision`]) follow the samples, in
+        // groups of whole rays; their encoding gradient joins the samples' in the hash backward.
+        let normal_rays = self.normal_points(batch);
+        let per_group = (crate::mlp::TILE / 6).max(1);
+        if !normal_rays.is_empty() {
+            let t1 = Instant::now();
+            let points: Vec<[f32; 3]> = normal_rays.iter().flat_map(|r| r.1).collect();
+            enc.extend(self.hash_encode(&points));
+            unit.extend(points);
+            let rays_of: Vec<u32> = normal_rays.iter().flat_map(|r| [r.0 as u32; 6]).collect();
+            sh.extend(self.parts().sh_for(&rays_of, &batch.dirs));
+            for c in 0..normal_rays.len().div_ceil(per_group) {
+                let (a, b) = (c * per_group, ((c + 1) * per_group).min(normal_rays.len()));
+                sample_ranges.push(n + 6 * a..n + 6 * b);
+            }
+            tm.phases.hash_forward += t1.elapsed().as_secs_f64();
+            tm.encoding += t1.elapsed().as_secs_f64();
+        }
         let n_rays = samples.n_rays();
         let norm = (3 * n_rays).max(1) as f32;
         let lambda = self.config.distortion_weight.filter(|l| *l > 0.0 && l.is_finite());
@@ -381,6 +423,23 @@ impl NerfModel for FastModel {
         let composite_ns = std::sync::atomic::AtomicU64::new(0);
         let (d_enc, grads, parts) = mlp.train_groups_blocked(&enc, &sh, &sample_ranges, self.config.features_per_level, |gi, raw, rgb| {
             let tc = Instant::now();
+            if gi >= groups.len() {
+                let sup = batch.supervision.as_ref().expect("normal points come from supervision");
+                let lw = sup.normal_weight as f64 / n_rays.max(1) as f64;
+                let first = (gi - groups.len()) * per_group;
+                let mut d_raw = vec![0.0; raw.len()];
+                let mut value = 0.0;
+                for (k, (raw6, d6)) in raw.chunks_exact(6).zip(d_raw.chunks_exact_mut(6)).enumerate() {
+                    let sigma: [f32; 6] = std::array::from_fn(|i| ACT.forward(raw6[i]));
+                    if let Some((l, ds)) = supervision::normal_loss_and_grads(&sigma, sup.normal[normal_rays[first + k].0], lw) {
+                        value += l;
+                        for i in 0..6 {
+                            d6[i] = ACT.backward(raw6[i], ds[i]);
+                        }
+                    }
+                }
+                return GroupGrads { d_raw, d_rgb: vec![[0.0; 3]; rgb.len()], value: (0.0, 0.0, value) };
+            }
             let (rays, smp) = (groups[gi].0.clone(), groups[gi].1.clone());
             let base = samples.offsets[rays.start];
             let o: Vec<u32> = samples.offsets[rays.start..=rays.end].iter().map(|v| v - base).collect();
@@ -429,12 +488,13 @@ impl NerfModel for FastModel {
         tm.phases.mlp_sweep = t0.elapsed().as_secs_f64();
         tm.mlp += tm.phases.mlp_sweep;
         let stats = |skipped, tm, touched| StepStats { loss, mse, samples: n, marched: n_marched, encoded: n_marched, touched, skipped_nonfinite: skipped, timings: tm, ray_grads: None };
-        if !loss.is_finite() || d_enc.len() != n * dims || !d_enc.par_chunks(1 << 16).all(all_finite) || !grads.is_finite() {
+        if !loss.is_finite() || d_enc.len() != unit.len() * dims || !d_enc.par_chunks(1 << 16).all(all_finite) || !grads.is_finite() {
             return stats(true, tm, 0);
         }
-        // The rays' gradients, from the tables before this step's update.
+        // The rays' gradients, from the tables before this step's update (through the
+        // samples; the normal term's points are left out).
         let t0 = Instant::now();
-        let ray_grads = (self.ray_gradients != RayGradients::Off).then(|| self.ray_gradients_of(&samples, &unit, &d_enc));
+        let ray_grads = (self.ray_gradients != RayGradients::Off).then(|| self.ray_gradients_of(&samples, &unit[..n], &d_enc[..n * dims]));
         // (Counted with the hash backward: it is the encoding's gradient for the points.)
         tm.phases.hash_backward += t0.elapsed().as_secs_f64();
         tm.encoding += t0.elapsed().as_secs_f64();

@@ -314,3 +314,72 @@ fn ray_gradients_match_finite_differences_of_the_loss() {
     }
     check(&mut flat, false);
 }
+
+/// The normal term's part of a step's loss is the supervision module's formula evaluated, in
+/// f64, with the model's own densities at the six points one finest cell either side of each
+/// ray's target surface point; rays without a target add nothing.
+#[test]
+fn normal_term_loss_is_the_formula_at_the_models_densities() {
+    use crate::supervision::{DepthLoss, G_MIN, RaySupervision};
+    let bounds = SceneBounds { aabb_min: [-1.0; 3], aabb_max: [1.0; 3], near: 0.5, far: 6.0, source: "test".into() };
+    let cfg = FastConfig::new().with_levels(4).with_log2_table_size(12).with_finest_resolution(64).with_grid_resolution(16).with_steps_per_diagonal(64);
+    let n = 256;
+    let dirs: Vec<[f32; 3]> = (0..n)
+        .map(|i| {
+            let (a, b) = ((i % 16) as f32 * 0.04 - 0.3, (i / 16) as f32 * 0.04 - 0.3);
+            let l = (a * a + b * b + 1.0f32).sqrt();
+            [a / l, b / l, -1.0 / l]
+        })
+        .collect();
+    let mut batch = RayBatch {
+        origins: vec![[0.0, 0.0, 3.0]; n],
+        target: (0..n).map(|i| if i % 3 == 0 { [0.9, 0.2, 0.1] } else { [0.1, 0.5, 0.8] }).collect(),
+        dirs,
+        background: vec![[0.0; 3]; n],
+        ids: (0..n as u64).collect(),
+        mixed: Vec::new(),
+        supervision: None,
+    };
+    let mut m = FastModel::new(cfg, bounds.clone(), 3).unwrap();
+    for step in 0..60 {
+        m.train_step(&batch, step, 0);
+    }
+    m.set_ray_gradients(RayGradients::Only).unwrap();
+    let plain = m.train_step(&batch, 60, 0);
+    // Targets on the plane z = 0.2 with a tilted normal; every fifth ray has none, one leaves the cube.
+    let tilt = [0.3f32, -0.2, 0.93];
+    let len = tilt.iter().map(|x| x * x).sum::<f32>().sqrt();
+    let normal = tilt.map(|x| x / len);
+    let depth: Vec<f32> = (0..n).map(|i| if i % 5 == 0 { f32::NAN } else if i == 7 { 10.0 } else { 2.8 / -batch.dirs[i][2] }).collect();
+    let weight = 0.8f32;
+    batch.supervision = Some(RaySupervision { depth_loss: DepthLoss::Off, depth_weight: 0.0, empty_weight: 0.0, depth: depth.clone(), empty: vec![false; n], normal_weight: weight, normal: vec![normal; n] });
+    let with = m.train_step(&batch, 60, 0);
+    let hw = 2.0 * bounds.half_extent() / 64.0;
+    let (mut want, mut counted) = (0.0f64, 0);
+    for i in 0..n {
+        let d = depth[i];
+        let x: [f32; 3] = std::array::from_fn(|a| batch.origins[i][a] + d * batch.dirs[i][a]);
+        if !d.is_finite() || x.iter().any(|v| v.abs() > 1.0 - hw) {
+            continue;
+        }
+        let pts: Vec<[f32; 3]> = (0..6)
+            .map(|k| {
+                let mut p = x;
+                p[k / 2] += if k % 2 == 0 { hw } else { -hw };
+                p
+            })
+            .collect();
+        let s: Vec<f64> = m.density(&pts).iter().map(|&v| v as f64).collect();
+        let g = [s[0] - s[1], s[2] - s[3], s[4] - s[5]];
+        let gl = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt();
+        if gl < G_MIN {
+            continue;
+        }
+        counted += 1;
+        let cos = -(0..3).map(|a| g[a] / gl * normal[a] as f64).sum::<f64>();
+        want += weight as f64 / n as f64 * (1.0 - cos);
+    }
+    assert!(counted > 100, "only {counted} rays had a density gradient");
+    let got = with.loss as f64 - plain.loss as f64;
+    assert!(want > 1e-3 && (got - want).abs() < 2e-3 * want + 1e-6, "normal term {got}, formula {want}");
+}
