@@ -590,9 +590,9 @@ fn score_geometry_moved_by_a_known_similarity_scores_chamfer_zero() {
 
 /// The supervision options are checked when parsed: a sparse or holes fraction outside
 /// (0, 1], a negative sigma or weight, an unknown loss or source, and depth settings without
-/// `--depth-loss` are refused in one sentence naming the option, before anything is read or
-/// written; a dataset without ground-truth depth (a Blender one) given `--depth-loss` or
-/// `--empty-loss` is refused naming the dataset.
+/// `--depth-loss`, and the normal term on the paper model are refused in one sentence naming
+/// the option, before anything is written; a dataset without ground-truth depth (a Blender one) given `--depth-loss` or
+/// `--empty-loss` or `--normal-loss` is refused naming the dataset.
 #[test]
 fn supervision_options_are_refused_naming_the_option_or_the_dataset() {
     let tmp = tempfile::tempdir().unwrap();
@@ -609,6 +609,8 @@ fn supervision_options_are_refused_naming_the_option_or_the_dataset() {
         (vec!["--depth-loss", "median"], "--depth-loss"),
         (vec!["--depth-loss", "expected", "--depth-weight", "-1"], "--depth-weight"),
         (vec!["--empty-loss", "nan"], "--empty-loss"),
+        (vec!["--normal-loss", "-0.1"], "--normal-loss"),
+        (vec!["--model", "paper", "--normal-loss", "0.1"], "built for the hash-grid models (fast, auto), not the paper model"),
         (vec!["--depth-loss", "expected", "--depth-half-life", "0"], "--depth-half-life"),
         (vec!["--depth-source", "noisy:0.01"], "--depth-source sets the depth term, which is off"),
         (vec!["--pose-noise", "50,0"], "--pose-noise"),
@@ -623,7 +625,7 @@ fn supervision_options_are_refused_naming_the_option_or_the_dataset() {
         let err = assert_refused(&a, what, &out);
         assert_eq!(err.lines().filter(|l| l.starts_with("error")).count(), 1, "{a:?}: {err}");
     }
-    for opt in [["--depth-loss", "expected"], ["--empty-loss", "0.1"]] {
+    for opt in [["--depth-loss", "expected"], ["--empty-loss", "0.1"], ["--normal-loss", "0.1"]] {
         let mut a = vec!["train", ds, "--out", o, "--steps", "2"];
         a.extend(opt);
         let err = assert_refused(&a, &format!("the dataset has no ground-truth depth and alpha files (gt_file_path, r_<k>_gt.exr) for its train views, which {} needs", opt[0]), &out);

@@ -217,6 +217,9 @@ impl TrainConfig {
         if let Some(c) = &self.camera_opt {
             c.check()?;
         }
+        if self.supervision.as_ref().is_some_and(SupervisionConfig::uses_normals) && matches!(self.model, ModelConfig::Paper(_)) {
+            return Err("the normal loss (--normal-loss) is built for the hash-grid models (fast, auto), not the paper model".into());
+        }
         if self.steps.is_none() && self.time_budget_s.is_none() {
             return Err("give a step count or a time budget".into());
         }
@@ -574,9 +577,6 @@ impl Trainer {
                     "{}: the dataset has no ground-truth depth and alpha files (gt_file_path, r_<k>_gt.exr) for its train views, which {what} needs: train on a dataset rendered by `cargo xtask render`, or without {what}",
                     config.dataset.display()
                 )));
-            }
-            if sup.uses_normals() && matches!(config.model, ModelConfig::Paper(_)) {
-                return Err(TrainError::Invalid("the normal loss (--normal-loss) is built for the hash-grid models (fast, auto), not the paper model".into()));
             }
             data.set_supervision(sup, &ds.train, config.downscale, config.seed, bounds.near, bounds.far)?;
         }
