@@ -1,5 +1,16 @@
 use super::*;
 
+/// `n` unit directions looking down −z through a 16-wide grid of tangents `k·spacing − start`.
+fn fan(n: usize, spacing: f32, start: f32) -> Vec<[f32; 3]> {
+    (0..n)
+        .map(|i| {
+            let (a, b) = ((i % 16) as f32 * spacing - start, (i / 16) as f32 * spacing - start);
+            let l = (a * a + b * b + 1.0f32).sqrt();
+            [a / l, b / l, -1.0 / l]
+        })
+        .collect()
+}
+
 /// `mlp_precision` takes fp32 or bf16 and nothing else; a bf16 model learns a constant
 /// colour as the fp32 one does (its loss falls as far within a few per cent), or is refused
 /// with a message naming AVX512-BF16 on a CPU without it.
@@ -22,13 +33,7 @@ fn bf16_networks_train_like_fp32_or_are_refused() {
     let n = 256;
     let batch = RayBatch {
         origins: vec![[0.0, 0.0, 3.0]; n],
-        dirs: (0..n)
-            .map(|i| {
-                let (a, b) = ((i % 16) as f32 * 0.02 - 0.15, (i / 16) as f32 * 0.02 - 0.15);
-                let l = (a * a + b * b + 1.0f32).sqrt();
-                [a / l, b / l, -1.0 / l]
-            })
-            .collect(),
+        dirs: fan(n, 0.02, 0.15),
         target: vec![[0.7, 0.3, 0.2]; n],
         background: vec![[0.0; 3]; n],
         ids: (0..n as u64).collect(),
@@ -265,13 +270,7 @@ fn ray_gradients_match_finite_differences_of_the_loss() {
     // ... and no compaction, which drops samples behind the point where a ray turns opaque.
     let cfg = FastConfig { grid_update_interval: 1 << 40, train_min_transmittance: 0.0, ..cfg };
     let n = 256;
-    let dirs: Vec<[f32; 3]> = (0..n)
-        .map(|i| {
-            let (a, b) = ((i % 16) as f32 * 0.03 - 0.22, (i / 16) as f32 * 0.03 - 0.22);
-            let l = (a * a + b * b + 1.0f32).sqrt();
-            [a / l, b / l, -1.0 / l]
-        })
-        .collect();
+    let dirs: Vec<[f32; 3]> = fan(n, 0.03, 0.22);
     // A target with structure, so that the trained field has gradients in space.
     let target: Vec<[f32; 3]> = (0..n).map(|i| if (i % 16) / 4 % 2 == (i / 64) % 2 { [0.9, 0.2, 0.1] } else { [0.1, 0.3, 0.8] }).collect();
     let batch = RayBatch { origins: vec![[0.0, 0.0, 0.9]; n], dirs, target, background: vec![[0.0; 3]; n], ids: (0..n as u64).collect(), mixed: Vec::new(), supervision: None };
@@ -324,13 +323,7 @@ fn normal_term_loss_is_the_formula_at_the_models_densities() {
     let bounds = SceneBounds { aabb_min: [-1.0; 3], aabb_max: [1.0; 3], near: 0.5, far: 6.0, source: "test".into() };
     let cfg = FastConfig::new().with_levels(4).with_log2_table_size(12).with_finest_resolution(64).with_grid_resolution(16).with_steps_per_diagonal(64);
     let n = 256;
-    let dirs: Vec<[f32; 3]> = (0..n)
-        .map(|i| {
-            let (a, b) = ((i % 16) as f32 * 0.04 - 0.3, (i / 16) as f32 * 0.04 - 0.3);
-            let l = (a * a + b * b + 1.0f32).sqrt();
-            [a / l, b / l, -1.0 / l]
-        })
-        .collect();
+    let dirs: Vec<[f32; 3]> = fan(n, 0.04, 0.3);
     let mut batch = RayBatch {
         origins: vec![[0.0, 0.0, 3.0]; n],
         target: (0..n).map(|i| if i % 3 == 0 { [0.9, 0.2, 0.1] } else { [0.1, 0.5, 0.8] }).collect(),
