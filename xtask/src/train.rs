@@ -96,7 +96,7 @@ pub struct SupervisionArgs {
     /// ground-truth depth.
     #[arg(long, value_parser = parse_depth_loss)]
     pub depth_loss: Option<nerf::supervision::DepthLoss>,
-    /// Weight of the depth term at step 0 (default 0.05).
+    /// Weight of the depth term at step 0 (default 0.2).
     #[arg(long, value_parser = parse_weight, allow_hyphen_values = true)]
     pub depth_weight: Option<f32>,
     /// Half-life of the depth term's weight in steps (default: constant).

@@ -175,7 +175,7 @@ pub struct SupervisionConfig {
     #[config(default = "DepthLoss::Off")]
     pub depth_loss: DepthLoss,
     /// Its weight λ_d at step 0.
-    #[config(default = 0.05)]
+    #[config(default = 0.2)]
     pub depth_weight: f32,
     /// Half-life of λ_d in steps (None: constant).
     #[config(default = "None")]
@@ -597,6 +597,6 @@ mod tests {
         let c = SupervisionConfig::new().with_depth_weight(0.4).with_depth_half_life_steps(Some(100));
         assert_eq!(c.depth_weight_at(0), 0.4);
         assert!((c.depth_weight_at(100) - 0.2).abs() < 1e-7 && (c.depth_weight_at(300) - 0.05).abs() < 1e-7);
-        assert_eq!(SupervisionConfig::new().depth_weight_at(1_000_000), 0.05);
+        assert_eq!(SupervisionConfig::new().depth_weight_at(1_000_000), 0.2);
     }
 }

@@ -44,7 +44,7 @@ pub struct SupervisionBenchArgs {
     #[arg(long, default_value = "0,1,2")]
     pub seeds: String,
     /// Weight of the depth term (`--depth-weight`).
-    #[arg(long, default_value_t = 0.05)]
+    #[arg(long, default_value_t = 0.2)]
     pub depth_weight: f32,
     /// Weight of the `empty` configuration's empty-space term (`--empty-loss`).
     #[arg(long, default_value_t = 0.05)]
