@@ -1,8 +1,10 @@
 //! Supervision from the dataset's ground truth beyond colour: a depth term on rays whose pixel
-//! hits the scene, an empty-space term on rays whose pixel misses it, and the sensor-like
-//! degradations of the depth they learn from. Each term is a function of the compositor's
-//! outputs ([`crate::volrend`]) and hands back its gradient with respect to them, so both
-//! models reach their parameters through [`crate::volrend::composite_backward`].
+//! hits the scene, an empty-space term on rays whose pixel misses it, a normal term on the
+//! density's gradient at the target surface point, and the sensor-like degradations of the
+//! depth they learn from. The depth and empty-space terms are functions of the compositor's
+//! outputs ([`crate::volrend`]) and hand back their gradient with respect to them, so both
+//! models reach their parameters through [`crate::volrend::composite_backward`]; the normal
+//! term hands back its gradient with respect to six densities ([`normal_loss_and_grads`]).
 //!
 //! Per ray `r` of a batch of `N`, with `O = Σ w_i`, `D = Σ w_i s_i` (unnormalised) and the
 //! target distance `d` along the ray (the dataset's z-depth converted with the pixel-centre

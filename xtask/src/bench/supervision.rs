@@ -1,4 +1,4 @@
-//! `cargo xtask bench supervision`: what depth and empty-space supervision buy, at equal
+//! `cargo xtask bench supervision`: what depth, normal and empty-space supervision buy, at equal
 //! wall-clock time. For every scene (default: all of `scenes/`) it renders the dataset at a
 //! preset (resumed when it exists), trains one run per configuration and seed under the same
 //! budget (validating every twentieth of it), evaluates each on the test views with the mesh
