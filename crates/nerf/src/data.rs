@@ -100,6 +100,12 @@ impl ViewPixels {
     /// The frame's ground truth (z-depth, alpha) at `downscale` (see [`Self::gt`]), without
     /// reading its image; `None` when the frame has none.
     pub fn load_ground_truth(frame: &Frame, downscale: u32) -> Result<Option<DepthAlpha>, DataError> {
+        Ok(Self::ground_truth_at(frame, downscale)?.map(|g| (g.depth, g.alpha)))
+    }
+
+    /// Every channel of the frame's ground truth at `downscale`, checked against the camera's
+    /// size there; `None` when the frame has none.
+    fn ground_truth_at(frame: &Frame, downscale: u32) -> Result<Option<dataset::GroundTruth>, DataError> {
         let Some(p) = &frame.gt_path else { return Ok(None) };
         let k = downscale.max(1);
         let camera = frame.camera.downscaled(k);
@@ -108,19 +114,7 @@ impl ViewPixels {
         if (g.width as usize, g.height as usize) != (w, h) {
             return Err(DataError::Invalid(format!("{}: ground truth downscaled by {k} is {}x{}, the camera {w}x{h}", p.display(), g.width, g.height)));
         }
-        let (depth, alpha) = (g.depth, g.alpha);
-        Ok(Some((depth, alpha)))
-    }
-
-    /// The ground truth's world-space unit normals at `downscale` (as
-    /// [`Self::load_ground_truth`]); `None` without a ground-truth file.
-    pub fn load_ground_truth_normals(frame: &Frame, downscale: u32) -> Result<Option<Vec<[f32; 3]>>, DataError> {
-        let Some(p) = &frame.gt_path else { return Ok(None) };
-        let g = dataset::read_ground_truth(p)?.nearest_at_downscale(downscale.max(1));
-        if g.normal.len() != 3 * g.alpha.len() {
-            return Err(DataError::Invalid(format!("{}: {} normal values for {} pixels", p.display(), g.normal.len(), g.alpha.len())));
-        }
-        Ok(Some(g.normal.chunks_exact(3).map(|n| [n[0], n[1], n[2]]).collect()))
+        Ok(Some(g))
     }
 
     /// The alpha channel.
@@ -334,7 +328,7 @@ impl TrainData {
         }
         let (mut depths, mut empties, mut normals) = (Vec::with_capacity(frames.len()), Vec::with_capacity(frames.len()), Vec::new());
         for (v, (f, view)) in frames.iter().zip(&self.views).enumerate() {
-            let Some((z, alpha)) = ViewPixels::load_ground_truth(f, downscale)? else {
+            let Some(dataset::GroundTruth { depth: z, alpha, normal, .. }) = ViewPixels::ground_truth_at(f, downscale)? else {
                 return Err(DataError::Invalid(format!("train view {} has no ground-truth depth and alpha (gt_file_path)", f.name)));
             };
             let w = view.camera.intrinsics.width as usize;
@@ -349,16 +343,16 @@ impl TrainData {
                 })
                 .collect::<Vec<f32>>();
             if cfg.uses_normals() {
-                let n = ViewPixels::load_ground_truth_normals(f, downscale)?.unwrap_or_default();
-                if n.len() != depth.len() {
-                    return Err(DataError::Invalid(format!("train view {}: {} ground-truth normals for {} pixels", f.name, n.len(), depth.len())));
+                if normal.len() != 3 * depth.len() {
+                    return Err(DataError::Invalid(format!("train view {}: {} ground-truth normal values for {} pixels", f.name, normal.len(), depth.len())));
                 }
                 normals.push(
-                    n.iter()
+                    normal
+                        .chunks_exact(3)
                         .zip(&depth)
                         .map(|(n, d)| {
                             let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
-                            if d.is_finite() && len.is_finite() && len > 0.5 { n.map(|x| x / len) } else { [f32::NAN; 3] }
+                            if d.is_finite() && len.is_finite() && len > 0.5 { [n[0] / len, n[1] / len, n[2] / len] } else { [f32::NAN; 3] }
                         })
                         .collect(),
                 );

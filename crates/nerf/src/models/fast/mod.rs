@@ -272,7 +272,8 @@ impl FastModel {
                 if !(d.is_finite() && d > 0.0 && sup.normal[r][0].is_finite()) {
                     return None;
                 }
-                let c = self.parts().unit_at(batch.origins[r], batch.dirs[r], d, d);
+                let (o, dir) = (batch.origins[r], batch.dirs[r]);
+                let c = self.bounds.to_unit([o[0] + d * dir[0], o[1] + d * dir[1], o[2] + d * dir[2]]);
                 let pts: [[f32; 3]; 6] = std::array::from_fn(|i| {
                     let mut p = c;
                     p[i / 2] += if i % 2 == 0 { h } else { -h };
